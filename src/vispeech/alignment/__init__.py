@@ -1,0 +1,1 @@
+"""The time-aligned phone sequence and the alignment file formats."""

@@ -1,0 +1,52 @@
+"""Writing outputs so that a failure never leaves a file or folder half-written."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from vispeech.errors import VispeechError
+
+
+@contextmanager
+def atomic_output_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a fresh staging folder; on success move its files into ``path``.
+
+    Files are staged beside ``path`` and renamed into it only when the block ends without an
+    error, so an interrupted job leaves ``path`` as it was. Raises :class:`VispeechError`
+    when ``path`` cannot be created or written.
+    """
+    target = Path(path)
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".vispeech-", dir=target))
+    except OSError as exc:
+        raise VispeechError(f"cannot write to output folder {target}: {exc.strerror or exc}") from None
+    try:
+        yield staging
+        for item in sorted(staging.iterdir()):
+            os.replace(item, target / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+@contextmanager
+def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds."""
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise VispeechError(f"cannot write {target}: {exc.strerror or exc}") from None
+    try:
+        yield Path(tmp)
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

@@ -1,0 +1,1 @@
+"""Control models: phones + fps to an animation track."""

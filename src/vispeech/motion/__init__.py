@@ -1,0 +1,1 @@
+"""The animation track, ARKit channel conventions, format readers/writers and retargeting."""

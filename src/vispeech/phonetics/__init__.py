@@ -1,0 +1,1 @@
+"""Phone inventories (Swedish, English), articulatory features and viseme tables."""

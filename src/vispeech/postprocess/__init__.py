@@ -1,0 +1,1 @@
+"""Post-processing of predicted tracks: closures, consonant overlays, jaw shift, ceilings."""
