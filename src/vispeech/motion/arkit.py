@@ -1,4 +1,6 @@
-"""ARKit blend-shape names and channel groups."""
+"""ARKit blend-shape names, channel groups and the lip aperture."""
+
+import numpy as np
 
 ARKIT_NAMES: tuple[str, ...] = (
     "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
@@ -27,3 +29,33 @@ MOUTH_CHANNELS: tuple[str, ...] = (
     "mouthUpperUpLeft", "mouthUpperUpRight", "cheekPuff", "tongueOut",
 )
 """Jaw, lip, cheek-puff and tongue channels: what speech animation drives."""
+
+
+LIP_CLOSED = 0.05
+"""Lip aperture (see :func:`lip_aperture`) at or below which the lips count as closed."""
+
+_APERTURE_TERMS: tuple[tuple[str, float], ...] = (
+    ("jawOpen", 1.0), ("mouthClose", -1.0),
+    ("mouthLowerDownLeft", 0.25), ("mouthLowerDownRight", 0.25),
+    ("mouthUpperUpLeft", 0.15), ("mouthUpperUpRight", 0.15),
+    ("mouthFunnel", 0.1),
+    ("mouthRollLower", -0.5), ("mouthRollUpper", -0.3),
+    ("mouthPressLeft", -0.1), ("mouthPressRight", -0.1),
+)
+
+
+def lip_aperture(track) -> np.ndarray:
+    """Approximate vertical inner-lip opening per frame, on a 0..1 scale.
+
+    ``jawOpen − mouthClose + 0.5·lowerDown + 0.3·upperUp + 0.1·mouthFunnel
+    − 0.5·mouthRollLower − 0.3·mouthRollUpper − 0.2·press``, clipped to [0, 1], where
+    ``lowerDown``, ``upperUp`` and ``press`` are the means of their Left/Right channels.
+    ARKit's ``mouthClose`` closes the lips against ``jawOpen``; lowering the lower lip or
+    raising the upper one opens them; rolling the lips in or pressing them closes them.
+    Channels the track lacks count as 0. Frames at or below :data:`LIP_CLOSED` are closed.
+    """
+    aperture = np.zeros(track.n_frames)
+    for channel, weight in _APERTURE_TERMS:
+        if channel in track.channels:
+            aperture += weight * track[channel]
+    return np.clip(aperture, 0.0, 1.0)

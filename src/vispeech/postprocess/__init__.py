@@ -1,1 +1,97 @@
-"""Post-processing of predicted tracks: closures, consonant overlays, jaw shift, ceilings."""
+"""Post-processing of predicted tracks: jaw shift, consonant overlays, closures, ceilings.
+
+:func:`postprocess` runs, in order: the thesis's jawOpen range shift; the optional upper-lip
+overlay; the consonant overlays (bilabial closure, labiodental contact); confinement of the
+jaw's peaks to vowels; the soft ceilings; ``mouthClose ≤ jawOpen``; clipping to [0, 1].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.motion.track import Track
+from vispeech.phonetics.inventory import is_vowel
+from vispeech.postprocess.overlays import anchor_frames, consonant_overlays, upper_lip_overlay
+from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
+
+__all__ = ["DEFAULT_CEILINGS", "PostprocessConfig", "SoftCeiling", "postprocess"]
+
+DEFAULT_CEILINGS: Mapping[str, SoftCeiling] = {
+    "jawOpen": SoftCeiling(threshold=0.45, maximum=0.55),
+    "mouthPucker": SoftCeiling(threshold=0.6, maximum=0.7),
+}
+"""Absolute soft ceilings (the thesis's jawOpen and mouthPucker ceilings, without a ground truth)."""
+
+
+@dataclass
+class PostprocessConfig:
+    """What :func:`postprocess` does; every step is on by default except the upper-lip lift.
+
+    ``jaw_shift``: the thesis's a (0 = off). ``overlays``: consonant overlays, with
+    ``fade_in`` (phone lengths) and ``fade_out`` (a per-phone spec of phone lengths, ``None``
+    for the default). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
+    ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
+    ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
+    jawOpen (ARKit's lips interpenetrate beyond that).
+    """
+
+    jaw_shift: float = 0.07
+    overlays: bool = True
+    fade_in: float = 1.5
+    fade_out: Mapping | None = None
+    upper_lip: float = 0.0
+    jaw_peaks_in_vowels: bool = True
+    ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
+    close_within_jaw: bool = True
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.jaw_shift < 1.0 and self.fade_in >= 0.0 and 0.0 <= self.upper_lip <= 1.0):
+            raise VispeechError("postprocess needs 0 <= jaw_shift < 1, fade_in >= 0 and 0 <= upper_lip <= 1")
+
+
+def postprocess(track: Track, phones: PhoneSequence, config: PostprocessConfig | None = None) -> Track:
+    """The post-processed copy of ``track``, a track for ``phones`` at its own fps.
+
+    The result keeps the track's channels and adds those the overlays set; all values lie
+    in [0, 1]. With overlays on, every /p b m/ reaches lip closure
+    (:func:`vispeech.motion.arkit.lip_aperture` ≤ ``LIP_CLOSED``) on its anchor frame.
+    """
+    config = config or PostprocessConfig()
+    phones.validate()
+    out = track.copy()
+    if config.jaw_shift > 0 and "jawOpen" in out.channels:
+        out.values[:, out.index("jawOpen")] = shift_range(out["jawOpen"], config.jaw_shift)
+    if config.upper_lip > 0:
+        out = upper_lip_overlay(out, phones, config.upper_lip)
+    if config.overlays:
+        out = consonant_overlays(out, phones, config.fade_in, config.fade_out)
+    if config.jaw_peaks_in_vowels and "jawOpen" in out.channels:
+        jaw = out.index("jawOpen")
+        out.values[:, jaw] = confine_peaks(out.values[:, jaw], _vowel_frames(out, phones))
+    for channel, ceiling in config.ceilings.items():
+        if channel in out.channels:
+            out.values[:, out.index(channel)] = ceiling(out[channel])
+    if config.close_within_jaw and {"jawOpen", "mouthClose"} <= set(out.channels):
+        close = out.index("mouthClose")
+        out.values[:, close] = np.minimum(out.values[:, close], out["jawOpen"])
+    np.clip(out.values, 0.0, 1.0, out=out.values)
+    return out
+
+
+def _vowel_frames(track: Track, phones: PhoneSequence) -> np.ndarray:
+    """Frames inside a vowel, plus the nearest frame of each vowel shorter than a frame."""
+    vowels = [p for p in phones if is_vowel(p.symbol, phones.language)]
+    starts = np.array([p.start for p in vowels]) - track.start_time
+    ends = np.array([p.end for p in vowels]) - track.start_time
+    mask = np.zeros(track.n_frames, dtype=bool)
+    first = np.maximum(np.ceil(starts * track.fps - 1e-9), 0).astype(int)
+    stop = np.ceil(ends * track.fps - 1e-9).astype(int)
+    for a, b in zip(first, stop):
+        mask[a:b] = True
+    mask[anchor_frames(starts, ends, track.fps, track.n_frames)] = True
+    return mask

@@ -1,0 +1,261 @@
+"""Alignment files: Praat TextGrid (MFA layout), HTK ``.lab``, GRID ``.align`` and JSON.
+
+=============  =================================================================================
+``.TextGrid``  Praat TextGrid as the Montreal Forced Aligner writes it: interval tiers ``words``
+               and ``phones`` (names compared case-insensitively; a lone tier is the phones).
+               Empty intervals are silence.
+``.lab``       HTK label file: ``start end label`` per line, times in units of 100 ns.
+``.align``     GRID corpus alignment: ``start end label`` per line, times in units of 1/25000 s.
+``.json``      ``{"format": "vispeech-phones", "version": 1, "language", "words", "phones"}``,
+               the rest being :meth:`PhoneSequence.to_dict`.
+=============  =================================================================================
+
+Labels may carry stress as the inventories allow (ARPAbet ``AA1``, Swedish ``'a``); the
+language is guessed from the labels unless given.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from praatio import textgrid
+from praatio.utilities.constants import Interval
+
+from vispeech.alignment.phones import Phone, PhoneSequence, Word
+from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_file
+from vispeech.phonetics.inventory import guess_language, is_silence, is_vowel, parse_symbol
+
+JSON_FORMAT = "vispeech-phones"
+"""The ``format`` tag of the JSON alignment form."""
+
+_UNITS_PER_SECOND = {".lab": 10_000_000, ".align": 25_000}
+_SILENT_WORDS = frozenset({"", "sil", "sp", "<eps>"})
+_SWEDISH_STRESS_MARKS = {1: "'", 2: '"'}
+
+_Span = tuple[float, float, str]
+
+
+def read_alignment(path: str | os.PathLike, language: str | None = None) -> PhoneSequence:
+    """Read a phone alignment, choosing the format by the file's extension.
+
+    Parameters
+    ----------
+    path : .TextGrid, .lab, .align or .json file.
+    language : ``"sv"`` or ``"en"``; guessed from the phone labels when ``None``.
+
+    Returns a validated :class:`PhoneSequence` (times in seconds). Raises
+    :class:`VispeechError` for a missing, empty or malformed file, an unknown phone symbol,
+    or intervals that overlap or run backwards.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    text = _read_text(path)
+    if suffix == ".json":
+        return _from_json(text, path, language)
+    if suffix == ".textgrid":
+        phones, words = _textgrid_spans(path)
+    else:
+        phones, words = _table_spans(text, path, _UNITS_PER_SECOND[suffix]), []
+    return _build(phones, words, path, language)
+
+
+def write_alignment(phones: PhoneSequence, path: str | os.PathLike) -> None:
+    """Write ``phones`` in the format named by the extension of ``path`` (atomically)."""
+    path = Path(path)
+    suffix = _suffix(path)
+    phones.validate()
+    if suffix == ".textgrid":
+        write_textgrid(phones, path)
+        return
+    if suffix == ".json":
+        text = json.dumps({"format": JSON_FORMAT, "version": 1, **phones.to_dict()}, indent=1) + "\n"
+    else:
+        units = _UNITS_PER_SECOND[suffix]
+        text = "".join(
+            f"{round(p.start * units)} {round(p.end * units)} {_label(p, phones.language)}\n" for p in phones
+        )
+    with atomic_output_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def read_textgrid(path: str | os.PathLike, language: str | None = None) -> PhoneSequence:
+    """Read an MFA-style TextGrid (see :func:`read_alignment`)."""
+    path = Path(path)
+    _read_text(path)
+    phones, words = _textgrid_spans(path)
+    return _build(phones, words, path, language)
+
+
+def write_textgrid(phones: PhoneSequence, path: str | os.PathLike) -> None:
+    """Write ``phones`` as a long-format TextGrid with ``words`` and ``phones`` tiers.
+
+    Silence phones keep their label (``sil``, ``sp``) so that they survive a round trip;
+    time not covered by any phone or word becomes an empty interval. The file is written
+    atomically.
+    """
+    phones.validate()
+    end = max(phones.duration, max((w.end for w in phones.words), default=0.0))
+    grid = textgrid.Textgrid(minTimestamp=0.0, maxTimestamp=end)
+    word_entries = [Interval(w.start, w.end, w.text) for w in phones.words]
+    phone_entries = [Interval(p.start, p.end, _label(p, phones.language)) for p in phones]
+    grid.addTier(textgrid.IntervalTier("words", word_entries, 0.0, end))
+    grid.addTier(textgrid.IntervalTier("phones", phone_entries, 0.0, end))
+    with atomic_output_file(path) as tmp:
+        grid.save(str(tmp), format="long_textgrid", includeBlankSpaces=True, reportingMode="silence")
+
+
+def read_word_alignment(path: str | os.PathLike) -> list[Word]:
+    """Word timings (seconds) from a word-level ``.align``/``.lab`` file, a TextGrid's
+    ``words`` tier or the JSON form; silence labels (``sil``, ``sp``) are skipped.
+
+    GRID's own ``.align`` files are word-level, e.g. ``23750 29500 bin``.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    text = _read_text(path)
+    if suffix == ".json":
+        return _from_json(text, path, None).words
+    if suffix == ".textgrid":
+        spans = _textgrid_spans(path)[1]
+    else:
+        spans = _table_spans(text, path, _UNITS_PER_SECOND[suffix])
+    return [Word(label, start, end) for start, end, label in spans if label.lower() not in _SILENT_WORDS]
+
+
+def _suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in (".textgrid", ".json", *_UNITS_PER_SECOND):
+        raise VispeechError(f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)")
+    return suffix
+
+
+def _read_text(path: Path) -> str:
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise VispeechError(f"alignment file not found: {path}") from None
+    except OSError as exc:
+        raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("utf-16") if data[:2] in (b"\xff\xfe", b"\xfe\xff") else data.decode("latin-1")
+    if not text.strip():
+        raise VispeechError(f"alignment file is empty: {path}")
+    return text
+
+
+def _table_spans(text: str, path: Path, units: int) -> list[_Span]:
+    spans = []
+    for number, line in enumerate(text.splitlines(), 1):
+        fields = line.split()
+        if not fields:
+            continue
+        try:
+            start, end = int(fields[0]) / units, int(fields[1]) / units
+            label = fields[2]
+        except (ValueError, IndexError):
+            raise VispeechError(f"{path}, line {number}: expected 'start end label', got {line.strip()!r}") from None
+        spans.append((start, end, label))
+    return spans
+
+
+def _textgrid_spans(path: Path) -> tuple[list[_Span], list[_Span]]:
+    try:
+        grid = textgrid.openTextgrid(str(path), includeEmptyIntervals=True, reportingMode="silence")
+    except Exception as exc:  # praatio raises assorted exception types on malformed input
+        detail = " ".join(str(exc).split()) or type(exc).__name__
+        raise VispeechError(f"malformed TextGrid {path}: {detail}") from None
+    names = list(grid.tierNames)
+    phones_name = _find_tier(names, "phones") or (names[0] if len(names) == 1 else None)
+    if phones_name is None:
+        raise VispeechError(f"{path} has no phones tier (tiers: {', '.join(names) or 'none'})")
+    words_name = _find_tier(names, "words")
+    tiers = [grid.getTier(name) for name in (phones_name, words_name) if name is not None]
+    for tier in tiers:
+        if not isinstance(tier, textgrid.IntervalTier):
+            raise VispeechError(f"{path}: tier {tier.name!r} is not an interval tier")
+    phones = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[0].entries]
+    words = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[1].entries] if words_name else []
+    return phones, words
+
+
+def _find_tier(names: list[str], kind: str) -> str | None:
+    """The tier called ``kind`` (any case), or MFA's multi-speaker ``<speaker> - kind``."""
+    exact = [n for n in names if n.strip().lower() == kind]
+    if exact:
+        return exact[0]
+    speaker = [n for n in names if n.strip().lower().endswith(f" - {kind}")]
+    return speaker[0] if speaker else None
+
+
+def _build(phone_spans: list[_Span], word_spans: list[_Span], path: Path, language: str | None) -> PhoneSequence:
+    if not phone_spans:
+        raise VispeechError(f"alignment file has no phones: {path}")
+    labels = [label for _, _, label in phone_spans]
+    try:
+        language = language or guess_language(labels)
+        parsed = [parse_symbol(label, language) for label in labels]
+    except VispeechError as exc:
+        raise VispeechError(f"{path}: {exc}") from None
+    words = [Word(label, start, end) for start, end, label in word_spans if label.lower() not in _SILENT_WORDS]
+    phones = []
+    for (start, end, _), (symbol, stress) in zip(phone_spans, parsed):
+        word = None if is_silence(symbol) else _word_at((start + end) / 2, words)
+        phones.append(Phone(symbol, start, end, word, stress))
+    return _validated(PhoneSequence(phones, language, words), path)
+
+
+def _word_at(time: float, words: list[Word]) -> int | None:
+    for i, w in enumerate(words):
+        if w.start <= time < w.end:
+            return i
+    return None
+
+
+def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise VispeechError(f"{path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if not isinstance(data, dict) or data.get("format", JSON_FORMAT) != JSON_FORMAT:
+        raise VispeechError(f"{path} is not a {JSON_FORMAT} file")
+    if data.get("version", 1) != 1:
+        raise VispeechError(f"{path}: unsupported {JSON_FORMAT} version {data.get('version')!r}")
+    try:
+        phones = PhoneSequence.from_dict(data)
+    except VispeechError as exc:
+        raise VispeechError(f"{path}: {exc}") from None
+    if language is not None:
+        phones.language = language
+    for p in phones:
+        try:
+            symbol, _ = parse_symbol(p.symbol, phones.language)
+        except VispeechError as exc:
+            raise VispeechError(f"{path}: {exc}") from None
+        if symbol != p.symbol:
+            raise VispeechError(f"{path}: phone symbol {p.symbol!r} is not an inventory symbol (use {symbol!r})")
+    return _validated(phones, path)
+
+
+def _validated(phones: PhoneSequence, path: Path) -> PhoneSequence:
+    try:
+        phones.validate()
+    except VispeechError as exc:
+        raise VispeechError(f"{path}: {exc}") from None
+    if any(not (math.isfinite(w.start) and math.isfinite(w.end)) or w.end < w.start for w in phones.words):
+        raise VispeechError(f"{path}: a word ends before it starts")
+    return phones
+
+
+def _label(phone: Phone, language: str) -> str:
+    """The file label of ``phone``: ARPAbet vowels with their stress digit, Swedish stress marks."""
+    if is_silence(phone.symbol):
+        return phone.symbol
+    if language == "en":
+        return f"{phone.symbol}{phone.stress}" if is_vowel(phone.symbol, "en") else phone.symbol
+    return _SWEDISH_STRESS_MARKS.get(phone.stress, "") + phone.symbol

@@ -1,0 +1,47 @@
+"""``vispeech convert INPUT OUTPUT``: between track formats, with resampling and retargeting."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vispeech.cli import main
+
+@main.command("convert")
+@click.argument("input_path", metavar="INPUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--to", "fmt", metavar="FORMAT",
+              help="Output format: livelink, json, talkinghead, oculus, rhubarb or gltf "
+              "(default: from OUTPUT's extension).")
+@click.option("--fps", type=float, help="Resample to this many frames per second.")
+@click.option("--pose-table", help="Pose table (JSON file or built-in name): retargets the track, or for "
+              "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
+@click.option("--glb", "base_glb", type=click.Path(dir_okay=False, path_type=Path),
+              help="Base model with ARKit-named morph targets (needed for gltf).")
+def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float | None,
+                    pose_table: str | None, base_glb: Path | None) -> None:
+    """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
+
+    Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
+    .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb).
+    """
+    from vispeech.errors import VispeechError
+    from vispeech.motion.io import read_track, track_format, write_track
+    from vispeech.motion.jsonformat import read_animation_json
+    from vispeech.motion.retarget import PoseTable
+
+    if fps is not None and not fps > 0:
+        raise VispeechError(f"--fps must be positive, got {fps}")
+    fmt = fmt.lower() if fmt else None
+    phones = audio = None
+    if track_format(input_path, reading=True) == "json":
+        animation = read_animation_json(input_path)
+        track, phones, audio = animation.track, animation.phones, animation.audio
+    else:
+        track = read_track(input_path)
+    if fps is not None:
+        track = track.resample(fps)
+    table = PoseTable.load(pose_table) if pose_table else None
+    write_track(track, output, fmt, phones=phones, audio=audio, base_glb=base_glb, pose_table=table)
+    click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

@@ -1,0 +1,77 @@
+"""Beskow-style articulatory parameters measured on tracked face landmarks.
+
+Landmarks (MediaPipe face-mesh indices, image-normalised) are turned into pixels
+(x * width, y * height, z * width), then moved into a head frame so that head motion drops
+out: origin at the nose tip (1), first axis along the eye corners 33 -> 263, second axis
+towards the forehead (10), third axis out of the face; lengths are divided by the eye-corner
+distance. Every parameter is therefore a fraction of the distance between the outer eye
+corners (about 9 cm on an adult face), whatever the head's pose and distance to the camera.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vispeech.corpus.corpus import Utterance
+from vispeech.errors import VispeechError
+from vispeech.motion.track import Track
+
+ARTICULATORY_CHANNELS = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
+"""Channels of :func:`articulatory_parameters`.
+
+- ``jaw_opening``: chin (152) to nose tip (1) distance.
+- ``lip_aperture``: inner-lip gap, upper (13) to lower (14).
+- ``lip_width``: outer mouth corners 61 to 291.
+- ``protrusion``: how far the lip midpoints (0, 17) stand out of the face beyond the mouth
+  corners (61, 291), along the head frame's forward axis; it grows when the lips round.
+"""
+
+FRAME_SIZE = (360, 288)
+"""Width and height in pixels of the video the GRID landmarks were tracked on."""
+
+_NEEDED = (1, 10, 33, 263, 152, 13, 14, 61, 291, 0, 17)
+
+
+def articulatory_parameters(utterance: Utterance, frame_size: tuple[int, int] = FRAME_SIZE) -> Track:
+    """Jaw opening, lip aperture, lip width and protrusion per frame, in eye-corner distances.
+
+    ``frame_size`` is the tracked video's (width, height) in pixels. The track has the
+    utterance's frame rate and start time. Raises :class:`VispeechError` if the utterance
+    has no landmarks or lacks one of those listed in :data:`ARTICULATORY_CHANNELS` or the
+    head-frame ones (1, 10, 33, 263).
+    """
+    if utterance.landmarks is None:
+        raise VispeechError(f"utterance {utterance.id} has no face landmarks")
+    absent = [k for k in _NEEDED if f"lm{k}" not in utterance.landmarks]
+    if absent:
+        raise VispeechError(f"utterance {utterance.id} lacks landmarks {', '.join(map(str, absent))}")
+    width, height = frame_size
+    scale = np.array([width, height, width], dtype=float)
+    points = {k: np.asarray(utterance.landmarks[f"lm{k}"], dtype=float) * scale for k in _NEEDED}
+    head = _head_frame(points)
+
+    jaw = np.linalg.norm(head[152] - head[1], axis=1)
+    aperture = np.linalg.norm(head[13] - head[14], axis=1)
+    width_ = np.linalg.norm(head[61] - head[291], axis=1)
+    protrusion = (head[0][:, 2] + head[17][:, 2]) / 2 - (head[61][:, 2] + head[291][:, 2]) / 2
+    values = np.column_stack([jaw, aperture, width_, protrusion])
+    return Track(values, ARTICULATORY_CHANNELS, utterance.track.fps, utterance.track.start_time)
+
+
+def _head_frame(points: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Landmarks in head coordinates (x: eye line, y: up to the forehead, z: out of the face),
+    in units of the eye-corner distance, origin at the nose tip."""
+    across = points[263] - points[33]
+    eye_distance = np.linalg.norm(across, axis=1, keepdims=True)
+    if np.any(eye_distance < 1e-9):
+        raise VispeechError("eye corners coincide: cannot build a head frame")
+    x_axis = across / eye_distance
+    up = points[10] - (points[33] + points[263]) / 2
+    up = up - np.sum(up * x_axis, axis=1, keepdims=True) * x_axis
+    y_axis = up / np.linalg.norm(up, axis=1, keepdims=True)
+    # Image y points down and MediaPipe z away from the camera, so x cross y points out of the face.
+    z_axis = np.cross(x_axis, y_axis)
+    rotation = np.stack([x_axis, y_axis, z_axis], axis=1)  # (frames, 3 axes, 3 coordinates)
+    return {
+        k: np.einsum("fij,fj->fi", rotation, p - points[1]) / eye_distance for k, p in points.items()
+    }

@@ -1,0 +1,155 @@
+"""The corpus type: utterances with audio, words, phones and a face track, and its splits."""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.alignment.phones import PhoneSequence, Word
+from vispeech.corpus.cache import CorpusCache
+from vispeech.errors import VispeechError
+from vispeech.frontends.audio import read_audio
+from vispeech.motion.track import Track
+
+SPLITS: dict[str, tuple[float, float]] = {
+    "train": (0.0, 0.8),
+    "validation": (0.8, 0.9),
+    "test": (0.9, 1.0),
+}
+"""Each split's share of the unit interval that :func:`split_of` maps utterance ids into."""
+
+MAX_DURATION_MISMATCH = 0.5
+"""Seconds by which a face track and its audio may differ in length before readers reject them."""
+
+
+class CorpusWarning(UserWarning):
+    """An utterance was skipped while reading a corpus; the message names it and says why."""
+
+
+@dataclass
+class Utterance:
+    """One recorded sentence: transcript, audio file, word timings, phones and face track.
+
+    ``track`` holds the face channels (ARKit names, plus head pose ``headYaw``, ``headPitch``,
+    ``headRoll`` in degrees and, where tracked, ``headX``, ``headY``, ``headZ`` in cm) at the
+    corpus frame rate. ``frame_mask[k]`` is False where frame k was not tracked and its values
+    were filled in (see the reader). ``landmarks`` maps a name such as ``"lm13"`` (MediaPipe
+    face-mesh index) to per-frame ``(n_frames, 3)`` image-normalised coordinates.
+    ``duration`` is the audio's length in seconds; the audio itself is read on demand by
+    :meth:`load_audio`.
+    """
+
+    id: str
+    text: str
+    audio_path: Path
+    duration: float
+    track: Track
+    words: list[Word] = field(default_factory=list)
+    phones: PhoneSequence | None = None
+    landmarks: dict[str, np.ndarray] | None = None
+    frame_mask: np.ndarray | None = None
+
+    def load_audio(self) -> tuple[np.ndarray, int]:
+        """The audio as float samples in [-1, 1] (mono, channels averaged) and its sample rate in Hz."""
+        return read_audio(self.audio_path)
+
+
+def split_of(utterance_id: str) -> str:
+    """The split (``"train"``, ``"validation"`` or ``"test"``) an utterance id belongs to.
+
+    The id's SHA-256 is read as a number in [0, 1) and placed by :data:`SPLITS` (80/10/10):
+    the same id always lands in the same split, whatever else the corpus holds.
+    """
+    position = int.from_bytes(hashlib.sha256(utterance_id.encode("utf-8")).digest()[:8], "big") / 2**64
+    for name, (low, high) in SPLITS.items():
+        if low <= position < high:
+            return name
+    raise AssertionError("SPLITS must cover [0, 1)")  # pragma: no cover
+
+
+@dataclass
+class Corpus:
+    """A named list of utterances sharing one frame rate (fps) and one set of track channels.
+
+    ``problems`` lists the utterances the reader skipped, one line each; ``cache`` is where
+    derived data (alignments) is kept.
+    """
+
+    name: str
+    utterances: list[Utterance]
+    fps: float
+    channels: tuple[str, ...]
+    language: str = "en"
+    root: Path | None = None
+    problems: list[str] = field(default_factory=list)
+    cache: CorpusCache | None = None
+
+    def __len__(self) -> int:
+        return len(self.utterances)
+
+    def __iter__(self) -> Iterator[Utterance]:
+        return iter(self.utterances)
+
+    def __getitem__(self, key: int | str) -> Utterance:
+        """The utterance at a position or with an id."""
+        if isinstance(key, str):
+            for utterance in self.utterances:
+                if utterance.id == key:
+                    return utterance
+            raise VispeechError(f"corpus {self.name} has no utterance {key!r}")
+        return self.utterances[key]
+
+    def __repr__(self) -> str:
+        return f"Corpus({self.name!r}, {len(self)} utterances, {self.fps:g} fps, {len(self.channels)} channels)"
+
+    @property
+    def ids(self) -> list[str]:
+        return [u.id for u in self.utterances]
+
+    @property
+    def duration(self) -> float:
+        """Total audio duration in seconds."""
+        return float(sum(u.duration for u in self.utterances))
+
+    def split(self, name: str) -> Corpus:
+        """The sub-corpus of split ``name`` (``train``, ``validation``, ``test``); see :func:`split_of`."""
+        if name not in SPLITS:
+            raise VispeechError(f"unknown split {name!r} (use {', '.join(SPLITS)})")
+        kept = [u for u in self.utterances if split_of(u.id) == name]
+        return replace(self, name=f"{self.name}:{name}", utterances=kept, problems=[])
+
+    def phone_coverage(self) -> Counter:
+        """How many times each phone symbol occurs, over all utterances (silences included).
+
+        Raises :class:`VispeechError` if an utterance has no phones yet (align the corpus first
+        with :func:`vispeech.corpus.align_corpus`).
+        """
+        missing = [u.id for u in self.utterances if u.phones is None]
+        if missing:
+            raise VispeechError(
+                f"{len(missing)} utterances have no phones (first: {missing[0]}); align the corpus first"
+            )
+        return Counter(p.symbol for u in self.utterances for p in u.phones)
+
+
+def report_problem(problems: list[str], message: str, strict: bool) -> None:
+    """Record a skipped utterance: raise :class:`VispeechError` if ``strict``, else warn and list it."""
+    if strict:
+        raise VispeechError(message)
+    warnings.warn(message, CorpusWarning, stacklevel=3)
+    problems.append(message)
+
+
+def check_durations(track: Track, audio_duration: float) -> None:
+    """Raise :class:`VispeechError` if a face track and its audio differ by more than
+    :data:`MAX_DURATION_MISMATCH` seconds."""
+    if abs(track.duration - audio_duration) > MAX_DURATION_MISMATCH:
+        raise VispeechError(
+            f"face track lasts {track.duration:.2f} s but the audio {audio_duration:.2f} s"
+        )

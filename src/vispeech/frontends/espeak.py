@@ -1,0 +1,252 @@
+"""Text to speech with time-aligned phones, through libespeak-ng.
+
+The library comes from the ``espeakng-loader`` wheel and is driven through ctypes in
+synchronous mode with phoneme events. Every phone's onset is the sample espeak reports for
+its phoneme event; a phone lasts until the next event (the last one to the end of the audio).
+Phoneme names are espeak's ASCII mnemonics, mapped to the inventory by
+:mod:`vispeech.phonetics.espeak_names`; pauses, and any audio before the first phoneme, are
+``sil``. In Swedish, ``r`` followed by ``t d n l s`` in the same word merges into the
+retroflex (``rt rd rn rl rs``), as the MFA-style Swedish inventory writes it.
+
+Words are the blank-separated tokens of the text (``"$1,000,000"`` is one word however
+many espeak reads out), stripped of surrounding punctuation, each from its first phone to
+its last. espeak sometimes runs a short word into the one before ("for the"); the phones of
+both then belong to the first.
+
+espeak-ng is global state: one module-level lock serialises every call.
+"""
+
+from __future__ import annotations
+
+import bisect
+import ctypes
+import math
+import re
+import threading
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.alignment.phones import Phone, PhoneSequence, Word
+from vispeech.errors import VispeechError
+from vispeech.phonetics.espeak_names import espeak_to_symbols
+from vispeech.phonetics.inventory import SILENCE, get_inventory, is_silence
+
+VOICES = {"sv": "sv", "en": "en-us"}
+"""espeak-ng voice used for each language."""
+
+DEFAULT_WPM = 175
+"""espeak-ng's default speaking rate in words per minute (``rate=1.0``)."""
+
+MIN_RATE, MAX_RATE = 0.5, 2.5
+"""Allowed speaking-rate factors (espeak-ng accepts 80 to 450 words per minute)."""
+
+_PUNCTUATION = ".,;:!?()[]{}<>\"'«»“”„‘’…¡¿-–—"  # stripped from the ends of a word's text
+_RETROFLEX = {"t": "rt", "d": "rd", "n": "rn", "l": "rl", "s": "rs"}
+
+# espeak_lib.h constants
+_AUDIO_OUTPUT_SYNCHRONOUS = 2
+_INITIALIZE_PHONEME_EVENTS = 0x1
+_CHARS_UTF8 = 1
+_RATE = 1
+_EVENT_LIST_TERMINATED, _EVENT_WORD, _EVENT_PHONEME = 0, 1, 7
+
+
+@dataclass
+class Speech:
+    """Synthesised audio (float32 mono in [-1, 1]) with its time-aligned phones."""
+
+    audio: np.ndarray
+    sample_rate: int
+    phones: PhoneSequence
+
+    @property
+    def duration(self) -> float:
+        """Length of the audio in seconds."""
+        return len(self.audio) / self.sample_rate
+
+
+class _EventId(ctypes.Union):
+    _fields_ = [("number", ctypes.c_int), ("name", ctypes.c_char_p), ("string", ctypes.c_char * 8)]
+
+
+class _Event(ctypes.Structure):
+    _fields_ = [
+        ("type", ctypes.c_int),
+        ("unique_identifier", ctypes.c_uint),
+        ("text_position", ctypes.c_int),
+        ("length", ctypes.c_int),
+        ("audio_position", ctypes.c_int),
+        ("sample", ctypes.c_int),
+        ("user_data", ctypes.c_void_p),
+        ("id", _EventId),
+    ]
+
+
+_Callback = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int, ctypes.POINTER(_Event))
+
+
+class _Engine:
+    """The loaded library, its sample rate, and what the callback collects for one call."""
+
+    def __init__(self) -> None:
+        import espeakng_loader
+
+        self.lib = ctypes.CDLL(espeakng_loader.get_library_path())
+        self.lib.espeak_Initialize.restype = ctypes.c_int
+        self.lib.espeak_Initialize.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
+        self.lib.espeak_SetVoiceByName.argtypes = [ctypes.c_char_p]
+        self.lib.espeak_SetParameter.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int]
+        self.lib.espeak_Synth.argtypes = [
+            ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int, ctypes.c_uint,
+            ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p,
+        ]
+        data_parent = str(Path(espeakng_loader.get_data_path()).parent).encode()
+        rate = self.lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, data_parent, _INITIALIZE_PHONEME_EVENTS)
+        if rate <= 0:
+            raise RuntimeError("could not initialise espeak-ng")
+        self.sample_rate = rate
+        self.chunks: list[np.ndarray] = []
+        self.events: list[tuple] = []
+        self.callback = _Callback(self._collect)  # kept alive as long as the engine
+        self.lib.espeak_SetSynthCallback(self.callback)
+
+    def _collect(self, wav, n_samples, events) -> int:
+        if wav and n_samples > 0:
+            self.chunks.append(np.ctypeslib.as_array(wav, shape=(n_samples,)).copy())
+        i = 0
+        while events and events[i].type != _EVENT_LIST_TERMINATED:
+            event = events[i]
+            if event.type == _EVENT_PHONEME:
+                self.events.append(("phoneme", event.sample, event.id.string.decode("ascii", "replace")))
+            elif event.type == _EVENT_WORD:
+                self.events.append(("word", event.sample, event.text_position, event.length))
+            i += 1
+        return 0
+
+    def synthesize(self, text: str, voice: str, wpm: int) -> tuple[np.ndarray, list[tuple]]:
+        self.chunks, self.events = [], []
+        if self.lib.espeak_SetVoiceByName(voice.encode()) != 0:
+            raise RuntimeError(f"espeak-ng has no voice {voice!r}")
+        self.lib.espeak_SetParameter(_RATE, wpm, 0)
+        data = text.encode("utf-8") + b"\0"
+        if self.lib.espeak_Synth(data, len(data), 0, 0, 0, _CHARS_UTF8, None, None) != 0:
+            raise RuntimeError("espeak-ng failed to synthesise")
+        self.lib.espeak_Synchronize()
+        audio = np.concatenate(self.chunks) if self.chunks else np.zeros(0, np.int16)
+        return audio, self.events
+
+
+_lock = threading.Lock()
+_engine: _Engine | None = None
+
+
+def synthesize(text: str, language: str = "en", rate: float = 1.0) -> Speech:
+    """Speak ``text`` with espeak-ng and return the audio with its phones and words.
+
+    ``language`` is ``"sv"`` (voice ``sv``) or ``"en"`` (voice ``en-us``); ``rate`` is a
+    speaking-rate factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover
+    ``[0, duration]`` exactly, in the language's inventory.
+    """
+    global _engine
+    get_inventory(language)
+    if not text or not text.strip():
+        raise VispeechError("text is empty")
+    try:
+        factor = float(rate)
+    except (TypeError, ValueError):
+        factor = math.nan
+    if not MIN_RATE <= factor <= MAX_RATE:
+        raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate!r}")
+    with _lock:
+        if _engine is None:
+            _engine = _Engine()
+        samples, events = _engine.synthesize(text, VOICES[language], round(DEFAULT_WPM * factor))
+        sample_rate = _engine.sample_rate
+    if len(samples) == 0:
+        raise VispeechError("espeak-ng produced no audio for this text")
+    audio = samples.astype(np.float32) / 32768.0
+    phones = _phone_sequence(text, events, len(audio), sample_rate, language)
+    return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
+
+
+def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate: int, language: str) -> PhoneSequence:
+    """Turn espeak's word and phoneme events into a gap-free, validated phone sequence."""
+    # A word is a blank-separated token of the text. espeak may read one token as several
+    # words ("1,000,000", "iPhone") and reports their positions loosely: each word event
+    # goes to the token its position falls in (or the one before, on a blank).
+    tokens = [match.span() for match in re.finditer(r"\S+", text)]
+    token_starts = [start for start, _ in tokens]
+    spans: list[tuple[int, int]] = []  # character range of each word in ``text``
+    onsets: list[tuple[int, str, str, int | None]] = []  # sample, espeak name, phoneme table, word
+    table = language
+    for event in events:
+        if event[0] == "word":
+            token = tokens[max(bisect.bisect_right(token_starts, event[2] - 1) - 1, 0)]
+            if not spans or spans[-1] != token:
+                spans.append(token)
+            continue
+        name = event[2]
+        if name.startswith("(") and name.endswith(")"):  # switch of phoneme table, e.g. "(en)"
+            table = name[1:-1].split("-")[0]
+        elif name != ";":  # ";" palatalises the phone before it
+            sample = min(max(event[1], onsets[-1][0] if onsets else 0), n_samples)
+            onsets.append((sample, name, table, len(spans) - 1 if spans else None))
+
+    phones: list[Phone] = []
+    for i, (start, name, table, word) in enumerate(onsets):
+        stop = onsets[i + 1][0] if i + 1 < len(onsets) else n_samples
+        pairs = espeak_to_symbols(name, language, table)
+        for k, (symbol, stress) in enumerate(pairs):  # r-coloured vowels: equal parts
+            a = start + (stop - start) * k / len(pairs)
+            b = start + (stop - start) * (k + 1) / len(pairs)
+            if b > a:
+                owner = None if is_silence(symbol) else word
+                phones.append(Phone(symbol, a / sample_rate, b / sample_rate, owner, stress))
+    if language == "sv":
+        phones = _merge_retroflexes(phones)
+    phones = PhoneSequence(phones=phones, language=language).with_gaps_filled().phones
+    end = n_samples / sample_rate
+    if not phones or phones[-1].end < end:
+        phones.append(Phone(SILENCE, phones[-1].end if phones else 0.0, end))
+    phones = _merge_silences(phones)
+
+    # keep the words that got phones, renumbered, each from its first phone to its last
+    words: list[Word] = []
+    renumber: dict[int, int] = {}
+    for p in phones:
+        if p.word is None:
+            continue
+        if p.word not in renumber:
+            renumber[p.word] = len(words)
+            start, stop = spans[p.word]
+            spoken = text[start:stop].strip()
+            words.append(Word(spoken.strip(_PUNCTUATION) or spoken, p.start, p.end))
+        words[renumber[p.word]] = replace(words[renumber[p.word]], end=p.end)
+    phones = [p if p.word is None else replace(p, word=renumber[p.word]) for p in phones]
+    return PhoneSequence(phones=phones, language=language, words=words).validate()
+
+
+def _merge_retroflexes(phones: list[Phone]) -> list[Phone]:
+    """Swedish ``r`` + ``t d n l s`` within one word -> ``rt rd rn rl rs`` spanning both."""
+    merged: list[Phone] = []
+    for p in phones:
+        last = merged[-1] if merged else None
+        if (last is not None and last.symbol == "r" and p.symbol in _RETROFLEX and p.word is not None
+                and last.word == p.word and abs(last.end - p.start) < 1e-9):
+            merged[-1] = replace(p, symbol=_RETROFLEX[p.symbol], start=last.start)
+        else:
+            merged.append(p)
+    return merged
+
+
+def _merge_silences(phones: list[Phone]) -> list[Phone]:
+    """Join adjacent silences into one ``sil``."""
+    merged: list[Phone] = []
+    for p in phones:
+        if merged and is_silence(p.symbol) and is_silence(merged[-1].symbol):
+            merged[-1] = replace(merged[-1], symbol=SILENCE, end=p.end)
+        else:
+            merged.append(p)
+    return merged

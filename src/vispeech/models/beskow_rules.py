@@ -1,0 +1,53 @@
+"""Beskow's (1995) rule-based model: under-specified targets, interpolation, smoothing.
+
+Each phone aims at its target vector, whose undefined entries (see
+:class:`vispeech.models.targets.TargetTable`) take no part: every channel is linearly
+interpolated between the target points of the phones that define it, so lip rounding, for
+instance, runs straight from one vowel to the next across a consonant cluster. A phone's
+target points sit at its centre ± ``hold``/2 of its duration (one point at the centre when
+``hold`` is 0). The trajectory is then smoothed by a Gaussian filter of standard deviation
+``sigma`` seconds (edges held).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.models.base import PhoneTargetModel, register_model
+from vispeech.motion.track import Track
+
+
+@register_model
+class BeskowRules(PhoneTargetModel):
+    """Interpolated under-specified targets. Parameters: ``hold`` (fraction of a phone held
+    at its target, 0..1), ``sigma`` (smoothing in seconds, ≥ 0), ``targets``."""
+
+    name = "beskow-rules"
+
+    def __init__(self, params: Mapping | None = None, **options):
+        super().__init__(params, **options)
+        hold, sigma = self._params["hold"], self._params["sigma"]
+        if not isinstance(hold, (int, float)) or not 0.0 <= hold <= 1.0:
+            raise VispeechError(f"beskow-rules hold must lie in [0, 1], got {hold!r}")
+        if not isinstance(sigma, (int, float)) or not 0.0 <= sigma < np.inf:
+            raise VispeechError(f"beskow-rules sigma must be seconds >= 0, got {sigma!r}")
+
+    def predict(self, phones: PhoneSequence, fps: float) -> Track:
+        seg = self.segments(phones, fps)
+        half = 0.5 * self._params["hold"] * seg.durations
+        points = np.stack([seg.centres - half, seg.centres + half], axis=1).ravel()
+        targets = np.repeat(seg.targets, 2, axis=0)
+        defined = np.repeat(seg.defined, 2, axis=0)
+        out = np.empty((len(seg.times), len(self.channels)))
+        for ch in range(len(self.channels)):
+            use = defined[:, ch] if defined[:, ch].any() else slice(None)
+            out[:, ch] = np.interp(seg.times, points[use], targets[use, ch])
+        sigma_frames = self._params["sigma"] * fps
+        if sigma_frames > 0:
+            out = gaussian_filter1d(out, sigma_frames, axis=0, mode="nearest")
+        return self._track(out, fps)

@@ -1,0 +1,64 @@
+"""A phone sequence laid out for the data-free models: segments, their targets, frame times."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.models.targets import TargetTable, phone_rows
+from vispeech.phonetics.features import FEATURE_NAMES
+
+_VOWEL = FEATURE_NAMES.index("vowel")
+_SILENCE = FEATURE_NAMES.index("silence")
+
+
+@dataclass(frozen=True)
+class Segments:
+    """One segment per phone of the gap-filled sequence, times in seconds.
+
+    ``rows`` index :func:`vispeech.models.targets.phone_rows`; ``targets`` and ``defined``
+    (segments × channels) come from the model's target table; ``times`` are the frame
+    times ``k / fps`` of the ``phones.n_frames(fps)`` output frames.
+    """
+
+    language: str
+    starts: np.ndarray
+    ends: np.ndarray
+    rows: np.ndarray
+    vowel: np.ndarray
+    silence: np.ndarray
+    targets: np.ndarray
+    defined: np.ndarray
+    times: np.ndarray
+    fps: float
+
+    @classmethod
+    def build(cls, phones: PhoneSequence, fps: float, table: TargetTable) -> Segments:
+        phones.validate()
+        n_frames = phones.n_frames(fps)
+        filled = phones.with_gaps_filled().phones
+        rows = phone_rows(phones.language)
+        index = rows.indices([p.symbol for p in filled], [p.stress for p in filled])
+        features = rows.features[index]
+        return cls(
+            language=phones.language,
+            starts=np.array([p.start for p in filled]),
+            ends=np.array([p.end for p in filled]),
+            rows=index,
+            vowel=features[:, _VOWEL] > 0,
+            silence=features[:, _SILENCE] > 0,
+            targets=table.values(phones.language)[index],
+            defined=table.defined(phones.language)[index],
+            times=np.arange(n_frames) / fps,
+            fps=fps,
+        )
+
+    @property
+    def centres(self) -> np.ndarray:
+        return 0.5 * (self.starts + self.ends)
+
+    @property
+    def durations(self) -> np.ndarray:
+        return self.ends - self.starts

@@ -1,0 +1,167 @@
+"""Sliding-window networks (Taylor et al. 2017; the thesis's Swedish network).
+
+A fully connected network reads a window of ``input_window`` (Kx) frames of input vectors
+and predicts ``output_window`` (Ky) frames of every target channel, centred in the input
+window. Windows slide one frame at a time; the input is padded at both ends by
+``(Kx + Ky) / 2 - 1`` copies of its first and last frame, so every frame lies in exactly Ky
+output windows, whose predictions are averaged.
+
+Presets:
+
+- ``taylor``: Kx = 11, Ky = 5, three hidden layers of 3000 tanh units with dropout 0.5, a
+  linear output, squared loss on each output window, mini-batch SGD (100 windows, momentum
+  0.9), phone one-hot plus linguistic indicator inputs, standardised targets.
+- ``thesis``: Kx = Ky = 15, hidden layers of 0.5·Kx·nf and Kx·nb units (675 -> 338 -> 270 ->
+  270 for nf = 45 inputs and nb = 18 outputs) with LeakyReLU (0.1) and dropout 0.6 / 0.1,
+  He initialisation (output layer N(0, 0.05²)), one utterance per update with the loss
+  (MSE + 1.8e-8·Σ‖W‖² + 1e-4·motion term) on the overlap-averaged sequence, Adam (1e-3)
+  stepped down whenever the epoch training loss rises, start/end zero-centred targets,
+  early stopping after 10 epochs without a better validation loss.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+from vispeech.models.base import register_model
+from vispeech.models.neural import COMMON_PARAMS, NeuralControlModel
+
+PRESETS: dict[str, dict] = {
+    "taylor": {
+        **COMMON_PARAMS,
+        "linguistic": True,
+        "standardize": True,
+        "optimizer": "sgd",
+        "learning_rate": 0.01,
+        "momentum": 0.9,
+        "input_window": 11,
+        "output_window": 5,
+        "hidden": [3000, 3000, 3000],
+        "activation": "tanh",
+        "dropout": [0.5, 0.5, 0.5],
+        "init": "default",
+        "update": "windows",
+        "batch_size": 100,
+    },
+    "thesis": {
+        **COMMON_PARAMS,
+        "zero_center": True,
+        "lr_step_down": True,
+        "l2": 1.8e-8,
+        "motion_weight": 1e-4,
+        "input_window": 15,
+        "output_window": 15,
+        "hidden": None,
+        "activation": "leaky_relu",
+        "dropout": [0.6, 0.1],
+        "init": "he",
+        "update": "utterance",
+        "batch_size": 1,
+    },
+}
+"""Parameters of the published configurations; ``hidden=None`` is the thesis's sizing rule."""
+
+_ACTIVATIONS = ("tanh", "leaky_relu")
+
+
+class SlidingWindowNetwork(NeuralControlModel):
+    """Sliding-window network; ``preset`` is ``"thesis"`` (default) or ``"taylor"``.
+
+    Window parameters: ``input_window``, ``output_window`` (Kx - Ky even), ``hidden`` (layer
+    sizes, or ``None`` for the thesis rule 0.5·Kx·inputs, Kx·outputs), ``activation``
+    (``tanh`` or ``leaky_relu``), ``dropout`` (one rate per hidden layer), ``init``
+    (``default`` or ``he``), ``update`` (``"windows"``: mini-batches of ``batch_size``
+    windows, loss per window; ``"utterance"``: one utterance per update, loss on the
+    averaged sequence). The others are the common network parameters (``docs/networks.md``).
+    """
+
+    name = "sliding-window-thesis"
+    presets = PRESETS
+    default_preset = "thesis"
+    preset_names = {"thesis": "sliding-window-thesis", "taylor": "sliding-window-taylor"}
+
+    def _check_params(self) -> None:
+        p = self._params
+        kx, ky = p["input_window"], p["output_window"]
+        if not (isinstance(kx, int) and isinstance(ky, int) and 1 <= ky <= kx and (kx - ky) % 2 == 0):
+            raise VispeechError(f"windows must satisfy 1 <= output_window <= input_window with an even "
+                                f"difference, got {kx} and {ky}")
+        if p["activation"] not in _ACTIVATIONS:
+            raise VispeechError(f"unknown activation {p['activation']!r} (use {' or '.join(_ACTIVATIONS)})")
+        layers = 2 if p["hidden"] is None else len(p["hidden"])
+        if len(p["dropout"]) != layers:
+            raise VispeechError(f"dropout needs one rate per hidden layer ({layers}), got {p['dropout']}")
+        if p["update"] not in ("windows", "utterance"):
+            raise VispeechError(f"update must be windows or utterance, got {p['update']!r}")
+
+    def _build_module(self, n_inputs: int, n_outputs: int):
+        from vispeech.models.networks import WindowMLP
+
+        p = self._params
+        kx = p["input_window"]
+        hidden = p["hidden"] or [max(1, round(0.5 * kx * n_inputs)), kx * n_outputs]
+        return WindowMLP(n_inputs, n_outputs, kx, p["output_window"], list(hidden), p["activation"],
+                               list(p["dropout"]), p["init"])
+
+    @property
+    def _pad(self) -> int:
+        return (self._params["input_window"] + self._params["output_window"]) // 2 - 1
+
+    def _batches(self, examples, rng):
+        import torch
+
+        from vispeech.models.networks import edge_pad
+
+        kx, ky = self._params["input_window"], self._params["output_window"]
+        if self._params["update"] == "utterance":
+            order = range(len(examples)) if rng is None else rng.permutation(len(examples))
+            return [(edge_pad(examples[i][0], self._pad), torch.from_numpy(examples[i][1])) for i in order]
+        inputs = [edge_pad(x, self._pad) for x, _ in examples]
+        targets = [edge_pad(y, ky - 1) for _, y in examples]
+        x_all, y_all = torch.cat(inputs), torch.cat(targets)
+        counts = [len(y) + ky - 1 for _, y in examples]  # windows per utterance
+        x_starts = np.concatenate([o + np.arange(c) for o, c in zip(_offsets(inputs), counts)])
+        y_starts = np.concatenate([o + np.arange(c) for o, c in zip(_offsets(targets), counts)])
+        order = np.arange(len(x_starts)) if rng is None else rng.permutation(len(x_starts))
+        size = self._params["batch_size"]
+        return [
+            (x_all[torch.from_numpy(x_starts[chunk][:, None] + np.arange(kx))],
+             y_all[torch.from_numpy(y_starts[chunk][:, None] + np.arange(ky))])
+            for chunk in (order[i:i + size] for i in range(0, len(order), size))
+        ]
+
+    def _data_loss(self, module, batch):
+        from vispeech.models.networks import overlap_average, windows
+        from vispeech.models.training import sequence_loss
+
+        weight = self._params["motion_weight"]
+        if self._params["update"] == "utterance":
+            padded, target = batch
+            pred = overlap_average(module(windows(padded, self._params["input_window"])), len(target))
+            return sequence_loss(pred[None], target[None], weight), float(len(target))
+        windows, target = batch
+        return sequence_loss(module(windows), target, weight), float(len(windows))
+
+    def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
+        from vispeech.models.networks import edge_pad, overlap_average, windows
+
+        padded = edge_pad(inputs, self._pad).double()
+        out = module(windows(padded, self._params["input_window"]))
+        return overlap_average(out, len(inputs)).numpy()
+
+
+@register_model
+class TaylorNetwork(SlidingWindowNetwork):
+    """:class:`SlidingWindowNetwork` with the ``taylor`` preset by default."""
+
+    name = "sliding-window-taylor"
+    default_preset = "taylor"
+
+
+register_model(SlidingWindowNetwork)
+
+
+def _offsets(blocks: list) -> np.ndarray:
+    """Where each block starts in their concatenation."""
+    return np.cumsum([0] + [len(b) for b in blocks[:-1]])

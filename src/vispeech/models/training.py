@@ -1,0 +1,256 @@
+"""The torch training loop shared by the trainable networks.
+
+One epoch runs every batch the model hands out (shuffled by a seeded numpy generator),
+then measures the validation loss. The loop keeps the weights of the best epoch (lowest
+validation loss, or training loss without a validation set), stops early after
+``patience`` epochs without improvement, optionally steps the learning rate down whenever
+the epoch's training loss rises (the thesis schedule: halve, then fifth, in turn:
+1e-3, 5e-4, 1e-4, 5e-5, ...), and can hand a :class:`TrainingState` to a callback after
+each epoch so a caller may checkpoint it. A state saved with :func:`save_state` and read
+with :func:`load_state` resumes exactly where it stopped: weights, optimizer moments,
+random generators, epoch count and early-stopping counters.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vispeech.errors import VispeechError
+
+STATE_JSON = "training_state.json"
+STATE_TENSORS = "training_state.safetensors"
+
+
+@dataclass
+class TrainingHistory:
+    """Per-epoch losses, learning rates and seconds; ``best_epoch`` counts from 1 (0: none yet)."""
+
+    train_loss: list[float] = field(default_factory=list)
+    validation_loss: list[float | None] = field(default_factory=list)
+    learning_rate: list[float] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+
+    @property
+    def epochs(self) -> int:
+        return len(self.train_loss)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TrainingHistory:
+        return cls(**{k: data[k] for k in ("train_loss", "validation_loss", "learning_rate", "seconds", "best_epoch")})
+
+    def plot(self, path: str | Path) -> None:
+        """Draw training and validation loss per epoch (log scale) into a PNG at ``path``."""
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        figure = Figure(figsize=(6, 4), dpi=100)
+        FigureCanvasAgg(figure)
+        axes = figure.add_subplot()
+        epochs = np.arange(1, self.epochs + 1)
+        axes.plot(epochs, self.train_loss, marker="o", markersize=3, label="training")
+        validation = [np.nan if v is None else v for v in self.validation_loss]
+        if not np.all(np.isnan(validation)):
+            axes.plot(epochs, validation, marker="o", markersize=3, label="validation")
+        if self.best_epoch:
+            axes.axvline(self.best_epoch, color="grey", linestyle=":", label=f"best (epoch {self.best_epoch})")
+        if self.epochs and min(self.train_loss) > 0:
+            axes.set_yscale("log")
+        axes.set_xlabel("epoch")
+        axes.set_ylabel("loss")
+        axes.legend()
+        figure.tight_layout()
+        figure.savefig(path, format="png")
+
+
+@dataclass
+class TrainingState:
+    """Everything needed to go on training after an epoch."""
+
+    history: TrainingHistory = field(default_factory=TrainingHistory)
+    best_loss: float = math.inf
+    stale_epochs: int = 0
+    lr_steps: int = 0
+    best_weights: dict[str, torch.Tensor] | None = None
+    optimizer: dict | None = None
+    torch_rng: torch.Tensor | None = None
+    numpy_rng: dict | None = None
+
+    @property
+    def epoch(self) -> int:
+        """Epochs completed."""
+        return self.history.epochs
+
+
+def seed_everything(seed: int) -> np.random.Generator:
+    """Seed torch's global generator and return a numpy generator seeded alike."""
+    torch.manual_seed(seed)
+    return np.random.default_rng(seed)
+
+
+def step_down_factor(steps: int) -> float:
+    """Learning-rate factor after ``steps`` step-downs: 1, 0.5, 0.1, 0.05, 0.01, ..."""
+    return 0.1 ** (steps // 2) * (0.5 if steps % 2 else 1.0)
+
+
+def train(
+    module: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    batches: Callable[[np.random.Generator], Iterable],
+    batch_loss: Callable[[object], tuple[torch.Tensor, float]],
+    validation_loss: Callable[[], float | None],
+    *,
+    epochs: int,
+    learning_rate: float,
+    patience: int | None = 10,
+    lr_step_down: bool = False,
+    seed: int = 0,
+    progress: bool = True,
+    state: TrainingState | None = None,
+    on_epoch: Callable[[TrainingState], None] | None = None,
+) -> TrainingState:
+    """Train ``module`` for up to ``epochs`` epochs in all, then load its best weights.
+
+    ``batches(rng)`` lists one epoch's batches; ``batch_loss(batch)`` returns the loss to
+    minimise and the batch's weight in the epoch mean (e.g. its frame count);
+    ``validation_loss()`` is called in eval mode without gradients (``None``: no validation
+    set, the training loss decides). ``state`` resumes a run (``seed`` is then ignored);
+    ``on_epoch(state)`` is called after every epoch, e.g. to checkpoint. Returns the final state.
+    """
+    from tqdm.auto import tqdm
+
+    if state is None:
+        state = TrainingState()
+        rng = seed_everything(seed)
+    else:
+        rng = np.random.default_rng()
+        if state.numpy_rng is not None:
+            rng.bit_generator.state = state.numpy_rng
+        if state.torch_rng is not None:
+            torch.set_rng_state(state.torch_rng)
+        if state.optimizer is not None:
+            optimizer.load_state_dict(state.optimizer)
+    history = state.history
+    while state.epoch < epochs and (patience is None or state.stale_epochs < patience):
+        started = time.perf_counter()
+        lr = learning_rate * step_down_factor(state.lr_steps)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        module.train()
+        total, weight = 0.0, 0.0
+        bar = tqdm(batches(rng), desc=f"epoch {state.epoch + 1}/{epochs}", unit="batch",
+                   disable=not progress, leave=False)
+        for batch in bar:
+            optimizer.zero_grad()
+            loss, w = batch_loss(batch)
+            if not torch.isfinite(loss):
+                raise VispeechError(f"training diverged in epoch {state.epoch + 1} (loss {loss.item()}); "
+                                    "lower the learning rate")
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * w
+            weight += w
+            bar.set_postfix(loss=f"{total / weight:.4g}")
+        bar.close()
+        module.eval()
+        with torch.no_grad():
+            validation = validation_loss()
+        train_loss = total / max(weight, 1e-12)
+        history.train_loss.append(train_loss)
+        history.validation_loss.append(validation)
+        history.learning_rate.append(lr)
+        history.seconds.append(time.perf_counter() - started)
+        monitored = train_loss if validation is None else validation
+        if monitored < state.best_loss:
+            state.best_loss = monitored
+            state.stale_epochs = 0
+            history.best_epoch = state.epoch
+            state.best_weights = {k: v.detach().clone() for k, v in module.state_dict().items()}
+        else:
+            state.stale_epochs += 1
+        if lr_step_down and history.epochs > 1 and train_loss > history.train_loss[-2]:
+            state.lr_steps += 1
+        state.optimizer = optimizer.state_dict()
+        state.torch_rng = torch.get_rng_state()
+        state.numpy_rng = rng.bit_generator.state
+        if progress:
+            shown = "" if validation is None else f", validation {validation:.4g}"
+            tqdm.write(f"epoch {state.epoch}/{epochs}: training {train_loss:.4g}{shown}")
+        if on_epoch is not None:
+            on_epoch(state)
+    if state.best_weights is not None:
+        module.load_state_dict(state.best_weights)
+    return state
+
+
+def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> None:
+    """Write ``state`` and ``module``'s current weights into ``folder`` (JSON + safetensors)."""
+    from safetensors.torch import save_file
+
+    tensors = {f"last.{k}": v for k, v in module.state_dict().items()}
+    tensors |= {f"best.{k}": v for k, v in (state.best_weights or {}).items()}
+    optimizer_json = None
+    if state.optimizer is not None:
+        per_param = {}
+        for pid, values in state.optimizer["state"].items():
+            per_param[str(pid)] = {}
+            for key, value in values.items():
+                if isinstance(value, torch.Tensor):
+                    tensors[f"optimizer.{pid}.{key}"] = value
+                else:
+                    per_param[str(pid)][key] = value
+        optimizer_json = {"state": per_param, "param_groups": state.optimizer["param_groups"]}
+    if state.torch_rng is not None:
+        tensors["rng.torch"] = state.torch_rng
+    save_file({k: v.detach().contiguous().clone() for k, v in tensors.items()}, folder / STATE_TENSORS)
+    info = {
+        "history": state.history.to_dict(),
+        "best_loss": state.best_loss if math.isfinite(state.best_loss) else None,
+        "stale_epochs": state.stale_epochs,
+        "lr_steps": state.lr_steps,
+        "optimizer": optimizer_json,
+        "numpy_rng": state.numpy_rng,
+    }
+    (folder / STATE_JSON).write_text(json.dumps(info, indent=1), encoding="utf-8")
+
+
+def load_state(folder: Path, module: torch.nn.Module) -> TrainingState:
+    """Read a state written by :func:`save_state`; load its last weights into ``module``."""
+    from safetensors.torch import load_file
+
+    try:
+        info = json.loads((folder / STATE_JSON).read_text(encoding="utf-8"))
+        tensors = load_file(folder / STATE_TENSORS)
+    except (OSError, ValueError) as exc:
+        raise VispeechError(f"cannot read the training state in {folder}: {exc}") from None
+    module.load_state_dict({k[5:]: v for k, v in tensors.items() if k.startswith("last.")})
+    optimizer = None
+    if info["optimizer"] is not None:
+        per_param: dict[int, dict] = {int(pid): dict(values) for pid, values in info["optimizer"]["state"].items()}
+        for key, value in tensors.items():
+            if key.startswith("optimizer."):
+                _, pid, name = key.split(".", 2)
+                per_param.setdefault(int(pid), {})[name] = value
+        optimizer = {"state": per_param, "param_groups": info["optimizer"]["param_groups"]}
+    best = {k[5:]: v for k, v in tensors.items() if k.startswith("best.")}
+    return TrainingState(
+        history=TrainingHistory.from_dict(info["history"]),
+        best_loss=math.inf if info["best_loss"] is None else info["best_loss"],
+        stale_epochs=info["stale_epochs"],
+        lr_steps=info["lr_steps"],
+        best_weights=best or None,
+        optimizer=optimizer,
+        torch_rng=tensors.get("rng.torch"),
+        numpy_rng=info["numpy_rng"],
+    )

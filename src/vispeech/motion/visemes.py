@@ -1,0 +1,129 @@
+"""Viseme exports: Oculus/OVRLipSync viseme curves and Rhubarb Lip Sync mouth cues.
+
+Both go through a morph :class:`PoseTable` from ARKit channels: by default the shipped
+``oculus_visemes`` and ``rhubarb_shapes`` tables.
+
+- Oculus curves: 15 channels in OVRLipSync order ``sil PP FF TH DD kk CH SS nn RR aa E ih oh
+  ou``, as CSV (``time`` in seconds, then the 15 values) or as vispeech animation JSON.
+  A table's controls may use either spelling (``viseme_I``/``I``/``ih`` ...).
+- Rhubarb cues: the strongest shape of every frame, runs merged into cues, written exactly
+  as Rhubarb writes TSV and JSON (times in seconds with 2 decimals, measured from the first
+  frame; the TSV's last line holds the end time and ``X``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_file
+from vispeech.motion.jsonformat import write_animation_json
+from vispeech.motion.retarget import PoseTable
+from vispeech.motion.track import Track
+
+OCULUS_VISEMES: tuple[str, ...] = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
+"""The 15 Oculus visemes in OVRLipSync (and OpenXR) order."""
+
+RHUBARB_SHAPES: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
+"""Rhubarb's mouth shapes: basic A-F, extended G, H and the rest shape X."""
+
+_OCULUS_BY_KEY = {v.lower(): v for v in OCULUS_VISEMES} | {"i": "ih", "o": "oh", "u": "ou"}
+
+
+@dataclass(frozen=True)
+class MouthCue:
+    """One Rhubarb mouth cue: a shape held from ``start`` to ``end`` seconds."""
+
+    start: float
+    end: float
+    value: str
+
+
+def oculus_visemes(track: Track, pose_table: PoseTable | None = None) -> Track:
+    """The 15 Oculus viseme curves of an ARKit ``track``, channels named as :data:`OCULUS_VISEMES`."""
+    table = pose_table or PoseTable.load("oculus_visemes")
+    visemes = table.apply(track)
+    names = {}
+    for control in visemes.channels:
+        key = control.removeprefix("viseme_").lower()
+        if key in _OCULUS_BY_KEY:
+            names[_OCULUS_BY_KEY[key]] = control
+    missing = [v for v in OCULUS_VISEMES if v not in names]
+    if missing:
+        raise VispeechError(f"pose table {table.name!r} has no control for viseme(s) {', '.join(missing)}")
+    return Track(np.stack([visemes[names[v]] for v in OCULUS_VISEMES], axis=1), OCULUS_VISEMES, track.fps, track.start_time)
+
+
+def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+    """Write the Oculus viseme curves as CSV: ``time,sil,PP,...,ou``, one row per frame (atomic)."""
+    visemes = oculus_visemes(track, pose_table)
+    lines = [",".join(("time",) + OCULUS_VISEMES)]
+    for t, row in zip(visemes.times, visemes.values):
+        lines.append(",".join([f"{t:.6f}"] + [f"{v:.6f}" for v in row]))
+    with atomic_output_file(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_oculus_json(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+    """Write the Oculus viseme curves as vispeech animation JSON (channels ``sil`` ... ``ou``)."""
+    write_animation_json(oculus_visemes(track, pose_table), path)
+
+
+def mouth_cues(track: Track, pose_table: PoseTable | None = None) -> list[MouthCue]:
+    """Rhubarb mouth cues: per frame the shape with the largest weight, runs merged.
+
+    Frame k covers ``[k / fps, (k + 1) / fps)`` seconds from the first frame; boundaries are
+    rounded to centiseconds as Rhubarb's are, and cues that round to nothing are dropped.
+    """
+    table = pose_table or PoseTable.load("rhubarb_shapes")
+    shapes = table.apply(track)
+    labels = [shapes.channels[i] for i in np.argmax(shapes.values, axis=1)]
+    bounds = [round(k * 100 / track.fps) for k in range(track.n_frames + 1)]
+    cues: list[list] = []
+    for k, label in enumerate(labels):
+        start, end = bounds[k], bounds[k + 1]
+        if end <= start:
+            continue
+        if cues and cues[-1][2] == label:
+            cues[-1][1] = end
+        else:
+            cues.append([start, end, label])
+    return [MouthCue(start / 100, end / 100, label) for start, end, label in cues]
+
+
+def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+    """Write mouth cues as Rhubarb's TSV: ``start<TAB>shape`` lines, then ``end<TAB>X``."""
+    cues = mouth_cues(track, pose_table)
+    lines = [f"{cue.start:.2f}\t{cue.value}\n" for cue in cues]
+    lines.append(f"{_duration(track):.2f}\tX\n")
+    with atomic_output_file(path) as tmp:
+        tmp.write_text("".join(lines), encoding="utf-8")
+
+
+def write_rhubarb_json(
+    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, sound_file: str = ""
+) -> None:
+    """Write mouth cues as Rhubarb's JSON, byte for byte in Rhubarb's layout."""
+    cues = mouth_cues(track, pose_table) or [MouthCue(0.0, 0.0, "X")]
+    body = ",\n".join(f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues)
+    text = (
+        "{\n"
+        '  "metadata": {\n'
+        f'    "soundFile": {json.dumps(str(sound_file), ensure_ascii=False)},\n'
+        f'    "duration": {_duration(track):.2f}\n'
+        "  },\n"
+        '  "mouthCues": [\n'
+        f"{body}\n"
+        "  ]\n"
+        "}\n"
+    )
+    with atomic_output_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _duration(track: Track) -> float:
+    return round(track.n_frames * 100 / track.fps) / 100

@@ -1,0 +1,149 @@
+"""Consonant overlays and the upper-lip overlay of the thesis (section 4, steps 6 and 7).
+
+Every consonant's viseme is its target in :mod:`vispeech.models.targets`, restricted to the
+channels the consonant defines. It is blended in with strength s(t), x ← x + s·(v − x):
+a Bézier fade-in of ``fade_in`` phone lengths that reaches 1 at the phone's onset, full
+strength up to the phone's *anchor frame*, then a Bézier fade-out of a per-consonant number
+of phone lengths. The anchor frame is the frame inside the phone nearest its centre (for a
+phone shorter than a frame, the frame nearest its centre), so every consonant reaches its
+viseme on at least one frame. Overlays go from the most open viseme to the most closed, so
+where fades overlap the tighter constriction wins: /p b m/ close the lips and /f v/ bring
+the lower lip to the upper teeth. An overlay never raises jawOpen (x ← min(x, blend)), so
+the jaw's peaks stay with the vowels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.models.targets import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
+from vispeech.motion.arkit import lip_aperture
+from vispeech.motion.track import Track
+from vispeech.phonetics.features import FEATURE_NAMES
+from vispeech.phonetics.inventory import is_vowel
+from vispeech.postprocess.bezier import bezier_ease
+
+DEFAULT_FADE_OUT: Mapping = {
+    "default": 1.5,
+    "sv:t": 1.0, "sv:d": 1.0, "sv:rt": 1.0, "sv:rd": 1.0,
+    "en:T": 1.0, "en:D": 1.0,
+}
+"""Fade-out lengths in phone lengths (a per-phone spec): 1.5 as in the thesis, shorter for /t d/."""
+
+UPPER_LIP_CHANNELS = ("mouthUpperUpLeft", "mouthUpperUpRight")
+UPPER_LIP_RISE = 5.0
+"""Frames the upper-lip lift takes to reach full strength."""
+
+_VOWEL = FEATURE_NAMES.index("vowel")
+_SILENCE = FEATURE_NAMES.index("silence")
+
+
+def anchor_frames(starts: np.ndarray, ends: np.ndarray, fps: float, n_frames: int) -> np.ndarray:
+    """Per phone, the frame inside [start, end) nearest its centre, or the nearest frame if none is inside.
+
+    Times are seconds from the first frame; frame k sits at k / fps.
+    """
+    first = np.ceil(starts * fps - 1e-9)
+    last = np.ceil(ends * fps - 1e-9) - 1
+    centre = np.round(0.5 * (starts + ends) * fps)
+    inside = np.clip(centre, first, np.maximum(first, last))
+    return np.clip(np.where(last >= first, inside, centre), 0, n_frames - 1).astype(int)
+
+
+def consonant_overlays(
+    track: Track, phones: PhoneSequence, fade_in: float = 1.5, fade_out: Mapping | None = None
+) -> Track:
+    """``track`` with every consonant's viseme blended in (see the module docstring).
+
+    ``fade_in`` is in phone lengths; ``fade_out`` is a per-phone spec of phone lengths
+    (default :data:`DEFAULT_FADE_OUT`). Channels the visemes set but the track lacks are added.
+    """
+    language = phones.language
+    rows = phone_rows(language)
+    consonants = [p for p in phones if not p.is_silence]
+    index = rows.indices([p.symbol for p in consonants], [p.stress for p in consonants])
+    features = rows.features[index]
+    is_consonant = (features[:, _VOWEL] == 0) & (features[:, _SILENCE] == 0)
+    consonants = [p for p, keep in zip(consonants, is_consonant) if keep]
+    index = index[is_consonant]
+    out = track.select(track.channels + tuple(c for c in TARGET_CHANNELS if c not in track.channels))
+    if not consonants:
+        return out
+    table = default_targets()
+    visemes = table.values(language)[index]
+    defined = table.defined(language)[index]
+    fade_out_lengths = resolve_spec(fade_out if fade_out is not None else DEFAULT_FADE_OUT, language)[index]
+
+    fps, n = out.fps, out.n_frames
+    starts = np.array([p.start for p in consonants]) - out.start_time
+    ends = np.array([p.end for p in consonants]) - out.start_time
+    length = (ends - starts) * fps  # phone lengths in frames
+    onset = starts * fps
+    anchor = anchor_frames(starts, ends, fps, n)
+    peak_from, peak_to = np.minimum(onset, anchor), np.maximum(onset, anchor)
+    rise, fall = fade_in * length, fade_out_lengths * length
+
+    aperture = lip_aperture(Track(np.where(defined, visemes, 0.0), TARGET_CHANNELS, fps))
+    lo = np.maximum(np.ceil(peak_from - rise), 0).astype(int)
+    hi = np.minimum(np.floor(peak_to + fall), n - 1).astype(int)
+    counts = np.maximum(hi - lo + 1, 0)
+    owner = np.repeat(np.arange(len(consonants)), counts)  # one entry per (consonant, frame) pair
+    k = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + lo[owner]).astype(float)
+    rising = k < peak_from[owner]
+    y = bezier_ease(
+        np.where(rising, k - (peak_from - rise)[owner], k - peak_to[owner]),
+        np.where(rising, rise[owner], fall[owner]),
+    )
+    strength = np.where(rising, y, 1.0 - y)
+    strength[~rising & (k <= peak_to[owner])] = 1.0
+    offsets = np.concatenate(([0], np.cumsum(counts)))
+
+    columns = [out.channels.index(c) for c in TARGET_CHANNELS]
+    jaw = TARGET_CHANNELS.index("jawOpen")
+    values = out.values
+    for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], starts[i])):
+        frames = slice(lo[i], hi[i] + 1)
+        s = strength[offsets[i]:offsets[i + 1]]
+        for ch in np.flatnonzero(defined[i]):
+            col = values[frames, columns[ch]]
+            blended = col + s * (visemes[i, ch] - col)
+            values[frames, columns[ch]] = np.minimum(col, blended) if ch == jaw else blended
+    return out
+
+
+def upper_lip_overlay(track: Track, phones: PhoneSequence, amount: float) -> Track:
+    """Lift the upper lip by up to ``amount`` during speech (thesis section 4, step 7).
+
+    In each stretch of speech between silences the lift rises over
+    :data:`UPPER_LIP_RISE` frames and then fades out until the stretch ends; it starts
+    afresh at every vowel onset (the running maximum of the curves). The curves are the
+    thesis's Bézier with control points (0.6a, 0) and (0.75a, 1).
+    """
+    out = track.select(track.channels + tuple(c for c in UPPER_LIP_CHANNELS if c not in track.channels))
+    fps, k = out.fps, np.arange(out.n_frames, dtype=float)
+    strength = np.zeros(out.n_frames)
+    run: list = []
+    for phone in list(phones.with_gaps_filled()) + [None]:
+        if phone is not None and not phone.is_silence:
+            run.append(phone)
+            continue
+        if run:
+            end = (run[-1].end - out.start_time) * fps
+            renewals = [run[0].start] + [p.start for p in run[1:] if is_vowel(p.symbol, phones.language)]
+            for start in renewals:
+                r = (start - out.start_time) * fps
+                top = r + UPPER_LIP_RISE
+                curve = np.where(
+                    k < top,
+                    bezier_ease(k - r, UPPER_LIP_RISE, 0.6, 0.75),
+                    1.0 - bezier_ease(k - top, max(end - top, 0.0), 0.6, 0.75),
+                )
+                curve[(k < r) | (k > end)] = 0.0
+                strength = np.maximum(strength, curve)
+        run = []
+    for channel in UPPER_LIP_CHANNELS:
+        out.values[:, out.index(channel)] += amount * strength
+    return out

@@ -1,0 +1,93 @@
+"""Forced alignment with pocketsphinx, against GRID's own word timings; ``vispeech align``."""
+
+import numpy as np
+import pytest
+import soundfile
+from click.testing import CliRunner
+from scipy.signal import resample_poly
+
+from vispeech import VispeechError
+from vispeech.alignment.formats import read_alignment, read_word_alignment
+from vispeech.cli import main
+from vispeech.frontends.align import align, normalize_transcript
+from vispeech.phonetics.inventory import get_inventory
+
+TEXT = "bin blue at f two now"
+
+
+@pytest.fixture
+def grid_utterance(shared_dir):
+    folder = shared_dir / "data" / "grid_s1" / "utterances"
+    if not folder.is_dir():
+        pytest.skip("grid_s1 not available")
+    return folder / "bbaf2n.flac", read_word_alignment(folder / "bbaf2n.align")
+
+
+def test_alignment_matches_grid_word_timings(grid_utterance):
+    path, reference = grid_utterance
+    samples, rate = soundfile.read(path)
+    phones = align(samples, rate, "Bin blue at F two now.")
+    assert phones.language == "en"
+    assert [w.text for w in phones.words] == TEXT.split() == [w.text for w in reference]
+    for aligned, ref in zip(phones.words, reference, strict=True):
+        assert abs(aligned.start - ref.start) <= 0.060, (aligned, ref)
+        assert abs(aligned.end - ref.end) <= 0.060, (aligned, ref)
+    assert phones.symbols == ["sil", "B", "IH", "N", "B", "L", "UW", "AE", "T", "EH", "F", "T", "UW", "N", "AW", "sil"]
+    assert phones.phones[0].start == 0.0 and phones.duration == pytest.approx(len(samples) / rate)
+    assert set(phones.symbols) <= set(get_inventory("en").symbols)
+    for p in phones:  # every phone inside its word; silences belong to none
+        if p.is_silence:
+            assert p.word is None
+        else:
+            word = phones.words[p.word]
+            assert word.start - 1e-9 <= p.start < p.end <= word.end + 1e-9
+
+
+def test_alignment_resamples_and_mixes_down(grid_utterance):
+    path, _ = grid_utterance
+    samples, rate = soundfile.read(path)
+    stereo = np.column_stack([resample_poly(samples, 441, 160)] * 2)  # 44.1 kHz, two channels
+    direct = align(samples, rate, TEXT)
+    resampled = align(stereo, 44100, TEXT)
+    starts = np.array([w.start for w in resampled.words])
+    np.testing.assert_allclose(starts, [w.start for w in direct.words], atol=0.03)
+    assert resampled.duration == pytest.approx(direct.duration, abs=1e-3)
+
+
+def test_alignment_refuses_bad_input():
+    audio = np.zeros(16000)
+    with pytest.raises(VispeechError, match="zqxw, 42"):
+        align(audio, 16000, "hello zqxw world 42 zqxw")
+    with pytest.raises(VispeechError, match="English only"):
+        align(audio, 16000, "hej", language="sv")
+    with pytest.raises(VispeechError, match="no words"):
+        align(audio, 16000, " ... ")
+    with pytest.raises(VispeechError, match="non-empty"):
+        align(np.zeros(0), 16000, "hello")
+    assert normalize_transcript("“Hello,” she said—don't!") == ["hello", "she", "said—don't"]
+
+
+def test_cli_align_writes_a_textgrid(grid_utterance, tmp_path):
+    path, reference = grid_utterance
+    out = tmp_path / "out" / "bbaf2n.TextGrid"
+    result = CliRunner().invoke(main, ["align", str(path), TEXT, "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "6 words" in result.output
+    phones = read_alignment(out, language="en")
+    assert [w.text for w in phones.words] == TEXT.split()
+    assert abs(phones.words[0].start - reference[0].start) <= 0.06
+
+
+@pytest.mark.parametrize("audio_name,text,message", [
+    ("absent.wav", TEXT, "not found"),
+    ("bbaf2n.flac", "bin blue at f 2 now", "pronouncing dictionary: 2"),
+])
+def test_cli_align_errors_in_one_line(grid_utterance, tmp_path, audio_name, text, message):
+    path, _ = grid_utterance
+    audio = path if audio_name == path.name else tmp_path / audio_name
+    out = tmp_path / "x.TextGrid"
+    result = CliRunner().invoke(main, ["align", str(audio), text, "-o", str(out)])
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], result.output
+    assert not out.exists()

@@ -1,0 +1,141 @@
+"""``vispeech say`` / ``animate-phones`` end to end, and their answers to bad input."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from vispeech.cli import main
+
+SAY_FILES = {"speech.wav", "phones.TextGrid", "animation.csv", "animation.json", "preview.html"}
+
+
+def run(*args):
+    return CliRunner().invoke(main, list(args))
+
+
+def assert_clean_error(result):
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.strip().splitlines() if line]
+    assert len(lines) == 1 and "error" in lines[0].lower() and "Traceback" not in result.output, result.output
+
+
+@pytest.mark.parametrize("lang,text", [("sv", "Hej! Hur kan jag hjälpa dig idag?"), ("en", "Hello, how can I help you today?")])
+def test_say_writes_every_file(tmp_path, lang, text):
+    out = tmp_path / "hello"
+    result = run("say", text, "--lang", lang, "-o", str(out))
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in out.iterdir()} == SAY_FILES
+    animation = json.loads((out / "animation.json").read_text())
+    assert "jawOpen" in animation["channels"] and animation["frames"]
+    header = (out / "animation.csv").read_text().splitlines()[0].split(",")
+    assert len(header) == 61 and header[:2] == ["Timecode", "BlendshapeCount"]
+    assert (out / "animation.csv").read_text().splitlines()[1].startswith("00:00:00:00")
+
+
+def test_say_without_text_speaks_the_greeting(tmp_path):
+    result = run("say", "-o", str(tmp_path / "g"))
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "g" / "speech.wav").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("text", ["", "   \n\t "])
+def test_empty_text(tmp_path, text):
+    out = tmp_path / "o"
+    assert_clean_error(run("say", text, "-o", str(out)))
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_unknown_language(tmp_path):
+    assert_clean_error(run("say", "hello", "--lang", "xx", "-o", str(tmp_path / "o")))
+
+
+def test_unknown_model(tmp_path):
+    assert_clean_error(run("say", "hello", "--model", "nope", "-o", str(tmp_path / "o")))
+
+
+def test_unwritable_output_keeps_nothing_half_written(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("keep me")
+    assert_clean_error(run("say", "hello", "-o", str(blocker / "sub")))
+    assert blocker.read_text() == "keep me"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write anywhere")
+def test_read_only_output_folder(tmp_path):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o500)
+    assert_clean_error(run("say", "hello", "-o", str(out)))
+
+
+def test_existing_outputs_survive_a_failed_run(tmp_path):
+    out = tmp_path / "o"
+    assert run("say", "Hello there", "-o", str(out)).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert_clean_error(run("say", "   ", "-o", str(out)))
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+TEXTGRID = """File type = "ooTextFile"
+Object class = "TextGrid"
+
+xmin = 0
+xmax = 1.0
+tiers? <exists>
+size = 1
+item []:
+    item [1]:
+        class = "IntervalTier"
+        name = "phones"
+        xmin = 0
+        xmax = 1.0
+        intervals: size = 5
+        intervals [1]:
+            xmin = 0
+            xmax = 0.2
+            text = ""
+        intervals [2]:
+            xmin = 0.2
+            xmax = 0.35
+            text = "M"
+        intervals [3]:
+            xmin = 0.35
+            xmax = 0.6
+            text = "AA1"
+        intervals [4]:
+            xmin = 0.6
+            xmax = 0.75
+            text = "{last}"
+        intervals [5]:
+            xmin = 0.75
+            xmax = 1.0
+            text = "sil"
+"""
+
+
+def test_animate_phones_writes_csv_and_json(tmp_path):
+    grid = tmp_path / "x.TextGrid"
+    grid.write_text(TEXTGRID.format(last="P"))
+    out = tmp_path / "anim"
+    result = run("animate-phones", str(grid), "--fps", "25", "--model", "cohen-massaro", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    rows = (out / "animation.csv").read_text().splitlines()
+    assert len(rows) - 1 == 25  # one row per frame over 1.0 s
+    assert rows[1].startswith("00:00:00:00")
+    assert json.loads((out / "animation.json").read_text())["fps"] == 25
+
+
+@pytest.mark.parametrize("content", ["", "this is not a textgrid", TEXTGRID.format(last="QQ")])
+def test_bad_alignments(tmp_path, content):
+    grid = tmp_path / "bad.TextGrid"
+    grid.write_text(content)
+    out = tmp_path / "o"
+    assert_clean_error(run("animate-phones", str(grid), "-o", str(out)))
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_missing_alignment_file(tmp_path):
+    assert_clean_error(run("animate-phones", str(tmp_path / "none.TextGrid"), "-o", str(tmp_path / "o")))

@@ -1,0 +1,187 @@
+"""Track files: vispeech JSON, TalkingHead JSON, Oculus visemes, Rhubarb cues, format dispatch."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import vispeech.motion
+from vispeech import Phone, PhoneSequence, Track, VispeechError, Word
+from vispeech.motion.io import FORMATS, read_track, track_format, write_track
+from vispeech.motion.jsonformat import (
+    read_animation_json,
+    read_talkinghead_json,
+    write_animation_json,
+    write_talkinghead_json,
+)
+from vispeech.motion.visemes import OCULUS_VISEMES, MouthCue, mouth_cues, oculus_visemes
+
+DATA = Path(vispeech.motion.__file__).parent / "data"
+
+
+def poses(table: str) -> dict:
+    return json.loads((DATA / f"{table}.json").read_text())["poses"]
+
+
+def pose_track(frames: list[dict], fps: float) -> Track:
+    """A track whose frames are the given ARKit poses ({} = rest)."""
+    channels = sorted({c for f in frames for c in f}) or ["jawOpen"]
+    return Track(np.array([[f.get(c, 0.0) for c in channels] for f in frames]), channels, fps)
+
+
+def small_track(fps=30.0, n=12, start=0.0) -> Track:
+    rng = np.random.default_rng(4)
+    return Track(np.round(rng.uniform(0, 1, (n, 3)), 6), ("jawOpen", "mouthClose", "mouthFunnel"), fps, start)
+
+
+def test_animation_json_round_trip_with_phones_and_audio(tmp_path):
+    phones = PhoneSequence([Phone("sil", 0, 0.1), Phone("M", 0.1, 0.3, 0), Phone("sil", 0.3, 0.4)], "en",
+                           [Word("mm", 0.1, 0.3)])
+    track = small_track(start=0.5)
+    write_animation_json(track, tmp_path / "a.json", phones=phones, audio="a.wav")
+    data = json.loads((tmp_path / "a.json").read_text())
+    assert data["format"] == "vispeech-animation" and data["version"] == 1 and data["n_frames"] == 12
+    back = read_animation_json(tmp_path / "a.json")
+    assert back.track.channels == track.channels and back.track.fps == 30.0 and back.track.start_time == 0.5
+    assert np.array_equal(back.track.values, track.values)
+    assert back.phones == phones and back.audio == "a.wav"
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"format": "other"}, "not a vispeech-animation file"),
+    ({"version": 2}, "unsupported vispeech-animation version"),
+    ({"fps": None, "_drop": "fps"}, "missing 'fps'"),
+    ({"frames": [[0.1, 0.2], [0.3]]}, "frame 1 does not have 2 values"),
+    ({"n_frames": 5}, "n_frames is 5"),
+    ({"fps": -1}, "fps must be positive"),
+    ({"frames": []}, "non-empty lists"),
+])
+def test_animation_json_errors(tmp_path, change, message):
+    data = {"format": "vispeech-animation", "version": 1, "fps": 30, "start_time": 0, "n_frames": 2,
+            "channels": ["jawOpen", "mouthClose"], "frames": [[0.1, 0.2], [0.3, 0.4]]}
+    data.update(change)
+    data.pop(change.pop("_drop", "_none"), None)
+    data.pop("_drop", None)
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(VispeechError, match=message):
+        read_animation_json(tmp_path / "bad.json")
+
+
+def test_not_json_and_empty(tmp_path):
+    (tmp_path / "x.json").write_text("{oops")
+    with pytest.raises(VispeechError, match="not valid JSON"):
+        read_track(tmp_path / "x.json")
+    (tmp_path / "e.json").write_text("")
+    with pytest.raises(VispeechError, match="empty"):
+        read_track(tmp_path / "e.json")
+
+
+def test_talkinghead_round_trip(tmp_path):
+    track = small_track(fps=30.0)
+    write_talkinghead_json(track, tmp_path / "t.json")
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert data["name"] == "blendshapes" and len(data["dt"]) == 12 and data["dt"][0] == pytest.approx(1000 / 30)
+    assert data["vs"]["jawOpen"] == track["jawOpen"].tolist()
+    back = read_talkinghead_json(tmp_path / "t.json")
+    assert back.fps == 30.0 and back.channels == track.channels and np.array_equal(back.values, track.values)
+
+
+def test_talkinghead_wrapped_and_uneven_dt(tmp_path):
+    anim = {"anim": {"name": "blendshapes", "dt": [100, 100, 200, 100], "vs": {"jawOpen": [0.0, 0.2, 0.4, 0.0]}}}
+    (tmp_path / "t.json").write_text(json.dumps(anim))
+    track = read_track(tmp_path / "t.json")  # recognised by content
+    assert track.fps == 10.0 and track.n_frames == 5
+    assert np.allclose(track["jawOpen"], [0.0, 0.2, 0.4, 0.2, 0.0])
+    anim["anim"]["vs"]["jawOpen"] = [0.1]
+    (tmp_path / "t.json").write_text(json.dumps(anim))
+    with pytest.raises(VispeechError, match="1 values for 4 frames"):
+        read_track(tmp_path / "t.json", "talkinghead")
+
+
+def test_oculus_viseme_curves(tmp_path):
+    table = poses("oculus_visemes")
+    frames = [{}, table["viseme_PP"], table["viseme_aa"], table["viseme_I"], table["viseme_U"]]
+    track = pose_track(frames, fps=25)
+    visemes = oculus_visemes(track)
+    assert visemes.channels == OCULUS_VISEMES
+    assert [visemes.channels[i] for i in visemes.values.argmax(axis=1)] == ["sil", "PP", "aa", "ih", "ou"]
+    assert visemes["sil"][0] == 1.0 and np.all((visemes.values >= 0) & (visemes.values <= 1))
+    write_track(track, tmp_path / "v.visemes.csv")
+    lines = (tmp_path / "v.visemes.csv").read_text().splitlines()
+    assert lines[0] == "time," + ",".join(OCULUS_VISEMES) and len(lines) == 6
+    assert lines[2].startswith("0.040000,") and len(lines[2].split(",")) == 16
+    write_track(track, tmp_path / "v.visemes.json")
+    back = read_track(tmp_path / "v.visemes.json")
+    assert back.channels == OCULUS_VISEMES and np.allclose(back.values, visemes.values, atol=5e-7)
+
+
+def rhubarb_example() -> Track:
+    shapes = poses("rhubarb_shapes")
+    return pose_track([{}] * 3 + [shapes["A"]] * 2 + [shapes["D"]] * 4 + [{}], fps=10)
+
+
+def test_mouth_cues_merge_runs():
+    assert mouth_cues(rhubarb_example()) == [
+        MouthCue(0.0, 0.3, "X"), MouthCue(0.3, 0.5, "A"), MouthCue(0.5, 0.9, "D"), MouthCue(0.9, 1.0, "X")]
+
+
+def test_rhubarb_tsv_exactly(tmp_path):
+    write_track(rhubarb_example(), tmp_path / "cues.tsv")
+    assert (tmp_path / "cues.tsv").read_text() == "0.00\tX\n0.30\tA\n0.50\tD\n0.90\tX\n1.00\tX\n"
+
+
+def test_rhubarb_json_exactly(tmp_path):
+    write_track(rhubarb_example(), tmp_path / "cues.rhubarb.json", audio="hello.wav")
+    assert (tmp_path / "cues.rhubarb.json").read_text() == (
+        '{\n'
+        '  "metadata": {\n'
+        '    "soundFile": "hello.wav",\n'
+        '    "duration": 1.00\n'
+        '  },\n'
+        '  "mouthCues": [\n'
+        '    { "start": 0.00, "end": 0.30, "value": "X" },\n'
+        '    { "start": 0.30, "end": 0.50, "value": "A" },\n'
+        '    { "start": 0.50, "end": 0.90, "value": "D" },\n'
+        '    { "start": 0.90, "end": 1.00, "value": "X" }\n'
+        '  ]\n'
+        '}\n'
+    )
+    with pytest.raises(VispeechError, match="rhubarb files cannot be read"):
+        read_track(tmp_path / "cues.rhubarb.json")
+
+
+def test_cues_at_high_frame_rates_round_to_centiseconds():
+    shapes = poses("rhubarb_shapes")
+    cues = mouth_cues(pose_track([{}] * 7 + [shapes["F"]] * 5, fps=120))
+    assert cues == [MouthCue(0.0, 0.06, "X"), MouthCue(0.06, 0.1, "F")]
+
+
+def test_format_dispatch():
+    assert track_format("a.csv") == "livelink" and track_format("a.visemes.csv") == "oculus"
+    assert track_format("A.JSON") == "json" and track_format("a.talkinghead.json") == "talkinghead"
+    assert track_format("a.tsv") == "rhubarb" and track_format("a.rhubarb.json") == "rhubarb"
+    assert track_format("a.glb") == "gltf" and set(FORMATS) == {"livelink", "json", "talkinghead", "oculus", "rhubarb", "gltf"}
+    with pytest.raises(VispeechError, match="known formats: livelink, json, talkinghead, oculus, rhubarb, gltf"):
+        track_format("a.txt")
+    with pytest.raises(VispeechError, match="unknown track format 'fbx'"):
+        write_track(small_track(), "a.json", "fbx")
+    with pytest.raises(VispeechError, match="cannot be read"):
+        read_track("a.glb")
+
+
+def test_write_track_by_name_and_retargeting(tmp_path):
+    track = small_track()
+    write_track(track, tmp_path / "take.txt", "livelink")
+    assert read_track(tmp_path / "take.txt", "livelink")["jawOpen"].tolist() == track["jawOpen"].tolist()
+    write_track(track, tmp_path / "th.json", "talkinghead")
+    assert read_track(tmp_path / "th.json").channels == track.channels
+    from vispeech.motion.retarget import PoseTable
+    write_track(track, tmp_path / "rig.json", pose_table=PoseTable.load("thesis_bone_rig"))
+    rig = read_track(tmp_path / "rig.json")
+    assert "jaw.rotation_x" in rig.channels
+    assert np.allclose(rig["jaw.rotation_x"], np.round(0.35 * track["jawOpen"], 6))
+    with pytest.raises(VispeechError, match="no Live Link Face channel"):
+        write_track(rig, tmp_path / "rig.csv")
+    with pytest.raises(VispeechError, match="needs a base model"):
+        write_track(track, tmp_path / "x.glb")

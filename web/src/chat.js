@@ -1,0 +1,85 @@
+// Chat page: messages go to api/chat and the avatar speaks the reply, either from a whole
+// utterance (api/chat's speech) or streamed over the api/stream WebSocket.
+import { startApp } from './app.js';
+import { requestChat, streamSpeech } from './server.js';
+
+const $ = (id) => document.getElementById(id);
+const LANGUAGE_NAMES = { sv: 'Svenska', en: 'English' };
+const status = $('status');
+const show = (message) => {
+  status.textContent = message;
+  status.hidden = !message;
+};
+
+function addMessage(who, text) {
+  const item = document.createElement('li');
+  item.className = `message ${who}`;
+  item.textContent = text;
+  $('log').appendChild(item);
+  item.scrollIntoView({ block: 'end' });
+  return item;
+}
+
+function fillSelect(select, values, chosen, label = (v) => v) {
+  for (const value of values) select.add(new Option(label(value), value, false, value === chosen));
+}
+
+async function setup(app) {
+  const { config } = app;
+  fillSelect($('lang'), config.languages, config.languages[0], (v) => LANGUAGE_NAMES[v] || v);
+  fillSelect($('model'), config.models, config.default_model);
+  $('model').disabled = !config.models.length;
+  if (config.offline) show('No vispeech server answered; start one with `vispeech serve`.');
+
+  const settings = () => ({ lang: $('lang').value, model: $('model').value || null, stream: $('stream').checked });
+
+  const say = (text, { lang, model, stream }) => (stream
+    ? streamSpeech(app.performer, { text, lang, model })
+    : app.speak(text, lang, model));
+
+  const busy = (on) => {
+    for (const id of ['send', 'say']) $(id).disabled = on;
+  };
+
+  const submit = async (chat) => {
+    const text = $('text').value.trim();
+    if (!text) return;
+    const options = settings();
+    show('');
+    busy(true);
+    try {
+      await app.performer.unlock();
+      if (!chat) {
+        addMessage('user said', text);
+        $('text').value = '';
+        await say(text, options);
+        return;
+      }
+      addMessage('user', text);
+      $('text').value = '';
+      const answer = await requestChat({ message: text, lang: options.lang, speak: !options.stream });
+      addMessage('bot', answer.reply);
+      const lang = answer.lang || options.lang;
+      if (options.stream || !answer.speech) await say(answer.reply, { ...options, lang });
+      else await app.playSpeech(answer.speech);
+    } catch (err) {
+      show(err.message);
+    } finally {
+      busy(false);
+    }
+  };
+
+  $('form').onsubmit = (e) => {
+    e.preventDefault();
+    submit(true);
+  };
+  $('say').onclick = () => submit(false);
+  $('text').onkeydown = (e) => {
+    if (e.key === 'Enter' && !e.shiftKey) {
+      e.preventDefault();
+      submit(true);
+    }
+  };
+}
+
+startApp({ stage: $('stage'), setup, report: show }).catch((err) => show(err.message));

@@ -1,0 +1,252 @@
+// Plays audio and animation on one clock: the AudioContext's. The frame shown is the track
+// interpolated at `audioContext.currentTime - outputLatency - t0`, where t0 is the context
+// time at which utterance time 0 sounds.
+import { ARKIT_INDEX, ARKIT_NAMES, arkitName } from './arkit.js';
+import { Animation } from './animation.js';
+import { IdleMotion } from './idle.js';
+
+const LEAD = 0.08; // seconds between scheduling and the first sample sounding
+const STREAM_BUFFER = 0.25; // seconds of streamed audio buffered before playback starts
+const FADE = 0.2; // seconds to ease into and out of an animation's first and last frame
+
+/** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
+export function decodePcm16(base64) {
+  const bytes = Uint8Array.from(atob(base64), (c) => c.charCodeAt(0));
+  const view = new DataView(bytes.buffer);
+  const out = new Float32Array(bytes.length >> 1);
+  for (let i = 0; i < out.length; i++) out[i] = view.getInt16(2 * i, true) / 32768;
+  return out;
+}
+
+/**
+ * Drives an avatar from an Animation and its audio. States: `idle` (nothing loaded or
+ * finished: blinks and head sway only), `buffering` (a stream began, its clock has not),
+ * `playing`, `paused` (frozen at a time, idle motion included) and `waiting` (the browser
+ * holds audio back until a user gesture).
+ */
+export class Performer {
+  constructor(avatar, { idle = true, onstate = () => {} } = {}) {
+    this.avatar = avatar;
+    this.context = new AudioContext();
+    this.idle = idle ? new IdleMotion() : null;
+    this.onstate = onstate;
+    this.animation = null;
+    this.channelIndex = [];
+    this.segments = []; // audio: [{start (seconds), buffer}]
+    this.sources = [];
+    this.t0 = null;
+    this.pausedAt = null;
+    this.idleClock = 0;
+    this.lastTick = null;
+    this.weights = new Float32Array(ARKIT_NAMES.length);
+    this.values = null;
+    this.shownTime = 0;
+    this.shownFrame = -1;
+    this.state = 'idle';
+    this.context.onstatechange = () => this.updateState();
+  }
+
+  /** Seconds of utterance time now: the clock both audio and animation follow. */
+  time() {
+    if (this.pausedAt !== null) return this.pausedAt;
+    if (this.t0 === null) return 0;
+    return this.context.currentTime - (this.context.outputLatency || 0) - this.t0;
+  }
+
+  /** Seconds covered by the animation and the audio, whichever ends later. */
+  get duration() {
+    const audioEnd = Math.max(0, ...this.segments.map((s) => s.start + s.buffer.duration));
+    return Math.max(audioEnd, this.animation ? this.animation.endTime : 0);
+  }
+
+  /** Let audio play; call from a user gesture (click, key press). */
+  unlock() {
+    return this.context.state === 'running' ? Promise.resolve() : this.context.resume();
+  }
+
+  /** Decode a complete audio file (WAV, MP3, ...) into an AudioBuffer. */
+  decodeAudio(arrayBuffer) {
+    return this.context.decodeAudioData(arrayBuffer);
+  }
+
+  /** Replace what is loaded by `animation` and optional `audioBuffer`, paused at 0. */
+  load(animation, audioBuffer = null) {
+    this.stopSources();
+    this.setAnimation(animation);
+    this.segments = audioBuffer ? [{ start: 0, buffer: audioBuffer }] : [];
+    this.t0 = null;
+    this.pausedAt = 0;
+    this.tick();
+  }
+
+  /** Play from `from` seconds (default: where paused, or the start). */
+  play(from = null) {
+    if (!this.animation && !this.segments.length) return;
+    let t = from ?? this.pausedAt ?? 0;
+    if (t >= this.duration) t = 0;
+    this.stopSources();
+    this.pausedAt = null;
+    this.t0 = this.context.currentTime + LEAD - t;
+    for (const { start, buffer } of this.segments) this.schedule(start, buffer, t);
+    this.unlock().catch(() => {});
+    this.updateState();
+  }
+
+  /** Pause where the clock is now. */
+  pause() {
+    if (this.state !== 'playing' && this.state !== 'waiting') return;
+    this.seek(this.time());
+  }
+
+  /** Stop the sound and hold the pose at `t` seconds. */
+  seek(t) {
+    this.stopSources();
+    this.pausedAt = Math.min(Math.max(Number(t) || 0, 0), this.duration);
+    this.t0 = null;
+    this.tick();
+    this.updateState();
+  }
+
+  /** Stop everything and go back to idle. */
+  stop() {
+    this.stopSources();
+    this.animation = null;
+    this.segments = [];
+    this.t0 = null;
+    this.pausedAt = null;
+    this.updateState();
+  }
+
+  // --- streaming: frames and audio chunks arrive while the utterance plays ---
+
+  /** Start a streamed utterance of `channels` at `fps`. */
+  beginStream({ fps, channels }) {
+    this.stopSources();
+    this.setAnimation(new Animation({ fps, channels, complete: false }));
+    this.segments = [];
+    this.t0 = null;
+    this.pausedAt = null;
+    this.updateState();
+  }
+
+  /** Add streamed frames from frame `startFrame` on. */
+  streamFrames(startFrame, frames) {
+    this.animation.append(startFrame, frames);
+    this.startStreamClock();
+  }
+
+  /** Add a chunk of mono `samples` at `sampleRate` Hz that starts `start` seconds in. */
+  streamAudio(start, samples, sampleRate) {
+    const buffer = this.context.createBuffer(1, samples.length, sampleRate);
+    buffer.copyToChannel(samples, 0);
+    this.segments.push({ start, buffer });
+    this.startStreamClock();
+    if (this.t0 === null) return; // paused: played when resumed
+    const late = this.t0 + start - (this.context.currentTime + 0.01);
+    if (late < 0) this.t0 -= late - LEAD; // chunk arrived late: wait for it, animation too
+    this.schedule(start, buffer, 0);
+  }
+
+  /** The server sent everything. */
+  endStream() {
+    this.animation.complete = true;
+  }
+
+  startStreamClock() {
+    if (this.t0 === null && this.pausedAt === null) {
+      this.t0 = this.context.currentTime + STREAM_BUFFER;
+      this.unlock().catch(() => {});
+      this.updateState();
+    }
+  }
+
+  // --- internals ---
+
+  setAnimation(animation) {
+    this.animation = animation;
+    this.channelIndex = animation.channels.map((c) => {
+      const name = arkitName(c);
+      return name === null ? -1 : ARKIT_INDEX.get(name);
+    });
+    this.values = new Float32Array(animation.channels.length);
+  }
+
+  schedule(start, buffer, from) {
+    const offset = Math.max(0, from - start);
+    if (offset >= buffer.duration) return;
+    const source = this.context.createBufferSource();
+    source.buffer = buffer;
+    source.connect(this.context.destination);
+    source.start(Math.max(this.context.currentTime, this.t0 + start + offset), offset);
+    source.onended = () => {
+      this.sources = this.sources.filter((s) => s !== source);
+    };
+    this.sources.push(source);
+  }
+
+  stopSources() {
+    for (const source of this.sources) {
+      source.onended = null;
+      try {
+        source.stop();
+      } catch {
+        // never started
+      }
+    }
+    this.sources = [];
+  }
+
+  updateState() {
+    let state;
+    if (this.pausedAt !== null) state = 'paused';
+    else if (this.t0 === null) state = this.animation && !this.animation.complete ? 'buffering' : 'idle';
+    else state = this.context.state === 'running' ? 'playing' : 'waiting';
+    if (state !== this.state) {
+      this.state = state;
+      this.onstate(state);
+    }
+  }
+
+  /** Pose the avatar for the clock's time and draw it; call once per display frame. */
+  tick(now = performance.now() / 1000) {
+    const elapsed = this.lastTick === null ? 0 : Math.min(now - this.lastTick, 0.1);
+    this.lastTick = now;
+    if (this.pausedAt === null) this.idleClock += elapsed;
+
+    const t = this.time();
+    const weights = this.weights.fill(0);
+    const anim = this.animation;
+    const running = this.t0 !== null || this.pausedAt !== null;
+    this.shownTime = t;
+    this.shownFrame = -1;
+    if (anim && anim.length && running) {
+      const fadeIn = 1 - (anim.startTime - t) / FADE;
+      const fadeOut = anim.complete ? 1 - (t - anim.endTime) / FADE : 1;
+      const fade = Math.min(1, Math.max(0, Math.min(fadeIn, fadeOut)));
+      anim.sample(t, this.values);
+      for (let c = 0; c < this.values.length; c++) {
+        const k = this.channelIndex[c];
+        if (k >= 0) weights[k] = Math.min(1, Math.max(0, this.values[c] * fade));
+      }
+      this.shownFrame = Math.round(anim.position(t));
+    }
+    if (this.t0 !== null && this.pausedAt === null && anim && anim.complete && t > this.duration + FADE) {
+      this.t0 = null; // finished: back to idle, animation kept for replay
+      this.pausedAt = null;
+      this.updateState();
+    }
+
+    if (this.idle) {
+      if (!this.avatar.blinks) {
+        const blink = this.idle.blink(this.idleClock);
+        for (const name of ['eyeBlinkLeft', 'eyeBlinkRight']) {
+          const k = ARKIT_INDEX.get(name);
+          weights[k] = Math.max(weights[k], blink);
+        }
+      }
+      this.avatar.setHeadRotation(...this.idle.head(this.idleClock));
+    }
+    this.avatar.setWeights(weights);
+    this.avatar.render(this.idleClock);
+  }
+}
