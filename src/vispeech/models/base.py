@@ -91,6 +91,17 @@ class ControlModel(ABC):
             raise VispeechError(f"model {cls.name} has no arrays but the saved folder has {sorted(arrays)}")
         return cls(params)
 
+    @classmethod
+    def _from_folder(cls, folder: Path, config: dict) -> ControlModel:
+        """Rebuild a saved model from its folder and parsed ``config.json``.
+
+        Reads ``weights.npz`` and calls :meth:`_from_saved`; models that keep their weights
+        in another file (the torch networks: ``weights.safetensors``) override this.
+        """
+        names = list(config.get("arrays", []))
+        arrays = _read_arrays(folder / "weights.npz", names) if names else {}
+        return cls._from_saved(config["params"], arrays)
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the model into folder ``path`` (created if needed) atomically; returns the folder."""
         arrays = self._arrays()
@@ -133,8 +144,7 @@ class ControlModel(ABC):
             raise VispeechError(f"{folder} holds a {name} model, not a {cls.name} model")
         if not isinstance(params, dict):
             raise VispeechError(f"corrupt model config {config_path}: params is not an object")
-        arrays = _read_arrays(folder / "weights.npz", array_names) if array_names else {}
-        model = model_cls._from_saved(params, arrays)
+        model = model_cls._from_folder(folder, config)
         if list(model.channels) != channels:
             raise VispeechError(f"{config_path} lists channels that do not match the {name} model's")
         return model

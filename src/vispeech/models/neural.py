@@ -31,18 +31,23 @@ import json
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.base import FORMAT_VERSION, ControlModel
+from vispeech.models.base import FORMAT_VERSION, ControlModel, _package_version
 from vispeech.models.encoding import InputEncoding
-from vispeech.models.training import STATE_JSON, TrainingHistory, TrainingState, load_state, save_state, train
+from vispeech.models.training import STATE_JSON, TrainingHistory
 from vispeech.motion.arkit import ARKIT_NAMES, MOUTH_CHANNELS
 from vispeech.motion.track import Track
+
+if TYPE_CHECKING:
+    import torch
+
+    from vispeech.models.training import TrainingState
 
 THESIS_CHANNELS: tuple[str, ...] = (
     "jawForward", "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker",
@@ -180,6 +185,10 @@ class NeuralControlModel(ControlModel):
         optimizer starts afresh) up to ``epochs`` epochs in all; ``checkpoint_dir`` receives a
         checkpoint after every epoch. Returns ``self``.
         """
+        import torch
+
+        from vispeech.models.training import train
+
         train_set, validation_set = _split(corpus, validation)
         if not train_set:
             raise VispeechError("cannot fit on an empty corpus")
@@ -311,6 +320,8 @@ class NeuralControlModel(ControlModel):
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         """Tracks of ``phones.n_frames(fps)`` frames: predicted at the model's rate, resampled to ``fps``."""
+        import torch
+
         module = self._inference_module()
         phones.validate()
         self.encoding.check(phones)
@@ -332,7 +343,10 @@ class NeuralControlModel(ControlModel):
         return Path(path)
 
     def _write(self, folder: Path, weights: dict | None, history: TrainingHistory, state: TrainingState | None) -> None:
+        import torch
         from safetensors.torch import save_file
+
+        from vispeech.models.training import save_state
 
         config = {
             "model": self.name,
@@ -360,21 +374,10 @@ class NeuralControlModel(ControlModel):
                 save_state(state, self._module, staging)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> NeuralControlModel:
-        """Read a folder written by :meth:`save` (or a checkpoint)."""
-        folder = Path(path)
-        config = _read_config(folder)
-        model_cls = _network_class(config["model"])
-        if not issubclass(model_cls, cls):
-            raise VispeechError(f"{folder} holds a {config['model']} model, not a {cls.name} model")
-        return model_cls._from_folder(folder, config)
-
-    @classmethod
-    def _from_folder(cls, folder: Path, config: dict | None = None) -> NeuralControlModel:
-        """Rebuild a saved network from ``folder`` (whose config may already be read)."""
+    def _from_folder(cls, folder: Path, config: dict) -> NeuralControlModel:
+        """Rebuild a saved network: config, then ``weights.safetensors`` if the folder has one."""
         from safetensors.torch import load_file
 
-        config = _read_config(folder) if config is None else config
         model = cls(config["params"])
         saved = config.get("state")
         if saved is not None:
@@ -397,14 +400,14 @@ class NeuralControlModel(ControlModel):
                 except RuntimeError as exc:
                     raise VispeechError(f"model weights in {folder} do not fit its config: {exc}") from None
                 model._module = module
-        if list(model.channels) != list(config["channels"]):
-            raise VispeechError(f"{folder / 'config.json'} lists channels that do not match the {cls.name} model's")
         return model
 
     def _resume(self, folder: Path) -> TrainingState:
         """Take over a saved run: its learned set-up, weights and (if any) training state."""
-        saved = type(self)._from_folder(folder)
-        if saved.name != self.name or saved._module is None:
+        from vispeech.models.training import TrainingState, load_state
+
+        saved = ControlModel.load(folder)
+        if saved.name != self.name or not isinstance(saved, NeuralControlModel) or saved._module is None:
             raise VispeechError(f"cannot resume from {folder}: it holds no trained {self.name} model")
         architecture = {k: v for k, v in saved.get_params().items() if k not in _RUN_PARAMS}
         mine = {k: v for k, v in self.get_params().items() if k not in _RUN_PARAMS}
@@ -425,25 +428,6 @@ class NeuralControlModel(ControlModel):
 
 _RUN_PARAMS = frozenset({"epochs", "patience", "progress", "num_threads"})
 """Parameters that may change between a run and its resumption."""
-
-
-def sequence_loss(pred: torch.Tensor, target: torch.Tensor, motion_weight: float = 0.0,
-                  mask: torch.Tensor | None = None) -> torch.Tensor:
-    """MSE over all values plus ``motion_weight`` x the thesis's motion term.
-
-    ``pred`` and ``target`` are ``(batch, frames, channels)``; the motion term is the mean over
-    frame transitions of the summed absolute difference of target and predicted deltas.
-    ``mask`` (``(batch, frames)`` booleans) leaves out padding frames.
-    """
-    if mask is None:
-        mask = torch.ones(pred.shape[:2], dtype=torch.bool)
-    m = mask.unsqueeze(-1).to(pred.dtype)
-    loss = (((pred - target) ** 2) * m).sum() / (m.sum() * pred.shape[-1])
-    if motion_weight and pred.shape[1] > 1:
-        both = (mask[:, 1:] & mask[:, :-1]).unsqueeze(-1).to(pred.dtype)
-        motion = ((target.diff(dim=1) - pred.diff(dim=1)).abs() * both).sum() / both.sum().clamp(min=1)
-        loss = loss + motion_weight * motion
-    return loss
 
 
 def _split(corpus, validation: Iterable | None) -> tuple[list, list]:
@@ -472,35 +456,3 @@ def _best_loss(history: TrainingHistory) -> float:
     i = history.best_epoch - 1
     value = history.validation_loss[i]
     return history.train_loss[i] if value is None else value
-
-
-def _read_config(folder: Path) -> dict:
-    path = folder / "config.json"
-    if not path.is_file():
-        raise VispeechError(f"no saved model at {folder} (config.json missing)")
-    try:
-        config = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(config["params"], dict) or not isinstance(config["model"], str):
-            raise TypeError("params must be an object and model a name")
-        version = config["version"]
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
-        raise VispeechError(f"corrupt model config {path}: {exc}") from None
-    if not isinstance(version, int) or version > FORMAT_VERSION:
-        raise VispeechError(f"{path} has format version {version!r}; this vispeech reads up to {FORMAT_VERSION}")
-    return config
-
-
-def _network_class(name: str) -> type[NeuralControlModel]:
-    pending = [NeuralControlModel]
-    while pending:
-        cls = pending.pop()
-        if cls.name == name:
-            return cls
-        pending.extend(cls.__subclasses__())
-    raise VispeechError(f"unknown network model {name!r}")
-
-
-def _package_version() -> str:
-    from vispeech import __version__
-
-    return __version__

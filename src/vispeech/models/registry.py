@@ -9,7 +9,9 @@ from __future__ import annotations
 import os
 
 from vispeech.errors import VispeechError
-from vispeech.models import baseline, beskow_rules, cohen_massaro, ohman  # noqa: F401  (registration)
+from vispeech.models import (  # noqa: F401  (registration)
+    baseline, beskow_rules, cohen_massaro, ohman, sliding_window, tdnn,
+)
 from vispeech.models.base import _MODELS, ControlModel
 
 MODEL_NAMES: tuple[str, ...] = tuple(_MODELS)

@@ -65,6 +65,7 @@ PRESETS: dict[str, dict] = {
 _ACTIVATIONS = ("tanh", "leaky_relu")
 
 
+@register_model
 class SlidingWindowNetwork(NeuralControlModel):
     """Sliding-window network; ``preset`` is ``"thesis"`` (default) or ``"taylor"``.
 
@@ -102,7 +103,7 @@ class SlidingWindowNetwork(NeuralControlModel):
         kx = p["input_window"]
         hidden = p["hidden"] or [max(1, round(0.5 * kx * n_inputs)), kx * n_outputs]
         return WindowMLP(n_inputs, n_outputs, kx, p["output_window"], list(hidden), p["activation"],
-                               list(p["dropout"]), p["init"])
+                         list(p["dropout"]), p["init"])
 
     @property
     def _pad(self) -> int:
@@ -125,9 +126,10 @@ class SlidingWindowNetwork(NeuralControlModel):
         y_starts = np.concatenate([o + np.arange(c) for o, c in zip(_offsets(targets), counts)])
         order = np.arange(len(x_starts)) if rng is None else rng.permutation(len(x_starts))
         size = self._params["batch_size"]
+        # Windows are gathered batch by batch (in _data_loss), never all at once.
         return [
-            (x_all[torch.from_numpy(x_starts[chunk][:, None] + np.arange(kx))],
-             y_all[torch.from_numpy(y_starts[chunk][:, None] + np.arange(ky))])
+            (x_all, torch.from_numpy(x_starts[chunk][:, None] + np.arange(kx)),
+             y_all, torch.from_numpy(y_starts[chunk][:, None] + np.arange(ky)))
             for chunk in (order[i:i + size] for i in range(0, len(order), size))
         ]
 
@@ -140,8 +142,8 @@ class SlidingWindowNetwork(NeuralControlModel):
             padded, target = batch
             pred = overlap_average(module(windows(padded, self._params["input_window"])), len(target))
             return sequence_loss(pred[None], target[None], weight), float(len(target))
-        windows, target = batch
-        return sequence_loss(module(windows), target, weight), float(len(windows))
+        x_all, x_index, y_all, y_index = batch
+        return sequence_loss(module(x_all[x_index]), y_all[y_index], weight), float(len(x_index))
 
     def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
         from vispeech.models.networks import edge_pad, overlap_average, windows
@@ -158,8 +160,6 @@ class TaylorNetwork(SlidingWindowNetwork):
     name = "sliding-window-taylor"
     default_preset = "taylor"
 
-
-register_model(SlidingWindowNetwork)
 
 
 def _offsets(blocks: list) -> np.ndarray:

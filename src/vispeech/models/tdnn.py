@@ -30,13 +30,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 
 import numpy as np
-import torch
-from torch import nn
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.base import register_model
-from vispeech.models.neural import COMMON_PARAMS, NeuralControlModel, sequence_loss
+from vispeech.models.neural import COMMON_PARAMS, NeuralControlModel
 
 _BESKOW = {
     **COMMON_PARAMS,
@@ -59,58 +57,7 @@ PRESETS: dict[str, dict] = {
 """Parameters of ANN 1 (``beskow``) and ANN 2 (``beskow-lowlatency``)."""
 
 
-class RecurrentTimeDelayNet(nn.Module):
-    """One network: input window convolution, hidden layer fed back at delays 1..``delays``."""
-
-    def __init__(self, n_inputs: int, n_outputs: int, window: int, hidden: int, delays: int):
-        super().__init__()
-        self.window, self.delays, self.hidden = window, delays, hidden
-        self.input = nn.Conv1d(n_inputs, hidden, window)
-        self.recurrent = nn.Linear(delays * hidden, hidden, bias=False)
-        self.output = nn.Linear(hidden, n_outputs)
-
-    def initial_state(self, batch: int, dtype: torch.dtype) -> list[torch.Tensor]:
-        """Hidden states of the ``delays`` frames before the first: zeros, newest first."""
-        return [torch.zeros(batch, self.hidden, dtype=dtype) for _ in range(self.delays)]
-
-    def forward(self, padded: torch.Tensor) -> torch.Tensor:
-        """``(batch, frames + window - 1, inputs)`` padded inputs to ``(batch, frames, outputs)``."""
-        drive = self.input(padded.transpose(1, 2)).transpose(1, 2)
-        past = self.initial_state(len(padded), padded.dtype)
-        states = []
-        for t in range(drive.shape[1]):
-            h = torch.tanh(drive[:, t] + self.recurrent(torch.cat(past, dim=1)))
-            past = [h, *past[:-1]]
-            states.append(h)
-        return self.output(torch.stack(states, dim=1))
-
-    def step(self, window: torch.Tensor, past: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """One frame: ``(batch, window, inputs)`` and the past states to outputs and new states."""
-        drive = self.input(window.transpose(1, 2))[:, :, 0]
-        h = torch.tanh(drive + self.recurrent(torch.cat(past, dim=1)))
-        return self.output(h), [h, *past[:-1]]
-
-
-class GroupedNetworks(nn.Module):
-    """Several networks, each predicting some outputs; outputs come back in the model's order."""
-
-    def __init__(self, nets: list[RecurrentTimeDelayNet], columns: list[list[int]]):
-        super().__init__()
-        self.nets = nn.ModuleList(nets)
-        order = [c for group in columns for c in group]
-        self.register_buffer("order", torch.tensor(np.argsort(order)), persistent=False)
-
-    def forward(self, padded: torch.Tensor) -> torch.Tensor:
-        return torch.cat([net(padded) for net in self.nets], dim=-1)[..., self.order]
-
-    def initial_state(self, dtype: torch.dtype) -> list[list[torch.Tensor]]:
-        return [net.initial_state(1, dtype) for net in self.nets]
-
-    def step(self, window: torch.Tensor, past: list[list[torch.Tensor]]) -> tuple[torch.Tensor, list]:
-        outs, states = zip(*(net.step(window, p) for net, p in zip(self.nets, past)))
-        return torch.cat(outs, dim=-1)[..., self.order], list(states)
-
-
+@register_model
 class TimeDelayNetwork(NeuralControlModel):
     """Beskow's recurrent time-delay network; ``preset`` is ``"beskow"`` or ``"beskow-lowlatency"``.
 
@@ -137,7 +84,9 @@ class TimeDelayNetwork(NeuralControlModel):
     def window(self) -> int:
         return self._params["look_back"] + self._params["look_ahead"] + 1
 
-    def _build_module(self, n_inputs: int, n_outputs: int) -> nn.Module:
+    def _build_module(self, n_inputs: int, n_outputs: int):
+        from vispeech.models.networks import GroupedNetworks, RecurrentTimeDelayNet
+
         p = self._params
         groups = p["groups"] or [list(self.outputs)]
         columns = []
@@ -158,6 +107,8 @@ class TimeDelayNetwork(NeuralControlModel):
         return np.pad(inputs, ((self._params["look_back"], self._params["look_ahead"]), (0, 0)), mode="edge")
 
     def _batches(self, examples, rng):
+        import torch
+
         order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
         size = self._params["batch_size"]
         batches = []
@@ -171,11 +122,15 @@ class TimeDelayNetwork(NeuralControlModel):
         return batches
 
     def _data_loss(self, module, batch):
+        from vispeech.models.training import sequence_loss
+
         inputs, targets, mask = batch
         loss = sequence_loss(module(inputs), targets, self._params["motion_weight"], mask)
         return loss, float(mask.sum())
 
     def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
+        import torch
+
         return module(torch.from_numpy(self._pad(inputs)).double()[None])[0].numpy()
 
     def predict_stream(self, phone_events: Iterable[Phone], language: str = "en") -> Iterator[tuple[int, np.ndarray]]:
@@ -188,6 +143,8 @@ class TimeDelayNetwork(NeuralControlModel):
         ``values`` follow :attr:`channels`. The frames equal those of :meth:`predict` at
         ``self.fps`` on the whole sequence.
         """
+        import torch
+
         module = self._inference_module()
         self.encoding.check(PhoneSequence([], language))
         back, ahead = self._params["look_back"], self._params["look_ahead"]
@@ -231,5 +188,3 @@ class LowLatencyNetwork(TimeDelayNetwork):
     name = "tdnn-lowlatency"
     default_preset = "beskow-lowlatency"
 
-
-register_model(TimeDelayNetwork)

@@ -20,10 +20,14 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
 
 from vispeech.errors import VispeechError
+
+if TYPE_CHECKING:
+    import torch
 
 STATE_JSON = "training_state.json"
 STATE_TENSORS = "training_state.safetensors"
@@ -95,6 +99,8 @@ class TrainingState:
 
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed torch's global generator and return a numpy generator seeded alike."""
+    import torch
+
     torch.manual_seed(seed)
     return np.random.default_rng(seed)
 
@@ -128,6 +134,7 @@ def train(
     set, the training loss decides). ``state`` resumes a run (``seed`` is then ignored);
     ``on_epoch(state)`` is called after every epoch, e.g. to checkpoint. Returns the final state.
     """
+    import torch
     from tqdm.auto import tqdm
 
     if state is None:
@@ -196,6 +203,7 @@ def train(
 
 def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> None:
     """Write ``state`` and ``module``'s current weights into ``folder`` (JSON + safetensors)."""
+    import torch
     from safetensors.torch import save_file
 
     tensors = {f"last.{k}": v for k, v in module.state_dict().items()}
@@ -254,3 +262,24 @@ def load_state(folder: Path, module: torch.nn.Module) -> TrainingState:
         torch_rng=tensors.get("rng.torch"),
         numpy_rng=info["numpy_rng"],
     )
+
+
+def sequence_loss(pred: torch.Tensor, target: torch.Tensor, motion_weight: float = 0.0,
+                  mask: torch.Tensor | None = None) -> torch.Tensor:
+    """MSE over all values plus ``motion_weight`` x the thesis's motion term.
+
+    ``pred`` and ``target`` are ``(batch, frames, channels)``; the motion term is the mean over
+    frame transitions of the summed absolute difference of target and predicted deltas.
+    ``mask`` (``(batch, frames)`` booleans) leaves out padding frames.
+    """
+    import torch
+
+    if mask is None:
+        mask = torch.ones(pred.shape[:2], dtype=torch.bool)
+    m = mask.unsqueeze(-1).to(pred.dtype)
+    loss = (((pred - target) ** 2) * m).sum() / (m.sum() * pred.shape[-1])
+    if motion_weight and pred.shape[1] > 1:
+        both = (mask[:, 1:] & mask[:, :-1]).unsqueeze(-1).to(pred.dtype)
+        motion = ((target.diff(dim=1) - pred.diff(dim=1)).abs() * both).sum() / both.sum().clamp(min=1)
+        loss = loss + motion_weight * motion
+    return loss

@@ -80,6 +80,8 @@ def mouth_cues(track: Track, pose_table: PoseTable | None = None) -> list[MouthC
     rounded to centiseconds as Rhubarb's are, and cues that round to nothing are dropped.
     """
     table = pose_table or PoseTable.load("rhubarb_shapes")
+    if table.kind != "morph":
+        raise VispeechError(f"mouth cues need a morph pose table; {table.name!r} is a {table.kind} table")
     shapes = table.apply(track)
     labels = [shapes.channels[i] for i in np.argmax(shapes.values, axis=1)]
     bounds = [round(k * 100 / track.fps) for k in range(track.n_frames + 1)]

@@ -1,0 +1,62 @@
+"""``vispeech say`` and ``vispeech animate-phones``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vispeech.cli import main
+from vispeech.errors import VispeechError
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, speak, write_outputs
+
+_model_option = click.option(
+    "--model", "-m", default=DEFAULT_MODEL, show_default=True,
+    help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a saved model folder.",
+)
+_fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
+
+
+@main.command()
+@click.argument("text", required=False)
+@click.option("--lang", "-l", default="en", show_default=True, help="Language: sv or en.")
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
+@_model_option
+@_fps_option
+@click.option("--rate", default=1.0, show_default=True, type=float, help="Speaking-rate factor (1.0 = normal).")
+@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool) -> None:
+    """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
+
+    Without TEXT a greeting in the chosen language is spoken.
+    """
+    if text is None:
+        text = GREETINGS.get(lang)
+        if text is None:
+            raise VispeechError(f"unknown language {lang!r} (use sv or en)")
+    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
+    paths = write_outputs(utterance, out_dir)
+    click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
+    for path in paths:
+        click.echo(f"  {path.name}")
+
+
+@main.command("animate-phones")
+@click.argument("alignment", type=click.Path(path_type=Path))
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
+@click.option("--lang", "-l", default=None, help="Language of the symbols (sv or en); guessed when left out.")
+@_model_option
+@_fps_option
+@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str, fps: float, no_postprocess: bool) -> None:
+    """Animate a phone alignment (TextGrid, HTK .lab, GRID .align or JSON).
+
+    Writes OUTPUT/animation.csv (Live Link Face, first row at time 0 of the alignment) and
+    OUTPUT/animation.json.
+    """
+    from vispeech.alignment.formats import read_alignment
+
+    phones = read_alignment(alignment, lang)
+    track = animate(phones, model, fps, not no_postprocess)
+    write_outputs(Utterance(phones, track), out_dir)
+    click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

@@ -1,0 +1,101 @@
+"""``vispeech convert``: between track formats, resampling, retargeting, clean errors."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from vispeech import Phone, PhoneSequence, Track
+from vispeech.cli import main
+from vispeech.motion.io import read_track
+from vispeech.motion.jsonformat import read_animation_json, write_animation_json
+from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def assert_clean_error(result, text):
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.strip().splitlines() if line]
+    assert len(lines) == 1 and lines[0].startswith("error:") and text in lines[0], result.output
+
+
+@pytest.fixture
+def take(tmp_path):
+    """A 2-second Live Link take at 60 fps with the jaw opening and closing."""
+    t = np.arange(120) / 60
+    values = np.zeros((120, len(LIVELINK_CHANNELS)))
+    values[:, LIVELINK_CHANNELS.index("jawOpen")] = np.round(0.5 - 0.5 * np.cos(2 * np.pi * t), 10)
+    path = tmp_path / "take.csv"
+    write_livelink_csv(Track(values, LIVELINK_CHANNELS, 60.0), path)
+    return path
+
+
+def test_livelink_to_json_and_back_is_exact(tmp_path, take):
+    assert run("convert", take, tmp_path / "a.json").exit_code == 0
+    result = run("convert", tmp_path / "a.json", tmp_path / "b.csv")
+    assert result.exit_code == 0, result.output
+    assert "120 frames at 60 fps" in result.output
+    track = read_track(tmp_path / "b.csv")
+    assert np.allclose(track["jawOpen"], read_track(take)["jawOpen"], atol=5e-7)
+
+
+def test_resample_to_talkinghead(tmp_path, take):
+    result = run("convert", take, tmp_path / "t.json", "--to", "talkinghead", "--fps", 30)
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert len(data["dt"]) == 60 and data["dt"][0] == pytest.approx(1000 / 30)
+    assert np.allclose(data["vs"]["jawOpen"], read_track(take)["jawOpen"][::2], atol=1e-6)
+
+
+def test_retarget_with_pose_table_and_mouth_cues(tmp_path, take):
+    result = run("convert", take, tmp_path / "rig.json", "--pose-table", "thesis_bone_rig")
+    assert result.exit_code == 0, result.output
+    rig = read_track(tmp_path / "rig.json")
+    assert np.allclose(rig["jaw.rotation_x"], 0.35 * read_track(take)["jawOpen"], atol=1e-6)
+    assert run("convert", take, tmp_path / "cues.tsv").exit_code == 0
+    lines = (tmp_path / "cues.tsv").read_text().splitlines()
+    assert lines[0] == "0.00\tX" and lines[-1] == "2.00\tX" and len(lines) >= 3
+    assert run("convert", take, tmp_path / "v.csv", "--to", "OCULUS").exit_code == 0
+    assert (tmp_path / "v.csv").read_text().startswith("time,sil,PP,FF,TH,DD,kk,CH,SS,nn,RR,aa,E,ih,oh,ou\n")
+
+
+def test_json_keeps_phones_and_audio(tmp_path, take):
+    phones = PhoneSequence([Phone("sil", 0.0, 1.0), Phone("AA", 1.0, 2.0, None, 1)], "en")
+    write_animation_json(read_track(take), tmp_path / "in.json", phones=phones, audio="take.wav")
+    assert run("convert", tmp_path / "in.json", tmp_path / "out.json", "--fps", 30).exit_code == 0
+    out = read_animation_json(tmp_path / "out.json")
+    assert out.phones == phones and out.audio == "take.wav" and out.track.fps == 30.0
+    assert run("convert", tmp_path / "in.json", tmp_path / "cues.rhubarb.json").exit_code == 0
+    assert json.loads((tmp_path / "cues.rhubarb.json").read_text())["metadata"]["soundFile"] == "take.wav"
+
+
+def test_glb_output(tmp_path, take, shared_dir):
+    result = run("convert", take, tmp_path / "head.glb", "--glb", shared_dir / "assets/ict_head.glb")
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "head.glb").read_bytes()[:4] == b"glTF"
+
+
+@pytest.mark.parametrize("args,text", [
+    (["missing.csv", "out.json"], "not found"),
+    (["take.csv", "out.xyz"], "cannot tell the track format"),
+    (["take.csv", "out.json", "--to", "fbx"], "unknown track format 'fbx'"),
+    (["take.csv", "out.glb"], "needs a base model"),
+    (["take.csv", "out.json", "--fps", "0"], "--fps must be positive"),
+    (["take.csv", "out.json", "--pose-table", "nope"], "pose table not found"),
+    (["take.csv", "out.tsv", "--to", "rhubarb", "--pose-table", "thesis_bone_rig"], "need a morph pose table"),
+    (["take.csv", "out.visemes.csv", "--pose-table", "rhubarb_shapes"], "no control for viseme(s) sil, PP"),
+])
+def test_errors_are_one_line_and_write_nothing(tmp_path, take, monkeypatch, args, text):
+    monkeypatch.chdir(tmp_path)
+    before = {p.name for p in tmp_path.iterdir()}
+    assert_clean_error(run("convert", *args), text)
+    assert {p.name for p in tmp_path.iterdir()} == before
+
+
+def test_rhubarb_input_cannot_be_read(tmp_path, take):
+    assert run("convert", take, tmp_path / "c.rhubarb.json").exit_code == 0
+    assert_clean_error(run("convert", tmp_path / "c.rhubarb.json", tmp_path / "x.json"), "cannot be read")
