@@ -79,3 +79,32 @@ def test_livelink_round_trip_is_exact(utterances, tmp_path):
         assert first.read_bytes() == second.read_bytes()
         assert track.n_frames == utt.track.n_frames
         np.testing.assert_allclose(track["jawOpen"], utt.track["jawOpen"], atol=1e-10)
+
+
+def test_glb_export_opens_with_animation_channels(utterances, tmp_path, shared_dir):
+    import pygltflib
+
+    from vispeech.motion.gltf import write_gltf_animation
+
+    utt = utterances["en", SENTENCES[-1][1], "cohen-massaro"]
+    out = tmp_path / "head_speaking.glb"
+    write_gltf_animation(utt.track, shared_dir / "assets" / "ict_head.glb", out)
+    gltf = pygltflib.GLTF2().load(str(out))
+    (animation,) = gltf.animations
+    animated_nodes = {c.target.node for c in animation.channels}
+    assert animated_nodes and all(c.target.path == "weights" for c in animation.channels)
+    morph_nodes = {i for i, n in enumerate(gltf.nodes) if n.mesh is not None and gltf.meshes[n.mesh].primitives[0].targets}
+    assert animated_nodes == morph_nodes
+    sampler = animation.samplers[animation.channels[0].sampler]
+    times = gltf.accessors[sampler.input]
+    assert times.count == utt.track.n_frames
+    assert times.max[0] == pytest.approx((utt.track.n_frames - 1) / utt.track.fps, abs=1e-5)
+    mesh = gltf.meshes[gltf.nodes[animation.channels[0].target.node].mesh]
+    names = mesh.extras["targetNames"]
+    assert gltf.accessors[sampler.output].count == utt.track.n_frames * len(names)
+    blob = gltf.binary_blob()
+    view = gltf.bufferViews[gltf.accessors[sampler.output].bufferView]
+    start = view.byteOffset + (gltf.accessors[sampler.output].byteOffset or 0)
+    weights = np.frombuffer(blob[start:start + 4 * utt.track.n_frames * len(names)], dtype=np.float32)
+    weights = weights.reshape(utt.track.n_frames, len(names))
+    np.testing.assert_allclose(weights[:, names.index("jawOpen")], utt.track["jawOpen"], atol=1e-6)

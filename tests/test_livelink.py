@@ -43,7 +43,8 @@ def test_header_is_exactly_the_iphones(tmp_path):
     fields = lines[0].split(",")
     assert len(fields) == 63 and fields.index("JawRight") < fields.index("JawLeft")
     assert fields.index("MouthRight") < fields.index("MouthLeft")
-    assert set(LIVELINK_CHANNELS[:52]) == set(ARKIT_NAMES) and LIVELINK_CHANNELS[52:55] == ("headYaw", "headPitch", "headRoll")
+    assert set(LIVELINK_CHANNELS[:52]) == set(ARKIT_NAMES)
+    assert LIVELINK_CHANNELS[52:55] == ("headYaw", "headPitch", "headRoll")
     row = lines[1].split(",")
     assert row[0] == "00:00:00:00.000" and row[1] == "61" and all(len(v.split(".")[1]) == 10 for v in row[2:])
 
@@ -124,7 +125,8 @@ def test_reordered_columns_and_missing_channels(tmp_path):
     ("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1\n", "line 2: 2 fields"),
     ("Timecode,BlendshapeCount,JawOpen\n00:00:00.000,1,0.1\n", "line 2: bad timecode"),
     ("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,x\n", "line 2: a value is not a number"),
-    ("Timecode,BlendshapeCount,JawOpen\n00:00:00:01.000,1,0.1\n00:00:00:01.000,1,0.1\n", "line 3: timecode does not increase"),
+    ("Timecode,BlendshapeCount,JawOpen\n00:00:00:01.000,1,0.1\n00:00:00:01.000,1,0.1\n",
+     "line 3: timecode does not increase"),
 ])
 def test_bad_files(tmp_path, text, message):
     (tmp_path / "bad.csv").write_text(text)

@@ -30,9 +30,8 @@ def test_explicit_morph_table_with_bias_and_range():
 
 
 def test_bone_table_names_channels_bone_dot_channel():
-    table = PoseTable.from_dict({"type": "bones", "bones": {"jaw": {"rotation_x": {"jawOpen": 0.35}},
-                                                           "lip_corner_L": {"translation_x": {"mouthSmileLeft": 0.006}}},
-                                 "bias": {"jaw": {"rotation_x": 0.01}}})
+    bones = {"jaw": {"rotation_x": {"jawOpen": 0.35}}, "lip_corner_L": {"translation_x": {"mouthSmileLeft": 0.006}}}
+    table = PoseTable.from_dict({"type": "bones", "bones": bones, "bias": {"jaw": {"rotation_x": 0.01}}})
     out = table.apply(track(jawOpen=[0.0, 1.0], mouthSmileLeft=[0.5, 0.0]))
     assert out.channels == ("jaw.rotation_x", "lip_corner_L.translation_x")
     assert np.allclose(out.values, [[0.01, 0.003], [0.36, 0.0]])

@@ -12,6 +12,12 @@ from pathlib import Path
 from vispeech.errors import VispeechError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_output_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a fresh staging folder; on success move its files into ``path``.
@@ -42,6 +48,7 @@ def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
         os.close(fd)
+        os.chmod(tmp, 0o666 & ~_umask())
     except OSError as exc:
         raise VispeechError(f"cannot write {target}: {exc.strerror or exc}") from None
     try:

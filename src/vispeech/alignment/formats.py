@@ -129,7 +129,8 @@ def read_word_alignment(path: str | os.PathLike) -> list[Word]:
 def _suffix(path: Path) -> str:
     suffix = path.suffix.lower()
     if suffix not in (".textgrid", ".json", *_UNITS_PER_SECOND):
-        raise VispeechError(f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)")
+        raise VispeechError(
+            f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)")
     return suffix
 
 

@@ -47,7 +47,7 @@ def write_gltf_animation(
     """
     gltf = _load(base_glb)
     if gltf.buffers and gltf.buffers[0].uri is not None:
-        raise VispeechError(f"{base_glb}: its first buffer is an external file; use a .glb with an embedded binary chunk")
+        raise VispeechError(f"{base_glb}: its first buffer is an external file; use a .glb with its data embedded")
     meshes = _animated_meshes(gltf)
     if not meshes:
         raise VispeechError(f"{base_glb} has no mesh with ARKit-named morph targets (mesh.extras.targetNames)")
@@ -70,7 +70,8 @@ def write_gltf_animation(
                 if arkit is not None and arkit in track.channels:
                     weights[:, j] = track[arkit]
             outputs[mesh] = _append_accessor(gltf, blob, weights.reshape(-1))
-        animation.samplers.append(pygltflib.AnimationSampler(input=time_accessor, output=outputs[mesh], interpolation="LINEAR"))
+        animation.samplers.append(
+            pygltflib.AnimationSampler(input=time_accessor, output=outputs[mesh], interpolation="LINEAR"))
         animation.channels.append(pygltflib.AnimationChannel(
             sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path="weights")))
     gltf.animations.append(animation)

@@ -58,7 +58,7 @@ FORMATS: dict[str, TrackFormat] = {
     for f in (
         TrackFormat("livelink", (".csv",), "Live Link Face CSV", read_livelink_csv),
         TrackFormat("json", (".json",), "vispeech animation JSON", lambda p: read_animation_json(p).track),
-        TrackFormat("talkinghead", (".talkinghead.json",), "TalkingHead blend-shape animation JSON", read_talkinghead_json),
+        TrackFormat("talkinghead", (".talkinghead.json",), "TalkingHead blend-shape JSON", read_talkinghead_json),
         TrackFormat("oculus", (".visemes.csv", ".visemes.json"), "Oculus 15-viseme curves (CSV or JSON)"),
         TrackFormat("rhubarb", (".tsv", ".rhubarb.json"), "Rhubarb mouth cues (TSV or JSON)"),
         TrackFormat("gltf", (".glb",), "glTF 2.0 morph-target animation added to a base GLB"),

@@ -127,7 +127,8 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
         starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]]) / 1000.0
         n = max(1, int(round(durations.sum() / 1000.0 * rate)))
         grid = np.arange(n) / rate
-        return Track(np.stack([np.interp(grid, starts, values[:, j]) for j in range(len(channels))], axis=1), channels, rate)
+        resampled = np.stack([np.interp(grid, starts, values[:, j]) for j in range(len(channels))], axis=1)
+        return Track(resampled, channels, rate)
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
 

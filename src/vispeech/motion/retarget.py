@@ -103,9 +103,10 @@ class PoseTable:
         if ("controls" in data) == ("poses" in data):
             raise VispeechError("a morph pose table needs exactly one of 'controls' and 'poses'")
         if "controls" in data:
-            return cls._linear(kind, _mapping(data["controls"], "controls"), _mapping(data.get("bias", {}), "bias"), clip, name)
+            rows, bias = _mapping(data["controls"], "controls"), _mapping(data.get("bias", {}), "bias")
+            return cls._linear(kind, rows, bias, clip, name)
         return cls.from_poses(_mapping(data["poses"], "poses"), rest=data.get("rest"),
-                              ridge=float(data.get("ridge", 0.02)), clip=clip, name=name)
+                              ridge=_number(data.get("ridge", 0.02), "ridge"), clip=clip, name=name)
 
     @classmethod
     def from_poses(

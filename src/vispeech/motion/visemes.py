@@ -24,12 +24,7 @@ from vispeech.files import atomic_output_file
 from vispeech.motion.jsonformat import write_animation_json
 from vispeech.motion.retarget import PoseTable
 from vispeech.motion.track import Track
-
-OCULUS_VISEMES: tuple[str, ...] = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
-"""The 15 Oculus visemes in OVRLipSync (and OpenXR) order."""
-
-RHUBARB_SHAPES: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
-"""Rhubarb's mouth shapes: basic A-F, extended G, H and the rest shape X."""
+from vispeech.phonetics.visemes import OCULUS_VISEMES, RHUBARB_SHAPES
 
 _OCULUS_BY_KEY = {v.lower(): v for v in OCULUS_VISEMES} | {"i": "ih", "o": "oh", "u": "ou"}
 
@@ -55,7 +50,8 @@ def oculus_visemes(track: Track, pose_table: PoseTable | None = None) -> Track:
     missing = [v for v in OCULUS_VISEMES if v not in names]
     if missing:
         raise VispeechError(f"pose table {table.name!r} has no control for viseme(s) {', '.join(missing)}")
-    return Track(np.stack([visemes[names[v]] for v in OCULUS_VISEMES], axis=1), OCULUS_VISEMES, track.fps, track.start_time)
+    values = np.stack([visemes[names[v]] for v in OCULUS_VISEMES], axis=1)
+    return Track(values, OCULUS_VISEMES, track.fps, track.start_time)
 
 
 def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
@@ -111,7 +107,8 @@ def write_rhubarb_json(
 ) -> None:
     """Write mouth cues as Rhubarb's JSON, byte for byte in Rhubarb's layout."""
     cues = mouth_cues(track, pose_table) or [MouthCue(0.0, 0.0, "X")]
-    body = ",\n".join(f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues)
+    body = ",\n".join(
+        f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues)
     text = (
         "{\n"
         '  "metadata": {\n'

@@ -5,10 +5,12 @@ channels the consonant defines. It is blended in with strength s(t), x ← x + s
 a Bézier fade-in of ``fade_in`` phone lengths that reaches 1 at the phone's onset, full
 strength up to the phone's *anchor frame*, then a Bézier fade-out of a per-consonant number
 of phone lengths. The anchor frame is the frame inside the phone nearest its centre (for a
-phone shorter than a frame, the frame nearest its centre), so every consonant reaches its
-viseme on at least one frame. Overlays go from the most open viseme to the most closed, so
-where fades overlap the tighter constriction wins: /p b m/ close the lips and /f v/ bring
-the lower lip to the upper teeth. An overlay never raises jawOpen (x ← min(x, blend)), so
+phone shorter than a frame, the frame nearest its centre). As in Öhman's model, a fade
+reaches no further than the full-strength stretch of the neighbouring consonants (the
+curve is compressed to fit), so every consonant shows its viseme on its anchor frame:
+/p b m/ close the lips and /f v/ bring the lower lip to the upper teeth. Only consonants
+sharing an anchor frame compete there: overlays go from the most open viseme to the most
+closed, bilabials last, so the tightest constriction wins. An overlay never raises jawOpen (x ← min(x, blend)), so
 the jaw's peaks stay with the vowels.
 """
 
@@ -84,7 +86,11 @@ def consonant_overlays(
     onset = starts * fps
     anchor = anchor_frames(starts, ends, fps, n)
     peak_from, peak_to = np.minimum(onset, anchor), np.maximum(onset, anchor)
-    rise, fall = fade_in * length, fade_out_lengths * length
+    # Öhman's rule: a consonant's fades reach no further than its consonant neighbours' peaks
+    previous_peak = np.concatenate(([-np.inf], peak_to[:-1]))
+    next_peak = np.concatenate((peak_from[1:], [np.inf]))
+    rise = np.clip(np.minimum(fade_in * length, peak_from - previous_peak), 0.0, None)
+    fall = np.clip(np.minimum(fade_out_lengths * length, next_peak - peak_to), 0.0, None)
 
     aperture = lip_aperture(Track(np.where(defined, visemes, 0.0), TARGET_CHANNELS, fps))
     lo = np.maximum(np.ceil(peak_from - rise), 0).astype(int)
@@ -104,7 +110,8 @@ def consonant_overlays(
     columns = [out.channels.index(c) for c in TARGET_CHANNELS]
     jaw = TARGET_CHANNELS.index("jawOpen")
     values = out.values
-    for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], starts[i])):
+    bilabial = features[is_consonant, FEATURE_NAMES.index("bilabial")] > 0
+    for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i])):
         frames = slice(lo[i], hi[i] + 1)
         s = strength[offsets[i]:offsets[i + 1]]
         for ch in np.flatnonzero(defined[i]):

@@ -1,0 +1,69 @@
+"""The web app the install builds into vispeech/serve/static: pages, bundles, no network."""
+
+import re
+from importlib.resources import files
+from pathlib import Path
+
+import pytest
+
+PAGES = {"index.html": "chat.js", "player.html": "player.js", "viewer.html": "viewer.js"}
+# XML namespace names are identifiers, not addresses: three.js creates elements in them.
+NAMESPACES = ("http://www.w3.org/",)
+
+
+@pytest.fixture(scope="module")
+def static() -> Path:
+    path = Path(str(files("vispeech") / "serve" / "static"))
+    assert path.is_dir(), f"{path} is missing: the install should have built the web app (see setup.py)"
+    return path
+
+
+def page_assets(html: str) -> list[str]:
+    return re.findall(r'<(?:script|link)\b[^>]*\b(?:src|href)="([^"]+)"', html)
+
+
+def module_imports(js: str) -> list[str]:
+    return re.findall(r'(?:\bfrom|\bimport)\s*"(\.{1,2}/[^"]+)"', js)
+
+
+@pytest.mark.parametrize("page,bundle", PAGES.items())
+def test_page_loads_its_bundle_and_style(static, page, bundle):
+    html = (static / page).read_text(encoding="utf-8")
+    assert f'<script type="module" src="static/{bundle}"></script>' in html
+    for asset in page_assets(html):
+        if asset.startswith("data:"):
+            continue
+        assert asset.startswith("static/"), f"{page} loads {asset} from outside static/"
+        assert (static / asset.removeprefix("static/")).is_file(), f"{page} loads missing {asset}"
+    assert "static/style.css" in page_assets(html)
+
+
+def test_bundle_imports_resolve(static):
+    scripts = sorted(static.rglob("*.js"))
+    seen = set()
+    for script in scripts:
+        for spec in module_imports(script.read_text(encoding="utf-8")):
+            target = (script.parent / spec).resolve()
+            assert target.is_file(), f"{script.name} imports missing {spec}"
+            seen.add(target)
+    chunks = {p.resolve() for p in (static / "chunks").glob("*.js")}
+    assert chunks and chunks <= seen, "every shared chunk is imported by a page bundle"
+
+
+def test_bundle_carries_three_and_the_app(static):
+    code = "\n".join(p.read_text(encoding="utf-8") for p in static.rglob("*.js"))
+    assert "EXT_meshopt_compression" in code  # GLTFLoader with the meshopt decoder
+    assert "three.js authors" in code.lower()  # three's MIT licence kept in the bundle
+    for name in ("influences", "frameIndex", "audioTime", "playAnimation", "seek", "speak"):
+        assert re.search(rf"\b{name}\b", code), f"window.vispeech.{name} missing from the bundle"
+    assert "VispeechFace2D" in (static / "face2d.js").read_text(encoding="utf-8")
+
+
+def test_no_external_urls(static):
+    for path in static.rglob("*"):
+        if not path.is_file():
+            continue
+        text = path.read_text(encoding="utf-8")
+        urls = re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+\.[A-Za-z]{2,}[^\s\"'`)]*", text)
+        external = [u for u in urls if not u.startswith(NAMESPACES) and u.startswith(("http", "//"))]
+        assert not external, f"{path.name} refers to {external[:3]}"
