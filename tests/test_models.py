@@ -63,7 +63,7 @@ def frames_of(phone: Phone, fps: float, n_frames: int) -> np.ndarray:
     first = int(np.ceil(phone.start * fps - 1e-9))
     last = int(np.ceil(phone.end * fps - 1e-9)) - 1
     if last < first:
-        first = last = int(round((phone.start + phone.end) / 2 * fps))
+        first = last = round((phone.start + phone.end) / 2 * fps)
     return np.arange(max(first, 0), min(last, n_frames - 1) + 1)
 
 
@@ -174,6 +174,8 @@ def test_corrupt_or_missing_folders_are_refused(tmp_path):
         json.dumps({**config, "params": {**config["params"], "w_c": {"default": 7}}}),
         json.dumps({**config, "arrays": ["w"]}),
         json.dumps({**config, "channels": ["jawOpen"]}),
+        json.dumps({**config, "arrays": 3}),
+        json.dumps({**config, "params": {**config["params"], "targets": [1]}}),
     ]
     for text in bad_configs:
         (folder / "config.json").write_text(text)

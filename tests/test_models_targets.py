@@ -105,7 +105,7 @@ def test_overrides_apply_on_top():
     assert table.values("sv")[row, jaw] == 0.9 and not table.defined("sv")[row, smile]
     assert TargetTable().values("sv")[row, jaw] != 0.9
     for bad in ({"xx": {}}, {"sv": {"QQ": {"jawOpen": 0.1}}}, {"sv": {"a": {"noSuchChannel": 0.1}}},
-                {"sv": {"a": {"jawOpen": 1.5}}}):
+                {"sv": {"a": {"jawOpen": 1.5}}}, [1], {"sv": [1]}, {"sv": {"a": 0.5}}):
         with pytest.raises(VispeechError):
             TargetTable(bad)
     with pytest.raises(VispeechError):

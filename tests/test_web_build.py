@@ -64,6 +64,7 @@ def test_no_external_urls(static):
         if not path.is_file():
             continue
         text = path.read_text(encoding="utf-8")
-        urls = re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+\.[A-Za-z]{2,}[^\s\"'`)]*", text)
-        external = [u for u in urls if not u.startswith(NAMESPACES) and u.startswith(("http", "//"))]
+        urls = re.findall(r"(?:https?|wss?)://[^\s\"'`)]+", text)
+        urls += re.findall(r"""(?:src|href)=["']//[^"']+|url\(["']?//[^)]+""", text)
+        external = [u for u in urls if not u.startswith(NAMESPACES)]
         assert not external, f"{path.name} refers to {external[:3]}"

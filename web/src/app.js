@@ -54,7 +54,7 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
   const config = await fetchConfig();
   const avatarUrl = params.has('avatar') ? params.get('avatar') || null : config.avatar_url;
   const avatar = await loadAvatar(stage, avatarUrl, report);
-  const credit = config.avatar_credit || avatar.credit;
+  const credit = (avatarUrl === config.avatar_url && config.avatar_credit) || avatar.credit;
   if (avatarUrl && credit) {
     const note = document.createElement('div');
     note.className = 'credit';

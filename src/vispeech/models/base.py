@@ -132,7 +132,7 @@ class ControlModel(ABC):
         try:
             config = json.loads(config_path.read_text(encoding="utf-8"))
             name, version, params = config["model"], config["version"], config["params"]
-            channels, array_names = list(config["channels"]), list(config.get("arrays", []))
+            channels = list(config["channels"])
         except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
             raise VispeechError(f"corrupt model config {config_path}: {exc}") from None
         if not isinstance(version, int) or version > FORMAT_VERSION:
@@ -142,8 +142,8 @@ class ControlModel(ABC):
         model_cls = _MODELS[name]
         if not issubclass(model_cls, cls):
             raise VispeechError(f"{folder} holds a {name} model, not a {cls.name} model")
-        if not isinstance(params, dict):
-            raise VispeechError(f"corrupt model config {config_path}: params is not an object")
+        if not isinstance(params, dict) or not isinstance(config.get("arrays", []), list):
+            raise VispeechError(f"corrupt model config {config_path}: params must be an object and arrays a list")
         model = model_cls._from_folder(folder, config)
         if list(model.channels) != channels:
             raise VispeechError(f"{config_path} lists channels that do not match the {name} model's")

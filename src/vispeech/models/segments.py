@@ -32,7 +32,6 @@ class Segments:
     targets: np.ndarray
     defined: np.ndarray
     times: np.ndarray
-    fps: float
 
     @classmethod
     def build(cls, phones: PhoneSequence, fps: float, table: TargetTable) -> Segments:
@@ -52,7 +51,6 @@ class Segments:
             targets=table.values(phones.language)[index],
             defined=table.defined(phones.language)[index],
             times=np.arange(n_frames) / fps,
-            fps=fps,
         )
 
     @property

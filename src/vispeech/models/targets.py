@@ -39,10 +39,6 @@ def _data() -> dict:
 TARGET_CHANNELS: tuple[str, ...] = tuple(_data()["channels"])
 """The ARKit channels every phone has a target for (and the data-free models predict)."""
 
-CLASS_KEYS = ("default", "consonant")
-"""Spec keys besides feature names and ``<language>:<symbol>``: every phone; non-vowel, non-silence phones."""
-
-
 def default_model_params(model: str) -> dict:
     """A fresh copy of a model's default parameters from the data file."""
     return copy.deepcopy(_data()["models"][model])
@@ -164,9 +160,11 @@ class TargetTable:
         data = _data()
         bias, weights = self._feature_map(data["feature_map"])
         extra = overrides or {}
+        if not isinstance(extra, Mapping) or not all(isinstance(t, Mapping) for t in extra.values()):
+            raise VispeechError("target overrides must be {language: {symbol: {channel: value}}}")
         unknown = set(extra) - set(LANGUAGES)
         if unknown:
-            raise VispeechError(f"target overrides for unknown language {sorted(unknown)[0]!r}")
+            raise VispeechError(f"target overrides for unknown language {min(unknown)!r}")
         for language in LANGUAGES:
             rows = phone_rows(language)
             values = np.clip(bias + rows.features @ weights, 0.0, 1.0)
@@ -199,6 +197,8 @@ class TargetTable:
 
     def _apply_overrides(self, table: Mapping, rows: PhoneRows, values: np.ndarray, defined: np.ndarray) -> None:
         for symbol, targets in table.items():
+            if not isinstance(targets, Mapping):
+                raise VispeechError(f"target override of {symbol!r} must be {{channel: value}}, got {targets!r}")
             selected = [rows.keys.get((symbol, False)), rows.keys.get((symbol, True))]
             if None in selected:
                 raise VispeechError(f"target override for unknown phone {symbol!r} ({rows.language})")

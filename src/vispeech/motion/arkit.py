@@ -2,6 +2,8 @@
 
 import numpy as np
 
+from vispeech.motion.track import Track
+
 ARKIT_NAMES: tuple[str, ...] = (
     "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
     "eyeSquintLeft", "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight",
@@ -44,7 +46,7 @@ _APERTURE_TERMS: tuple[tuple[str, float], ...] = (
 )
 
 
-def lip_aperture(track) -> np.ndarray:
+def lip_aperture(track: Track) -> np.ndarray:
     """Approximate vertical inner-lip opening per frame, on a 0..1 scale.
 
     ``jawOpen − mouthClose + 0.5·lowerDown + 0.3·upperUp + 0.1·mouthFunnel

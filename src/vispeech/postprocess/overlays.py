@@ -6,12 +6,14 @@ a Bézier fade-in of ``fade_in`` phone lengths that reaches 1 at the phone's ons
 strength up to the phone's *anchor frame*, then a Bézier fade-out of a per-consonant number
 of phone lengths. The anchor frame is the frame inside the phone nearest its centre (for a
 phone shorter than a frame, the frame nearest its centre). As in Öhman's model, a fade
-reaches no further than the full-strength stretch of the neighbouring consonants (the
-curve is compressed to fit), so every consonant shows its viseme on its anchor frame:
-/p b m/ close the lips and /f v/ bring the lower lip to the upper teeth. Only consonants
+reaches no further than the full-strength stretch of the neighbouring consonants or the
+anchor frame of the neighbouring vowel (the curve is compressed to fit): every consonant
+shows its viseme on its anchor frame and every vowel its own shape on its anchor frame, so
+/p b m/ close the lips (without a mouth kept shut through "my mom") and /f v/ bring the
+lower lip to the upper teeth. Only consonants
 sharing an anchor frame compete there: overlays go from the most open viseme to the most
-closed, bilabials last, so the tightest constriction wins. An overlay never raises jawOpen (x ← min(x, blend)), so
-the jaw's peaks stay with the vowels.
+closed, bilabials last, so the tightest constriction wins. An overlay never raises jawOpen
+(x ← min(x, blend)), so the jaw's peaks stay with the vowels.
 """
 
 from __future__ import annotations
@@ -65,11 +67,9 @@ def consonant_overlays(
     """
     language = phones.language
     rows = phone_rows(language)
-    consonants = [p for p in phones if not p.is_silence]
-    index = rows.indices([p.symbol for p in consonants], [p.stress for p in consonants])
-    features = rows.features[index]
-    is_consonant = (features[:, _VOWEL] == 0) & (features[:, _SILENCE] == 0)
-    consonants = [p for p, keep in zip(consonants, is_consonant) if keep]
+    index = rows.indices(phones.symbols, [p.stress for p in phones])
+    is_consonant = (rows.features[index, _VOWEL] == 0) & (rows.features[index, _SILENCE] == 0)
+    consonants = [p for p, keep in zip(phones, is_consonant) if keep]
     index = index[is_consonant]
     out = track.select(track.channels + tuple(c for c in TARGET_CHANNELS if c not in track.channels))
     if not consonants:
@@ -86,9 +86,21 @@ def consonant_overlays(
     onset = starts * fps
     anchor = anchor_frames(starts, ends, fps, n)
     peak_from, peak_to = np.minimum(onset, anchor), np.maximum(onset, anchor)
-    # Öhman's rule: a consonant's fades reach no further than its consonant neighbours' peaks
-    previous_peak = np.concatenate(([-np.inf], peak_to[:-1]))
-    next_peak = np.concatenate((peak_from[1:], [np.inf]))
+    # Öhman's rule: a consonant's fades reach no further than its neighbours' peaks: the
+    # full-strength stretch of the next consonant, or the anchor frame of the next vowel
+    # (so that a vowel between two bilabials still opens the mouth at its centre)
+    vowels = [p for p in phones if is_vowel(p.symbol, language)]
+    vowel_anchor = anchor_frames(
+        np.array([p.start for p in vowels]) - out.start_time,
+        np.array([p.end for p in vowels]) - out.start_time, fps, n,
+    ).astype(float)
+    before = np.searchsorted(vowel_anchor, peak_from, side="left") - 1
+    after = np.searchsorted(vowel_anchor, peak_to, side="right")
+    previous_vowel = np.where(before >= 0, vowel_anchor[np.maximum(before, 0)], -np.inf) if vowels else -np.inf
+    next_vowel = np.where(after < len(vowels), vowel_anchor[np.minimum(after, len(vowels) - 1)], np.inf) \
+        if vowels else np.inf
+    previous_peak = np.maximum(np.concatenate(([-np.inf], peak_to[:-1])), previous_vowel)
+    next_peak = np.minimum(np.concatenate((peak_from[1:], [np.inf])), next_vowel)
     rise = np.clip(np.minimum(fade_in * length, peak_from - previous_peak), 0.0, None)
     fall = np.clip(np.minimum(fade_out_lengths * length, next_peak - peak_to), 0.0, None)
 
@@ -110,7 +122,7 @@ def consonant_overlays(
     columns = [out.channels.index(c) for c in TARGET_CHANNELS]
     jaw = TARGET_CHANNELS.index("jawOpen")
     values = out.values
-    bilabial = features[is_consonant, FEATURE_NAMES.index("bilabial")] > 0
+    bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
     for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i])):
         frames = slice(lo[i], hi[i] + 1)
         s = strength[offsets[i]:offsets[i + 1]]

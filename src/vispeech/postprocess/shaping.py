@@ -79,5 +79,5 @@ def confine_peaks(curve: np.ndarray, allowed: np.ndarray) -> np.ndarray:
             candidates.append(np.minimum.accumulate(x + k) - k)  # falls from the left
         if stop < n or first == 0:
             candidates.append((np.minimum.accumulate((x - k)[::-1]))[::-1] + k)  # rises to the right
-        out[first:stop] = np.max(candidates, axis=0)[first - lo:stop - lo]
+        out[first:stop] = np.minimum(np.max(candidates, axis=0)[first - lo:stop - lo], curve[first:stop])
     return out

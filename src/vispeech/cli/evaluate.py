@@ -1,0 +1,108 @@
+"""``vispeech evaluate``: objective scores of models against a corpus's recorded tracks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vispeech.cli import main
+from vispeech.corpus.corpus import SPLITS, Corpus
+from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_file
+
+corpus_option = click.option(
+    "--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+    help="Corpus folder (GRID layout or a folder of Live Link takes).")
+language_option = click.option(
+    "--language", default="sv", show_default=True, help="Language of a takes folder (GRID is en).")
+cache_option = click.option(
+    "--cache", type=click.Path(file_okay=False, path_type=Path), default=None,
+    help="Cache folder for alignments [default: ~/.cache/vispeech/<name>-<hash>, or $VISPEECH_CACHE].")
+quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+
+
+def read_aligned_corpus(directory: Path, language: str, cache: Path | None, progress: bool) -> Corpus:
+    """Read a corpus folder and align it (cached); utterances that cannot be aligned are left
+    out. Skipped utterances are summed up on stderr."""
+    import warnings
+    from dataclasses import replace
+
+    from vispeech.corpus import CorpusWarning, align_corpus, read_corpus
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorpusWarning)  # listed in corpus.problems, summed up below
+        corpus = read_corpus(directory, language=language, cache=cache)
+        if not len(corpus):
+            raise VispeechError(f"corpus {directory} has no usable utterances"
+                                + (f" ({corpus.problems[0]})" if corpus.problems else ""))
+        align_corpus(corpus, progress=progress)
+    if corpus.problems:
+        click.echo(f"{len(corpus.problems)} utterances skipped (first: {corpus.problems[0]})", err=True)
+    aligned = [u for u in corpus if u.phones is not None]
+    if not aligned:
+        raise VispeechError(f"no utterance of corpus {corpus.name} could be aligned")
+    return replace(corpus, utterances=aligned)
+
+
+def split_of_corpus(corpus: Corpus, split: str) -> Corpus:
+    """``corpus.split(split)``; raises :class:`VispeechError` when that split is empty."""
+    part = corpus.split(split)
+    if not len(part):
+        raise VispeechError(f"the {split} split of corpus {corpus.name} has no utterances")
+    return part
+
+
+@main.command("evaluate")
+@corpus_option
+@click.option("--split", default="test", show_default=True, type=click.Choice(list(SPLITS)),
+              help="Utterances to score.")
+@click.option("--model", "-m", "model_specs", multiple=True, required=True,
+              help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a trained model "
+                   "folder; repeat to compare.")
+@click.option("--channels", default=None,
+              help="Comma-separated channels to score [default: the mouth/jaw channels model and corpus share]; "
+                   "jawOpen is always scored when both have it.")
+@click.option("--postprocess/--no-postprocess", default=True, show_default=True,
+              help="Post-process predictions (closures, overlays, ceilings) before scoring.")
+@click.option("--markdown", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Also write the tables to this Markdown file.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="PNG of jawOpen, recorded and predicted, on one utterance of the split.")
+@click.option("--plot-utterance", default=None, help="Utterance id to plot [default: the split's first].")
+@language_option
+@cache_option
+@quiet_option
+def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...], channels: str | None,
+                     postprocess: bool, markdown: Path | None, plot: Path | None, plot_utterance: str | None,
+                     language: str, cache: Path | None, quiet: bool) -> None:
+    """Score models against the recorded tracks of a corpus split.
+
+    Prints, per model and channel, MSE, RMSE as % of the target's range and Pearson r over
+    the speech span of each utterance, and per model the lip-closure figures.
+    """
+    from vispeech.evaluation.report import evaluate_models, predict_on_frames
+    from vispeech.models.registry import load_model
+
+    models = {}
+    for spec in model_specs:
+        if spec in models:
+            raise VispeechError(f"model {spec!r} given twice")
+        models[spec] = load_model(spec)
+    wanted = None if channels is None else [c.strip() for c in channels.split(",") if c.strip()]
+    corpus = split_of_corpus(read_aligned_corpus(corpus_dir, language, cache, not quiet), split)
+    example = corpus[plot_utterance] if plot_utterance is not None else corpus[0]
+    evaluation = evaluate_models(corpus, models, channels=wanted, postprocessing=postprocess, progress=not quiet)
+    click.echo(evaluation.to_text(), nl=False)
+    if markdown is not None:
+        with atomic_output_file(markdown) as tmp:
+            tmp.write_text(evaluation.to_markdown(), encoding="utf-8")
+        click.echo(f"tables -> {markdown}")
+    if plot is not None:
+        from vispeech.evaluation.plots import plot_utterance as draw
+
+        jaw = "jawOpen" in corpus.channels and any("jawOpen" in m.channels for m in models.values())
+        channel = "jawOpen" if jaw else evaluation.models[0].scores.channels[0]
+        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
+        draw(example, predictions, plot, channel)
+        click.echo(f"{channel} of {example.id} -> {plot}")

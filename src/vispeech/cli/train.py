@@ -1,0 +1,111 @@
+"""``vispeech train``: fit a model on a corpus and save it."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import click
+
+from vispeech.cli import main
+from vispeech.cli.evaluate import cache_option, corpus_option, language_option, quiet_option, read_aligned_corpus
+from vispeech.errors import VispeechError
+
+CHECKPOINT = "checkpoint"
+"""Sub-folder of the output folder where a network's training state is kept after every epoch."""
+
+_TARGETS = {"arkit": "mouth", "articulatory": "articulatory"}
+
+
+@main.command("train")
+@corpus_option
+@click.option("--model", "-m", "model_name", required=True,
+              help="Registered model name (sliding-window-thesis, sliding-window-taylor, tdnn-beskow, ...).")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
+@click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
+@click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
+              help="Phone one-hot vectors or articulatory feature vectors [default: the model's].")
+@click.option("--targets", type=click.Choice(list(_TARGETS)), default=None,
+              help="ARKit mouth channels or articulatory parameters measured on landmarks [default: the model's].")
+@click.option("--resume", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Go on from a saved model or an interrupted run's output folder.")
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder to save the trained model in.")
+@language_option
+@cache_option
+@quiet_option
+def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: int | None, inputs: str | None,
+                  targets: str | None, resume: Path | None, out_dir: Path, language: str, cache: Path | None,
+                  quiet: bool) -> None:
+    """Fit a model on the train split of a corpus (validation split for early stopping) and save it.
+
+    A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
+    interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
+    """
+    from vispeech.models.neural import NeuralControlModel
+    from vispeech.models.registry import model_class
+
+    defaults = model_class(model_name).default_params()
+    given = {"--epochs": ("epochs", epochs), "--seed": ("seed", seed), "--input": ("inputs", inputs),
+             "--targets": ("targets", _TARGETS.get(targets))}
+    options = {}
+    for flag, (key, value) in given.items():
+        if value is None:
+            continue
+        if key not in defaults:
+            raise VispeechError(f"model {model_name} takes no {flag}")
+        options[key] = value
+    if quiet and "progress" in defaults:
+        options["progress"] = False
+    model = model_class(model_name)(**options)
+    neural = isinstance(model, NeuralControlModel)
+    if resume is not None and not neural:
+        raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
+
+    corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
+    sizes = {name: len(corpus.split(name)) for name in ("train", "validation", "test")}
+    if not sizes["train"]:
+        raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
+    click.echo(f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
+               f"utterances at {corpus.fps:g} fps")
+
+    if neural:
+        checkpoint = out_dir / CHECKPOINT
+        start = None
+        if resume is not None:
+            start = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
+        model.fit(corpus, resume_from=start, checkpoint_dir=checkpoint)
+        model.save(out_dir)
+        shutil.rmtree(checkpoint, ignore_errors=True)
+    else:
+        model.fit(corpus)
+        model.save(out_dir)
+    _summary(model, corpus, out_dir)
+
+
+def _summary(model, corpus, out_dir: Path) -> None:
+    """Print what fitting did and the model's jaw scores on the test split."""
+    from vispeech.evaluation.report import available_channels, evaluate_models
+    from vispeech.models.neural import LOSS_CURVE
+
+    click.echo(f"saved {model.name} -> {out_dir}")
+    history = getattr(model, "history", None)
+    if history is not None and history.epochs:
+        best = history.best_epoch
+        loss = history.validation_loss[best - 1]
+        which = "validation"
+        if loss is None:
+            loss, which = history.train_loss[best - 1], "training"
+        click.echo(f"epochs: {history.epochs}, best {best} ({which} loss {loss:.4g}), "
+                   f"{sum(history.seconds):.1f} s")
+    if (out_dir / LOSS_CURVE).is_file():
+        click.echo(f"loss curve -> {out_dir / LOSS_CURVE}")
+    test = corpus.split("test")
+    shared = [c for c in ("jawOpen", "jaw_opening") if c in model.channels and c in available_channels(test)]
+    if not len(test) or not shared:
+        click.echo("test split: no jaw channel to score")
+        return
+    scores = evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False).models[0].scores
+    result = scores[shared[0]]
+    click.echo(f"test split ({len(test)} utterances, no post-processing): {shared[0]} "
+               f"r {result['r']:.3f}, RMSE {result['rmse_percent']:.2f} % of range, MSE {result['mse']:.5f}")

@@ -1,0 +1,160 @@
+"""Objective metrics of predicted against target curves (Beskow 2004, section 5).
+
+Every function takes arrays of shape ``(frames, channels)`` and returns one value per
+channel. Utterances are scored over their speech span only (:func:`speech_frames`):
+leading and trailing silence is left out, as Beskow does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vispeech.alignment.phones import Word
+from vispeech.errors import VispeechError
+
+SPEECH_MARGIN = 0.1
+"""Seconds kept before the first word and after the last one in the speech span."""
+
+
+def speech_frames(
+    words: Sequence[Word], fps: float, n_frames: int, start_time: float = 0.0, margin: float = SPEECH_MARGIN
+) -> np.ndarray:
+    """Boolean mask of the frames in the speech span of an utterance.
+
+    Frame k sits at ``start_time + k / fps`` seconds; the span runs from the first word's
+    start minus ``margin`` to the last word's end plus ``margin`` (seconds), both ends
+    included. Without words no frame is in the span.
+    """
+    mask = np.zeros(n_frames, dtype=bool)
+    if not words:
+        return mask
+    times = start_time + np.arange(n_frames) / fps
+    first, last = min(w.start for w in words), max(w.end for w in words)
+    mask[(times >= first - margin - 1e-9) & (times <= last + margin + 1e-9)] = True
+    return mask
+
+
+def _pair(target: np.ndarray, predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    target, predicted = np.asarray(target, dtype=float), np.asarray(predicted, dtype=float)
+    if target.ndim == 1:
+        target, predicted = target[:, None], predicted.reshape(len(predicted), -1)
+    if target.shape != predicted.shape or target.ndim != 2:
+        raise VispeechError(f"target and prediction shapes differ: {target.shape} and {predicted.shape}")
+    return target, predicted
+
+
+def mse(target: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """Mean squared error per channel (NaN for no frames)."""
+    target, predicted = _pair(target, predicted)
+    if not len(target):
+        return np.full(target.shape[1], np.nan)
+    return np.mean((predicted - target) ** 2, axis=0)
+
+
+def value_range(targets: Sequence[np.ndarray]) -> np.ndarray:
+    """Per channel, max minus min of the target over all frames of all ``targets`` arrays."""
+    stacked = np.concatenate([np.asarray(t, dtype=float).reshape(len(t), -1) for t in targets])
+    if not len(stacked):
+        return np.full(stacked.shape[1], np.nan)
+    return stacked.max(axis=0) - stacked.min(axis=0)
+
+
+def rmse_percent(target: np.ndarray, predicted: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """Root-mean-square error per channel as a percentage of ``span`` (the target's range;
+    see :func:`value_range`). NaN where the range is 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(np.asarray(span) > 0, 100.0 * np.sqrt(mse(target, predicted)) / span, np.nan)
+
+
+def pearson_r(target: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """Pearson product-moment correlation per channel; NaN where either curve is constant."""
+    target, predicted = _pair(target, predicted)
+    if len(target) < 2:
+        return np.full(target.shape[1], np.nan)
+    t = target - target.mean(axis=0)
+    p = predicted - predicted.mean(axis=0)
+    denominator = np.sqrt((t**2).sum(axis=0) * (p**2).sum(axis=0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = (t * p).sum(axis=0) / denominator
+    return np.where(denominator > 1e-12, np.clip(r, -1.0, 1.0), np.nan)
+
+
+@dataclass
+class ChannelScores:
+    """Scores per channel of one model on a set of utterances.
+
+    ``mse``, ``rmse_percent`` and ``r`` pool the frames of every utterance (concatenated);
+    the ``utterance_*`` arrays are means over utterances of the per-utterance scores
+    (utterances where r is undefined are left out of ``utterance_r``). ``range`` is the
+    target's range over all frames that ``rmse_percent`` divides by; ``frames`` and
+    ``utterances`` count what was scored.
+    """
+
+    channels: tuple[str, ...]
+    mse: np.ndarray
+    rmse_percent: np.ndarray
+    r: np.ndarray
+    utterance_mse: np.ndarray
+    utterance_rmse_percent: np.ndarray
+    utterance_r: np.ndarray
+    range: np.ndarray
+    frames: int
+    utterances: int
+
+    def __getitem__(self, channel: str) -> dict[str, float]:
+        """The scores of one channel as a dict."""
+        try:
+            j = self.channels.index(channel)
+        except ValueError:
+            raise VispeechError(f"no scores for channel {channel!r}") from None
+        return {
+            key: float(getattr(self, key)[j])
+            for key in ("mse", "rmse_percent", "r", "utterance_mse", "utterance_rmse_percent", "utterance_r")
+        }
+
+
+def score_channels(
+    channels: Sequence[str],
+    targets: Sequence[np.ndarray],
+    predictions: Sequence[np.ndarray],
+    span: np.ndarray | None = None,
+) -> ChannelScores:
+    """Score per-utterance ``predictions`` against ``targets`` (lists of ``(frames, channels)``
+    arrays holding only the frames to score, e.g. the speech span).
+
+    ``span`` is the range RMSE is a percentage of; by default :func:`value_range` of
+    ``targets``, i.e. the range over the whole set, the same for every utterance.
+    """
+    channels = tuple(channels)
+    if len(targets) != len(predictions):
+        raise VispeechError(f"{len(targets)} target arrays but {len(predictions)} predictions")
+    pairs = [_pair(np.reshape(t, (len(t), -1)), np.reshape(p, (len(p), -1))) for t, p in zip(targets, predictions)]
+    pairs = [(t, p) for t, p in pairs if len(t)]
+    if not pairs:
+        raise VispeechError("no frames to score")
+    if pairs[0][0].shape[1] != len(channels):
+        raise VispeechError(f"{len(channels)} channel names for {pairs[0][0].shape[1]} columns")
+    span = value_range([t for t, _ in pairs]) if span is None else np.asarray(span, dtype=float)
+    target = np.concatenate([t for t, _ in pairs])
+    predicted = np.concatenate([p for _, p in pairs])
+    per_utterance = np.array([[mse(t, p), rmse_percent(t, p, span), pearson_r(t, p)] for t, p in pairs])
+    finite = np.isfinite(per_utterance)
+    counts = finite.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(counts > 0, np.where(finite, per_utterance, 0.0).sum(axis=0) / counts, np.nan)
+    return ChannelScores(
+        channels=channels,
+        mse=mse(target, predicted),
+        rmse_percent=rmse_percent(target, predicted, span),
+        r=pearson_r(target, predicted),
+        utterance_mse=means[0],
+        utterance_rmse_percent=means[1],
+        utterance_r=means[2],
+        range=span,
+        frames=len(target),
+        utterances=len(pairs),
+    )
+

@@ -1,0 +1,65 @@
+"""Plots of recorded against predicted curves (matplotlib, Agg; written as PNG)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.corpus.corpus import Utterance
+from vispeech.errors import VispeechError
+from vispeech.evaluation.report import scored_frames, target_track
+from vispeech.files import atomic_output_file
+from vispeech.motion.track import Track
+
+
+def plot_utterance(
+    utterance: Utterance,
+    predictions: Mapping[str, Track],
+    path: str | os.PathLike,
+    channel: str = "jawOpen",
+) -> Path:
+    """Draw one channel of an utterance: the recorded curve and each model's (by label).
+
+    ``predictions`` are tracks on the utterance's frames (see
+    :func:`vispeech.evaluation.report.predict_on_frames`); those without ``channel`` are
+    left out. The scored frames (speech span) are shaded and the phones labelled along the
+    top. Writes a PNG at ``path`` atomically and returns the path.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    target = target_track(utterance, [channel])
+    times = target.times
+    figure = Figure(figsize=(10, 4), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    scored = scored_frames(utterance)
+    if scored.any():
+        first, last = times[scored][[0, -1]]
+        axes.axvspan(first, last, color="0.93", zorder=0, label="scored span")
+    axes.plot(times, target[channel], color="black", linewidth=2.0, label="recorded")
+    drawn = 0
+    for label, track in predictions.items():
+        if channel in track.channels:
+            axes.plot(track.times, track[channel], linewidth=1.2, label=label)
+            drawn += 1
+    if not drawn:
+        raise VispeechError(f"no model predicts {channel!r}: nothing to plot")
+    if utterance.phones is not None:
+        top = axes.secondary_xaxis("top")
+        spoken = [p for p in utterance.phones if not p.is_silence]
+        top.set_xticks([(p.start + p.end) / 2 for p in spoken], [p.symbol for p in spoken], fontsize=7)
+        for boundary in np.unique([p.start for p in spoken]):
+            axes.axvline(boundary, color="0.85", linewidth=0.5, zorder=0)
+    axes.set_xlim(times[0], times[-1])
+    axes.set_xlabel("time (s)")
+    axes.set_ylabel(channel)
+    axes.set_title(f"{utterance.id}: {utterance.text}", fontsize=9, pad=18)
+    axes.legend(fontsize=8, loc="upper right")
+    figure.tight_layout()
+    with atomic_output_file(path) as tmp:
+        figure.savefig(tmp, format="png")
+    return Path(path)

@@ -1,0 +1,290 @@
+"""Evaluating control models on a corpus: metrics and closures per model, as text or Markdown.
+
+:func:`evaluate_models` animates every utterance with each model at the corpus frame rate
+(:func:`vispeech.pipeline.animate`, optionally post-processed), scores the channels over
+the speech span of each utterance (:func:`vispeech.evaluation.metrics.speech_frames`;
+frames the tracker missed are left out) and counts lip closures
+(:mod:`vispeech.evaluation.closures`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vispeech.corpus.articulation import ARTICULATORY_CHANNELS, articulatory_parameters
+from vispeech.corpus.corpus import Corpus, Utterance
+from vispeech.errors import VispeechError
+from vispeech.evaluation.closures import (
+    BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, TRACKED_CLOSED, ClosureCounts, count_closures,
+    lip_opening, model_closed, tracked_closed,
+)
+from vispeech.evaluation.metrics import SPEECH_MARGIN, ChannelScores, score_channels, speech_frames
+from vispeech.models.base import ControlModel
+from vispeech.motion.arkit import MOUTH_CHANNELS
+from vispeech.motion.track import Track
+
+EVALUATED_CHANNELS: tuple[str, ...] = MOUTH_CHANNELS + ARTICULATORY_CHANNELS
+"""Channels an evaluation may score: the ARKit mouth/jaw set and the articulatory parameters."""
+
+
+@dataclass
+class ModelEvaluation:
+    """One model's results: channel scores and (when the corpus has landmarks) closure counts."""
+
+    label: str
+    model: str
+    scores: ChannelScores
+    closures: ClosureCounts | None
+
+
+@dataclass
+class Evaluation:
+    """Results of :func:`evaluate_models` for several models on one set of utterances."""
+
+    corpus: str
+    fps: float
+    utterances: int
+    postprocessing: bool
+    models: list[ModelEvaluation]
+
+    def __getitem__(self, label: str) -> ModelEvaluation:
+        for result in self.models:
+            if result.label == label:
+                return result
+        raise VispeechError(f"no results for model {label!r}")
+
+    def metric_rows(self) -> list[list[str]]:
+        """Rows of the metrics table: model, channel, MSE, RMSE %, r, and the utterance means
+        of RMSE % and r; each model ends with the mean over its channels."""
+        rows = []
+        for result in self.models:
+            s = result.scores
+            for j, channel in enumerate(s.channels):
+                rows.append([result.label, channel, *_numbers(
+                    s.mse[j], s.rmse_percent[j], s.r[j], s.utterance_rmse_percent[j], s.utterance_r[j])])
+            if len(s.channels) > 1:
+                means = [np.nanmean(a) if np.isfinite(a).any() else np.nan
+                         for a in (s.mse, s.rmse_percent, s.r, s.utterance_rmse_percent, s.utterance_r)]
+                rows.append([result.label, "(mean)", *_numbers(*means)])
+        return rows
+
+    def closure_rows(self) -> list[list[str]]:
+        """Rows of the closure table, one per model with closure counts."""
+        rows = []
+        for result in self.models:
+            c = result.closures
+            if c is None:
+                continue
+            rows.append([
+                result.label, f"{c.model_closures}/{c.tracked_closures}", _fixed(c.bilabial_rate, 1),
+                _fixed(c.model_closed_share, 1), _fixed(c.tracked_closed_share, 1),
+                _fixed(c.model_closed_share - c.tracked_closed_share, 1, signed=True), "yes" if c.passed else "no",
+            ])
+        return rows
+
+    def _header(self) -> str:
+        frames = self.models[0].scores.frames if self.models else 0
+        return (f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at {self.fps:g} fps, "
+                f"post-processing {'on' if self.postprocessing else 'off'}")
+
+    def to_text(self) -> str:
+        """The tables as aligned plain text."""
+        parts = [self._header(), "", _text_table(_METRIC_COLUMNS, self.metric_rows())]
+        closures = self.closure_rows()
+        if closures:
+            parts += ["", _text_table(_CLOSURE_COLUMNS, closures)]
+        return "\n".join(parts) + "\n"
+
+    def to_markdown(self) -> str:
+        """The tables as Markdown, with a note on how each figure is computed."""
+        parts = [
+            "# Objective evaluation", "", self._header() + ".", "",
+            f"Frames from {SPEECH_MARGIN:g} s before the first word to {SPEECH_MARGIN:g} s after the last, "
+            "without untracked frames. MSE and Pearson r pool the frames of all utterances; RMSE % is "
+            "the root-mean-square error as a percentage of the target's range over the whole set; "
+            "the (utt.) columns are means over utterances of per-utterance values.", "",
+            _markdown_table(_METRIC_COLUMNS, self.metric_rows()),
+        ]
+        closures = self.closure_rows()
+        if closures:
+            parts += [
+                "", "## Lip closures", "",
+                f"Tracked lips are closed where the inner-lip gap over the eye-corner distance is at most "
+                f"{TRACKED_CLOSED:g}; a model's where jawOpen − mouthClose is at most {MODEL_CLOSED:.0%} of its "
+                f"utterance maximum. /p b m/: of the bilabials on which the tracked lips close (phone ± 1 "
+                f"frame), those the model closes on too (target ≥ {BILABIAL_RATE_TARGET:g} %); closed "
+                f"frames: share of speech frames with closed lips (within {CLOSED_SHARE_TOLERANCE:g} points).", "",
+                _markdown_table(_CLOSURE_COLUMNS, closures),
+            ]
+        return "\n".join(parts) + "\n"
+
+
+_METRIC_COLUMNS = ("model", "channel", "MSE", "RMSE %", "r", "RMSE % (utt.)", "r (utt.)")
+_CLOSURE_COLUMNS = ("model", "/p b m/ closed", "%", "closed frames %", "tracked %", "difference", "pass")
+
+
+def _fixed(value: float, digits: int, signed: bool = False) -> str:
+    if not math.isfinite(value):
+        return "n/a"
+    return f"{value:+.{digits}f}" if signed else f"{value:.{digits}f}"
+
+
+def _numbers(mse: float, rmse: float, r: float, utterance_rmse: float, utterance_r: float) -> list[str]:
+    return [
+        "n/a" if not math.isfinite(mse) else f"{mse:.5f}",
+        _fixed(rmse, 2), _fixed(r, 3), _fixed(utterance_rmse, 2), _fixed(utterance_r, 3),
+    ]
+
+
+def _text_table(columns: Sequence[str], rows: list[list[str]]) -> str:
+    widths = [max(len(str(x)) for x in column) for column in zip(columns, *rows)]
+    lines = ["  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
+             for row in [list(columns), *rows]]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def _markdown_table(columns: Sequence[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join("---" if i < 2 else "---:" for i in range(len(columns))) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def available_channels(corpus: Corpus) -> tuple[str, ...]:
+    """Channels of :data:`EVALUATED_CHANNELS` the corpus can give targets for (articulatory
+    ones only when every utterance has landmarks)."""
+    landmarks = len(corpus) > 0 and all(u.landmarks is not None for u in corpus)
+    return tuple(c for c in EVALUATED_CHANNELS
+                 if c in corpus.channels or (landmarks and c in ARTICULATORY_CHANNELS))
+
+
+def model_channels(model: ControlModel, corpus: Corpus, channels: Iterable[str] | None = None) -> tuple[str, ...]:
+    """The channels to score a model on: ``channels`` (default: those of
+    :data:`EVALUATED_CHANNELS` that the model predicts and the corpus has), with ``jawOpen``
+    first whenever both have it."""
+    available = available_channels(corpus)
+    if channels is None:
+        chosen = [c for c in EVALUATED_CHANNELS if c in model.channels and c in available]
+        if not chosen:
+            raise VispeechError(f"model {model.name} and corpus {corpus.name} share no mouth or jaw channel")
+    else:
+        chosen = list(dict.fromkeys(channels))
+        for channel in chosen:
+            if channel not in available:
+                raise VispeechError(f"corpus {corpus.name} has no channel {channel!r} to score")
+            if channel not in model.channels:
+                raise VispeechError(f"model {model.name} does not predict channel {channel!r}")
+    if "jawOpen" in model.channels and "jawOpen" in available:
+        chosen = ["jawOpen", *(c for c in chosen if c != "jawOpen")]
+    return tuple(chosen)
+
+
+def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
+    """The utterance's recorded curves of ``channels``: track channels as they are,
+    articulatory ones measured on its landmarks."""
+    values = np.empty((utterance.track.n_frames, len(channels)))
+    measured = None
+    for j, channel in enumerate(channels):
+        if channel in utterance.track.channels:
+            values[:, j] = utterance.track[channel]
+        elif channel in ARTICULATORY_CHANNELS:
+            if measured is None:
+                measured = articulatory_parameters(utterance)
+            values[:, j] = measured[channel]
+        else:
+            raise VispeechError(f"utterance {utterance.id} has no channel {channel!r}")
+    return Track(values, tuple(channels), utterance.track.fps, utterance.track.start_time)
+
+
+def predict_on_frames(model: ControlModel, utterance: Utterance, postprocessing: bool = True) -> Track:
+    """The model's animation of the utterance's phones on the frames of its recorded track.
+
+    The model predicts at the track's frame rate from time 0 (post-processed when
+    ``postprocessing`` and the output has ``jawOpen``); the result is sampled at the track's
+    frame times, held at its first/last value beyond its ends.
+    """
+    from vispeech.pipeline import animate
+
+    if utterance.phones is None:
+        raise VispeechError(f"utterance {utterance.id} has no phones: align the corpus first")
+    fps = utterance.track.fps
+    predicted = animate(utterance.phones, model, fps, postprocessing and "jawOpen" in model.channels)
+    times = utterance.track.times
+    if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < 1e-9:
+        return predicted
+    values = np.column_stack([np.interp(times, predicted.times, predicted.values[:, j])
+                              for j in range(len(predicted.channels))])
+    return Track(values, predicted.channels, fps, float(times[0]))
+
+
+def scored_frames(utterance: Utterance) -> np.ndarray:
+    """Mask of the frames scored: the speech span (the corpus's word timings, else the
+    aligned words) without frames the tracker missed."""
+    track = utterance.track
+    words = utterance.words or (utterance.phones.words if utterance.phones is not None else [])
+    mask = speech_frames(words, track.fps, track.n_frames, track.start_time)
+    if utterance.frame_mask is not None:
+        mask &= np.asarray(utterance.frame_mask, dtype=bool)
+    return mask
+
+
+def evaluate_models(
+    corpus: Corpus,
+    models: Mapping[str, ControlModel],
+    *,
+    channels: Iterable[str] | None = None,
+    postprocessing: bool = True,
+    progress: bool = False,
+) -> Evaluation:
+    """Score each model (by label) on every utterance of ``corpus`` (e.g. ``corpus.split("test")``).
+
+    ``channels`` as in :func:`model_channels`. Closure counts need utterances with face
+    landmarks and a model output with ``jawOpen`` or ``lip_aperture``; otherwise a model's
+    ``closures`` is ``None``. Raises :class:`VispeechError` for an empty corpus or an
+    utterance without phones.
+    """
+    from tqdm.auto import tqdm
+
+    if not len(corpus):
+        raise VispeechError(f"corpus {corpus.name} has no utterances to evaluate")
+    if not models:
+        raise VispeechError("no model to evaluate")
+    requested = None if channels is None else list(channels)
+    plans = {label: model_channels(model, corpus, requested) for label, model in models.items()}
+    needed = tuple(dict.fromkeys(c for chosen in plans.values() for c in chosen))
+    masks = [scored_frames(u) for u in corpus]
+    targets = [target_track(u, needed) for u in corpus]
+    closed = [tracked_closed(u.landmarks) if _has_lip_landmarks(u) else None for u in corpus]
+
+    results = []
+    bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
+    try:
+        for label, model in models.items():
+            chosen = plans[label]
+            columns = [needed.index(c) for c in chosen]
+            target_arrays, predicted_arrays = [], []
+            closures: ClosureCounts | None = ClosureCounts()
+            for utterance, mask, target, tracked in zip(corpus, masks, targets, closed):
+                predicted = predict_on_frames(model, utterance, postprocessing)
+                target_arrays.append(target.values[mask][:, columns])
+                predicted_arrays.append(predicted.select(chosen).values[mask])
+                if closures is not None and tracked is not None and lip_opening(predicted) is not None:
+                    closures += count_closures(utterance.phones, utterance.track.fps, tracked,
+                                               model_closed(predicted), mask, utterance.track.start_time)
+                else:
+                    closures = None
+                bar.update(1)
+            scores = score_channels(chosen, target_arrays, predicted_arrays)
+            results.append(ModelEvaluation(label, model.name, scores, closures))
+    finally:
+        bar.close()
+    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results)
+
+
+def _has_lip_landmarks(utterance: Utterance) -> bool:
+    return utterance.landmarks is not None and all(
+        f"lm{k}" in utterance.landmarks for k in (13, 14, 33, 263))

@@ -1,0 +1,146 @@
+"""Request and response bodies of the HTTP API and the messages of the ``/api/stream`` WebSocket.
+
+The field names are the browser contract of ``docs/web.md``; the bounds here are the
+server's input limits (text length, phones per message, stream length).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, Field, StringConstraints, TypeAdapter
+
+from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
+from vispeech.motion.jsonformat import ANIMATION_FORMAT
+
+MAX_TEXT_CHARS = 1000
+"""Longest text (characters) that ``/api/speak``, ``/api/chat`` and the stream accept."""
+
+MAX_PHONES_PER_MESSAGE = 500
+"""Most phones one ``phones`` stream message may carry."""
+
+MAX_STREAM_SECONDS = 600.0
+"""Latest phone end (seconds) a phone stream may reach."""
+
+Language = Literal["sv", "en"]
+Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS)]
+Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=False)]
+ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
+
+
+class SpeakRequest(BaseModel):
+    """Text to speak; ``model`` ``null`` means the server's default model."""
+
+    text: Text
+    lang: Language = "en"
+    model: ModelName | None = None
+    rate: Rate = 1.0
+
+
+class WordJSON(BaseModel):
+    text: str
+    start: float
+    end: float
+
+
+class PhoneJSON(BaseModel):
+    symbol: str
+    start: float
+    end: float
+    word: int | None = None
+    stress: int = 0
+
+
+class PhonesJSON(BaseModel):
+    """A :class:`vispeech.PhoneSequence` as :meth:`~vispeech.PhoneSequence.to_dict` writes it."""
+
+    language: str
+    words: list[WordJSON]
+    phones: list[PhoneJSON]
+
+
+class AnimationJSON(BaseModel):
+    """vispeech animation JSON (see :mod:`vispeech.motion.jsonformat`): frame k at ``k / fps`` s."""
+
+    format: Literal["vispeech-animation"] = ANIMATION_FORMAT
+    version: int = 1
+    fps: float
+    start_time: float = 0.0
+    n_frames: int
+    channels: list[str]
+    frames: list[list[float]]
+    phones: PhonesJSON | None = None
+
+
+class SpeakResponse(BaseModel):
+    """Audio URL and animation of one utterance; ``cached`` tells whether it came from the cache."""
+
+    audio_url: str
+    animation: AnimationJSON
+    text: str
+    cached: bool
+
+
+class ChatRequest(BaseModel):
+    """A chat message; with ``speak`` the reply comes spoken (``speech``) as well."""
+
+    message: Text
+    lang: Language = "en"
+    speak: bool = True
+    model: ModelName | None = None
+
+
+class ChatResponse(BaseModel):
+    reply: str
+    lang: Language
+    speech: SpeakResponse | None = None
+
+
+class ConfigResponse(BaseModel):
+    """What the web app needs to know about the server."""
+
+    avatar_url: str | None
+    languages: list[str]
+    models: list[str]
+    default_model: str
+    stream_model: str
+    fps: float
+    max_text: int
+
+
+class ErrorResponse(BaseModel):
+    detail: str
+
+
+class TextMessage(BaseModel):
+    """Stream client message: speak ``text`` clause by clause."""
+
+    type: Literal["text"]
+    text: Text
+    lang: Language = "en"
+    model: ModelName | None = None
+    rate: Rate = 1.0
+
+
+class StreamPhone(BaseModel):
+    """One timed phone of a phone stream, seconds from the stream's start."""
+
+    symbol: Annotated[str, StringConstraints(min_length=1, max_length=8)]
+    start: Seconds
+    end: Seconds
+    stress: Annotated[int, Field(ge=0, le=2)] = 0
+
+
+class PhonesMessage(BaseModel):
+    """Stream client message: the next phones of a phone stream; ``final`` ends it."""
+
+    type: Literal["phones"]
+    phones: Annotated[list[StreamPhone], Field(max_length=MAX_PHONES_PER_MESSAGE)]
+    lang: Language = "en"
+    final: bool = False
+    model: ModelName | None = None
+
+
+ClientMessage = TypeAdapter(Annotated[TextMessage | PhonesMessage, Field(discriminator="type")])
+"""Parses one stream client message (JSON text) into :class:`TextMessage` or :class:`PhonesMessage`."""

@@ -1,0 +1,114 @@
+"""The web app's pure modules (web/src) run under Node: name matching, file readers, clocks."""
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+WEB_SRC = Path(__file__).resolve().parents[1] / "web" / "src"
+LIVE_LINK_HEADER = (
+    "Timecode,BlendshapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
+    "EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,"
+    "EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,"
+    "MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,"
+    "MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,"
+    "MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,"
+    "MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,"
+    "CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,"
+    "LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
+)
+
+
+def run_node(script: str):
+    """Run an ES-module `script` (web/src importable as ./name.js) and return what it prints as JSON."""
+    node = shutil.which("node")
+    if node is None or not WEB_SRC.is_dir():
+        pytest.skip("needs node and the web/src sources")
+    result = subprocess.run(
+        [node, "--input-type=module", "-e", script], cwd=WEB_SRC, capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_morph_target_names_match_arkit():
+    names = ["jawOpen", "JawOpen", "blendShape1.jawOpen", "eyeBlink_L", "EYEBLINK_R", "mouth_L",
+             "browInnerUp_R", "cheekPuffLeft", "blendShape1.MouthSmile_R", "viseme_aa", "HeadYaw", "jaw"]
+    got = run_node(f"import {{ arkitName }} from './arkit.js'; "
+                   f"console.log(JSON.stringify({json.dumps(names)}.map(arkitName)))")
+    assert got == ["jawOpen", "jawOpen", "jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthLeft",
+                   "browInnerUp", "cheekPuff", "mouthSmileRight", None, None, None]
+
+
+def sample_script(text: str, times: list[float]) -> str:
+    return (
+        "import { parseAnimation } from './animation.js';"
+        f"const a = parseAnimation({json.dumps(text)}, 'test');"
+        "const jaw = a.channels.findIndex((c) => c.toLowerCase() === 'jawopen');"
+        f"console.log(JSON.stringify({{fps: a.fps, n: a.length, start: a.startTime, channels: a.channels.length,"
+        f" jaw: {json.dumps(times)}.map((t) => a.sample(t)[jaw])}}));"
+    )
+
+
+def test_vispeech_json_is_sampled_on_its_own_timeline():
+    doc = {"format": "vispeech-animation", "version": 1, "fps": 25, "start_time": 0.5,
+           "channels": ["mouthClose", "jawOpen"], "frames": [[0, 0.0], [0, 0.4], [0, 0.8]],
+           "phones": {"language": "sv", "words": [], "phones": []}}
+    got = run_node(sample_script(json.dumps(doc), [0.0, 0.5, 0.54, 0.58, 1.0]))
+    assert (got["fps"], got["n"], got["start"], got["channels"]) == (25, 3, 0.5, 2)
+    # held before the first frame and after the last, linear in between (frame k at 0.5 + k/25 s)
+    assert got["jaw"] == pytest.approx([0.0, 0.0, 0.4, 0.8, 0.8], abs=1e-6)
+
+
+def test_live_link_csv_timecodes_give_fps_and_times():
+    columns = LIVE_LINK_HEADER.split(",")[2:]
+    rows = [LIVE_LINK_HEADER]
+    for k, jaw in enumerate([0.0, 0.2, 0.6, 0.2]):  # 30 fps rows in 60 fps timecode: FF steps by 2
+        values = ["%.10f" % (jaw if name == "JawOpen" else 0.0) for name in columns]
+        rows.append(",".join([f"19:16:29:{40 + 2 * k:02d}.000", "61", *values]))
+    got = run_node(sample_script("\r\n".join(rows) + "\r\n", [0.0, 1 / 30, 2 / 30, 2.5 / 30, 1.0]))
+    assert (got["fps"], got["n"], got["channels"]) == (30, 4, 61)
+    assert got["jaw"] == pytest.approx([0.0, 0.2, 0.6, 0.4, 0.2], abs=1e-6)
+
+
+def test_talkinghead_segments_end_on_their_values():
+    doc = {"anim": {"name": "speech", "dt": [100, 100, 100], "vs": {"jawOpen": [0.3, None, [0.5, 0.7]]}}}
+    got = run_node(sample_script(json.dumps(doc), [0.0, 0.1, 0.2, 0.25, 0.3]))
+    assert (got["fps"], got["n"]) == (10, 4)
+    assert got["jaw"] == pytest.approx([0.3, 0.3, 0.3, 0.45, 0.6], abs=1e-6)
+
+
+@pytest.mark.parametrize("text", ['{"format": "vispeech-animation", "version": 2, "fps": 30}',
+                                  '{"hello": 1}', "a,b\n1,2\n", "{not json"])
+def test_unreadable_animation_files_raise_one_clear_error(text):
+    script = ("import { parseAnimation } from './animation.js';"
+              f"try {{ parseAnimation({json.dumps(text)}, 'x.json'); console.log('null') }}"
+              "catch (e) { console.log(JSON.stringify(e.message)) }")
+    message = run_node(script)
+    assert message.startswith("x.json: ") and "\n" not in message
+
+
+def test_idle_blinks_come_every_two_to_six_seconds():
+    got = run_node(
+        "import { IdleMotion } from './idle.js';"
+        "const idle = new IdleMotion(7); const starts = []; let prev = 0; let head = 0;"
+        "for (let i = 0; i <= 120 * 100; i++) { const t = i / 100; const b = idle.blink(t);"
+        " if (b > 0 && prev === 0) starts.push(t); prev = b;"
+        " head = Math.max(head, ...idle.head(t).map(Math.abs)); }"
+        "console.log(JSON.stringify({ starts, head }));"
+    )
+    gaps = [b - a for a, b in zip(got["starts"], got["starts"][1:])]
+    assert len(got["starts"]) >= 15
+    assert min(gaps) >= 2.0 - 0.011 and max(gaps) <= 6.0 + 0.011
+    assert 0.005 < got["head"] < 0.04  # radians: visible sway, never more than ~2 degrees
+
+
+def test_streamed_pcm16_decodes_little_endian():
+    got = run_node(
+        "import { decodePcm16 } from './performer.js';"
+        "const b = Buffer.from(new Int16Array([0, 16384, -32768, 32767]).buffer).toString('base64');"
+        "console.log(JSON.stringify([...decodePcm16(b)]));"
+    )
+    assert got == pytest.approx([0.0, 0.5, -1.0, 32767 / 32768])
