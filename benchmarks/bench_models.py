@@ -1,23 +1,38 @@
-"""Speed of the data-free control models (phones → track) and of post-processing.
+"""Speed of the data-free control models: phones → track, and text → audio + track.
 
     python benchmarks/bench_models.py [--sentences N] [--fps FPS] [--seed S]
 
-Builds N random ~3 s sentences (half Swedish, half English: silence, then syllables of
-random consonants and vowels of 40–160 ms, then silence), predicts each with every model
-on one thread and prints frames per second per model, and for post-processing.
+1. phones → track: builds N random ~3 s sentences (half Swedish, half English: silence,
+   then syllables of random consonants and vowels of 40–160 ms, then silence), predicts
+   each with every model and prints frames per second per model, and for post-processing.
+2. text → audio + track: speaks N real sentences (half Swedish, half English: the test
+   sentences and, when ../shared is there, GRID's transcripts) through
+   :func:`vispeech.pipeline.speak` (espeak-ng + model + post-processing) with every model.
+
+Runs on one core (BLAS threads pinned to 1).
 """
 
 from __future__ import annotations
 
-import argparse
-import time
+import os
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
 
-from vispeech.alignment.phones import Phone, PhoneSequence
-from vispeech.models.registry import create_model
-from vispeech.phonetics.inventory import get_inventory, is_silence
-from vispeech.postprocess import postprocess
+import argparse  # noqa: E402
+import itertools  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
+from vispeech.models.registry import create_model  # noqa: E402
+from vispeech.phonetics.inventory import get_inventory, is_silence  # noqa: E402
+from vispeech.pipeline import speak  # noqa: E402
+from vispeech.postprocess import postprocess  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 DATA_FREE = ("baseline", "beskow-rules", "cohen-massaro", "ohman")
 
@@ -34,6 +49,20 @@ def random_sentence(rng: np.random.Generator, language: str, seconds: float = 3.
             t += duration
     phones.append(Phone("sil", t, t + 0.2))
     return PhoneSequence(phones, language)
+
+
+def real_sentences(n: int) -> list[tuple[str, str]]:
+    """``n`` (language, text) pairs, alternating Swedish and English."""
+    def lines(path: Path) -> list[str]:
+        return [line.strip() for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+    swedish = lines(ROOT / "tests" / "data" / "sentences_sv.txt")
+    english = lines(ROOT / "tests" / "data" / "sentences_en.txt")
+    grid = ROOT.parent / "shared" / "data" / "grid_s1" / "sentences.tsv"
+    if grid.is_file():
+        english += [line.split("\t", 1)[1] for line in lines(grid)[1:]]
+    pairs = zip(itertools.cycle(swedish), itertools.cycle(english))
+    return [item for sv, en in itertools.islice(pairs, (n + 1) // 2) for item in (("sv", sv), ("en", en))][:n]
 
 
 def main() -> None:
@@ -59,6 +88,18 @@ def main() -> None:
         postprocess(track, sentence)
     seconds = time.perf_counter() - t0
     print(f"{'postprocess':>15}: {frames / seconds:12,.0f} frames/s  ({1e3 * seconds / len(sentences):.2f} ms/sentence)")
+
+    texts = real_sentences(args.sentences)
+    print(f"\ntext -> audio + track, {len(texts)} sentences (espeak-ng + model + post-processing)")
+    for name in DATA_FREE:
+        model = create_model(name)
+        t0 = time.perf_counter()
+        utterances = [speak(text, language, model=model, fps=args.fps) for language, text in texts]
+        seconds = time.perf_counter() - t0
+        n_frames = sum(u.track.n_frames for u in utterances)
+        audio = sum(len(u.audio) / u.sample_rate for u in utterances)
+        print(f"{name:>15}: {n_frames / seconds:12,.0f} frames/s  ({1e3 * seconds / len(texts):.1f} ms/sentence, "
+              f"{audio / seconds:.0f}x real time)")
 
 
 if __name__ == "__main__":

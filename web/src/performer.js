@@ -107,16 +107,6 @@ export class Performer {
     this.updateState();
   }
 
-  /** Stop everything and go back to idle. */
-  stop() {
-    this.stopSources();
-    this.animation = null;
-    this.segments = [];
-    this.t0 = null;
-    this.pausedAt = null;
-    this.updateState();
-  }
-
   // --- streaming: frames and audio chunks arrive while the utterance plays ---
 
   /** Start a streamed utterance of `channels` at `fps`. */

@@ -181,7 +181,9 @@ class NeuralControlModel(ControlModel):
     ) -> NeuralControlModel:
         """Train on ``corpus`` (any iterable of objects with ``.phones`` and ``.track``).
 
-        ``resume_from`` continues a run from a checkpoint folder (or a saved model: then the
+        A corpus with splits (:class:`vispeech.corpus.Corpus`) trains on its ``train`` split
+        and validates on its ``validation`` split unless ``validation`` is given; anything
+        else trains on all of it. ``resume_from`` continues a run from a checkpoint folder (or a saved model: then the
         optimizer starts afresh) up to ``epochs`` epochs in all; ``checkpoint_dir`` receives a
         checkpoint after every epoch. Returns ``self``.
         """
@@ -313,7 +315,7 @@ class NeuralControlModel(ControlModel):
     def _inference_module(self) -> torch.nn.Module:
         """A float64 copy of the trained module in eval mode (cached)."""
         if not self.is_trained:
-            raise VispeechError(f"model {self.name} is not trained: fit it on a corpus or load a trained one")
+            raise VispeechError(f"model is not trained: fit {self.name} on a corpus or load a trained one")
         if self._inference is None:
             self._inference = copy.deepcopy(self._module).double().eval()
         return self._inference

@@ -131,17 +131,18 @@ def train(
     ``batches(rng)`` lists one epoch's batches; ``batch_loss(batch)`` returns the loss to
     minimise and the batch's weight in the epoch mean (e.g. its frame count);
     ``validation_loss()`` is called in eval mode without gradients (``None``: no validation
-    set, the training loss decides). ``state`` resumes a run (``seed`` is then ignored);
+    set, the training loss decides). ``state`` resumes a run with its random generators (or,
+    if it has none, generators seeded with ``seed`` + epochs done);
     ``on_epoch(state)`` is called after every epoch, e.g. to checkpoint. Returns the final state.
     """
     import torch
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     if state is None:
         state = TrainingState()
         rng = seed_everything(seed)
     else:
-        rng = np.random.default_rng()
+        rng = seed_everything(seed + state.epoch)  # replaced below when the state has generators
         if state.numpy_rng is not None:
             rng.bit_generator.state = state.numpy_rng
         if state.torch_rng is not None:

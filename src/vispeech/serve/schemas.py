@@ -133,11 +133,14 @@ class StreamPhone(BaseModel):
 
 
 class PhonesMessage(BaseModel):
-    """Stream client message: the next phones of a phone stream; ``final`` ends it."""
+    """Stream client message: the next phones of a phone stream; ``final`` ends it.
+
+    ``lang`` (default ``"en"``) and ``model`` count in a stream's first message.
+    """
 
     type: Literal["phones"]
     phones: Annotated[list[StreamPhone], Field(max_length=MAX_PHONES_PER_MESSAGE)]
-    lang: Language = "en"
+    lang: Language | None = None
     final: bool = False
     model: ModelName | None = None
 

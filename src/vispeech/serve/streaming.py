@@ -159,7 +159,10 @@ class PhoneStream:
 
     def __init__(self, language: str) -> None:
         self.language = language
-        self.end = 0.0  # latest phone end so far, seconds
+        self.end = 0.0
+        """Latest phone end so far, seconds."""
+        self.emitted = 0
+        """Frames given so far."""
         self.closed = False
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
@@ -214,7 +217,6 @@ class WindowPhoneStream(PhoneStream):
         self.lookahead = int(lookahead)
         self.context_frames = round(context * fps)
         self.channels = stream_channels(model, language, self.fps)
-        self.emitted = 0
         self._recent: list[Phone] = []
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
@@ -265,7 +267,6 @@ class ModelPhoneStream(PhoneStream):
         self.fps = float(model.fps)
         self.channels = tuple(model.channels)
         self.lookahead = int(model.get_params().get("look_ahead", 0))
-        self.emitted = 0
         self._inputs: queue.Queue = queue.Queue()
         self._outputs: queue.Queue = queue.Queue()
         self._thread = threading.Thread(target=self._run, name="vispeech-phone-stream", daemon=True)
