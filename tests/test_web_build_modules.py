@@ -5,6 +5,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 WEB_SRC = Path(__file__).resolve().parents[1] / "web" / "src"
@@ -73,11 +74,36 @@ def test_live_link_csv_timecodes_give_fps_and_times():
     assert got["jaw"] == pytest.approx([0.0, 0.2, 0.6, 0.4, 0.2], abs=1e-6)
 
 
-def test_talkinghead_segments_end_on_their_values():
+def test_talkinghead_frames_start_where_the_durations_before_them_end():
     doc = {"anim": {"name": "speech", "dt": [100, 100, 100], "vs": {"jawOpen": [0.3, None, [0.5, 0.7]]}}}
-    got = run_node(sample_script(json.dumps(doc), [0.0, 0.1, 0.2, 0.25, 0.3]))
-    assert (got["fps"], got["n"]) == (10, 4)
-    assert got["jaw"] == pytest.approx([0.3, 0.3, 0.3, 0.45, 0.6], abs=1e-6)
+    got = run_node(sample_script(json.dumps(doc), [0.0, 0.1, 0.15, 0.2, 0.3]))
+    assert (got["fps"], got["n"]) == (10, 3)
+    assert got["jaw"] == pytest.approx([0.3, 0.3, 0.45, 0.6, 0.6], abs=1e-6)
+
+
+@pytest.mark.parametrize("suffix", [".json", ".csv", ".talkinghead.json"])
+def test_files_vispeech_writes_read_back_frame_for_frame(tmp_path, suffix):
+    """The player reads vispeech's own writers' files onto the same timeline, to 6 decimals."""
+    from vispeech.motion.io import write_track
+    from vispeech.motion.track import Track
+
+    rng = np.random.default_rng(3)
+    channels = ("jawOpen", "mouthClose", "eyeBlinkLeft", "mouthSmileRight")
+    start = 0.0 if suffix == ".talkinghead.json" else 0.5  # TalkingHead has no start time
+    track = Track(rng.uniform(0, 1, (37, len(channels))), channels, 30.0, start)
+    path = tmp_path / f"take{suffix}"
+    write_track(track, path)
+    script = (
+        "import { parseAnimation } from './animation.js'; import { arkitName } from './arkit.js';"
+        f"const a = parseAnimation({json.dumps(path.read_text(encoding='utf-8'))}, 'take');"
+        f"const want = {json.dumps(channels)};"
+        "const cols = want.map((n) => a.channels.findIndex((c) => arkitName(c) === n));"
+        "const rows = [...Array(a.length).keys()].map((k) => [...a.sample(a.startTime + k / a.fps)]);"
+        "console.log(JSON.stringify({fps: a.fps, start: a.startTime, rows: rows.map((r) => cols.map((c) => r[c]))}));"
+    )
+    got = run_node(script)
+    assert got["fps"] == pytest.approx(30.0) and got["start"] == pytest.approx(start, abs=1e-6)
+    assert np.array(got["rows"]) == pytest.approx(track.values, abs=2e-6)
 
 
 @pytest.mark.parametrize("text", ['{"format": "vispeech-animation", "version": 2, "fps": 30}',

@@ -4,14 +4,17 @@
 /**
  * Animation curves sampled at `fps`: frame k holds the channel values at
  * `startTime + k / fps` seconds of the audio. Frames may be appended while streaming.
+ * `phones` is a PhoneSequence dict, `audio` the audio file's name (relative to the
+ * animation file), when the file gives them.
  */
 export class Animation {
-  constructor({ fps, channels, frames = [], startTime = 0, phones = null, complete = true }) {
+  constructor({ fps, channels, frames = [], startTime = 0, phones = null, audio = null, complete = true }) {
     if (!(fps > 0)) throw new Error(`animation fps must be positive, got ${fps}`);
     this.fps = Number(fps);
     this.channels = channels.map(String);
     this.startTime = Number(startTime) || 0;
     this.phones = phones;
+    this.audio = audio;
     this.complete = complete;
     this.frames = [];
     this.append(0, frames);
@@ -101,75 +104,90 @@ function fromVispeechJson(data, name) {
     frames: data.frames,
     startTime: data.start_time || 0,
     phones: data.phones || null,
+    audio: typeof data.audio === 'string' ? data.audio : null,
   });
 }
 
-// TalkingHead templates: segment i lasts dt[i] ms and ends with value vs[shape][i] (null keeps
-// the previous value, [min, max] picks at random: we take the middle). Resampled at the
-// median segment rate.
+// TalkingHead blend-shape animation, as vispeech writes and reads it: frame i starts after
+// sum(dt[0..i-1]) ms and lasts dt[i] ms. `null` keeps the previous value, `[min, max]` (random
+// in TalkingHead) counts as its middle. Unequal durations are resampled at the median rate.
 function fromTalkingHead(anim, name) {
   const dt = anim.dt.map(Number);
   if (!dt.length || dt.some((d) => !(d > 0))) throw new Error(`${name}: TalkingHead "dt" must hold positive durations (ms)`);
   const channels = Object.keys(anim.vs);
-  const ends = [];
-  dt.reduce((t, d) => (ends.push(t + d / 1000), t + d / 1000), 0);
+  const starts = [0];
+  for (let i = 1; i < dt.length; i++) starts.push(starts[i - 1] + dt[i - 1] / 1000);
   const curves = channels.map((ch) => {
     const values = anim.vs[ch];
-    if (!Array.isArray(values)) throw new Error(`${name}: TalkingHead value list for ${ch} is not an array`);
-    const keys = [0];
-    let last = 0;
-    for (let i = 0; i < ends.length; i++) {
-      let v = values[i];
-      if (Array.isArray(v)) v = (Number(v[0]) + Number(v[v.length - 1])) / 2;
-      if (v !== null && v !== undefined) last = Number(v);
-      if (i === 0) keys[0] = last;
-      keys.push(last);
+    if (!Array.isArray(values) || values.length !== dt.length) {
+      throw new Error(`${name}: TalkingHead "vs.${ch}" must hold one value per "dt" entry`);
     }
-    return keys;
+    let last = 0;
+    return values.map((v) => {
+      if (Array.isArray(v)) last = (Number(v[0]) + Number(v[v.length - 1])) / 2;
+      else if (v !== null && v !== undefined) last = Number(v);
+      return last;
+    });
   });
-  const times = [0, ...ends];
   const sorted = [...dt].sort((a, b) => a - b);
   const fps = roundRate(1000 / sorted[Math.floor(sorted.length / 2)]);
-  return new Animation({ fps, channels, frames: resample(times, curves, fps) });
+  const n = Math.max(1, Math.round((starts[starts.length - 1] + dt[dt.length - 1] / 1000) * fps));
+  return new Animation({ fps, channels, frames: resample(starts, curves, fps, n) });
 }
 
-/** Header names of Live Link Face CSV columns that are not blend shapes. */
 const LIVE_LINK_META = new Set(['timecode', 'blendshapecount']);
+const TIMECODE = /^\s*(\d+):(\d{1,2}):(\d{1,2})[:;](\d+)(?:\.(\d+))?\s*$/;
+const TIMECODE_RATES = [24, 25, 30, 48, 50, 60, 72, 90, 100, 120, 240];
+const NOMINAL_FPS = [...TIMECODE_RATES, 24000 / 1001, 30000 / 1001, 60000 / 1001];
 
 /**
- * Read a Live Link Face CSV (`Timecode,BlendshapeCount,EyeBlinkLeft,...`). The timecode
- * `HH:MM:SS:FF.fff` counts frames at `timecodeFps` (60 in Live Link Face); times are
- * taken relative to the first row.
+ * Read a Live Link Face CSV (`Timecode,BlendshapeCount,EyeBlinkLeft,...`) as vispeech does.
+ * The timecode `HH:MM:SS:FF.fff` counts frames at the rate where FF wraps to the next
+ * second (60, the app's, when the take never wraps). Timecodes under an hour are utterance
+ * time (vispeech writes from 00:00:00:00); later ones are the app's time of day and count
+ * from the first row.
  */
-export function fromLiveLinkCsv(text, name = 'animation', timecodeFps = 60) {
+export function fromLiveLinkCsv(text, name = 'animation') {
   const lines = text.split(/\r?\n/).filter((line) => line.trim());
   const header = lines[0].split(',').map((s) => s.trim());
   const keep = header.map((h, i) => (LIVE_LINK_META.has(h.toLowerCase()) ? -1 : i)).filter((i) => i >= 0);
   const tcColumn = header.findIndex((h) => h.toLowerCase() === 'timecode');
-  const times = [];
+  const codes = [];
   const rows = [];
   for (let r = 1; r < lines.length; r++) {
     const cells = lines[r].split(',');
-    if (cells.length !== header.length) throw new Error(`${name}: row ${r + 1} has ${cells.length} fields, header has ${header.length}`);
-    times.push(parseTimecode(cells[tcColumn], timecodeFps, `${name} row ${r + 1}`));
+    if (cells.length !== header.length) throw new Error(`${name}: line ${r + 1} has ${cells.length} fields, the header has ${header.length}`);
+    const code = TIMECODE.exec(cells[tcColumn]);
+    if (!code) throw new Error(`${name}: line ${r + 1}: bad timecode ${JSON.stringify(cells[tcColumn])} (want HH:MM:SS:FF.fff)`);
+    codes.push(code);
     rows.push(keep.map((i) => Number(cells[i])));
   }
   if (!rows.length) throw new Error(`${name}: Live Link CSV has no rows`);
-  const t0 = times[0];
-  const rel = times.map((t) => t - t0);
-  const steps = rel.slice(1).map((t, i) => t - rel[i]).sort((a, b) => a - b);
-  const step = steps.length ? steps[Math.floor(steps.length / 2)] : 1 / timecodeFps;
-  if (!(step > 0)) throw new Error(`${name}: Live Link CSV timecodes do not increase`);
+  const maxFrame = Math.max(...codes.map((c) => Number(c[4])));
+  const wraps = new Set(codes.map((c) => `${c[1]}:${c[2]}:${c[3]}`)).size > 1;
+  const needed = wraps ? maxFrame + 1 : Math.max(maxFrame + 1, 60);
+  const rate = TIMECODE_RATES.find((r) => r >= needed) || needed;
+  const times = codes.map((c) => Number(c[1]) * 3600 + Number(c[2]) * 60 + Number(c[3])
+    + (Number(c[4]) + (c[5] ? Number(`0.${c[5]}`) : 0)) / rate);
+  for (let i = 1; i < times.length; i++) {
+    if (!(times[i] > times[i - 1])) throw new Error(`${name}: line ${i + 2}: timecode does not increase`);
+  }
+  const span = times[times.length - 1] - times[0];
+  const fps = times.length > 1 ? nominalRate((times.length - 1) / span) : rate;
   const channels = keep.map((i) => header[i]);
   const curves = channels.map((_, c) => rows.map((row) => row[c]));
-  const fps = roundRate(1 / step);
-  return new Animation({ fps, channels, frames: resample(rel, curves, fps) });
+  const rel = times.map((t) => t - times[0]);
+  return new Animation({
+    fps,
+    channels,
+    frames: resample(rel, curves, fps, Math.round(span * fps) + 1),
+    startTime: times[0] < 3600 ? times[0] : 0,
+  });
 }
 
-function parseTimecode(tc, fps, where) {
-  const m = /^\s*(\d+):(\d+):(\d+)[:;.](\d+(?:\.\d+)?)\s*$/.exec(tc || '');
-  if (!m) throw new Error(`${where}: bad timecode ${JSON.stringify(tc)} (want HH:MM:SS:FF.fff)`);
-  return Number(m[1]) * 3600 + Number(m[2]) * 60 + Number(m[3]) + Number(m[4]) / fps;
+function nominalRate(measured) {
+  const nearest = NOMINAL_FPS.reduce((a, b) => (Math.abs(b - measured) < Math.abs(a - measured) ? b : a));
+  return Math.abs(nearest - measured) <= 1e-4 * measured ? nearest : measured;
 }
 
 // A frame rate measured from rounded times, snapped to a whole number when that close.
@@ -177,9 +195,9 @@ function roundRate(fps) {
   return Math.abs(fps - Math.round(fps)) < 1e-3 ? Math.round(fps) : fps;
 }
 
-// Linear resampling of key curves (values at increasing `times`, seconds) onto frames at `fps`.
-function resample(times, curves, fps) {
-  const n = Math.max(1, Math.round(times[times.length - 1] * fps) + 1);
+// Linear resampling of key curves (values at increasing `times`, seconds) onto `n` frames
+// at `fps`, holding the last key.
+function resample(times, curves, fps, n) {
   const frames = [];
   let j = 0;
   for (let k = 0; k < n; k++) {

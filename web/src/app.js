@@ -14,6 +14,15 @@ export function toAnimation(data, name = 'animation') {
   return animationFromJson(data, name);
 }
 
+/**
+ * The audio URL to play with an animation loaded from `animUrl`: `audioUrl` when given, else
+ * the file the animation names (vispeech JSON's `audio`), beside the animation file.
+ */
+export function audioFor(animation, animUrl, audioUrl) {
+  if (audioUrl) return audioUrl;
+  return animation.audio ? new URL(animation.audio, new URL(animUrl, window.location.href)).href : null;
+}
+
 /** Fetch `url` and check the answer; `kind` is 'text' or 'arrayBuffer'. */
 export async function fetchBody(url, kind) {
   const response = await fetch(url);

@@ -29,6 +29,7 @@ async function setup(app) {
   fillSelect($('lang'), config.languages, config.languages[0], (v) => LANGUAGE_NAMES[v] || v);
   fillSelect($('model'), config.models, config.default_model);
   $('model').disabled = !config.models.length;
+  if (config.max_text) $('text').maxLength = config.max_text;
   if (config.offline) show('No vispeech server answered; start one with `vispeech serve`.');
 
   const settings = () => ({ lang: $('lang').value, model: $('model').value || null, stream: $('stream').checked });

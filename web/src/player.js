@@ -1,6 +1,7 @@
 // Player page: open an animation file (and its audio) from disk, by drag and drop, or with
-// ?anim=URL&audio=URL, and play it on the avatar with a scrub bar.
-import { fetchBody, startApp, toAnimation } from './app.js';
+// ?anim=URL&audio=URL (the audio defaults to the one a vispeech JSON names), and play it on
+// the avatar with a scrub bar.
+import { audioFor, fetchBody, startApp, toAnimation } from './app.js';
 
 const $ = (id) => document.getElementById(id);
 const status = $('status');
@@ -75,9 +76,11 @@ async function setup(app) {
   requestAnimationFrame(update);
 
   const params = new URLSearchParams(window.location.search);
-  if (params.get('audio')) await openAudio(await fetchBody(params.get('audio'), 'arrayBuffer'), params.get('audio'));
-  if (params.get('anim')) {
-    openAnimation(await fetchBody(params.get('anim'), 'text'), params.get('anim'));
+  const animUrl = params.get('anim');
+  if (animUrl) {
+    openAnimation(await fetchBody(animUrl, 'text'), animUrl);
+    const audioUrl = audioFor(performer.animation, animUrl, params.get('audio'));
+    if (audioUrl) await openAudio(await fetchBody(audioUrl, 'arrayBuffer'), audioUrl.split('/').pop());
     app.play(0);
   }
 }

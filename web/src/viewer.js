@@ -1,6 +1,7 @@
-// Viewer page: the avatar alone. URL options: anim=URL and audio=URL (play them),
+// Viewer page: the avatar alone. URL options: anim=URL and audio=URL (play them; the audio
+// defaults to the one a vispeech JSON names),
 // t=seconds (hold the pose at that time instead of playing), plus startApp's avatar / idle.
-import { fetchBody, startApp } from './app.js';
+import { audioFor, fetchBody, startApp, toAnimation } from './app.js';
 
 const status = document.getElementById('status');
 const show = (message) => {
@@ -13,7 +14,8 @@ async function setup(app) {
   const anim = params.get('anim');
   if (anim) {
     const hold = params.has('t');
-    await app.playAnimation(await fetchBody(anim, 'text'), params.get('audio'), { autoplay: !hold });
+    const animation = toAnimation(await fetchBody(anim, 'text'), anim);
+    await app.playAnimation(animation, audioFor(animation, anim, params.get('audio')), { autoplay: !hold });
     if (hold) app.seek(Number(params.get('t')));
   }
 }

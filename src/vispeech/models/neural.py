@@ -411,8 +411,8 @@ class NeuralControlModel(ControlModel):
         saved = ControlModel.load(folder)
         if saved.name != self.name or not isinstance(saved, NeuralControlModel) or saved._module is None:
             raise VispeechError(f"cannot resume from {folder}: it holds no trained {self.name} model")
-        architecture = {k: v for k, v in saved.get_params().items() if k not in _RUN_PARAMS}
-        mine = {k: v for k, v in self.get_params().items() if k not in _RUN_PARAMS}
+        architecture = _comparable(saved.get_params())
+        mine = _comparable(self.get_params())
         if architecture != mine:
             changed = sorted(k for k in mine if mine[k] != architecture.get(k))
             raise VispeechError(f"cannot resume from {folder}: parameters differ ({', '.join(changed)})")
@@ -430,6 +430,11 @@ class NeuralControlModel(ControlModel):
 
 _RUN_PARAMS = frozenset({"epochs", "patience", "progress", "num_threads"})
 """Parameters that may change between a run and its resumption."""
+
+
+def _comparable(params: dict) -> dict:
+    """``params`` without those a resumed run may change, as JSON would give them back."""
+    return json.loads(json.dumps({k: v for k, v in params.items() if k not in _RUN_PARAMS}))
 
 
 def _split(corpus, validation: Iterable | None) -> tuple[list, list]:

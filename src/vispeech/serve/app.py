@@ -174,6 +174,8 @@ def describe_errors(errors, skip: int = 0, what: str = "body") -> str:
         loc = [str(x) for x in error.get("loc", ())[skip:] if x != "body"]
         if error.get("type") == "json_invalid":
             parts.append(f"the {what} is not valid JSON")
+        elif not loc and error.get("type") in ("missing", "model_attributes_type", "dict_type", "model_type"):
+            parts.append(f"the {what} must be a JSON object")
         elif error.get("type") == "union_tag_invalid" or error.get("type") == "union_tag_not_found":
             parts.append('"type" must be "text" or "phones"')
         else:
