@@ -26,7 +26,7 @@ import sys
 import time
 
 import numpy as np
-from local_server import running_server
+from local_server import LocalServer, running_server
 
 from vispeech.serve.client import StreamTimings, time_stream
 
@@ -75,18 +75,20 @@ def report_concurrent(results: list[StreamTimings], failures: list[str], wall: f
     }
 
 
-async def run(url: str, text: str, lang: str, sessions: int, runs: int) -> dict:
+async def run(server: LocalServer, text: str, lang: str, sessions: int, runs: int) -> dict:
+    url = server.stream_url
     await time_stream(url, text, lang)  # warm-up
     single = [await time_stream(url, text, lang) for _ in range(runs)]
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), server.cpu_seconds()
     outcomes = await asyncio.gather(*(time_stream(url, text, lang) for _ in range(sessions)), return_exceptions=True)
     wall = time.perf_counter() - started
+    server_cpu = None if cpu is None else server.cpu_seconds() - cpu
     results = [o for o in outcomes if isinstance(o, StreamTimings)]
     failures = [repr(o) for o in outcomes if not isinstance(o, StreamTimings)]
     if not results:
         raise RuntimeError(f"every concurrent session failed, e.g. {failures[0]}")
     return {"text": text, "lang": lang, "single": report_single(single),
-            "concurrent": report_concurrent(results, failures, wall)}
+            "concurrent": {**report_concurrent(results, failures, wall), "server_cpu_s": server_cpu}}
 
 
 def print_report(report: dict) -> None:
@@ -95,7 +97,8 @@ def print_report(report: dict) -> None:
     print(f"single session (median of {s['runs']}): first frame {s['first_frame_ms_median']:.1f} ms, "
           f"first audio {s['first_audio_ms_median']:.1f} ms, total {s['total_ms_median']:.1f} ms, "
           f"frames late {s['frames_late']}")
-    print(f"{c['sessions']} concurrent sessions ({c['failed']} failed, {c['wall_s']:.2f} s wall):")
+    cpu = "" if c["server_cpu_s"] is None else f", server CPU {c['server_cpu_s']:.2f} s"
+    print(f"{c['sessions']} concurrent sessions ({c['failed']} failed, {c['wall_s']:.2f} s wall{cpu}):")
     print(f"  first frame  p50 {c['first_frame_ms_p50']:8.1f} ms   p95 {c['first_frame_ms_p95']:8.1f} ms")
     print(f"  first audio  p50 {c['first_audio_ms_p50']:8.1f} ms   p95 {c['first_audio_ms_p95']:8.1f} ms")
     print(f"  total        p50 {c['total_ms_p50']:8.1f} ms   p95 {c['total_ms_p95']:8.1f} ms")
@@ -117,12 +120,12 @@ def main() -> int:
     sessions, runs = min(max(args.sessions, 1), 100), min(max(args.runs, 1), 50)
     text = args.text or TEXTS[args.lang]
 
-    async def bounded(url: str) -> dict:
+    async def bounded(server: LocalServer) -> dict:
         async with asyncio.timeout(args.deadline):
-            return await run(url, text, args.lang, sessions, runs)
+            return await run(server, text, args.lang, sessions, runs)
 
     with running_server("--rate-limit", "0") as server:
-        report = asyncio.run(bounded(server.stream_url))
+        report = asyncio.run(bounded(server))
     print_report(report)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as handle:

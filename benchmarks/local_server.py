@@ -6,6 +6,7 @@ stopped (terminate, then kill after 10 s) when the ``with`` block ends, however 
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -32,9 +33,19 @@ class LocalServer:
     log: Path
     """The server's output so far (stdout and stderr)."""
 
+    pid: int
+
     @property
     def stream_url(self) -> str:
         return self.url.replace("http://", "ws://") + "/api/stream"
+
+    def cpu_seconds(self) -> float | None:
+        """User + system CPU time the server process has used (Linux only, else ``None``)."""
+        try:
+            fields = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return None
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @contextmanager
@@ -63,7 +74,7 @@ def running_server(*options: str, startup_timeout: float = 60.0) -> Iterator[Loc
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the server did not answer within {startup_timeout:g} s")
                 time.sleep(0.2)
-            yield LocalServer(url, Path(tmp) / "server.log")
+            yield LocalServer(url, Path(tmp) / "server.log", process.pid)
         finally:
             process.terminate()
             try:

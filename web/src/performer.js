@@ -203,6 +203,11 @@ export class Performer {
     this.lastTick = now;
     if (this.pausedAt === null) this.idleClock += elapsed;
 
+    if (this.t0 !== null && this.pausedAt === null && this.animation && this.animation.complete
+        && this.time() > this.duration + FADE) {
+      this.t0 = null; // finished: back to idle, animation kept for replay
+      this.updateState();
+    }
     const t = this.time();
     const weights = this.weights.fill(0);
     const anim = this.animation;
@@ -219,11 +224,6 @@ export class Performer {
         if (k >= 0) weights[k] = Math.min(1, Math.max(0, this.values[c] * fade));
       }
       this.shownFrame = Math.round(anim.position(t));
-    }
-    if (this.t0 !== null && this.pausedAt === null && anim && anim.complete && t > this.duration + FADE) {
-      this.t0 = null; // finished: back to idle, animation kept for replay
-      this.pausedAt = null;
-      this.updateState();
     }
 
     if (this.idle) {
