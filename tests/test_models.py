@@ -134,7 +134,7 @@ def test_unknown_model_and_parameter_are_refused():
     with pytest.raises(VispeechError, match="no parameter"):
         create_model("ohman", smoothing=3)
     with pytest.raises(VispeechError, match="not trainable"):
-        create_model("cohen-massaro").fit(None)
+        create_model("baseline").fit(None)
 
 
 @pytest.mark.parametrize(

@@ -22,23 +22,38 @@ cache_option = click.option(
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 
 
-def read_aligned_corpus(directory: Path, language: str, cache: Path | None, progress: bool) -> Corpus:
-    """Read a corpus folder and align it (cached); utterances that cannot be aligned are left
-    out. Skipped utterances are summed up on stderr."""
+def open_corpus(directory: Path, language: str, cache: Path | None = None) -> Corpus:
+    """Read a corpus folder; skipped utterances are summed up on stderr, none usable is an error."""
     import warnings
-    from dataclasses import replace
 
-    from vispeech.corpus import CorpusWarning, align_corpus, read_corpus
+    from vispeech.corpus import CorpusWarning, read_corpus
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CorpusWarning)  # listed in corpus.problems, summed up below
         corpus = read_corpus(directory, language=language, cache=cache)
-        if not len(corpus):
-            raise VispeechError(f"corpus {directory} has no usable utterances"
-                                + (f" ({corpus.problems[0]})" if corpus.problems else ""))
-        align_corpus(corpus, progress=progress)
+    if not len(corpus):
+        raise VispeechError(f"corpus {directory} has no usable utterances"
+                            + (f" ({corpus.problems[0]})" if corpus.problems else ""))
     if corpus.problems:
         click.echo(f"{len(corpus.problems)} utterances skipped (first: {corpus.problems[0]})", err=True)
+    return corpus
+
+
+def read_aligned_corpus(directory: Path, language: str, cache: Path | None, progress: bool) -> Corpus:
+    """:func:`open_corpus`, aligned (cached); utterances that cannot be aligned are left out."""
+    import warnings
+    from dataclasses import replace
+
+    from vispeech.corpus import CorpusWarning, align_corpus
+
+    corpus = open_corpus(directory, language, cache)
+    skipped = len(corpus.problems)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorpusWarning)
+        align_corpus(corpus, progress=progress)
+    if len(corpus.problems) > skipped:
+        click.echo(f"{len(corpus.problems) - skipped} utterances not aligned (first: {corpus.problems[skipped]})",
+                   err=True)
     aligned = [u for u in corpus if u.phones is not None]
     if not aligned:
         raise VispeechError(f"no utterance of corpus {corpus.name} could be aligned")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli.evaluate import language_option
+from vispeech.cli.evaluate import language_option, open_corpus
 from vispeech.errors import VispeechError
 
 
@@ -17,18 +17,11 @@ def rig_group() -> None:
 
 
 def _fit_corpus(directory: Path, language: str):
-    """A rig space fitted on the tracked frames of every utterance of a corpus folder."""
-    import warnings
-
-    from vispeech.corpus import CorpusWarning, read_corpus
+    """A rig space fitted on the tracked frames of every utterance of a corpus folder, and the corpus."""
     from vispeech.motion.rigspace import RigSpace
     from vispeech.motion.track import Track
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CorpusWarning)
-        corpus = read_corpus(directory, language=language)
-    if not len(corpus):
-        raise VispeechError(f"corpus {directory} has no usable utterances")
+    corpus = open_corpus(directory, language)
     tracks = []
     for u in corpus:
         keep = slice(None) if u.frame_mask is None else u.frame_mask

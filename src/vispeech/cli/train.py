@@ -42,6 +42,7 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
     interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
     """
+    from vispeech.models.base import ControlModel
     from vispeech.models.neural import NeuralControlModel
     from vispeech.models.registry import model_class
 
@@ -58,6 +59,8 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
     if quiet and "progress" in defaults:
         options["progress"] = False
     model = model_class(model_name)(**options)
+    if type(model).fit is ControlModel.fit:
+        raise VispeechError(f"model {model_name} is not trainable")
     neural = isinstance(model, NeuralControlModel)
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")

@@ -155,11 +155,10 @@ def _markdown_table(columns: Sequence[str], rows: list[list[str]]) -> str:
 
 
 def available_channels(corpus: Corpus) -> tuple[str, ...]:
-    """Channels of :data:`EVALUATED_CHANNELS` the corpus can give targets for (articulatory
-    ones only when every utterance has landmarks)."""
+    """Channels the corpus gives targets for: its track channels and, when every utterance
+    has landmarks, the articulatory parameters."""
     landmarks = len(corpus) > 0 and all(u.landmarks is not None for u in corpus)
-    return tuple(c for c in EVALUATED_CHANNELS
-                 if c in corpus.channels or (landmarks and c in ARTICULATORY_CHANNELS))
+    return tuple(corpus.channels) + (ARTICULATORY_CHANNELS if landmarks else ())
 
 
 def model_channels(model: ControlModel, corpus: Corpus, channels: Iterable[str] | None = None) -> tuple[str, ...]:

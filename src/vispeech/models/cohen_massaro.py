@@ -10,22 +10,39 @@ and the output is the dominance-weighted mean z(t) = Σ D_i T_i / Σ D_i. T, α,
 per phone and channel (time in seconds, so θ and φ are in s^-c). Only the ``window``
 segments on either side of a frame's own segment are summed; beyond a few segments the
 dominance is negligible, and the cost stays linear in the utterance length.
+
+:meth:`CohenMassaro.fit` estimates all five per phone and channel from recorded tracks
+(see :mod:`vispeech.models.dominance_fit`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
+from functools import partial
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.base import PhoneTargetModel, register_model
+from vispeech.models.dominance_fit import (
+    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
+    with_target_values,
+)
+from vispeech.models.segments import Segments
 from vispeech.models.targets import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES
 
 _PARAMETERS = ("alpha", "theta", "phi", "c")
+
+BOUNDS: dict[str, tuple[float, float]] = {
+    "alpha": (1e-4, 1e4),
+    "theta": (1e-3, 1e6),
+    "phi": (1e-3, 1e6),
+    "c": (0.2, 5.0),
+}
+"""The range :meth:`CohenMassaro.fit` keeps each dominance parameter in (targets: [0, 1])."""
 
 
 @register_model
@@ -52,19 +69,126 @@ class CohenMassaro(PhoneTargetModel):
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
         log_alpha, theta, phi, c = (a[seg.rows] for a in self._tables[seg.language])
-        n = len(seg.rows)
-        window = np.arange(-self._params["window"], self._params["window"] + 1)
-        own = np.minimum(np.searchsorted(seg.ends, seg.times, side="right"), n - 1)
-        idx = own[:, None] + window  # frames × window
-        valid = (idx >= 0) & (idx < n)
-        idx = np.clip(idx, 0, n - 1)
-        dt = seg.times[:, None] - seg.centres[idx]
+        idx, dt, valid = _window(seg, self._params["window"])
         distance = np.abs(dt)[:, :, None]
         if not self._unit_exponent:
             distance = distance ** c[idx]
-        rate = np.where((dt < 0)[:, :, None], phi[idx], theta[idx])
-        log_d = log_alpha[idx] - rate * distance
-        log_d[~valid] = -np.inf
-        d = np.exp(log_d - log_d.max(axis=1, keepdims=True))
+        d = _dominance(log_alpha[idx], theta[idx], phi[idx], distance, (dt < 0)[:, :, None], valid)
         out = np.einsum("fkc,fkc->fc", d, seg.targets[idx]) / d.sum(axis=1)
         return self._track(out, fps)
+
+    def fit(
+        self,
+        corpus: Iterable,
+        *,
+        validation: Iterable | None = None,
+        channels: Sequence[str] | None = None,
+        max_iterations: int = 100,
+        patience: int = 3,
+        progress: bool = True,
+    ) -> CohenMassaro:
+        """Estimate T, α, θ, φ and c per phone symbol and channel by least squares; returns ``self``.
+
+        ``corpus`` is any iterable of utterances with ``.phones`` and ``.track``; a corpus
+        with splits fits its ``train`` split and stops early on its ``validation`` split
+        unless ``validation`` is given (see :meth:`~vispeech.models.dominance_fit.FitData.gather`).
+        ``channels`` default to the model's channels the tracks have; each is fitted
+        separately at the tracks' own frame times. Phones and channels the training data
+        lacks keep their values. ``history`` holds the per-iteration losses afterwards.
+        """
+        data = FitData.gather(self, corpus, validation, channels)
+        tying = PhoneTying.of(data.language, data.train)
+        window = self._params["window"]
+        train = _Design(data.train, window, tying)
+        held = _Design(data.validation, window, tying) if any(len(r.values) for r in data.validation) else None
+        n = len(tying)
+        first = tying.first_rows
+        columns = [self.channels.index(c) for c in data.channels]
+        targets = self.table.values(data.language)
+        means = tying.frame_means(data.train, targets[first][:, columns])
+        log_alpha, theta, phi, c = self._tables[data.language]
+        lower = np.concatenate([np.zeros(n)] + [np.full(n, np.log(BOUNDS[p][0])) for p in _PARAMETERS])
+        upper = np.concatenate([np.ones(n)] + [np.full(n, np.log(BOUNDS[p][1])) for p in _PARAMETERS])
+        problems = {}
+        with np.errstate(divide="ignore"):
+            for j, (channel, m) in enumerate(zip(data.channels, columns)):
+                base = (targets[:, m], log_alpha[:, m], theta[:, m], phi[:, m], c[:, m])
+                x0 = np.concatenate([means[:, j], log_alpha[first, m], np.log(theta[first, m]),
+                                     np.log(phi[first, m]), np.log(c[first, m])])
+                problems[channel] = ChannelProblem(
+                    x0, lower, upper, partial(train.residuals, base, j),
+                    None if held is None else partial(held.residuals, base, j))
+        fitted, history = levenberg_marquardt(
+            problems, max_iterations=max_iterations, patience=patience, progress=progress)
+        x = np.array([fitted[channel] for channel in data.channels])  # channels × 5 symbols
+        params = self.get_params()
+        params["targets"] = with_target_values(params["targets"], tying, data.channels, x[:, :n].T, self.channels)
+        for k, name in enumerate(_PARAMETERS, start=1):
+            values = np.exp(x[:, k * n:(k + 1) * n]).T
+            params[name] = with_phone_values(params[name], tying, data.channels, values, self.channels)
+        self.__init__(params)
+        self.history = history
+        return self
+
+
+def _window(seg: Segments, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each frame time of ``seg``: the segments within ``window`` of its own (indices,
+    frames × 2·window+1), the signed distances t − τ to their centres (seconds) and which exist."""
+    n = len(seg.rows)
+    own = np.minimum(np.searchsorted(seg.ends, seg.times, side="right"), n - 1)
+    idx = own[:, None] + np.arange(-window, window + 1)
+    valid = (idx >= 0) & (idx < n)
+    idx = np.clip(idx, 0, n - 1)
+    return idx, seg.times[:, None] - seg.centres[idx], valid
+
+
+def _dominance(log_alpha, theta, phi, distance, before, valid: np.ndarray) -> np.ndarray:
+    """Dominances exp(log α − (φ if ``before`` else θ)·distance) along axis 1, scaled so that
+    each frame's largest is 1 (computed in log space); 0 where not ``valid``."""
+    log_d = log_alpha - np.where(before, phi, theta) * distance
+    log_d[~valid] = -np.inf
+    return np.exp(log_d - log_d.max(axis=1, keepdims=True))
+
+
+class _Design:
+    """The frames of some recordings laid out for one channel's fit: per frame the window
+    segments' phone rows, distances and Jacobian columns (T, log α, log θ, log φ, log c)."""
+
+    def __init__(self, recordings: list[Recording], window: int, tying: PhoneTying):
+        layouts = [_window(r.segments, window) for r in recordings]
+        self.rows = np.concatenate([r.segments.rows[idx] for r, (idx, _, _) in zip(recordings, layouts)])
+        dt = np.concatenate([dt for _, dt, _ in layouts])
+        self.valid = np.concatenate([valid for _, _, valid in layouts])
+        self.values = np.concatenate([r.values for r in recordings])
+        self.before = dt < 0
+        self.distance = np.abs(dt)
+        self.log_distance = np.log(self.distance, out=np.zeros_like(dt), where=self.distance > 0)
+        self.tying = tying
+        n = len(tying)
+        column = np.where(self.valid, tying.columns(self.rows), -1)
+        shifted = [np.where(column >= 0, column + k * n, -1) for k in range(5)]
+        shifted[2] = np.where(self.before, -1, shifted[2])  # θ acts after the centre
+        shifted[3] = np.where(self.before, shifted[3], -1)  # φ before it
+        self.columns = shifted
+
+    def residuals(self, base: tuple[np.ndarray, ...], channel: int, x: np.ndarray,
+                  jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """z − y on these frames for parameters ``x`` (T, log α, log θ, log φ, log c per
+        fitted symbol) over the per-row tables ``base`` (T, log α, θ, φ, c), and ∂z/∂x."""
+        n = len(self.tying)
+        blocks = [x[k * n:(k + 1) * n] for k in range(5)]
+        expand = self.tying.expand
+        target = expand(base[0], blocks[0])[self.rows]
+        log_alpha = expand(base[1], blocks[1])[self.rows]
+        theta, phi, c = (expand(base[k], np.exp(blocks[k]))[self.rows] for k in (2, 3, 4))
+        powered = self.distance ** c
+        d = _dominance(log_alpha, theta, phi, powered, self.before, self.valid)
+        d /= d.sum(axis=1, keepdims=True)
+        z = np.einsum("fk,fk->f", d, target)
+        r = z - self.values[:, channel]
+        if not jacobian:
+            return r, None
+        pull = d * (target - z[:, None])  # ∂z/∂log α
+        spread = -np.where(self.before, phi, theta) * powered * pull  # ∂z/∂log θ or ∂z/∂log φ
+        parts = zip(self.columns, (d, pull, spread, spread, spread * c * self.log_distance))
+        return r, scatter_jacobian(len(z), 5 * n, parts)

@@ -346,7 +346,7 @@ class NeuralControlModel(ControlModel):
 
     def _write(self, folder: Path, weights: dict | None, history: TrainingHistory, state: TrainingState | None) -> None:
         import torch
-        from safetensors.torch import save_file
+        from safetensors.torch import save as to_safetensors
 
         from vispeech.models.training import save_state
 
@@ -369,7 +369,8 @@ class NeuralControlModel(ControlModel):
             if weights is not None:
                 tensors = {f"module.{k}": v for k, v in weights.items()}
                 tensors |= {f"stats.{k}": torch.from_numpy(v) for k, v in self._stats.items()}
-                save_file({k: v.detach().contiguous().clone() for k, v in tensors.items()}, staging / WEIGHTS)
+                tensors = {k: v.detach().contiguous().clone() for k, v in tensors.items()}
+                (staging / WEIGHTS).write_bytes(to_safetensors(tensors))
             if history.epochs:
                 history.plot(staging / LOSS_CURVE)
             if state is not None:
@@ -395,7 +396,9 @@ class NeuralControlModel(ControlModel):
                     tensors = load_file(folder / WEIGHTS)
                 except (OSError, ValueError) as exc:
                     raise VispeechError(f"cannot read model weights {folder / WEIGHTS}: {exc}") from None
-                model._stats = {k[6:]: v.numpy().astype(np.float64) for k, v in tensors.items() if k.startswith("stats.")}
+                model._stats = {
+                    k[6:]: v.numpy().astype(np.float64) for k, v in tensors.items() if k.startswith("stats.")
+                }
                 module = model._build_module(model.encoding.size, len(model.outputs))
                 try:
                     module.load_state_dict({k[7:]: v for k, v in tensors.items() if k.startswith("module.")})

@@ -97,7 +97,7 @@ class TimeDelayNetwork(NeuralControlModel):
             columns.append([self.outputs.index(c) for c in group])
         if sorted(c for group in columns for c in group) != list(range(n_outputs)):
             raise VispeechError(f"groups must cover each output channel once: {', '.join(self.outputs)}")
-        hidden = p["hidden"] if isinstance(p["hidden"], list) else [p["hidden"]] * len(groups)
+        hidden = list(p["hidden"]) if isinstance(p["hidden"], list | tuple) else [p["hidden"]] * len(groups)
         if len(hidden) != len(groups):
             raise VispeechError(f"hidden needs one size per group ({len(groups)}), got {hidden}")
         nets = [RecurrentTimeDelayNet(n_inputs, len(c), self.window, h, p["delays"]) for c, h in zip(columns, hidden)]

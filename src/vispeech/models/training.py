@@ -205,7 +205,7 @@ def train(
 def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> None:
     """Write ``state`` and ``module``'s current weights into ``folder`` (JSON + safetensors)."""
     import torch
-    from safetensors.torch import save_file
+    from safetensors.torch import save as to_safetensors
 
     tensors = {f"last.{k}": v for k, v in module.state_dict().items()}
     tensors |= {f"best.{k}": v for k, v in (state.best_weights or {}).items()}
@@ -222,7 +222,8 @@ def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> N
         optimizer_json = {"state": per_param, "param_groups": state.optimizer["param_groups"]}
     if state.torch_rng is not None:
         tensors["rng.torch"] = state.torch_rng
-    save_file({k: v.detach().contiguous().clone() for k, v in tensors.items()}, folder / STATE_TENSORS)
+    tensors = {k: v.detach().contiguous().clone() for k, v in tensors.items()}
+    (folder / STATE_TENSORS).write_bytes(to_safetensors(tensors))
     info = {
         "history": state.history.to_dict(),
         "best_loss": state.best_loss if math.isfinite(state.best_loss) else None,

@@ -13,6 +13,7 @@ input the library refuses, 413 for a body over the limit, 429 past the rate limi
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -39,7 +40,7 @@ from vispeech.models.base import ControlModel
 from vispeech.models.registry import MODEL_NAMES, create_model, load_model
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, speak
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, speak
 from vispeech.serve.bot import ChatBot, ChatBotError, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
 from vispeech.serve.safety import BodySizeLimit, RateLimit, TokenBucket, client_key
@@ -71,10 +72,12 @@ class ServeConfig:
     when a message names none; ``None`` picks ``tdnn-lowlatency`` if it is trained and
     otherwise ``default_model``. ``rate_limit``: requests a second per client IP for speak,
     chat and stream text messages (0 = no limit), with bursts of ``burst``. Sizes are bytes.
-    ``static_dir``: the built web app (default :data:`STATIC_DIR`).
+    ``static_dir``: the built web app (default :data:`STATIC_DIR`). ``avatar_credit``: a
+    line the pages show under the head (its author and licence).
     """
 
     avatar: Path | None = None
+    avatar_credit: str | None = None
     cache: str | os.PathLike | None = None
     cache_entries: int = 10_000
     bot: ChatBot = field(default_factory=RuleBot)
@@ -108,9 +111,9 @@ class SpeechService:
         self.active_streams = 0
 
     def _add(self, name: str, model: ControlModel, folder: Path | None = None) -> None:
-        digest = hashlib.sha256(json.dumps(
-            {"vispeech": vispeech.__version__, "model": name, "params": model.get_params()}, sort_keys=True, default=str,
-        ).encode())
+        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
+        about = {"vispeech": vispeech.__version__, "model": name, "params": model.get_params()}
+        digest = hashlib.sha256(json.dumps(about, sort_keys=True, default=str).encode())
         if folder is not None:
             for path in sorted(folder.iterdir()):
                 if path.is_file():
@@ -129,8 +132,17 @@ class SpeechService:
         model = load_model(spec)
         if not getattr(model, "is_trained", True):
             raise VispeechError(f"stream model {spec!r} is not trained")
-        self._add(model.name, model, Path(spec) if os.path.isdir(spec) else None)
-        return model.name
+        folder = Path(spec)
+        name = model.name if model.name not in self.models else f"{model.name}:{folder.name}"
+        self._add(name, model, folder)
+        return name
+
+    def warm_up(self) -> None:
+        """Load espeak-ng's voices and run the default and stream models once, so a first request is no slower."""
+        for language, text in GREETINGS.items():
+            utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
+            with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
+                animate(utterance.phones, self.models[self.stream_model], self.config.fps)
 
     def model(self, name: str | None, stream: bool = False) -> tuple[str, ControlModel]:
         """The model called ``name`` (``None``: the default, or the stream model when ``stream``)."""
@@ -176,8 +188,10 @@ def describe_errors(errors, skip: int = 0, what: str = "body") -> str:
             parts.append(f"the {what} is not valid JSON")
         elif not loc and error.get("type") in ("missing", "model_attributes_type", "dict_type", "model_type"):
             parts.append(f"the {what} must be a JSON object")
-        elif error.get("type") == "union_tag_invalid" or error.get("type") == "union_tag_not_found":
-            parts.append('"type" must be "text" or "phones"')
+        elif error.get("type") == "union_tag_not_found":
+            parts.append('"type" is missing: use "text" or "phones"')
+        elif error.get("type") == "union_tag_invalid":
+            parts.append(f'"type" must be "text" or "phones", not {json.dumps(error.get("ctx", {}).get("tag"))[:50]}')
         else:
             parts.append(f"{'.'.join(loc) or what}: {error.get('msg', 'invalid')}")
     return "; ".join(dict.fromkeys(parts))[:500] or "invalid request"
@@ -193,6 +207,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        await run_in_threadpool(service.warm_up)
         yield
         service.cache.close()
 
@@ -224,6 +239,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         """What the web app needs: avatar URL, languages, models, frame rate."""
         return {
             "avatar_url": "/avatar.glb" if config.avatar is not None else None,
+            "avatar_credit": config.avatar_credit,
             "languages": list(LANGUAGES),
             "models": list(service.models),
             "default_model": config.default_model,

@@ -79,7 +79,8 @@ class RuleBot:
     def __init__(self, name: str = "Vera", clock: Callable[[], datetime] = datetime.now) -> None:
         self.name = name
         self.clock = clock
-        self._rules = {lang: [(rule, re.compile(p, re.IGNORECASE)) for rule, p in rules] for lang, rules in _RULES.items()}
+        self._rules = {lang: [(rule, re.compile(pattern, re.IGNORECASE)) for rule, pattern in rules]
+                       for lang, rules in _RULES.items()}
 
     def reply(self, message: str, lang: str) -> str:
         """The answer to ``message`` in ``lang``."""

@@ -43,7 +43,8 @@ class CacheKey:
     @property
     def id(self) -> str:
         """32 hex digits naming the entry (and its audio URL)."""
-        fields = [self.text, self.language, self.voice, float(self.rate), self.model, self.model_version, float(self.fps)]
+        fields = [self.text, self.language, self.voice, float(self.rate),
+                  self.model, self.model_version, float(self.fps)]
         return hashlib.sha256(json.dumps(fields, ensure_ascii=False).encode()).hexdigest()[:32]
 
 

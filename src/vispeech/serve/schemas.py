@@ -6,9 +6,10 @@ server's input limits (text length, phones per message, stream length).
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field, StringConstraints, TypeAdapter
+from pydantic import AfterValidator, BaseModel, Field, StringConstraints, TypeAdapter
 
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
@@ -22,8 +23,18 @@ MAX_PHONES_PER_MESSAGE = 500
 MAX_STREAM_SECONDS = 600.0
 """Latest phone end (seconds) a phone stream may reach."""
 
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
+def _printable(text: str) -> str:
+    if _CONTROL.search(text):
+        raise ValueError("text must not contain control characters")
+    return text
+
+
 Language = Literal["sv", "en"]
-Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS)]
+Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS),
+                 AfterValidator(_printable)]
 Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
 Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=False)]
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
@@ -101,6 +112,7 @@ class ConfigResponse(BaseModel):
     """What the web app needs to know about the server."""
 
     avatar_url: str | None
+    avatar_credit: str | None = None
     languages: list[str]
     models: list[str]
     default_model: str

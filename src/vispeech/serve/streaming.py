@@ -33,7 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
 from vispeech.models.base import ControlModel
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
@@ -131,8 +131,8 @@ def speech_messages(
 
 
 def _frames_before(seconds: float, fps: float) -> int:
-    """Frames whose time ``k / fps`` lies before ``seconds`` (at least 1 once time has passed)."""
-    return max(1, math.ceil(seconds * fps - 1e-6)) if seconds > 0 else 0
+    """Frames whose time ``k / fps`` lies before ``seconds`` (none at 0)."""
+    return n_frames_for(seconds, fps) if seconds > 0 else 0
 
 
 def _sample_rows(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -188,7 +188,9 @@ class PhoneStream:
             if not (math.isfinite(p.start) and math.isfinite(p.end)) or p.end <= p.start:
                 raise VispeechError(f"phone {p.symbol!r} at {p.start} s must end after it starts")
             if p.start < end - 1e-6:
-                raise VispeechError(f"phone {p.symbol!r} starts at {p.start:.3f} s, before the previous one ends ({end:.3f} s)")
+                raise VispeechError(
+                    f"phone {p.symbol!r} starts at {p.start:.3f} s, before the previous one ends ({end:.3f} s)"
+                )
             if p.end - end > MAX_PHONE_SECONDS:
                 raise VispeechError(f"phone {p.symbol!r} ends more than {MAX_PHONE_SECONDS:g} s after the one before")
             out.append(Phone(symbol, float(p.start), float(p.end), None, p.stress or stress))

@@ -1,0 +1,250 @@
+"""Objective metrics, lip closures and the evaluation report on tiny synthetic utterances."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vispeech import PhoneSequence, Track, VispeechError
+from vispeech.alignment.phones import Phone, Word
+from vispeech.corpus import Corpus, Utterance
+from vispeech.evaluation import (
+    ClosureCounts, count_closures, evaluate_models, model_channels, model_closed, mse, pearson_r, rmse_percent,
+    score_channels, speech_frames, tracked_closed, tracked_lip_gap, value_range,
+)
+from vispeech.evaluation.closures import phone_frames
+from vispeech.evaluation.plots import plot_utterance
+from vispeech.evaluation.report import predict_on_frames
+from vispeech.models.base import ControlModel
+from vispeech.models.registry import create_model
+
+FPS = 10.0
+
+
+# -- metrics -------------------------------------------------------------------------------
+
+def test_speech_frames_span_first_word_to_last_with_margin():
+    words = [Word("a", 1.0, 1.4), Word("b", 1.5, 2.0)]
+    mask = speech_frames(words, FPS, 30)
+    assert np.flatnonzero(mask).tolist() == list(range(9, 22))  # 0.9 s .. 2.1 s inclusive
+    shifted = speech_frames(words, FPS, 30, start_time=0.5)  # frame k at 0.5 + k/10
+    assert np.flatnonzero(shifted).tolist() == list(range(4, 17))
+    assert np.flatnonzero(speech_frames(words, FPS, 30, margin=0.0)).tolist() == list(range(10, 21))
+    assert not speech_frames([], FPS, 30).any()
+
+
+def test_metrics_match_numpy_references():
+    rng = np.random.default_rng(0)
+    target = rng.normal(size=(50, 3))
+    predicted = 0.5 * target + rng.normal(scale=0.3, size=(50, 3))
+    predicted[:, 2] = 0.7  # constant prediction: r undefined
+    np.testing.assert_allclose(mse(target, predicted), ((target - predicted) ** 2).mean(axis=0))
+    r = pearson_r(target, predicted)
+    for j in range(2):
+        assert r[j] == pytest.approx(np.corrcoef(target[:, j], predicted[:, j])[0, 1], abs=1e-12)
+    assert np.isnan(r[2])
+    span = value_range([target[:20], target[20:]])
+    np.testing.assert_allclose(span, target.max(axis=0) - target.min(axis=0))
+    np.testing.assert_allclose(rmse_percent(target, predicted, span),
+                               100 * np.sqrt(((target - predicted) ** 2).mean(axis=0)) / span)
+    assert np.isnan(rmse_percent(target, predicted, np.array([1.0, 0.0, 1.0]))[1])
+    with pytest.raises(VispeechError, match="shapes differ"):
+        mse(target, predicted[:, :2])
+
+
+def test_scores_pool_frames_and_average_utterances():
+    a_target, a_pred = np.array([[0.0], [1.0], [2.0]]), np.array([[0.0], [1.0], [1.0]])
+    b_target, b_pred = np.array([[4.0], [2.0]]), np.array([[2.0], [2.0]])
+    scores = score_channels(["x"], [a_target, b_target], [a_pred, b_pred])
+    assert scores.frames == 5 and scores.utterances == 2
+    assert scores.range[0] == 4.0  # over the whole set, not per utterance
+    assert scores.mse[0] == pytest.approx((0 + 0 + 1 + 4 + 0) / 5)
+    assert scores.rmse_percent[0] == pytest.approx(100 * np.sqrt(1.0) / 4)
+    assert scores.utterance_mse[0] == pytest.approx((1 / 3 + 2) / 2)
+    assert scores.utterance_rmse_percent[0] == pytest.approx((100 * np.sqrt(1 / 3) / 4 + 100 * np.sqrt(2) / 4) / 2)
+    pooled = np.corrcoef([0, 1, 2, 4, 2], [0, 1, 1, 2, 2])[0, 1]
+    assert scores.r[0] == pytest.approx(pooled)
+    # b's prediction is constant: its r is undefined and left out of the utterance mean
+    assert scores.utterance_r[0] == pytest.approx(np.corrcoef([0, 1, 2], [0, 1, 1])[0, 1])
+    assert scores["x"]["mse"] == pytest.approx(1.0)
+
+
+# -- closures ------------------------------------------------------------------------------
+
+def _landmarks(gaps: np.ndarray) -> dict[str, np.ndarray]:
+    """Eye corners 0.2 wide (72 px), inner lips ``gaps`` apart vertically (gap * 288 px)."""
+    n = len(gaps)
+    at = lambda x, y: np.tile([x, y, 0.0], (n, 1))  # noqa: E731
+    lower = at(0.5, 0.6)
+    lower[:, 1] += gaps
+    return {"lm33": at(0.4, 0.3), "lm263": at(0.6, 0.3), "lm13": at(0.5, 0.6), "lm14": lower}
+
+
+def test_tracked_lip_gap_is_measured_in_pixels_over_eye_distance():
+    gaps = np.array([0.0, 0.0049, 0.0051, 0.02])
+    ratio = tracked_lip_gap(_landmarks(gaps))
+    np.testing.assert_allclose(ratio, gaps * 288 / 72)
+    assert tracked_closed(_landmarks(gaps)).tolist() == [True, True, False, False]
+    landmarks = _landmarks(gaps)
+    landmarks["lm13"] = landmarks["lm13"] + [0.01, 0.0, 0.5]  # x counts (scaled by 360), z does not
+    np.testing.assert_allclose(tracked_lip_gap(landmarks), np.hypot(3.6, gaps * 288) / 72)
+    with pytest.raises(VispeechError, match="lm263"):
+        tracked_lip_gap({k: v for k, v in _landmarks(gaps).items() if k != "lm263"})
+
+
+def test_model_closure_is_relative_to_the_utterance_maximum():
+    jaw = np.array([0.5, 0.3, 0.06, 0.1, 0.08])
+    close = np.array([0.0, 0.0, 0.0, 0.05, 0.0])
+    track = Track(np.column_stack([jaw, close]), ("jawOpen", "mouthClose"), FPS)
+    assert model_closed(track).tolist() == [False, False, False, True, False]  # opening <= 0.05
+    assert model_closed(Track(np.zeros((3, 1)), ("jawOpen",), FPS)).all()
+    articulatory = Track(np.array([[0.1], [0.005], [0.01]]), ("lip_aperture",), FPS)
+    assert model_closed(articulatory).tolist() == [False, True, True]
+    with pytest.raises(VispeechError, match="jawOpen nor lip_aperture"):
+        model_closed(Track(np.zeros((3, 1)), ("mouthPucker",), FPS))
+
+
+def test_phone_frames_cover_the_phone_plus_one_frame():
+    assert phone_frames(0.5, 0.7, FPS, 20).tolist() == [4, 5, 6, 7]
+    assert phone_frames(1.01, 1.05, FPS, 20).tolist() == [9, 10, 11]  # shorter than a frame: its middle's
+    assert phone_frames(0.0, 0.1, FPS, 20).tolist() == [0, 1]
+    assert phone_frames(1.9, 2.0, FPS, 20).tolist() == [18, 19]
+
+
+def test_count_closures_on_bilabials_and_speech_frames():
+    phones = PhoneSequence([
+        Phone("sil", 0.0, 0.5), Phone("P", 0.5, 0.7, 0), Phone("AA", 0.7, 1.0, 0), Phone("B", 1.0, 1.04, 0),
+        Phone("AA", 1.04, 1.5, 0), Phone("M", 1.5, 1.7, 0), Phone("sil", 1.7, 2.0),
+    ], "en", [Word("pabam", 0.5, 1.7)])
+    speech = np.zeros(20, dtype=bool)
+    speech[4:18] = True
+    tracked = np.zeros(20, dtype=bool)
+    tracked[[7, 10, 0]] = True  # P (in the +1 frame), B; frame 0 lies outside speech
+    model = np.zeros(20, dtype=bool)
+    model[[4, 15]] = True  # P (in the -1 frame); M, which the tracked lips do not close on
+    counts = count_closures(phones, FPS, tracked, model, speech)
+    assert counts == ClosureCounts(bilabials=3, tracked_closures=2, model_closures=1, speech_frames=14,
+                                   tracked_closed_frames=2, model_closed_frames=2)
+    assert counts.bilabial_rate == 50.0 and counts.tracked_closed_share == pytest.approx(100 * 2 / 14)
+    assert not counts.passed
+    total = counts + counts
+    assert total.tracked_closures == 4 and total.bilabial_rate == 50.0
+    assert np.isnan(ClosureCounts().bilabial_rate)
+
+
+# -- the report ----------------------------------------------------------------------------
+
+def _utterance(name: str, seed: int) -> Utterance:
+    """Silence, then B AA M IY P AA at 0.2 s each, then silence (0.5 s); tracked lips close on
+    the bilabials and the 'recorded' track follows the phones. Frame 1 was not tracked."""
+    rng = np.random.default_rng(seed)
+    symbols = ["B", "AA", "M", "IY", "P", "AA"]
+    phones, t = [Phone("sil", 0.0, 0.5)], 0.5
+    for s in symbols:
+        phones.append(Phone(s, t, t + 0.2, 0))
+        t += 0.2
+    phones.append(Phone("sil", t, t + 0.5))
+    sequence = PhoneSequence(phones, "en", [Word("bamipa", 0.5, t)])
+    labels = sequence.frame_labels(FPS)
+    opening = np.array([0.0 if s in ("B", "M", "P", "sil") else 0.3 + 0.1 * rng.random() for s in labels])
+    close = np.full(len(labels), 0.02)
+    jaw = opening + close
+    pucker = rng.random(len(labels))
+    track = Track(np.column_stack([jaw, close, pucker, rng.random(len(labels))]),
+                  ("jawOpen", "mouthClose", "mouthPucker", "eyeBlinkLeft"), FPS)
+    mask = np.ones(len(labels), dtype=bool)
+    mask[1] = False
+    return Utterance(id=name, text="bamipa", audio_path=Path("none.wav"), duration=sequence.duration,
+                     track=track, words=list(sequence.words), phones=sequence,
+                     landmarks=_landmarks(opening / 10), frame_mask=mask)
+
+
+class Replay(ControlModel):
+    """Plays back the recorded track of whichever utterance's phones it is given."""
+
+    name = "replay"
+    channels = ("jawOpen", "mouthClose", "mouthPucker", "eyeBlinkLeft")
+
+    def __init__(self, utterances, offset: float = 0.0):
+        super().__init__()
+        self.by_phones = {id(u.phones): u.track.select(self.channels) for u in utterances}
+        self.offset = offset
+
+    def predict(self, phones, fps):
+        track = self.by_phones[id(phones)]
+        return Track(track.values + self.offset, track.channels, fps)
+
+
+@pytest.fixture
+def corpus():
+    utterances = [_utterance("a", 1), _utterance("b", 2)]
+    return Corpus("synthetic", utterances, FPS, utterances[0].track.channels)
+
+
+def test_a_perfect_model_scores_perfectly(corpus):
+    evaluation = evaluate_models(corpus, {"replay": Replay(corpus), "shifted": Replay(corpus, 0.1)},
+                                 postprocessing=False)
+    perfect, shifted = evaluation["replay"], evaluation["shifted"]
+    assert perfect.scores.channels == ("jawOpen", "mouthClose", "mouthPucker")
+    # speech span 0.4 s .. 1.8 s: 15 frames each, less the untracked frame 1 (outside anyway)
+    assert perfect.scores.frames == 30 and perfect.scores.utterances == 2
+    np.testing.assert_allclose(perfect.scores.mse, 0.0, atol=1e-20)
+    np.testing.assert_allclose(perfect.scores.r[[0, 2]], 1.0)
+    assert np.isnan(perfect.scores.r[1])  # mouthClose is constant
+    c = perfect.closures
+    assert c.tracked_closures == c.bilabials == c.model_closures == 6
+    assert c.model_closed_share == c.tracked_closed_share and c.passed
+    np.testing.assert_allclose(shifted.scores.mse, 0.01)
+    np.testing.assert_allclose(shifted.scores.r[[0, 2]], 1.0)
+    np.testing.assert_allclose(shifted.scores.rmse_percent[[0, 2]], 100 * 0.1 / perfect.scores.range[[0, 2]])
+    assert np.isnan(shifted.scores.rmse_percent[1])  # mouthClose has no range
+    text, markdown = evaluation.to_text(), evaluation.to_markdown()
+    assert "synthetic: 2 utterances, 30 speech frames at 10 fps, post-processing off" in text
+    assert "replay   jawOpen" in text and "6/6" in text
+    assert "| shifted | jawOpen | 0.01000 |" in markdown and "## Lip closures" in markdown
+
+
+def test_channels_default_to_shared_mouth_channels_with_jaw_first(corpus):
+    baseline = create_model("baseline")
+    assert model_channels(baseline, corpus) == ("jawOpen", "mouthClose", "mouthPucker")
+    assert model_channels(baseline, corpus, ["mouthPucker"]) == ("jawOpen", "mouthPucker")
+    with pytest.raises(VispeechError, match="no channel 'eyeBlinkRight'"):
+        model_channels(baseline, corpus, ["eyeBlinkRight"])
+    with pytest.raises(VispeechError, match="does not predict channel 'eyeBlinkLeft'"):
+        model_channels(baseline, corpus, ["eyeBlinkLeft"])
+    assert model_channels(Replay(corpus), corpus, ["eyeBlinkLeft"]) == ("jawOpen", "eyeBlinkLeft")
+
+
+def test_data_free_models_close_on_bilabials_with_postprocessing(corpus):
+    evaluation = evaluate_models(corpus, {"baseline": create_model("baseline")}, channels=["jawOpen"])
+    closures = evaluation["baseline"].closures
+    assert closures.bilabial_rate == 100.0
+    raw = evaluate_models(corpus, {"baseline": create_model("baseline")}, channels=["jawOpen"],
+                          postprocessing=False)
+    assert raw["baseline"].scores.channels == ("jawOpen",)
+    assert not np.allclose(raw["baseline"].scores.mse, evaluation["baseline"].scores.mse)
+
+
+def test_predictions_are_sampled_on_the_recorded_frames(corpus):
+    utterance = corpus[0]
+    utterance.track = Track(utterance.track.values[:-3], utterance.track.channels, FPS, start_time=0.05)
+    predicted = predict_on_frames(create_model("cohen-massaro"), utterance, postprocessing=False)
+    direct = create_model("cohen-massaro").predict(utterance.phones, FPS)
+    assert predicted.n_frames == utterance.track.n_frames and predicted.start_time == 0.05
+    np.testing.assert_allclose(predicted["jawOpen"][2], (direct["jawOpen"][2] + direct["jawOpen"][3]) / 2)
+
+
+def test_evaluation_needs_utterances_and_phones(corpus):
+    with pytest.raises(VispeechError, match="no utterances"):
+        evaluate_models(Corpus("empty", [], FPS, ()), {"baseline": create_model("baseline")})
+    corpus[1].phones = None
+    with pytest.raises(VispeechError, match="b has no phones"):
+        evaluate_models(corpus, {"baseline": create_model("baseline")})
+
+
+def test_plot_writes_a_png(corpus, tmp_path):
+    path = plot_utterance(corpus[0], {"replay": Replay(corpus).predict(corpus[0].phones, FPS)}, tmp_path / "j.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(VispeechError, match="nothing to plot"):
+        plot_utterance(corpus[0], {}, tmp_path / "k.png")
+    assert not (tmp_path / "k.png").exists()

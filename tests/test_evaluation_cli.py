@@ -1,0 +1,111 @@
+"""``vispeech evaluate`` on synthetic takes and on five real GRID utterances."""
+
+import shutil
+
+import pytest
+from click.testing import CliRunner
+from test_train_cli import synthetic_take, write_takes
+
+from vispeech.cli import main
+from vispeech.errors import VispeechError
+from vispeech.models.registry import create_model
+
+GRID_TEST_IDS = ["bbaf2n", "bbas3a", "bbbm2p", "bbbmzn", "bgan4n"]  # all in the test split
+
+
+@pytest.fixture(autouse=True)
+def cache_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache-home"))
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory):
+    return write_takes(tmp_path_factory.mktemp("corpus") / "takes")
+
+
+def _evaluate(*args):
+    return CliRunner().invoke(main, ["evaluate", *map(str, args)])
+
+
+def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
+    saved = create_model("baseline", lead_in=0).save(tmp_path / "saved")
+    result = _evaluate("--corpus", takes, "--language", "en", "-m", "baseline", "-m", saved,
+                       "--channels", "mouthClose", "--no-postprocess", "-q",
+                       "--markdown", tmp_path / "t.md", "--plot", tmp_path / "p.png", "--plot-utterance", "u19")
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    # speech span of a take: 0.2 s to 0.4 s + 80 ms per phone, i.e. frames 5 .. 10 + 2 per phone
+    frames = sum(6 + 2 * (len(synthetic_take(i)[0]) - 2) for i in (0, 19))
+    assert lines[0] == f"takes:test: 2 utterances, {frames} speech frames at 25 fps, post-processing off"
+    rows = [line.split() for line in lines if line.startswith(("baseline", str(saved)))]
+    assert [row[:2] for row in rows] == [["baseline", "jawOpen"], ["baseline", "mouthClose"], ["baseline", "(mean)"],
+                                         [str(saved), "jawOpen"], [str(saved), "mouthClose"], [str(saved), "(mean)"]]
+    assert rows[1][3:] == ["n/a"] * 4  # mouthClose is constant in the recordings: no range, no r
+    assert -1 <= float(rows[0][4]) <= 1
+    assert "/p b m/" not in result.output  # takes have no landmarks: no closure figures
+    markdown = (tmp_path / "t.md").read_text()
+    assert markdown.startswith("# Objective evaluation") and "| baseline | jawOpen |" in markdown
+    assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    assert "jawOpen of u19 ->" in result.output
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["-m", "{corrupt}"], "corrupt model config"),
+    (["-m", "{missing}"], "nor a saved model folder"),
+    (["-m", "baseline", "-m", "baseline"], "given twice"),
+    (["-m", "baseline", "--channels", "headYaw"], "does not predict channel 'headYaw'"),
+    (["-m", "baseline", "--channels", "lip_aperture"], "has no channel 'lip_aperture'"),
+    (["-m", "baseline", "--plot", "{tmp}/p.png", "--plot-utterance", "u01"], "no utterance 'u01'"),
+    (["-m", "sliding-window-thesis"], "not trained"),
+])
+def test_evaluate_errors_are_one_line(takes, tmp_path, args, message):
+    (tmp_path / "corrupt").mkdir()
+    (tmp_path / "corrupt" / "config.json").write_text("{")
+    places = {"corrupt": tmp_path / "corrupt", "missing": tmp_path / "missing", "tmp": tmp_path}
+    result = _evaluate("--corpus", takes, "--language", "en", "-q", *(a.format(**places) for a in args))
+    assert result.exit_code == 2
+    assert result.output.startswith("error: ") and message in result.output
+
+
+def test_empty_split_and_bad_corpus(tmp_path):
+    train_only = write_takes(tmp_path / "few", ids=["u01", "u02"])
+    result = _evaluate("--corpus", train_only, "--language", "en", "-m", "baseline", "-q")
+    assert result.exit_code == 2 and "the test split of corpus few has no utterances" in result.output
+    result = _evaluate("--corpus", tmp_path / "nowhere", "-m", "baseline")
+    assert result.exit_code == 2 and "error: corpus folder not found" in result.output
+
+
+@pytest.fixture
+def grid5(shared_dir, tmp_path):
+    src = shared_dir / "data" / "grid_s1"
+    if not src.is_dir():
+        pytest.skip("grid_s1 not available")
+    texts = dict(line.split("\t") for line in (src / "sentences.tsv").read_text().splitlines()[1:])
+    dst = tmp_path / "grid5"
+    (dst / "utterances").mkdir(parents=True)
+    for uid in GRID_TEST_IDS:
+        for ext in ("flac", "align", "csv"):
+            shutil.copy(src / "utterances" / f"{uid}.{ext}", dst / "utterances")
+    (dst / "sentences.tsv").write_text("id\ttext\n" + "".join(f"{u}\t{texts[u]}\n" for u in GRID_TEST_IDS))
+    return dst
+
+
+def test_evaluate_on_five_grid_utterances(grid5, tmp_path, monkeypatch):
+    args = ["--corpus", grid5, "-m", "baseline", "--channels", "jawOpen,mouthClose", "-q"]
+    result = _evaluate(*args)
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert lines[0] == "grid5:test: 5 utterances, 191 speech frames at 25 fps, post-processing on"
+    jaw = next(line.split() for line in lines if line.startswith("baseline  jawOpen"))
+    assert float(jaw[4]) > 0.4  # r of jawOpen
+    closures = next(line.split() for line in lines if line.startswith("baseline ") and "/" in line)
+    closed, scored = map(int, closures[1].split("/"))
+    assert scored >= 10 and closed / scored >= 0.9  # the overlays close on tracked /p b m/ closures
+    assert closures[4] == "25.1"  # tracked share of closed speech frames
+
+    def no_alignment(*_):
+        raise VispeechError("aligned again despite the cache")
+
+    monkeypatch.setattr("vispeech.corpus.alignment.align", no_alignment)
+    again = _evaluate(*args)
+    assert again.exit_code == 0 and again.output == result.output

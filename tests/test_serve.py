@@ -1,0 +1,288 @@
+"""The HTTP side of the server: speak, cache, config, chat, static files, limits, bad input."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import random
+import threading
+from datetime import datetime
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import pytest
+from scipy.io import wavfile
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")
+from fastapi.testclient import TestClient  # noqa: E402
+
+import vispeech.preview  # noqa: E402
+from vispeech.errors import VispeechError  # noqa: E402
+from vispeech.pipeline import GREETINGS  # noqa: E402
+from vispeech.serve import (  # noqa: E402
+    CacheKey, ChatBotError, HTTPChatBot, RuleBot, ServeConfig, UtteranceCache, create_app,
+)
+from vispeech.serve.safety import TokenBucket  # noqa: E402
+
+FACE2D = Path(vispeech.preview.__file__).parent / "face2d.js"
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> dict:
+    root = tmp_path_factory.mktemp("serve")
+    static = root / "static"
+    static.mkdir()
+    for name in ("index.html", "player.html", "viewer.html"):
+        (static / name).write_text(f"<!doctype html><title>{name}</title>", encoding="utf-8")
+    (static / "style.css").write_text("body{}", encoding="utf-8")
+    avatar = root / "head.glb"
+    avatar.write_bytes(b"glTF\x02\x00\x00\x00" + bytes(range(64)))
+    (root / "secret.txt").write_text("root:x:0:0", encoding="utf-8")
+    return {"root": root, "static": static, "avatar": avatar, "cache": root / "cache.sqlite3"}
+
+
+@pytest.fixture(scope="module")
+def client(site) -> TestClient:
+    config = ServeConfig(avatar=site["avatar"], cache=site["cache"], static_dir=site["static"], rate_limit=0)
+    with TestClient(create_app(config)) as client:
+        yield client
+
+
+def test_config(client, site):
+    config = client.get("/api/config").json()
+    assert config["avatar_url"] == "/avatar.glb"
+    assert config["languages"] == ["sv", "en"]
+    assert config["default_model"] == "baseline" and "baseline" in config["models"]
+    assert "tdnn-beskow" not in config["models"]  # untrained networks are not offered
+    assert config["fps"] == 30.0 and config["max_text"] == 1000
+    assert client.get("/avatar.glb").content == site["avatar"].read_bytes()
+
+
+def test_speak_gives_audio_and_animation_of_equal_length(client):
+    response = client.post("/api/speak", json={"text": "Hello there, how are you?", "lang": "en"})
+    assert response.status_code == 200
+    body = response.json()
+    assert body["audio_url"].startswith("/api/audio/") and body["audio_url"].endswith(".wav")
+    audio = client.get(body["audio_url"])
+    assert audio.status_code == 200 and audio.headers["content-type"] == "audio/wav"
+    rate, samples = wavfile.read(io.BytesIO(audio.content))
+    animation = body["animation"]
+    assert animation["format"] == "vispeech-animation" and animation["fps"] == 30.0
+    assert animation["n_frames"] == len(animation["frames"]) == math.ceil(len(samples) / rate * 30.0 - 1e-6)
+    assert all(len(row) == len(animation["channels"]) for row in animation["frames"])
+    assert animation["phones"]["phones"][-1]["end"] == pytest.approx(len(samples) / rate)
+    assert body["cached"] is False
+
+
+def test_repeated_request_comes_from_the_cache_file(client, site):
+    request = {"text": "Hej, hur mår du?", "lang": "sv", "rate": 1.2}
+    first = client.post("/api/speak", json=request).json()
+    second = client.post("/api/speak", json=request).json()
+    assert (first["cached"], second["cached"]) == (False, True)
+    assert second["audio_url"] == first["audio_url"] and second["animation"] == first["animation"]
+    other = client.post("/api/speak", json={**request, "rate": 1.0}).json()
+    assert other["cached"] is False and other["audio_url"] != first["audio_url"]
+    with TestClient(create_app(ServeConfig(cache=site["cache"], rate_limit=0))) as fresh:  # same file, new server
+        again = fresh.post("/api/speak", json=request).json()
+        assert again["cached"] is True and fresh.get(again["audio_url"]).status_code == 200
+
+
+def test_chat_answers_in_swedish_and_english(client):
+    sv = client.post("/api/chat", json={"message": "Hej!", "lang": "sv"}).json()
+    assert sv["reply"] == GREETINGS["sv"] and sv["lang"] == "sv"
+    assert sv["speech"]["text"] == GREETINGS["sv"] and sv["speech"]["animation"]["n_frames"] > 10
+    en = client.post("/api/chat", json={"message": "What is your name?", "lang": "en", "speak": False}).json()
+    assert en == {"reply": "My name is Vera.", "lang": "en", "speech": None}
+
+
+def test_pages_static_files_and_the_2d_face(client, site):
+    assert client.get("/").text == (site["static"] / "index.html").read_text()
+    assert client.get("/player").text == (site["static"] / "player.html").read_text()
+    assert client.get("/viewer").status_code == 200
+    assert client.get("/static/style.css").text == "body{}"
+    face = client.get("/static/face2d.js")
+    assert face.status_code == 200 and face.content == FACE2D.read_bytes()
+    assert "/api/speak" in client.get("/openapi.json").json()["paths"]
+    assert client.get("/docs").status_code == 200
+
+
+def test_without_avatar_or_built_web_app(tmp_path):
+    with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", static_dir=tmp_path / "none"))) as bare:
+        assert bare.get("/api/config").json()["avatar_url"] is None
+        assert bare.get("/avatar.glb").status_code == 404
+        page = bare.get("/")
+        assert page.status_code == 404 and "npm run build" in page.json()["detail"]
+        assert bare.get("/static/chat.js").status_code == 404
+        assert bare.get("/static/face2d.js").status_code == 200
+    with pytest.raises(VispeechError, match="avatar"):
+        create_app(ServeConfig(avatar=tmp_path / "missing.glb", cache=":memory:"))
+
+
+@pytest.mark.parametrize(("body", "status", "words"), [
+    ({"text": "x" * 1001}, 422, "at most 1000"),
+    ({"text": ""}, 422, "text"),
+    ({"text": "   "}, 422, "text"),
+    ({"text": "hi\u0000there"}, 422, "control characters"),
+    ({"text": "hello", "lang": "fr"}, 422, "lang"),
+    ({"text": "hello", "model": "no-such-model"}, 400, "unknown model"),
+    ({"text": "hello", "model": "tdnn-beskow"}, 400, "unknown model"),
+    ({"text": "hello", "rate": 9}, 422, "rate"),
+    ({"text": ["hello"]}, 422, "text"),
+    ({"lang": "en"}, 422, "text: Field required"),
+    ("hello", 422, "JSON object"),
+])
+def test_bad_speak_requests_get_a_clear_4xx(client, body, status, words):
+    response = client.post("/api/speak", json=body)
+    assert response.status_code == status
+    assert words in response.json()["detail"]
+
+
+def test_bad_json_and_oversize_bodies(client):
+    bad = client.post("/api/speak", content=b'{"text": "hi"', headers={"content-type": "application/json"})
+    assert bad.status_code == 422 and bad.json()["detail"] == "the body is not valid JSON"
+    nan = client.post("/api/speak", content=b'{"text": "hi", "rate": NaN}',
+                      headers={"content-type": "application/json"})
+    assert nan.status_code == 422
+    huge = client.post("/api/speak", content=b"{" + b" " * 70_000 + b"}")
+    assert huge.status_code == 413 and "too large" in huge.json()["detail"]
+    chunked = client.post("/api/chat", content=(b" " * 8192 for _ in range(10)))  # no Content-Length
+    assert chunked.status_code == 413
+
+
+@pytest.mark.parametrize("path", [
+    "/static/../../etc/passwd", "/static/%2e%2e/%2e%2e/etc/passwd", "/static/..%2f..%2fsecret.txt",
+    "/static/%2e%2e/secret.txt", "/avatar.glb/../secret.txt", "/api/audio/..%2f..%2fsecret.txt.wav",
+    "/api/audio/abc.wav", "/api/audio/" + "0" * 32 + ".wav",
+])
+def test_no_path_traversal(client, path):
+    response = client.get(path)
+    assert response.status_code == 404
+    assert b"root:" not in response.content
+
+
+def test_rate_limit_answers_429_and_the_server_keeps_serving(tmp_path):
+    config = ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0.001, burst=2)
+    with TestClient(create_app(config)) as limited:
+        statuses = [limited.post("/api/chat", json={"message": "hi", "speak": False}).status_code for _ in range(3)]
+        assert statuses == [200, 200, 429]
+        refused = limited.post("/api/speak", json={"text": "hi"})
+        assert refused.status_code == 429 and "rate limit" in refused.json()["detail"]
+        assert int(refused.headers["retry-after"]) >= 1
+        assert limited.get("/api/config").status_code == 200  # not limited
+
+
+def test_token_bucket_refills_at_its_rate():
+    now = [0.0]
+    bucket = TokenBucket(rate=2.0, burst=3, clock=lambda: now[0])
+    assert [bucket.take("a") for _ in range(4)] == [True, True, True, False]
+    assert bucket.take("b")  # another client has its own bucket
+    now[0] += 0.5  # one token back
+    assert [bucket.take("a") for _ in range(2)] == [True, False]
+    assert TokenBucket(rate=0, burst=1).take("a") and TokenBucket(rate=0, burst=1).take("a")
+
+
+def test_fuzzed_requests_never_get_a_5xx(client):
+    rng = random.Random(7)
+    values = [None, True, 0, -1, 1e308, "", "x" * 1200, "en", "sv", "fr", [], {}, [1], {"a": 1},
+              "\u0000", "😀", "!!!"]
+    statuses = set()
+    for _ in range(100):
+        path = rng.choice(["/api/speak", "/api/chat"])
+        body = {k: rng.choice(values) for k in rng.sample(["text", "message", "lang", "model", "rate", "speak"], 3)}
+        if rng.random() < 0.2:
+            content = json.dumps(body)[: rng.randrange(1, 30)].encode()
+        else:
+            content = json.dumps(body).encode()
+        statuses.add(client.post(path, content=content, headers={"content-type": "application/json"}).status_code)
+    assert max(statuses) < 500 and 422 in statuses
+    assert client.get("/api/config").status_code == 200
+
+
+def test_rule_bot():
+    bot = RuleBot(clock=lambda: datetime(2024, 5, 1, 14, 5))
+    assert bot.reply("Vad är klockan?", "sv") == "Klockan är 14:05."
+    assert bot.reply("what time is it", "en") == "It is 14:05."
+    assert bot.reply("Tack så mycket!", "sv") == "Varsågod!"
+    assert bot.reply("Vad heter du?", "sv") == "Jag heter Vera."
+    assert bot.reply("Can you help me?", "en").startswith("I am a talking avatar")
+    assert bot.reply("Hello! Who are you?", "en") == "My name is Vera."  # the question wins over the greeting
+    assert "did not understand" in bot.reply("quantum chromodynamics", "en")
+    with pytest.raises(VispeechError):
+        bot.reply("hej", "fr")
+
+
+@pytest.fixture
+def fake_chat_service():
+    """A chat service on 127.0.0.1 that echoes the message in an OpenAI-like answer."""
+    seen = []
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_POST(self):
+            payload = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+            seen.append(payload)
+            if payload["q"] == "fail":
+                self.send_response(500)
+                self.end_headers()
+                return
+            body = json.dumps({"choices": [{"message": {"content": f"echo {payload['q']} ({payload['language']})"}}]})
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.end_headers()
+            self.wfile.write(body.encode())
+
+        def log_message(self, *args):
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{server.server_port}/chat", seen
+    server.shutdown()
+    server.server_close()
+
+
+def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
+    url, seen = fake_chat_service
+    bot = HTTPChatBot(url, message_field="q", lang_field="language", reply_field="choices.0.message.content")
+    assert bot.reply("hello", "en") == "echo hello (en)"
+    assert seen == [{"q": "hello", "language": "en"}]
+    with pytest.raises(ChatBotError, match="HTTP 500"):
+        bot.reply("fail", "en")
+    with pytest.raises(ChatBotError, match="no text at"):
+        HTTPChatBot(url, message_field="q", lang_field="language", reply_field="answer").reply("x", "sv")
+    with pytest.raises(VispeechError):
+        HTTPChatBot("file:///etc/passwd")
+    with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", bot=bot, rate_limit=0))) as app:
+        answer = app.post("/api/chat", json={"message": "hej", "lang": "sv", "speak": False}).json()
+        assert answer["reply"] == "echo hej (sv)"
+        failed = app.post("/api/chat", json={"message": "fail", "speak": False})
+        assert failed.status_code == 502 and "HTTP 500" in failed.json()["detail"]
+
+
+def test_utterance_cache_keys_and_eviction(tmp_path):
+    key = CacheKey("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
+    assert len(key.id) == 32 and key.id == CacheKey("hi", "en", "en-us", 1, "baseline", "v1", 30).id
+    fields = ("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
+    changes = ("sv", "sv", 1.1, "ohman", "v2", 60.0)  # one field of the key after the text each
+    variants = [CacheKey(*fields[:i + 1], change, *fields[i + 2:]) for i, change in enumerate(changes)]
+    assert len({key.id, *(v.id for v in variants)}) == 7
+    cache = UtteranceCache(tmp_path / "c.sqlite3", max_entries=2)
+    for i, k in enumerate(variants[:3]):
+        cache.put(k, b"wav%d" % i, "{}")
+    assert len(cache) == 2 and cache.get(variants[0]) is None  # the least recently used went
+    assert cache.audio(variants[2].id) == b"wav2"
+    cache.close()
+    (tmp_path / "bad.sqlite3").write_bytes(b"not a database at all" * 10)
+    with pytest.raises(VispeechError, match="cannot open the cache"):
+        UtteranceCache(tmp_path / "bad.sqlite3")
+
+
+def test_serve_command_refuses_a_missing_avatar(tmp_path):
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+
+    result = CliRunner().invoke(main, ["serve", "--avatar", str(tmp_path / "none.glb"), "--cache", str(tmp_path / "c")])
+    assert result.exit_code == 2 and "avatar file not found" in result.output

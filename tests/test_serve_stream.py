@@ -1,0 +1,265 @@
+"""Streaming: clause splitting, the /api/stream WebSocket (text and phones), the phone streams."""
+
+from __future__ import annotations
+
+import base64
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")
+from fastapi.testclient import TestClient  # noqa: E402
+from starlette.websockets import WebSocketDisconnect  # noqa: E402
+
+from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
+from vispeech.errors import VispeechError  # noqa: E402
+from vispeech.models.registry import create_model  # noqa: E402
+from vispeech.pipeline import animate  # noqa: E402
+from vispeech.serve import ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
+from vispeech.serve.streaming import ModelPhoneStream, WindowPhoneStream  # noqa: E402
+
+# "hello world", then a pause: (symbol, start, end)
+HELLO = [("sil", 0.0, 0.1), ("HH", 0.1, 0.16), ("AH0", 0.16, 0.22), ("L", 0.22, 0.28), ("OW1", 0.28, 0.45),
+         ("W", 0.45, 0.52), ("ER1", 0.52, 0.65), ("L", 0.65, 0.7), ("D", 0.7, 0.76), ("sil", 0.76, 1.0)]
+
+
+def phone_dicts(rows) -> list[dict]:
+    return [{"symbol": symbol, "start": start, "end": end} for symbol, start, end in rows]
+
+
+def phones_of(rows) -> list[Phone]:
+    return [Phone(symbol, start, end) for symbol, start, end in rows]
+
+
+def offline(rows, language: str = "en") -> PhoneSequence:
+    return PhoneSequence([Phone(s.rstrip("012"), a, b, None, int(s[-1]) if s[-1].isdigit() else 0)
+                          for s, a, b in rows], language)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("stream") / "cache.sqlite3"
+    with TestClient(create_app(ServeConfig(cache=cache, rate_limit=0))) as client:
+        yield client
+
+
+def receive_until_end(ws) -> list[dict]:
+    messages = []
+    while True:
+        message = ws.receive_json()
+        messages.append(message)
+        if message["type"] in ("end", "error"):
+            return messages
+
+
+def test_split_clauses():
+    assert split_clauses("Hello, world! How are you? Fine; thanks.") == [
+        "Hello,", "world!", "How are you?", "Fine;", "thanks."]
+    assert split_clauses("It costs 3.50 or 1,000 kronor.") == ["It costs 3.50 or 1,000 kronor."]
+    assert split_clauses("Hej!\nHur mår du ... ?") == ["Hej!", "Hur mår du ... ?"]
+    assert split_clauses("... Hello") == ["... Hello"]
+    assert split_clauses(" !! ") == ["!!"]
+
+
+def test_text_stream_gives_audio_and_frames_of_matching_length(client):
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": "Hello there, my friend. How are you today?", "lang": "en"})
+        messages = receive_until_end(ws)
+    kinds = [m["type"] for m in messages]
+    assert kinds[0] == "start" and kinds[-1] == "end" and "error" not in kinds
+    start = messages[0]
+    assert start["fps"] == 30.0 and start["sample_rate"] == 22050 and start["model"] == "baseline"
+    assert kinds.index("frames") < kinds.index("audio")  # the animation leads the sound
+
+    audio = [m for m in messages if m["type"] == "audio"]
+    assert [m["seq"] for m in audio] == list(range(len(audio)))
+    samples = 0
+    for m in audio:  # chunks of at most 100 ms, back to back
+        assert m["start"] == pytest.approx(samples / 22050)
+        n = len(base64.b64decode(m["pcm16"])) // 2
+        assert 0 < n <= 2205
+        samples += n
+
+    frames = [m for m in messages if m["type"] == "frames"]
+    n_frames = 0
+    for m in frames:
+        assert m["start_frame"] == n_frames
+        assert all(len(row) == len(start["channels"]) for row in m["frames"])
+        n_frames += len(m["frames"])
+    assert abs(n_frames - samples / 22050 * 30.0) <= 1
+    assert messages[-1]["n_frames"] == n_frames == math.ceil(samples / 22050 * 30.0 - 1e-6)
+    assert len(audio) > 3 * 3  # three clauses, each spoken in several chunks
+
+
+def test_phones_stream_over_the_websocket(client):
+    rows = HELLO
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "phones", "lang": "en", "phones": phone_dicts(rows[:4])})
+        start = ws.receive_json()
+        assert start["type"] == "start" and start["fps"] == 30.0 and start["lookahead"] == 2
+        first = ws.receive_json()  # phones up to 0.28 s: frames 0..8 known, 0..6 ready
+        assert first["type"] == "frames" and first["start_frame"] == 0 and len(first["frames"]) == 7
+        ws.send_json({"type": "phones", "phones": phone_dicts(rows[4:]), "final": True})
+        messages = receive_until_end(ws)
+    assert [m["type"] for m in messages][-1] == "end"
+    frames = first["frames"] + [row for m in messages if m["type"] == "frames" for row in m["frames"]]
+    assert len(frames) == messages[-1]["n_frames"] == 30
+    reference = animate(offline(rows), "baseline").select(start["channels"]).values
+    assert np.abs(np.array(frames) - reference).mean() < 0.02
+
+
+def test_bad_stream_messages_get_errors_and_the_stream_goes_on(client):
+    with client.websocket_connect("/api/stream") as ws:
+        for bad, words in [
+            ("not json", "not valid JSON"),
+            ("[1, 2]", "JSON object"),
+            ('{"type": "shout"}', '"type" must be'),
+            ('{"text": "hi"}', '"type" is missing'),
+            ('{"type": "text", "text": ""}', "text"),
+            ('{"type": "text", "text": "hi", "lang": "de"}', "lang"),
+            ('{"type": "text", "text": "hi", "model": "nope"}', "unknown model"),
+            ('{"type": "phones", "phones": [{"symbol": "AA", "start": 0, "end": NaN}]}', "finite"),
+        ]:
+            ws.send_text(bad)
+            reply = ws.receive_json()
+            assert reply["type"] == "error" and words in reply["message"], (bad, reply)
+        ws.send_bytes(b"\x00\x01")
+        assert "JSON text" in ws.receive_json()["message"]
+        # a phone stream: out-of-order phones are refused, the stream stays open
+        ws.send_json({"type": "phones", "phones": [{"symbol": "sil", "start": 0, "end": 0.5}]})
+        assert ws.receive_json()["type"] == "start"
+        assert ws.receive_json()["type"] == "frames"
+        ws.send_json({"type": "phones", "phones": [{"symbol": "AA", "start": 0.2, "end": 0.3}]})
+        assert "before the previous one ends" in ws.receive_json()["message"]
+        ws.send_json({"type": "phones", "phones": [{"symbol": "xyz", "start": 0.5, "end": 0.6}]})
+        assert "unknown phone symbol" in ws.receive_json()["message"]
+        ws.send_json({"type": "text", "text": "hi"})
+        assert "phone stream is open" in ws.receive_json()["message"]
+        ws.send_json({"type": "phones", "phones": [{"symbol": "AA1", "start": 0.5, "end": 0.6}], "final": True})
+        tail = receive_until_end(ws)
+        assert tail[-1] == {"type": "end", "n_frames": 18, "duration": 0.6}
+        ws.send_json({"type": "text", "text": "Still here."})
+        assert receive_until_end(ws)[-1]["type"] == "end"
+        ws.send_text("x" * 70_000)
+        assert "too large" in ws.receive_json()["message"]
+        with pytest.raises(WebSocketDisconnect) as closed:
+            ws.receive_json()
+        assert closed.value.code == 1009
+
+
+def test_stream_rate_limit_and_stream_count(tmp_path):
+    config = ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0.001, burst=1, max_streams=1)
+    with TestClient(create_app(config)) as limited, limited.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": "One."})
+        assert receive_until_end(ws)[-1]["type"] == "end"
+        ws.send_json({"type": "text", "text": "Two."})
+        assert "rate limit" in ws.receive_json()["message"]
+        with limited.websocket_connect("/api/stream") as second:
+            assert "server busy" in second.receive_json()["message"]
+
+
+def test_window_stream_gives_each_frame_after_its_lookahead():
+    model = create_model("baseline")
+    stream = open_phone_stream(model, "en")
+    assert isinstance(stream, WindowPhoneStream) and stream.lookahead == 2
+    chunks = []
+    for phone in phones_of(HELLO):
+        start, rows = stream.push([Phone(phone.symbol, phone.start, phone.end)])
+        assert start == sum(len(c) for c in chunks)
+        assert stream.emitted == max(0, math.ceil(phone.end * 30 - 1e-6) - 2)
+        chunks.append(rows)
+    chunks.append(stream.finish()[1])
+    assert sum(len(c) for c in chunks) == 30
+    with pytest.raises(VispeechError, match="ended"):
+        stream.push(phones_of(HELLO[:1]))
+
+
+def test_window_stream_matches_offline_prediction():
+    """With a long look-ahead the windows reproduce the offline track (a frame off would not)."""
+    model = create_model("cohen-massaro")
+    reference = animate(offline(HELLO), model).values
+    exact = WindowPhoneStream(model, "en", lookahead=1000, context=10.0)
+    exact.push(phones_of(HELLO))
+    assert np.allclose(exact.finish()[1], reference, atol=1e-9)
+    windowed = WindowPhoneStream(model, "en", lookahead=10, context=1.0)
+    frames = np.concatenate([windowed.push([p])[1] for p in phones_of(HELLO)] + [windowed.finish()[1]])
+    assert np.abs(frames - reference).mean() < 1e-3
+    assert np.abs(frames[1:] - reference[:-1]).mean() > 5e-3
+
+
+def test_window_stream_refuses_bad_phones():
+    stream = WindowPhoneStream(create_model("baseline"), "sv")
+    for bad, words in [([Phone("a", 0.2, 0.1)], "end after"), ([Phone("AA", 0.0, 0.1)], "unknown phone"),
+                       ([Phone("a", 0.0, 30.0)], "more than")]:
+        with pytest.raises(VispeechError, match=words):
+            stream.push(bad)
+    assert stream.push([Phone("'a", 0.0, 0.2)])[1].shape[1] == len(stream.channels)
+
+
+@dataclass
+class _Example:
+    phones: PhoneSequence
+    track: object
+
+
+def test_model_stream_runs_the_models_own_streaming(tmp_path):
+    pytest.importorskip("torch")
+    examples = [_Example(offline(HELLO), animate(offline(HELLO), "baseline", fps=60.0)),
+                _Example(offline(HELLO[:5]), animate(offline(HELLO[:5]), "baseline", fps=60.0))]
+    model = create_model("tdnn-lowlatency", epochs=1, hidden=4, progress=False,
+                         targets=["jawOpen", "mouthClose", "mouthFunnel"]).fit(examples)
+    stream = open_phone_stream(model, "en")
+    assert isinstance(stream, ModelPhoneStream) and (stream.fps, stream.lookahead) == (60.0, 2)
+    chunks = []
+    for phone in phones_of(HELLO):
+        chunks.append(stream.push([phone])[1])
+        assert stream.emitted == math.ceil(phone.end * 60 - 1e-6) - 2
+    chunks.append(stream.finish()[1])
+    assert np.allclose(np.concatenate(chunks), model.predict(offline(HELLO), 60.0).values, atol=1e-9)
+
+    model.save(tmp_path / "lowlatency")
+    config = ServeConfig(cache=":memory:", stream_model=str(tmp_path / "lowlatency"), rate_limit=0)
+    with TestClient(create_app(config)) as served, served.websocket_connect("/api/stream") as ws:
+        assert served.get("/api/config").json()["stream_model"] == "tdnn-lowlatency"
+        ws.send_json({"type": "phones", "phones": phone_dicts(HELLO), "final": True})
+        messages = receive_until_end(ws)
+        assert (messages[0]["fps"], messages[0]["model"]) == (60.0, "tdnn-lowlatency")
+        assert messages[-1]["n_frames"] == 60
+
+
+def test_stream_command_times_a_real_server(tmp_path):
+    """`vispeech stream` against uvicorn on a loopback port (the real WebSocket stack)."""
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    app = create_app(ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error", ws_max_size=65536))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.02)
+        url = f"ws://127.0.0.1:{port}/api/stream"
+        result = CliRunner().invoke(main, ["stream", "Hej! Hur mår du?", "--lang", "sv", "--url", url])
+        assert result.exit_code == 0, result.output
+        assert "first frame" in result.output and "frames late" in result.output
+        refused = CliRunner().invoke(main, ["stream", "hi", "--lang", "de", "--url", url])
+        assert refused.exit_code == 2 and "lang" in refused.output
+    finally:
+        server.should_exit = True
+        thread.join(10)
+    gone = CliRunner().invoke(main, ["stream", "hi", "--url", url])
+    assert gone.exit_code == 2 and "failed" in gone.output

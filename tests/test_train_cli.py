@@ -1,0 +1,135 @@
+"""``vispeech train`` on a tiny synthetic corpus of takes (phones from TextGrids, no aligner)."""
+
+import json
+
+import numpy as np
+import pytest
+import soundfile
+from click.testing import CliRunner
+
+from vispeech import PhoneSequence, Track
+from vispeech.alignment.formats import write_textgrid
+from vispeech.alignment.phones import Phone, Word
+from vispeech.cli import main
+from vispeech.corpus import split_of
+from vispeech.errors import VispeechError
+from vispeech.models.base import ControlModel
+from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
+from vispeech.phonetics.inventory import is_vowel
+
+FPS = 25.0
+WORDS = {"bin": "B IH N", "blue": "B L UW", "at": "AE T", "now": "N AW", "please": "P L IY Z", "may": "M EY"}
+TAKE_IDS = [f"u{i:02d}" for i in range(20)]  # u00, u19 test; u18 validation; the rest train
+
+
+def synthetic_take(seed: int) -> tuple[PhoneSequence, Track]:
+    """Phones of four words (80 ms each, 0.3 s of silence around) and a track that follows them:
+    jawOpen 0.35 on vowels, 0 on /p b m/, 0.1 elsewhere, lightly smoothed; mouthClose 0.02."""
+    rng = np.random.default_rng(seed)
+    chosen = rng.choice(list(WORDS), size=4)
+    phones, words, t = [Phone("sil", 0.0, 0.3)], [], 0.3
+    for w, word in enumerate(chosen):
+        start = t
+        for symbol in WORDS[word].split():
+            phones.append(Phone(symbol, t, t + 0.08, w))
+            t += 0.08
+        words.append(Word(str(word), start, t))
+    phones.append(Phone("sil", t, t + 0.3))
+    sequence = PhoneSequence(phones, "en", words)
+    labels = sequence.frame_labels(FPS, int(round(sequence.duration * FPS)))
+    jaw = np.array([0.35 if is_vowel(s, "en") else 0.0 if s in ("P", "B", "M") else 0.1 for s in labels])
+    jaw = np.convolve(np.pad(jaw, 1, mode="edge"), [0.25, 0.5, 0.25], mode="valid")
+    values = np.zeros((len(labels), len(LIVELINK_CHANNELS)))
+    values[:, LIVELINK_CHANNELS.index("jawOpen")] = jaw
+    values[:, LIVELINK_CHANNELS.index("mouthClose")] = 0.02
+    return sequence, Track(values, LIVELINK_CHANNELS, FPS)
+
+
+def write_takes(folder, ids=TAKE_IDS):
+    """A folder of Live Link takes (CSV, silent WAV, TextGrid) made by :func:`synthetic_take`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, name in enumerate(ids):
+        phones, track = synthetic_take(i)
+        write_livelink_csv(track, folder / f"{name}.csv")
+        soundfile.write(folder / f"{name}.wav", np.zeros(int(phones.duration * 16000), dtype=np.float32), 16000)
+        write_textgrid(phones, folder / f"{name}.TextGrid")
+    return folder
+
+
+@pytest.fixture(autouse=True)
+def cache_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache-home"))
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory):
+    return write_takes(tmp_path_factory.mktemp("corpus") / "takes")
+
+
+def test_split_layout_of_the_synthetic_ids():
+    splits = [split_of(i) for i in TAKE_IDS]
+    assert splits.count("test") == 2 and splits.count("validation") == 1
+
+
+def _train(*args):
+    return CliRunner().invoke(main, ["train", *map(str, args)])
+
+
+def test_train_saves_a_model_and_reports_test_scores(takes, tmp_path):
+    out = tmp_path / "model"
+    result = _train("--corpus", takes, "--language", "en", "--model", "sliding-window-thesis",
+                    "--epochs", "2", "--seed", "3", "--quiet", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "train 17, validation 1, test 2 utterances at 25 fps" in result.output
+    assert "epochs: 2, best" in result.output
+    assert "test split (2 utterances, no post-processing): jawOpen r " in result.output
+    assert (out / "loss_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (out / "checkpoint").exists()
+    model = ControlModel.load(out)
+    assert model.name == "sliding-window-thesis" and model.history.epochs == 2
+    assert model.get_params()["seed"] == 3 and model.get_params()["progress"] is False
+
+
+def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatch):
+    out = tmp_path / "model"
+
+    def fail(self, path):
+        raise VispeechError("disk full")
+
+    monkeypatch.setattr("vispeech.models.neural.NeuralControlModel.save", fail)
+    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "1",
+                    "-q", "-o", out)
+    assert result.exit_code == 2 and "error: disk full" in result.output
+    assert not (out / "config.json").exists()
+    assert (out / "checkpoint" / "training_state.json").is_file()
+    monkeypatch.undo()
+
+    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "2",
+                    "-q", "--resume", out, "-o", out)
+    assert result.exit_code == 0, result.output
+    history = json.loads((out / "config.json").read_text())["state"]["history"]
+    assert len(history["train_loss"]) == 2
+    assert not (out / "checkpoint").exists()
+
+
+def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
+    result = _train("--corpus", takes, "--language", "en", "-m", "tdnn-beskow", "--targets", "articulatory",
+                    "--epochs", "1", "-q", "-o", tmp_path / "m")
+    assert result.exit_code == 2 and "no face landmarks" in result.output
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--corpus", "{missing}", "-m", "sliding-window-thesis"], "corpus folder not found"),
+    (["--corpus", "{empty}", "-m", "sliding-window-thesis"], "holds no takes"),
+    (["--corpus", "{takes}", "-m", "nonesuch"], "unknown model 'nonesuch'"),
+    (["--corpus", "{takes}", "-m", "baseline"], "not trainable"),
+    (["--corpus", "{takes}", "-m", "baseline", "--epochs", "3"], "model baseline takes no --epochs"),
+])
+def test_train_errors_are_one_line(takes, tmp_path, args, message):
+    (tmp_path / "empty").mkdir()
+    places = {"missing": tmp_path / "missing", "empty": tmp_path / "empty", "takes": takes}
+    args = [a.format(**places) for a in args]
+    result = _train(*args, "--language", "en", "-q", "-o", tmp_path / "out")
+    assert result.exit_code == 2
+    assert result.output.startswith("error: ") and message in result.output
+    assert not (tmp_path / "out" / "config.json").exists()
