@@ -175,8 +175,8 @@ def test_rig_cli_exports_imports_and_retargets(tmp_path):
             track.values[:, track.index(channel)] = rng.random(track.n_frames) * 0.2
         write_livelink_csv(track, takes / f"{name}.csv")
     runner = CliRunner()
-    result = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "--language", "en",
-                                  "-o", str(tmp_path / "p.json"), "--modes", "2", "--save-space", str(tmp_path / "space")])
+    result = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "--language", "en", "-o",
+                                  str(tmp_path / "p.json"), "--modes", "2", "--save-space", str(tmp_path / "space")])
     assert result.exit_code == 0, result.output
     assert "modes 1-2 explain" in result.output and "5 poses ->" in result.output
     sheet = json.loads((tmp_path / "p.json").read_text())

@@ -60,14 +60,6 @@ def read_aligned_corpus(directory: Path, language: str, cache: Path | None, prog
     return replace(corpus, utterances=aligned)
 
 
-def split_of_corpus(corpus: Corpus, split: str) -> Corpus:
-    """``corpus.split(split)``; raises :class:`VispeechError` when that split is empty."""
-    part = corpus.split(split)
-    if not len(part):
-        raise VispeechError(f"the {split} split of corpus {corpus.name} has no utterances")
-    return part
-
-
 @main.command("evaluate")
 @corpus_option
 @click.option("--split", default="test", show_default=True, type=click.Choice(list(SPLITS)),
@@ -105,7 +97,10 @@ def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...],
             raise VispeechError(f"model {spec!r} given twice")
         models[spec] = load_model(spec)
     wanted = None if channels is None else [c.strip() for c in channels.split(",") if c.strip()]
-    corpus = split_of_corpus(read_aligned_corpus(corpus_dir, language, cache, not quiet), split)
+    aligned = read_aligned_corpus(corpus_dir, language, cache, not quiet)
+    corpus = aligned.split(split)
+    if not len(corpus):
+        raise VispeechError(f"the {split} split of corpus {aligned.name} has no utterances")
     example = corpus[plot_utterance] if plot_utterance is not None else corpus[0]
     evaluation = evaluate_models(corpus, models, channels=wanted, postprocessing=postprocess, progress=not quiet)
     click.echo(evaluation.to_text(), nl=False)

@@ -93,7 +93,9 @@ def is_bilabial(symbol: str, language: str) -> bool:
         return False
 
 
-def phone_frames(start: float, end: float, fps: float, n_frames: int, start_time: float = 0.0, pad: int = 1) -> np.ndarray:
+def phone_frames(
+    start: float, end: float, fps: float, n_frames: int, start_time: float = 0.0, pad: int = 1
+) -> np.ndarray:
     """Indices of the frames a phone ``[start, end)`` (seconds) covers, widened by ``pad`` frames
     on each side. A phone shorter than a frame covers the frame nearest its middle."""
     first = int(np.ceil((start - start_time) * fps - 1e-9))

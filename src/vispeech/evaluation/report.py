@@ -28,7 +28,8 @@ from vispeech.motion.arkit import MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
 EVALUATED_CHANNELS: tuple[str, ...] = MOUTH_CHANNELS + ARTICULATORY_CHANNELS
-"""Channels an evaluation may score: the ARKit mouth/jaw set and the articulatory parameters."""
+"""Channels scored by default (those of them a model predicts and the corpus has): the ARKit
+mouth/jaw set and the articulatory parameters."""
 
 
 @dataclass
@@ -114,10 +115,11 @@ class Evaluation:
             parts += [
                 "", "## Lip closures", "",
                 f"Tracked lips are closed where the inner-lip gap over the eye-corner distance is at most "
-                f"{TRACKED_CLOSED:g}; a model's where jawOpen − mouthClose is at most {MODEL_CLOSED:.0%} of its "
-                f"utterance maximum. /p b m/: of the bilabials on which the tracked lips close (phone ± 1 "
-                f"frame), those the model closes on too (target ≥ {BILABIAL_RATE_TARGET:g} %); closed "
-                f"frames: share of speech frames with closed lips (within {CLOSED_SHARE_TOLERANCE:g} points).", "",
+                f"{TRACKED_CLOSED:g}; a model's where jawOpen − mouthClose (or lip_aperture) is at most "
+                f"{MODEL_CLOSED:.0%} of its utterance maximum. /p b m/: of the bilabials on which the tracked "
+                f"lips close (phone ± 1 frame), those the model closes on too (target ≥ "
+                f"{BILABIAL_RATE_TARGET:g} %); closed frames: share of speech frames with closed lips "
+                f"(within {CLOSED_SHARE_TOLERANCE:g} points of the tracked share).", "",
                 _markdown_table(_CLOSURE_COLUMNS, closures),
             ]
         return "\n".join(parts) + "\n"
@@ -149,7 +151,8 @@ def _text_table(columns: Sequence[str], rows: list[list[str]]) -> str:
 
 
 def _markdown_table(columns: Sequence[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join("---" if i < 2 else "---:" for i in range(len(columns))) + "|"]
+    rule = "|" + "|".join("---" if i < 2 else "---:" for i in range(len(columns))) + "|"
+    lines = ["| " + " | ".join(columns) + " |", rule]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return "\n".join(lines)
 

@@ -36,13 +36,18 @@ from vispeech.phonetics.inventory import LANGUAGES
 
 _PARAMETERS = ("alpha", "theta", "phi", "c")
 
+_UNIT = 0.1
+"""Seconds: the fit measures distances from segment centres in this unit, so that its θ and φ
+(the exponent at 0.1 s) barely depend on c; they are turned back into s^-c afterwards."""
+
 BOUNDS: dict[str, tuple[float, float]] = {
     "alpha": (1e-4, 1e4),
-    "theta": (1e-3, 1e6),
-    "phi": (1e-3, 1e6),
+    "theta": (1e-3, 1e3),
+    "phi": (1e-3, 1e3),
     "c": (0.2, 5.0),
 }
-"""The range :meth:`CohenMassaro.fit` keeps each dominance parameter in (targets: [0, 1])."""
+"""The range :meth:`CohenMassaro.fit` keeps each dominance parameter in (θ and φ as the
+exponent at 0.1 s, ``θ·0.1^c``; targets stay in [0, 1])."""
 
 
 @register_model
@@ -107,8 +112,12 @@ class CohenMassaro(PhoneTargetModel):
         targets = self.table.values(data.language)
         means = tying.frame_means(data.train, targets[first][:, columns])
         log_alpha, theta, phi, c = self._tables[data.language]
+        theta, phi = theta * _UNIT**c, phi * _UNIT**c  # rates per distance in units of _UNIT
         lower = np.concatenate([np.zeros(n)] + [np.full(n, np.log(BOUNDS[p][0])) for p in _PARAMETERS])
         upper = np.concatenate([np.ones(n)] + [np.full(n, np.log(BOUNDS[p][1])) for p in _PARAMETERS])
+        # α is defined up to a common factor: hold that of the phone with the most frames
+        anchor = np.argmax(np.bincount(np.concatenate([tying.column[r.own_rows] for r in data.train]), minlength=n))
+        lower[n + anchor] = upper[n + anchor] = 0.0
         problems = {}
         with np.errstate(divide="ignore"):
             for j, (channel, m) in enumerate(zip(data.channels, columns)):
@@ -123,9 +132,11 @@ class CohenMassaro(PhoneTargetModel):
         x = np.array([fitted[channel] for channel in data.channels])  # channels × 5 symbols
         params = self.get_params()
         params["targets"] = with_target_values(params["targets"], tying, data.channels, x[:, :n].T, self.channels)
-        for k, name in enumerate(_PARAMETERS, start=1):
-            values = np.exp(x[:, k * n:(k + 1) * n]).T
-            params[name] = with_phone_values(params[name], tying, data.channels, values, self.channels)
+        values = dict(zip(_PARAMETERS, (np.exp(x[:, k * n:(k + 1) * n]).T for k in range(1, 5))))
+        values["theta"] /= _UNIT ** values["c"]
+        values["phi"] /= _UNIT ** values["c"]
+        for name in _PARAMETERS:
+            params[name] = with_phone_values(params[name], tying, data.channels, values[name], self.channels)
         self.__init__(params)
         self.history = history
         return self
@@ -161,7 +172,7 @@ class _Design:
         self.valid = np.concatenate([valid for _, _, valid in layouts])
         self.values = np.concatenate([r.values for r in recordings])
         self.before = dt < 0
-        self.distance = np.abs(dt)
+        self.distance = np.abs(dt) / _UNIT
         self.log_distance = np.log(self.distance, out=np.zeros_like(dt), where=self.distance > 0)
         self.tying = tying
         n = len(tying)

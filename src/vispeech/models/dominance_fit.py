@@ -31,7 +31,7 @@ from vispeech.models.segments import Segments
 from vispeech.models.targets import expand_channel, phone_rows
 from vispeech.models.training import TrainingHistory
 
-TOLERANCE = 1e-6
+TOLERANCE = 1e-4
 """A channel has converged when an accepted step lowers its squared error by less than this fraction."""
 
 _MAX_TRIES = 12

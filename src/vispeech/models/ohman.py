@@ -10,17 +10,27 @@ with k_i rising from 0 at the previous segment's centre to 1 at τ_i and falling
 next segment's centre (smoothstep halves, zero slope at all three points; the sequence's
 start and end stand in for missing neighbours). The coarticulation factor w ∈ [0, 1] is per
 consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel track alone.
+
+:meth:`Ohman.fit` estimates the targets and the factors from recorded tracks (see
+:mod:`vispeech.models.dominance_fit`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.base import PhoneTargetModel, register_model
+from vispeech.models.dominance_fit import (
+    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
+    with_target_values,
+)
+from vispeech.models.segments import Segments
 from vispeech.models.targets import phone_rows, resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
@@ -47,34 +57,131 @@ class Ohman(PhoneTargetModel):
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
-        t, centres, targets = seg.times, seg.centres, seg.targets
-        vowel_track = self._vowel_track(seg)
-        consonant = ~(seg.vowel | seg.silence)
-        if not consonant.any():
-            return self._track(vowel_track, fps)
-        n = len(centres)
-        knots = np.concatenate(([seg.starts[0]], centres, [seg.ends[-1]]))
+        blend = _Blend.of(seg)
+        targets, w = self.table.values(seg.language), self._w[seg.language]
+        first = targets[blend.anchors[:, 0]]
+        vowel_track = first + blend.shift[:, None] * (targets[blend.anchors[:, 1]] - first)
+        out = vowel_track.copy()
+        for side in (0, 1):
+            k = blend.consonants[:, side]
+            gain = blend.strength[:, side, None] * w[k]
+            out += gain * (targets[k] - vowel_track)
+        return self._track(out, fps)
+
+    def fit(
+        self,
+        corpus: Iterable,
+        *,
+        validation: Iterable | None = None,
+        channels: Sequence[str] | None = None,
+        max_iterations: int = 100,
+        patience: int = 3,
+        progress: bool = True,
+    ) -> Ohman:
+        """Estimate every phone symbol's target and every consonant's w_c per channel by least
+        squares; returns ``self``. Arguments as for
+        :meth:`vispeech.models.cohen_massaro.CohenMassaro.fit`."""
+        data = FitData.gather(self, corpus, validation, channels)
+        tying = PhoneTying.of(data.language, data.train)
+        factors = PhoneTying.of(data.language, data.train, rows=phone_rows(data.language).mask("consonant"))
+        train = _Design(data.train, tying, factors)
+        held = _Design(data.validation, tying, factors) if any(len(r.values) for r in data.validation) else None
+        n, n_w = len(tying), len(factors)
+        columns = [self.channels.index(c) for c in data.channels]
+        targets, w = self.table.values(data.language), self._w[data.language]
+        means = tying.frame_means(data.train, targets[tying.first_rows][:, columns])
+        lower, upper = np.zeros(n + n_w), np.ones(n + n_w)
+        problems = {}
+        for j, (channel, m) in enumerate(zip(data.channels, columns)):
+            base = (targets[:, m], w[:, m])
+            x0 = np.concatenate([means[:, j], w[factors.first_rows, m]])
+            problems[channel] = ChannelProblem(
+                x0, lower, upper, partial(train.residuals, base, j),
+                None if held is None else partial(held.residuals, base, j))
+        fitted, history = levenberg_marquardt(
+            problems, max_iterations=max_iterations, patience=patience, progress=progress)
+        x = np.array([fitted[channel] for channel in data.channels])  # channels × (targets, factors)
+        params = self.get_params()
+        params["targets"] = with_target_values(params["targets"], tying, data.channels, x[:, :n].T, self.channels)
+        params["w_c"] = with_phone_values(params["w_c"], factors, data.channels, x[:, n:].T, self.channels)
+        self.__init__(params)
+        self.history = history
+        return self
+
+
+@dataclass(frozen=True)
+class _Blend:
+    """Per frame time of some segments: the vowel track runs from the target of phone row
+    ``anchors[:, 0]`` toward that of ``anchors[:, 1]`` by ``shift``; the consonants on the
+    falling (column 0) and rising (column 1) side of the frame pull with gesture ``strength``
+    k (0 where there is none)."""
+
+    anchors: np.ndarray
+    shift: np.ndarray
+    consonants: np.ndarray
+    strength: np.ndarray
+
+    @classmethod
+    def of(cls, seg: Segments) -> _Blend:
+        t = seg.times
+        anchor = seg.vowel | seg.silence
+        if anchor.sum() >= 2:
+            centres, rows = seg.centres[anchor], seg.rows[anchor]
+            m = np.clip(np.searchsorted(centres, t, side="right") - 1, 0, len(centres) - 2)
+            shift = smoothstep((t - centres[m]) / (centres[m + 1] - centres[m]))
+            anchors = np.column_stack([rows[m], rows[m + 1]])
+        else:  # one anchor holds its target; none holds the silence target
+            row = seg.rows[anchor][0] if anchor.any() else phone_rows(seg.language).keys[SILENCE, False]
+            anchors, shift = np.full((len(t), 2), row), np.zeros(len(t))
+        n = len(seg.rows)
+        knots = np.concatenate(([seg.starts[0]], seg.centres, [seg.ends[-1]]))
         j = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, n)
         width = knots[j + 1] - knots[j]
         rise = smoothstep(np.divide(t - knots[j], width, out=np.ones_like(t), where=width > 0))
-        w = self._w[seg.language][seg.rows]
-        out = vowel_track.copy()
-        for i, strength in ((j - 1, 1.0 - rise), (j, rise)):  # falling side of segment j-1, rising side of j
+        consonants, strength = [], []
+        for i, k in ((j - 1, 1.0 - rise), (j, rise)):  # falling side of segment j-1, rising side of j
             active = (i >= 0) & (i < n)
             i = np.clip(i, 0, n - 1)
-            active &= consonant[i]
-            gain = (active * strength)[:, None] * w[i]
-            out += gain * (targets[i] - vowel_track)
-        return self._track(out, fps)
+            active &= ~anchor[i]
+            consonants.append(seg.rows[i])
+            strength.append(np.where(active, k, 0.0))
+        return cls(anchors, shift, np.column_stack(consonants), np.column_stack(strength))
 
-    def _vowel_track(self, seg) -> np.ndarray:
-        anchor = seg.vowel | seg.silence
-        if not anchor.any():
-            silence = self.table.values(seg.language)[phone_rows(seg.language).keys[SILENCE, False]]
-            return np.tile(silence, (len(seg.times), 1))
-        centres, values = seg.centres[anchor], seg.targets[anchor]
-        if len(centres) == 1:
-            return np.tile(values[0], (len(seg.times), 1))
-        m = np.clip(np.searchsorted(centres, seg.times, side="right") - 1, 0, len(centres) - 2)
-        b = smoothstep((seg.times - centres[m]) / (centres[m + 1] - centres[m]))
-        return values[m] + b[:, None] * (values[m + 1] - values[m])
+
+class _Design:
+    """The frames of some recordings laid out for one channel's fit: per frame the blend
+    (:class:`_Blend`) and the Jacobian columns of the targets and factors it involves."""
+
+    def __init__(self, recordings: list[Recording], tying: PhoneTying, factors: PhoneTying):
+        blends = [_Blend.of(r.segments) for r in recordings]
+        self.anchors, self.shift, self.consonants, self.strength = (
+            np.concatenate([getattr(b, name) for b in blends]) for name in ("anchors", "shift", "consonants", "strength"))
+        self.values = np.concatenate([r.values for r in recordings])
+        self.tying, self.factors = tying, factors
+        n = len(tying)
+        self.n_params = n + len(factors)
+        self.columns = (
+            tying.columns(self.anchors),
+            tying.columns(self.consonants),
+            np.where(self.strength > 0, factors.columns(self.consonants, offset=n), -1),
+        )
+
+    def residuals(self, base: tuple[np.ndarray, np.ndarray], channel: int, x: np.ndarray,
+                  jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """z − y on these frames for parameters ``x`` (targets of the fitted symbols, then w_c
+        of the fitted consonants) over the per-row tables ``base`` (targets, w_c), and ∂z/∂x."""
+        n = len(self.tying)
+        targets = self.tying.expand(base[0], x[:n])
+        w = self.factors.expand(base[1], x[n:])
+        ends = targets[self.anchors]
+        vowel_track = ends[:, 0] + self.shift * (ends[:, 1] - ends[:, 0])
+        pulled = targets[self.consonants]
+        gain = self.strength * w[self.consonants]
+        z = vowel_track + np.einsum("fs,fs->f", gain, pulled - vowel_track[:, None])
+        r = z - self.values[:, channel]
+        if not jacobian:
+            return r, None
+        rest = 1.0 - gain.sum(axis=1)  # ∂z/∂v
+        along = np.column_stack([(1.0 - self.shift) * rest, self.shift * rest])
+        parts = zip(self.columns, (along, gain, self.strength * (pulled - vowel_track[:, None])))
+        return r, scatter_jacobian(len(z), self.n_params, parts)

@@ -274,7 +274,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
     @app.get("/avatar.glb", include_in_schema=False)
     def avatar() -> Response:
-        if config.avatar is None:
+        if config.avatar is None or not Path(config.avatar).is_file():
             return JSONResponse({"detail": "no avatar: start the server with --avatar HEAD.glb"}, status_code=404)
         return FileResponse(config.avatar, media_type="model/gltf-binary")
 
@@ -385,7 +385,8 @@ async def _stream_text(websocket: WebSocket, service: SpeechService, message: Te
             for item in batch:
                 await _send(websocket, item)
     finally:
-        messages.close()
+        with contextlib.suppress(ValueError):  # still running in its thread when the task was cancelled
+            messages.close()
 
 
 async def _open_phone_stream(websocket: WebSocket, service: SpeechService, message: PhonesMessage) -> PhoneStream:

@@ -28,6 +28,7 @@ import math
 import queue
 import re
 import threading
+from abc import ABC, abstractmethod
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import replace
 
@@ -144,7 +145,7 @@ def _sample_rows(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return values[lo] * (1.0 - weight) + values[hi] * weight
 
 
-class PhoneStream:
+class PhoneStream(ABC):
     """Frames for a stream of timed phones; see :func:`open_phone_stream`.
 
     :meth:`push` takes the next phones (in time order, none overlapping the ones before) and
@@ -165,13 +166,13 @@ class PhoneStream:
         """Frames given so far."""
         self.closed = False
 
+    @abstractmethod
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         """Add phones; the frames that became ready."""
-        raise NotImplementedError
 
+    @abstractmethod
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed, up to the last phone's end."""
-        raise NotImplementedError
 
     def close(self) -> None:
         """Drop the stream (a client went away); safe to call more than once."""
