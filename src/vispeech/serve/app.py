@@ -378,7 +378,7 @@ async def _serve_stream(websocket: WebSocket, service: SpeechService) -> None:
 
 
 async def _stream_text(websocket: WebSocket, service: SpeechService, message: TextMessage) -> None:
-    name, model = service.model(message.model, stream=True)
+    _, model = service.model(message.model, stream=True)
     messages = speech_messages(message.text, message.lang, model, fps=service.config.fps, rate=message.rate)
     try:
         while (batch := await run_in_threadpool(next, messages, None)) is not None:

@@ -1,0 +1,222 @@
+"""Least-squares fitting of the Cohen–Massaro and Öhman models (vispeech.models.dominance_fit)."""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.corpus import Corpus, Utterance
+from vispeech.errors import VispeechError
+from vispeech.models import cohen_massaro, ohman
+from vispeech.models.base import ControlModel
+from vispeech.models.cohen_massaro import CohenMassaro
+from vispeech.models.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
+from vispeech.models.ohman import Ohman
+from vispeech.models.targets import phone_rows
+from vispeech.motion.track import Track
+
+SYMBOLS = ("AA", "IY", "UW", "B", "S", "L")
+CHANNELS = ("jawOpen", "mouthPucker")
+FPS = 50.0
+
+
+@dataclass
+class Recorded:
+    """The least an utterance needs for fitting."""
+
+    phones: PhoneSequence
+    track: Track
+    id: str = "u"
+
+
+def sentence(rng: np.random.Generator, symbols=SYMBOLS, language: str = "en") -> PhoneSequence:
+    """Silence, 4–7 random phones of 60–200 ms, silence."""
+    phones, t = [Phone("sil", 0.0, 0.2)], 0.2
+    for symbol in rng.choice(symbols, rng.integers(4, 8)):
+        duration = float(rng.uniform(0.06, 0.2))
+        phones.append(Phone(str(symbol), t, t + duration))
+        t += duration
+    phones.append(Phone("sil", t, t + 0.2))
+    return PhoneSequence(phones, language)
+
+
+def recorded_by(model: ControlModel, seeds, channels=CHANNELS) -> list[Recorded]:
+    """Utterances whose tracks are ``model``'s own predictions of ``channels`` at 50 fps."""
+    out = []
+    for seed in seeds:
+        phones = sentence(np.random.default_rng(seed))
+        out.append(Recorded(phones, model.predict(phones, FPS).select(channels), f"u{seed}"))
+    return out
+
+
+def true_cohen_massaro(seed: int = 0) -> tuple[CohenMassaro, dict]:
+    """A Cohen–Massaro model with random per-phone targets, α, θ, φ and c on CHANNELS."""
+    rng = np.random.default_rng(seed)
+    truth = {name: {s: dict(zip(CHANNELS, rng.uniform(low, high, len(CHANNELS)))) for s in SYMBOLS + ("sil",)}
+             for name, low, high in (("targets", 0.05, 0.95), ("alpha", 0.5, 2.0), ("theta", 8.0, 25.0),
+                                     ("phi", 8.0, 25.0), ("c", 0.8, 1.5))}
+    params = {"targets": {"en": truth["targets"]}}
+    for name in ("alpha", "theta", "phi", "c"):
+        params[name] = {"default": 1.0 if name != "theta" and name != "phi" else 16.0,
+                        **{f"en:{s}": v for s, v in truth[name].items()}}
+    return CohenMassaro(params), truth
+
+
+def true_ohman(seed: int = 0) -> tuple[Ohman, dict]:
+    """An Öhman model with random per-phone targets and consonant factors w in [0.5, 1] on CHANNELS."""
+    rng = np.random.default_rng(seed)
+    targets = {s: dict(zip(CHANNELS, rng.uniform(0.05, 0.95, len(CHANNELS)))) for s in SYMBOLS + ("sil",)}
+    w = {s: dict(zip(CHANNELS, rng.uniform(0.5, 1.0, len(CHANNELS)))) for s in ("B", "S", "L")}
+    model = Ohman({"targets": {"en": targets}, "w_c": {"default": 0.5, **{f"en:{s}": v for s, v in w.items()}}})
+    return model, {"targets": targets, "w": w}
+
+
+def mse(model: ControlModel, utterances) -> float:
+    errors = [model.predict(u.phones, FPS).select(CHANNELS).values - u.track.values for u in utterances]
+    return float(np.mean(np.concatenate(errors) ** 2))
+
+
+def numeric_jacobian(design, base, channel: int, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    columns = []
+    for k in range(len(x)):
+        up, down = x.copy(), x.copy()
+        up[k] += step
+        down[k] -= step
+        columns.append((design.residuals(base, channel, up, False)[0]
+                        - design.residuals(base, channel, down, False)[0]) / (2 * step))
+    return np.column_stack(columns)
+
+
+def test_cohen_massaro_jacobian_matches_finite_differences():
+    model = CohenMassaro()
+    data = FitData.gather(model, recorded_by(true_cohen_massaro()[0], range(3)), [], CHANNELS)
+    tying = PhoneTying.of("en", data.train)
+    design = cohen_massaro._Design(data.train, 6, tying)
+    rng = np.random.default_rng(1)
+    n = len(tying)
+    x = np.concatenate([rng.uniform(0.1, 0.9, n), rng.uniform(-1, 1, n), rng.uniform(0, 1.5, 2 * n),
+                        rng.uniform(-0.3, 0.4, n)])
+    m = model.channels.index("mouthPucker")
+    log_alpha, theta, phi, c = model._tables["en"]
+    base = (model.table.values("en")[:, m], log_alpha[:, m], theta[:, m], phi[:, m], c[:, m])
+    r, jacobian = design.residuals(base, 1, x, True)
+    assert jacobian.shape == (len(r), 5 * n) and np.abs(jacobian).max(axis=0).min() > 0
+    np.testing.assert_allclose(jacobian, numeric_jacobian(design, base, 1, x), rtol=1e-5, atol=1e-8)
+
+
+def test_ohman_jacobian_matches_finite_differences():
+    model = Ohman()
+    data = FitData.gather(model, recorded_by(true_ohman()[0], range(3)), [], CHANNELS)
+    tying = PhoneTying.of("en", data.train)
+    factors = PhoneTying.of("en", data.train, rows=phone_rows("en").mask("consonant"))
+    design = ohman._Design(data.train, tying, factors)
+    x = np.random.default_rng(2).uniform(0.1, 0.9, len(tying) + len(factors))
+    m = model.channels.index("jawOpen")
+    base = (model.table.values("en")[:, m], model._w["en"][:, m])
+    r, jacobian = design.residuals(base, 0, x, True)
+    assert jacobian.shape == (len(r), len(tying) + 3) and np.abs(jacobian).max(axis=0).min() > 0
+    np.testing.assert_allclose(jacobian, numeric_jacobian(design, base, 0, x), rtol=1e-6, atol=1e-9)
+
+
+def test_cohen_massaro_fit_recovers_the_parameters_that_made_the_data():
+    truth_model, truth = true_cohen_massaro()
+    model = CohenMassaro().fit(recorded_by(truth_model, range(40)), validation=[], channels=CHANNELS,
+                               progress=False)
+    rows = [phone_rows("en").symbols.index(s) for s in SYMBOLS + ("sil",)]
+    columns = [model.channels.index(c) for c in CHANNELS]
+    fitted = dict(zip(("alpha", "theta", "phi", "c"), model._tables["en"]))
+    fitted["alpha"] = np.exp(fitted["alpha"])
+    fitted["targets"] = model.table.values("en")
+    for name, table in fitted.items():
+        expected = np.array([[truth[name][s][c] for c in CHANNELS] for s in SYMBOLS + ("sil",)])
+        got = table[np.ix_(rows, columns)]
+        if name == "alpha":  # α is only defined up to a common factor; the fit holds that of silence
+            got = got * expected[-1]
+        np.testing.assert_allclose(got, expected, rtol=1e-4, err_msg=name)
+    held_out = recorded_by(truth_model, range(100, 110))
+    assert mse(model, held_out) < 1e-12 < 1e-4 < mse(CohenMassaro(), held_out)
+
+
+def test_ohman_fit_recovers_the_parameters_that_made_the_data():
+    truth_model, truth = true_ohman()
+    model = Ohman().fit(recorded_by(truth_model, range(30)), validation=[], channels=CHANNELS, progress=False)
+    targets, w = model.table.values("en"), model._w["en"]
+    for symbol, values in truth["targets"].items():
+        for channel, value in values.items():
+            assert targets[phone_rows("en").symbols.index(symbol), model.channels.index(channel)] == pytest.approx(value, abs=1e-4)
+    for symbol, values in truth["w"].items():
+        for channel, value in values.items():
+            assert w[phone_rows("en").symbols.index(symbol), model.channels.index(channel)] == pytest.approx(value, abs=1e-4)
+
+
+@pytest.mark.parametrize(("cls", "maker"), [(CohenMassaro, true_ohman), (Ohman, true_cohen_massaro)])
+def test_fitting_the_other_models_data_lowers_the_error(cls, maker):
+    train = recorded_by(maker()[0], range(6))
+    before = mse(cls(), train)
+    model = cls().fit(train, validation=[], channels=CHANNELS, max_iterations=20, progress=False)
+    assert mse(model, train) < 0.5 * before
+    assert model.history.train_loss[-1] == pytest.approx(mse(model, train), rel=1e-9)
+    assert model.history.epochs <= 20 and model.history.best_epoch == model.history.epochs
+
+
+def test_early_stopping_keeps_the_parameters_with_the_lowest_validation_error():
+    # training pulls x toward 1, validation toward 0: every step makes validation worse
+    problem = ChannelProblem(
+        x0=np.zeros(1), lower=np.full(1, -5.0), upper=np.full(1, 5.0),
+        residuals=lambda x, jacobian: (x - 1.0, np.ones((1, 1)) if jacobian else None),
+        validation=lambda x, jacobian: (x.copy(), None),
+    )
+    kept, history = levenberg_marquardt({"a": problem}, max_iterations=50, patience=2, progress=False)
+    assert kept["a"].tolist() == [0.0]
+    assert history.epochs == 2 and history.best_epoch == 0
+    assert history.validation_loss == [0.0, 0.0] and history.train_loss == [1.0, 1.0]
+
+
+def test_fit_stops_early_when_the_validation_data_disagree():
+    truth_model, _ = true_cohen_massaro(0)
+    other, _ = true_cohen_massaro(1)
+    model = CohenMassaro().fit(recorded_by(truth_model, range(10)), validation=recorded_by(other, range(10, 14)),
+                               channels=CHANNELS, max_iterations=40, patience=1, progress=False)
+    history = model.history
+    assert history.epochs < 40 and history.best_epoch < history.epochs
+    assert history.validation_loss[-1] == min(history.validation_loss)
+
+
+def test_a_fitted_model_saves_and_loads_to_identical_predictions(tmp_path):
+    truth_model, _ = true_cohen_massaro()
+    train = recorded_by(truth_model, range(4))
+    english = sentence(np.random.default_rng(7), SYMBOLS + ("M", "ZH"))
+    swedish = sentence(np.random.default_rng(8), ("a", "m", "s", "u:"), "sv")
+    for model in (CohenMassaro(), Ohman()):
+        model.fit(train, validation=[], channels=CHANNELS, max_iterations=3, progress=False)
+        loaded = ControlModel.load(model.save(tmp_path / model.name))
+        assert type(loaded) is type(model) and loaded.get_params() == model.get_params()
+        for phones in (english, swedish):
+            assert np.array_equal(loaded.predict(phones, 30).values, model.predict(phones, 30).values)
+        # phones and languages the data lacks keep their defaults
+        assert np.array_equal(model.predict(swedish, 30).values, type(model)().predict(swedish, 30).values)
+        assert "ZH" not in model.get_params()["targets"]["en"] and "AA" in model.get_params()["targets"]["en"]
+
+
+def test_fit_data_uses_the_corpus_splits_and_refuses_bad_input():
+    rng = np.random.default_rng(3)
+    utterances = []
+    for k in range(30):
+        phones = sentence(rng)
+        track = Track(np.zeros((phones.n_frames(25), 1)), ("jawOpen",), 25)
+        utterances.append(Utterance(f"s{k}", "", Path("none.wav"), phones.duration, track, phones=phones))
+    corpus = Corpus("toy", utterances, 25, ("jawOpen",))
+    data = FitData.gather(CohenMassaro(), corpus, None, None)
+    assert data.channels == ("jawOpen",) and data.language == "en"
+    assert (len(data.train), len(data.validation)) == (len(corpus.split("train")), len(corpus.split("validation")))
+    assert sum(len(r.values) for r in data.train) == sum(u.track.n_frames for u in corpus.split("train"))
+    with pytest.raises(VispeechError, match="does not predict"):
+        FitData.gather(CohenMassaro(), corpus, None, ["headYaw"])
+    with pytest.raises(VispeechError, match="align"):
+        FitData.gather(Ohman(), [Recorded(None, utterances[0].track)], None, None)
+    with pytest.raises(VispeechError, match="empty"):
+        CohenMassaro().fit([], progress=False)
+    with pytest.raises(VispeechError, match="max_iterations"):
+        CohenMassaro().fit(corpus, max_iterations=-1, progress=False)
