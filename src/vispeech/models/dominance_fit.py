@@ -95,10 +95,11 @@ class FitData:
             if not channels:
                 raise VispeechError(f"the corpus tracks have none of the {model.name} model's channels")
         else:
-            channels = tuple(dict.fromkeys(channels))
+            channels = tuple(dict.fromkeys([channels] if isinstance(channels, str) else channels))
             unknown = [c for c in channels if c not in model.channels]
             if unknown or not channels:
-                raise VispeechError(f"model {model.name} does not predict channels {', '.join(unknown) or '(none given)'}")
+                named = ", ".join(unknown) or "(none given)"
+                raise VispeechError(f"model {model.name} does not predict channels {named}")
         train = [_recording(model, u, channels) for u in train_set]
         if not any(len(r.values) for r in train):
             raise VispeechError("the training utterances have no tracked frames within their phones")

@@ -154,8 +154,9 @@ class _Design:
 
     def __init__(self, recordings: list[Recording], tying: PhoneTying, factors: PhoneTying):
         blends = [_Blend.of(r.segments) for r in recordings]
+        names = ("anchors", "shift", "consonants", "strength")
         self.anchors, self.shift, self.consonants, self.strength = (
-            np.concatenate([getattr(b, name) for b in blends]) for name in ("anchors", "shift", "consonants", "strength"))
+            np.concatenate([getattr(b, name) for b in blends]) for name in names)
         self.values = np.concatenate([r.values for r in recordings])
         self.tying, self.factors = tying, factors
         n = len(tying)

@@ -1,0 +1,249 @@
+"""Browser acceptance tests: the live talking head in Debian's Chromium, driven by Playwright.
+
+The real server (``create_app`` under uvicorn, on a free loopback port) serves the viewer
+with the ICT head; headless Chromium renders it with SwiftShader and plays the audio for
+real (no virtual time). Skipped when ``/usr/bin/chromium``, the ``playwright`` package or
+the shared ICT head is missing; ``.ci/run`` installs the first two. Set
+``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots there as well.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import SHARED
+from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
+from vispeech.motion.track import Track
+
+pytestmark = pytest.mark.browser
+
+CHROMIUM = Path("/usr/bin/chromium")
+ICT_HEAD = SHARED / "assets" / "ict_head.glb"
+CHROMIUM_FLAGS = [
+    "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+    "--disable-quic", "--no-first-run", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--autoplay-policy=no-user-gesture-required",
+]
+TEXT = "My mom made a large map of the farm."
+"""1.96 s of speech: six /m/ and three /ɑ/ (AA) between them."""
+OPEN_VOWELS = ("AA", "AE")
+BILABIAL_NASAL = "M"
+OPEN_APERTURE = 0.4
+"""Lip aperture (0..1, ``lip_aperture``) the head must reach at an open vowel's centre."""
+
+if not CHROMIUM.is_file():
+    pytest.skip(f"{CHROMIUM} is not installed", allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api")
+uvicorn = pytest.importorskip("uvicorn")
+from vispeech.serve import ServeConfig, create_app  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def server_url(tmp_path_factory) -> str:
+    """The vispeech server with the ICT head, in a thread on a free 127.0.0.1 port."""
+    if not ICT_HEAD.is_file():
+        pytest.skip(f"{ICT_HEAD} not available")
+    config = ServeConfig(avatar=ICT_HEAD, avatar_credit="3D head: ICT-FaceKit (USC ICT), MIT licence",
+                         cache=tmp_path_factory.mktemp("browser") / "cache.sqlite3", rate_limit=0)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    server = uvicorn.Server(uvicorn.Config(create_app(config), log_level="warning"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{sock.getsockname()[1]}"
+    server.should_exit = True
+    thread.join(10)
+    sock.close()
+
+
+@pytest.fixture(scope="module")
+def page(server_url):
+    """The viewer (idle motion off) in headless Chromium, ready, with the page's errors in ``page.errors``."""
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
+        page = browser.new_page(viewport={"width": 480, "height": 480})
+        page.errors = []
+        page.on("pageerror", lambda error: page.errors.append(str(error)))
+        page.goto(f"{server_url}/viewer?idle=0")
+        page.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+        yield page
+        browser.close()
+
+
+@pytest.fixture(scope="module")
+def speech(page) -> dict:
+    """The ``/api/speak`` answer for :data:`TEXT`, spoken through the page's ``speak``."""
+    return page.evaluate("([text, lang]) => window.vispeech.speak(text, lang)", [TEXT, "en"])
+
+
+@pytest.fixture(scope="module")
+def screenshot_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("screens")
+
+
+def _centres(speech: dict, symbols) -> list[float]:
+    """Centres (seconds) of the spoken phones whose symbol is one of ``symbols``."""
+    phones = speech["animation"]["phones"]["phones"]
+    return [(p["start"] + p["end"]) / 2 for p in phones if p["symbol"] in symbols]
+
+
+def _pose_at(page, t: float, channels) -> dict[str, float]:
+    """Hold the pose at ``t`` s; the head mesh's morph influences of ``channels`` after the next paint."""
+    return page.evaluate(
+        """async ([t, channels]) => {
+          const v = window.vispeech;
+          v.seek(t);
+          await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
+          return Object.fromEntries(channels.map((c) => [c, v.influences(c)]));
+        }""",
+        [t, list(channels)],
+    )
+
+
+def _aperture(pose: dict[str, float]) -> float:
+    return float(lip_aperture(Track(np.array([list(pose.values())]), tuple(pose), 30.0))[0])
+
+
+def _expected_pose(animation: dict, t: float) -> dict[str, float]:
+    """The animation's channels linearly interpolated at ``t`` s, clipped to 0..1 as the head shows them."""
+    frames = np.asarray(animation["frames"])
+    times = animation["start_time"] + np.arange(len(frames)) / animation["fps"]
+    return {c: float(np.clip(np.interp(t, times, frames[:, i]), 0, 1)) for i, c in enumerate(animation["channels"])}
+
+
+def _screenshot(page, path: Path) -> None:
+    page.screenshot(path=str(path))
+    keep = os.environ.get("VISPEECH_BROWSER_SCREENSHOTS")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, Path(keep) / path.name)
+
+
+def test_viewer_loads_the_ict_head_with_its_credit(page):
+    head = page.evaluate(
+        """() => {
+          const v = window.vispeech;
+          return {driven: v.avatar.headIndex ? v.avatar.headIndex.size : 0,
+                  jawOpen: v.influences('jawOpen'),
+                  canvas: !!document.querySelector('#stage canvas'),
+                  credit: document.querySelector('#stage .credit')?.textContent ?? null,
+                  audio: v.performer.context.state};
+        }"""
+    )
+    assert head["driven"] == 51  # the ICT head carries every ARKit shape but tongueOut
+    assert head["jawOpen"] == 0 and head["canvas"]
+    assert head["credit"] == "3D head: ICT-FaceKit (USC ICT), MIT licence"
+    assert head["audio"] == "running"  # autoplay allowed: the AudioContext's clock runs
+    assert page.errors == []
+
+
+def test_mouth_is_open_at_open_vowels_and_closed_at_m(page, speech, screenshot_dir):
+    animation = speech["animation"]
+    channels = [c for c in animation["channels"] if c != "tongueOut"]
+    vowels, nasals = _centres(speech, OPEN_VOWELS), _centres(speech, {BILABIAL_NASAL})
+    assert len(vowels) >= 3 and len(nasals) >= 5, speech["animation"]["phones"]
+
+    for t in vowels + nasals:
+        pose = _pose_at(page, t, channels)
+        expected = _expected_pose(animation, t)
+        assert max(abs(pose[c] - expected[c]) for c in channels) < 1e-3, t  # the head shows the server's track
+        if t in vowels:
+            assert _aperture(pose) >= OPEN_APERTURE and pose["jawOpen"] > 0.3, (t, pose)
+        else:
+            assert _aperture(pose) <= LIP_CLOSED, (t, pose)
+
+    # Screenshots: the first open vowel and the /m/ closing the syllable after it ("mom").
+    vowel = vowels[0]
+    nasal = min(t for t in nasals if t > vowel)
+    interior = {}
+    for name, t in (("vowel", vowel), ("m", nasal)):
+        _pose_at(page, t, channels)
+        path = screenshot_dir / f"ict_head_{name}_{t:.3f}s.png"
+        _screenshot(page, path)
+        interior[name] = _mouth_interior(path)
+    # Open: tongue and gums show, low in the face and centred; closed: the lips hide them.
+    rows, cols = np.nonzero(interior["vowel"])
+    height, width = interior["vowel"].shape
+    assert interior["vowel"].mean() > 0.002, "no mouth interior visible at the open vowel"
+    assert 0.55 * height < rows.mean() < 0.85 * height and abs(cols.mean() - width / 2) < 0.1 * width
+    assert interior["m"].sum() < 20, "mouth interior visible at /m/"
+
+
+def _mouth_interior(path: Path) -> np.ndarray:
+    """Pixels of a screenshot in the tongue's and gums' pink (red, green under 0.7 of red): skin is not."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        rgb = np.asarray(image.convert("RGB"), dtype=float) / 255.0
+    return (rgb[..., 0] > 0.5) & (rgb[..., 1] < 0.7 * rgb[..., 0])
+
+
+CLOCK_PROBE = """
+async ([seconds]) => {
+  // Instrument the page: note where the Web Audio API was told to start each sound, and
+  // record, at every draw of the performer, the pose's time and frame beside the audio
+  // output clock read at the same moment.
+  const v = window.vispeech, performer = v.performer, context = performer.context;
+  const starts = [];
+  const start = AudioBufferSourceNode.prototype.start;
+  AudioBufferSourceNode.prototype.start = function (when = 0, offset = 0, ...rest) {
+    starts.push({when: Math.max(when, context.currentTime), offset});
+    return start.call(this, when, offset, ...rest);
+  };
+  const draws = [];
+  const tick = performer.tick;
+  performer.tick = function (...args) {
+    const before = performance.now();
+    tick.apply(this, args);
+    const after = performance.now();
+    const out = context.getOutputTimestamp();
+    draws.push({before, after, shown: v.clock(), frame: v.frameIndex(), audioTime: v.audioTime(),
+                state: this.state, outContext: out.contextTime, outPerformance: out.performanceTime});
+  };
+  try {
+    v.play(0);
+    const t0 = performance.now();
+    await new Promise((done) => setTimeout(done, seconds * 1000));
+    return {starts, draws, t0};
+  } finally {
+    performer.tick = tick;
+    AudioBufferSourceNode.prototype.start = start;
+  }
+}
+"""
+
+
+def test_animation_clock_follows_the_audio_within_one_frame(page, speech):
+    animation = speech["animation"]
+    fps, start_time = animation["fps"], animation["start_time"]
+    duration = speech["animation"]["phones"]["phones"][-1]["end"]
+    probe = page.evaluate(CLOCK_PROBE, [duration + 0.3])
+    assert len(probe["starts"]) == 1, probe["starts"]  # one sound: the utterance, from its start
+    sound = probe["starts"][0]
+    playing = [d for d in probe["draws"] if d["state"] == "playing" and 0 <= d["shown"] <= duration]
+    for d in playing:
+        # The audio heard when the pose was computed: the output clock's context time,
+        # carried to that moment, mapped to utterance time by where the sound was started.
+        heard_context = d["outContext"] + (d["before"] - d["outPerformance"]) / 1000
+        d["audio"] = sound["offset"] + heard_context - sound["when"]
+    assert len(playing) >= 5
+    span = playing[-1]["audio"] - playing[0]["audio"]
+    assert span > 0.6 * duration  # sampled across the utterance, in real time
+    wall = (playing[-1]["before"] - playing[0]["before"]) / 1000
+    assert abs(span - wall) <= 1 / fps  # the audio clock runs at real speed
+    for d in playing:
+        assert abs(d["shown"] - d["audioTime"]) <= 1 / fps, d
+        assert abs(d["shown"] - d["audio"]) <= 1 / fps, d
+        assert abs(start_time + d["frame"] / fps - d["audio"]) <= 1 / fps, d
