@@ -81,7 +81,7 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
         model.save(out_dir)
         shutil.rmtree(checkpoint, ignore_errors=True)
     else:
-        model.fit(corpus)
+        model.fit(corpus, progress=not quiet)
         model.save(out_dir)
     _summary(model, corpus, out_dir)
 
