@@ -5,6 +5,14 @@ with the ICT head; headless Chromium renders it with SwiftShader and plays the a
 real (no virtual time). Skipped when ``/usr/bin/chromium``, the ``playwright`` package or
 the shared ICT head is missing; ``.ci/run`` installs the first two. Set
 ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots there as well.
+
+Clock sync is measured at each draw of the page's performer (``Performer.tick``, wrapped by
+the test): the pose's time (``clock()``) and frame (``frameIndex()``) it just computed are
+compared with the audio heard at that moment, read from the audio output clock
+(``AudioContext.getOutputTimestamp``) and mapped to utterance time through the
+``AudioBufferSourceNode.start(when, offset)`` call that started the sound. SwiftShader paints
+only a few frames a second here, so what is asserted is the time of the pose each draw puts
+on screen, not how often the screen is painted.
 """
 
 from __future__ import annotations
@@ -113,6 +121,7 @@ def _pose_at(page, t: float, channels) -> dict[str, float]:
 
 
 def _aperture(pose: dict[str, float]) -> float:
+    """The project's lip aperture (0..1) of one pose."""
     return float(lip_aperture(Track(np.array([list(pose.values())]), tuple(pose), 30.0))[0])
 
 
@@ -129,6 +138,15 @@ def _screenshot(page, path: Path) -> None:
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
         shutil.copy(path, Path(keep) / path.name)
+
+
+def _mouth_interior(path: Path) -> np.ndarray:
+    """Pixels of a screenshot in the tongue's and gums' pink (red, green under 0.7 of red): skin is not."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        rgb = np.asarray(image.convert("RGB"), dtype=float) / 255.0
+    return (rgb[..., 0] > 0.5) & (rgb[..., 1] < 0.7 * rgb[..., 0])
 
 
 def test_viewer_loads_the_ict_head_with_its_credit(page):
@@ -181,15 +199,6 @@ def test_mouth_is_open_at_open_vowels_and_closed_at_m(page, speech, screenshot_d
     assert interior["m"].sum() < 20, "mouth interior visible at /m/"
 
 
-def _mouth_interior(path: Path) -> np.ndarray:
-    """Pixels of a screenshot in the tongue's and gums' pink (red, green under 0.7 of red): skin is not."""
-    from PIL import Image
-
-    with Image.open(path) as image:
-        rgb = np.asarray(image.convert("RGB"), dtype=float) / 255.0
-    return (rgb[..., 0] > 0.5) & (rgb[..., 1] < 0.7 * rgb[..., 0])
-
-
 CLOCK_PROBE = """
 async ([seconds]) => {
   // Instrument the page: note where the Web Audio API was told to start each sound, and
@@ -207,16 +216,14 @@ async ([seconds]) => {
   performer.tick = function (...args) {
     const before = performance.now();
     tick.apply(this, args);
-    const after = performance.now();
     const out = context.getOutputTimestamp();
-    draws.push({before, after, shown: v.clock(), frame: v.frameIndex(), audioTime: v.audioTime(),
+    draws.push({before, shown: v.clock(), frame: v.frameIndex(), audioTime: v.audioTime(),
                 state: this.state, outContext: out.contextTime, outPerformance: out.performanceTime});
   };
   try {
     v.play(0);
-    const t0 = performance.now();
     await new Promise((done) => setTimeout(done, seconds * 1000));
-    return {starts, draws, t0};
+    return {starts, draws};
   } finally {
     performer.tick = tick;
     AudioBufferSourceNode.prototype.start = start;
