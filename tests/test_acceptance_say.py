@@ -8,9 +8,10 @@ from conftest import read_sentences
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
 from vispeech.phonetics.inventory import is_vowel
-from vispeech.pipeline import speak
+from vispeech.pipeline import DEFAULT_MODEL, speak
 
-MODELS = ["baseline", "beskow-rules", "cohen-massaro", "ohman"]
+MODELS = ["baseline", "beskow-rules", "cohen-massaro", "ohman", DEFAULT_MODEL]
+"""The data-free models and the shipped default (GRID-trained, English data, features input)."""
 BILABIALS = {"p", "b", "m", "P", "B", "M"}
 SENTENCES = [("sv", s) for s in read_sentences("sv")] + [("en", s) for s in read_sentences("en")]
 

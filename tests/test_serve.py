@@ -20,7 +20,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 import vispeech.preview  # noqa: E402
 from vispeech.errors import VispeechError  # noqa: E402
-from vispeech.pipeline import GREETINGS  # noqa: E402
+from vispeech.pipeline import DEFAULT_MODEL, GREETINGS  # noqa: E402
 from vispeech.serve import (  # noqa: E402
     CacheKey, ChatBotError, HTTPChatBot, RuleBot, ServeConfig, UtteranceCache, create_app,
 )
@@ -54,7 +54,7 @@ def test_config(client, site):
     config = client.get("/api/config").json()
     assert config["avatar_url"] == "/avatar.glb"
     assert config["languages"] == ["sv", "en"]
-    assert config["default_model"] == "baseline" and "baseline" in config["models"]
+    assert config["default_model"] == DEFAULT_MODEL and {"baseline", DEFAULT_MODEL} <= set(config["models"])
     assert "tdnn-beskow" not in config["models"]  # untrained networks are not offered
     assert config["fps"] == 30.0 and config["max_text"] == 1000
     assert client.get("/avatar.glb").content == site["avatar"].read_bytes()

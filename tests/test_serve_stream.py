@@ -42,7 +42,9 @@ def offline(rows, language: str = "en") -> PhoneSequence:
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
     cache = tmp_path_factory.mktemp("stream") / "cache.sqlite3"
-    with TestClient(create_app(ServeConfig(cache=cache, rate_limit=0))) as client:
+    # the window stream over a data-free model (the shipped default network streams itself)
+    config = ServeConfig(cache=cache, rate_limit=0, default_model="baseline")
+    with TestClient(create_app(config)) as client:
         yield client
 
 

@@ -6,7 +6,7 @@ The CLI (``say``, ``animate-phones``) and the server are thin layers over these 
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +20,11 @@ from vispeech.models.base import ControlModel
 from vispeech.models.registry import load_model
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track
-from vispeech.postprocess import PostprocessConfig, postprocess
+from vispeech.postprocess import PostprocessConfig, SoftCeiling, postprocess
 
 DEFAULT_FPS = 30.0
-DEFAULT_MODEL = "baseline"
+DEFAULT_MODEL = "grid-tdnn"
+"""The shipped network trained on GRID (``vispeech/models/pretrained``), for every language."""
 GREETINGS = {
     "sv": "Hej! Hur kan jag hjälpa dig idag?",
     "en": "Hello, how can I help you today?",
@@ -61,15 +62,35 @@ def animate(
 
     ``model`` is a model name (see :data:`vispeech.models.registry.MODEL_NAMES`), a saved
     model folder or a model object; ``postprocessing`` is a configuration, ``True`` for the
-    default one or ``False`` for none.
+    one the model recommends (:func:`postprocess_config`) or ``False`` for none.
     """
     phones.validate()
     estimator = model if isinstance(model, ControlModel) else load_model(model)
     track = estimator.predict(phones, fps)
     if postprocessing is False:
         return track
-    config = postprocessing if isinstance(postprocessing, PostprocessConfig) else None
+    config = postprocessing if isinstance(postprocessing, PostprocessConfig) else postprocess_config(estimator)
     return postprocess(track, phones, config)
+
+
+def postprocess_config(model: ControlModel) -> PostprocessConfig:
+    """The post-processing ``model`` recommends: its :attr:`~ControlModel.postprocessing` entry
+    (fields of :class:`PostprocessConfig`, ceilings as ``{channel: {"threshold", "maximum",
+    "input_max"}}``) over the defaults, or the defaults when it has none."""
+    recommended = model.postprocessing
+    if recommended is None:
+        return PostprocessConfig()
+    known = {f.name for f in fields(PostprocessConfig)}
+    unknown = sorted(set(recommended) - known)
+    if unknown:
+        raise VispeechError(f"model {model.name} recommends unknown post-processing settings: {', '.join(unknown)}")
+    settings = dict(recommended)
+    try:
+        if "ceilings" in settings:
+            settings["ceilings"] = {channel: SoftCeiling(**ceiling) for channel, ceiling in settings["ceilings"].items()}
+        return PostprocessConfig(**settings)
+    except (TypeError, AttributeError) as exc:
+        raise VispeechError(f"model {model.name} recommends bad post-processing settings: {exc}") from None
 
 
 def speak(

@@ -1,8 +1,9 @@
 """The control-model protocol: ``predict`` phones to a track, ``fit``, ``save`` and ``load``.
 
 Every model saves to the same folder format: ``config.json`` holding
-``{"model", "version", "vispeech", "channels", "params", "arrays"}`` and, only when the model
-has arrays (``"arrays"`` lists their names), ``weights.npz`` (read without pickle).
+``{"model", "version", "vispeech", "channels", "params", "arrays"}`` (plus
+``"postprocessing"`` when the model recommends its own post-processing) and, only when the
+model has arrays (``"arrays"`` lists their names), ``weights.npz`` (read without pickle).
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ class ControlModel(ABC):
 
     name: ClassVar[str] = ""
     channels: tuple[str, ...] = ()
+    postprocessing: dict | None = None
+    """Recommended post-processing: :class:`vispeech.postprocess.PostprocessConfig` fields as
+    plain JSON, used by :func:`vispeech.pipeline.animate` instead of the defaults; saved in
+    ``config.json`` as ``"postprocessing"`` (left out when ``None``)."""
 
     def __init__(self, params: Mapping | None = None, **options):
         merged = self.default_params()
@@ -113,6 +118,8 @@ class ControlModel(ABC):
             "params": self.get_params(),
             "arrays": sorted(arrays),
         }
+        if self.postprocessing is not None:
+            config["postprocessing"] = self.postprocessing
         with atomic_output_dir(path) as staging:
             (staging / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if arrays:
@@ -144,9 +151,13 @@ class ControlModel(ABC):
             raise VispeechError(f"{folder} holds a {name} model, not a {cls.name} model")
         if not isinstance(params, dict) or not isinstance(config.get("arrays", []), list):
             raise VispeechError(f"corrupt model config {config_path}: params must be an object and arrays a list")
+        recommended = config.get("postprocessing")
+        if recommended is not None and not isinstance(recommended, dict):
+            raise VispeechError(f"corrupt model config {config_path}: postprocessing must be an object")
         model = model_cls._from_folder(folder, config)
         if list(model.channels) != channels:
             raise VispeechError(f"{config_path} lists channels that do not match the {name} model's")
+        model.postprocessing = recommended
         return model
 
 

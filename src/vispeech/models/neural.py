@@ -364,6 +364,8 @@ class NeuralControlModel(ControlModel):
                 "history": history.to_dict(),
             },
         }
+        if self.postprocessing is not None:
+            config["postprocessing"] = self.postprocessing
         with atomic_output_dir(folder) as staging:
             (staging / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if weights is not None:

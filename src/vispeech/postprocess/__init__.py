@@ -7,7 +7,7 @@ jaw's peaks to vowels; the soft ceilings; ``mouthClose ≤ jawOpen``; clipping t
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,7 +34,10 @@ class PostprocessConfig:
 
     ``jaw_shift``: the thesis's a (0 = off). ``overlays``: consonant overlays, with
     ``fade_in`` (phone lengths) and ``fade_out`` (a per-phone spec of phone lengths, ``None``
-    for the default). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
+    for the default); ``overlay_features`` limits them to consonants with one of these
+    articulatory features (``None``: all), and ``keep_jaw`` makes them leave jawOpen alone and
+    reach each viseme's lip opening through mouthClose (for models that learned the jaw from
+    recordings). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
     ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
     ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
     jawOpen (ARKit's lips interpenetrate beyond that).
@@ -44,6 +47,8 @@ class PostprocessConfig:
     overlays: bool = True
     fade_in: float = 1.5
     fade_out: Mapping | None = None
+    overlay_features: Sequence[str] | None = None
+    keep_jaw: bool = False
     upper_lip: float = 0.0
     jaw_peaks_in_vowels: bool = True
     ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
@@ -69,7 +74,8 @@ def postprocess(track: Track, phones: PhoneSequence, config: PostprocessConfig |
     if config.upper_lip > 0:
         out = upper_lip_overlay(out, phones, config.upper_lip)
     if config.overlays:
-        out = consonant_overlays(out, phones, config.fade_in, config.fade_out)
+        out = consonant_overlays(out, phones, config.fade_in, config.fade_out, config.overlay_features,
+                                 config.keep_jaw)
     if config.jaw_peaks_in_vowels and "jawOpen" in out.channels:
         jaw = out.index("jawOpen")
         out.values[:, jaw] = confine_peaks(out.values[:, jaw], _vowel_frames(out, phones))

@@ -14,15 +14,22 @@ lower lip to the upper teeth. Only consonants
 sharing an anchor frame compete there: overlays go from the most open viseme to the most
 closed, bilabials last, so the tightest constriction wins. An overlay never raises jawOpen
 (x ← min(x, blend)), so the jaw's peaks stay with the vowels.
+
+Options for models that learned the jaw from recordings: ``features`` overlays only the
+consonants with one of the given articulatory features (e.g. bilabial and labiodental), and
+``keep_jaw`` leaves jawOpen alone and blends mouthClose towards ``jawOpen − (v_jawOpen −
+v_mouthClose)`` instead, so each viseme's lip opening (jawOpen − mouthClose) is reached at
+whatever height the model put the jaw.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
+from vispeech.errors import VispeechError
 from vispeech.models.targets import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
 from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
@@ -58,17 +65,30 @@ def anchor_frames(starts: np.ndarray, ends: np.ndarray, fps: float, n_frames: in
 
 
 def consonant_overlays(
-    track: Track, phones: PhoneSequence, fade_in: float = 1.5, fade_out: Mapping | None = None
+    track: Track,
+    phones: PhoneSequence,
+    fade_in: float = 1.5,
+    fade_out: Mapping | None = None,
+    features: Sequence[str] | None = None,
+    keep_jaw: bool = False,
 ) -> Track:
     """``track`` with every consonant's viseme blended in (see the module docstring).
 
     ``fade_in`` is in phone lengths; ``fade_out`` is a per-phone spec of phone lengths
-    (default :data:`DEFAULT_FADE_OUT`). Channels the visemes set but the track lacks are added.
+    (default :data:`DEFAULT_FADE_OUT`). ``features``: overlay only consonants with one of
+    these articulatory features (``None``: every consonant). ``keep_jaw``: leave jawOpen as
+    it is and reach each viseme's lip opening through mouthClose. Channels the visemes set
+    but the track lacks are added.
     """
     language = phones.language
     rows = phone_rows(language)
     index = rows.indices(phones.symbols, [p.stress for p in phones])
     is_consonant = (rows.features[index, _VOWEL] == 0) & (rows.features[index, _SILENCE] == 0)
+    if features is not None:
+        unknown = [f for f in features if f not in FEATURE_NAMES]
+        if unknown:
+            raise VispeechError(f"unknown articulatory features {', '.join(unknown)} for overlays")
+        is_consonant &= (rows.features[np.ix_(index, [FEATURE_NAMES.index(f) for f in features])] > 0).any(axis=1)
     consonants = [p for p, keep in zip(phones, is_consonant) if keep]
     index = index[is_consonant]
     out = track.select(track.channels + tuple(c for c in TARGET_CHANNELS if c not in track.channels))
@@ -120,15 +140,20 @@ def consonant_overlays(
     offsets = np.concatenate(([0], np.cumsum(counts)))
 
     columns = [out.channels.index(c) for c in TARGET_CHANNELS]
-    jaw = TARGET_CHANNELS.index("jawOpen")
+    jaw, close = TARGET_CHANNELS.index("jawOpen"), TARGET_CHANNELS.index("mouthClose")
     values = out.values
     bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
     for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i])):
         frames = slice(lo[i], hi[i] + 1)
         s = strength[offsets[i]:offsets[i + 1]]
         for ch in np.flatnonzero(defined[i]):
+            if keep_jaw and ch == jaw:
+                continue
             col = values[frames, columns[ch]]
-            blended = col + s * (visemes[i, ch] - col)
+            target = visemes[i, ch]
+            if keep_jaw and ch == close and defined[i, jaw]:
+                target = np.maximum(values[frames, columns[jaw]] - (visemes[i, jaw] - visemes[i, close]), 0.0)
+            blended = col + s * (target - col)
             values[frames, columns[ch]] = np.minimum(col, blended) if ch == jaw else blended
     return out
 

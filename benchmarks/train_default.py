@@ -1,0 +1,104 @@
+"""Train a shipped model from scratch on GRID speaker 1 and print its figures.
+
+    python benchmarks/train_default.py [--model grid-tdnn] [--corpus ../shared/data/grid_s1]
+                                       [--output DIR] [--threads 2]
+
+Reads and aligns the corpus (pocketsphinx; cached in ~/.cache/vispeech, about 90 s the first
+time), trains the architecture of ``--model`` (:data:`ARCHITECTURES`) on the train split with
+early stopping on the validation split, saves it with its recommended post-processing
+(:data:`POSTPROCESSING`) to ``--output`` (default: its folder in
+src/vispeech/models/pretrained, i.e. it replaces the shipped weights) and prints the training
+time and, on the validation and test splits, jawOpen Pearson r and RMSE and the lip-closure
+figures, with and without post-processing. Scores are taken at the corpus's 25 fps over the
+speech span (first word − 0.1 s to last word + 0.1 s) as ``vispeech evaluate`` does.
+
+The architectures and settings were chosen on the validation split only (docs/default-model.md);
+the test figures are for reporting. A fit is repeatable on one machine and thread count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+import warnings
+from pathlib import Path
+
+from vispeech.corpus import CorpusWarning, align_corpus, read_grid
+from vispeech.evaluation import evaluate_models
+from vispeech.models.registry import PRETRAINED, create_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_MOUTH_REST = [
+    "jawForward", "mouthFunnel", "mouthPucker", "mouthSmileLeft", "mouthDimpleLeft", "mouthStretchLeft",
+    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper", "mouthPressLeft",
+    "mouthLowerDownLeft", "mouthUpperUpLeft", "cheekPuff", "cheekSquintLeft", "noseSneerLeft",
+]
+_SETTINGS = {
+    "inputs": "features",  # language-independent: the English-trained model speaks Swedish too
+    "linguistic": True,
+    "groups": [["jawOpen", "mouthClose"], _MOUTH_REST],  # the jaw gets its own hidden layer
+    "hidden": [50, 100],
+    "lr_step_down": True,
+    "patience": 15,
+}
+
+ARCHITECTURES: dict[str, tuple[str, dict]] = {
+    "grid-tdnn": ("tdnn-beskow", _SETTINGS),
+    "grid-tdnn-lowlatency": ("tdnn-lowlatency", _SETTINGS),
+}
+"""Registered architecture and parameters (over its preset, 60 fps) of each shipped model."""
+
+POSTPROCESSING: dict = {
+    "jaw_shift": 0.0,
+    "ceilings": {},
+    "overlay_features": ["bilabial", "labiodental"],
+    "keep_jaw": True,
+}
+"""Post-processing the shipped models recommend (saved in their config.json): only the
+bilabial and labiodental overlays, keeping the learned jaw; no jaw range shift or ceilings."""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", default="grid-tdnn", choices=sorted(ARCHITECTURES))
+    parser.add_argument("--corpus", type=Path, default=ROOT.parent / "shared" / "data" / "grid_s1")
+    parser.add_argument("--output", type=Path, default=None, help="model folder [default: the shipped one]")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads while training")
+    args = parser.parse_args()
+    output = args.output or ROOT / "src" / "vispeech" / "models" / "pretrained" / PRETRAINED[args.model]
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorpusWarning)
+        corpus = read_grid(args.corpus)
+        start = time.perf_counter()
+        align_corpus(corpus, progress=True)
+    print(f"{corpus.name}: {len(corpus)} utterances aligned in {time.perf_counter() - start:.0f} s; "
+          + ", ".join(f"{s} {len(corpus.split(s))}" for s in ("train", "validation", "test")))
+
+    architecture, params = ARCHITECTURES[args.model]
+    model = create_model(architecture, **params, num_threads=args.threads)
+    start = time.perf_counter()
+    model.fit(corpus)
+    seconds = time.perf_counter() - start
+    model.postprocessing = POSTPROCESSING
+    model.save(output)
+    history = model.history
+    print(f"{args.model} ({architecture}) -> {output}")
+    print(f"training: {seconds:.0f} s on {args.threads} threads, {history.epochs} epochs "
+          f"(best {history.best_epoch}, validation loss {history.validation_loss[history.best_epoch - 1]:.4f})")
+
+    print(f"{'split':<11} {'post-proc.':<10} {'r':>6} {'RMSE':>7} {'/p b m/ closed':>15} {'closed %':>9} {'tracked %':>9}")
+    for split in ("validation", "test"):
+        for postprocessing in (False, True):
+            result = evaluate_models(corpus.split(split), {args.model: model}, channels=["jawOpen"],
+                                     postprocessing=postprocessing).models[0]
+            jaw, c = result.scores["jawOpen"], result.closures
+            print(f"{split:<11} {'on' if postprocessing else 'off':<10} {jaw['r']:6.3f} {math.sqrt(jaw['mse']):7.4f} "
+                  f"{f'{c.model_closures}/{c.tracked_closures} {c.bilabial_rate:.1f} %':>15} "
+                  f"{c.model_closed_share:9.1f} {c.tracked_closed_share:9.1f}")
+
+
+if __name__ == "__main__":
+    main()
