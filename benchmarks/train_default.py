@@ -5,8 +5,8 @@
 
 Reads and aligns the corpus (pocketsphinx; cached in ~/.cache/vispeech, about 90 s the first
 time), trains the architecture of ``--model`` (:data:`ARCHITECTURES`) on the train split with
-early stopping on the validation split, saves it with its recommended post-processing
-(:data:`POSTPROCESSING`) to ``--output`` (default: its folder in
+early stopping on the validation split, saves it with the post-processing every fitted
+model recommends (:data:`vispeech.postprocess.LEARNED_JAW`) to ``--output`` (default: its folder in
 src/vispeech/models/pretrained, i.e. it replaces the shipped weights) and prints the training
 time and, on the validation and test splits, jawOpen Pearson r and RMSE and the lip-closure
 figures, with and without post-processing. Scores are taken at the corpus's 25 fps over the
@@ -50,16 +50,6 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
 }
 """Registered architecture and parameters (over its preset, 60 fps) of each shipped model."""
 
-POSTPROCESSING: dict = {
-    "jaw_shift": 0.0,
-    "ceilings": {},
-    "overlay_features": ["bilabial", "labiodental"],
-    "keep_jaw": True,
-}
-"""Post-processing the shipped models recommend (saved in their config.json): only the
-bilabial and labiodental overlays, keeping the learned jaw; no jaw range shift or ceilings."""
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", default="grid-tdnn", choices=sorted(ARCHITECTURES))
@@ -82,7 +72,6 @@ def main() -> None:
     start = time.perf_counter()
     model.fit(corpus)
     seconds = time.perf_counter() - start
-    model.postprocessing = POSTPROCESSING
     model.save(output)
     history = model.history
     print(f"{args.model} ({architecture}) -> {output}")

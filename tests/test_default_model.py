@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from vispeech import Phone, PhoneSequence, Track, VispeechError
-from vispeech.models.base import ControlModel
 from vispeech.models.registry import MODEL_NAMES, PRETRAINED, create_model, load_model, pretrained_path
 from vispeech.models.tdnn import TimeDelayNetwork
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture

@@ -16,6 +16,7 @@ from vispeech.models.dominance_fit import ChannelProblem, FitData, PhoneTying, l
 from vispeech.models.ohman import Ohman
 from vispeech.models.targets import phone_rows
 from vispeech.motion.track import Track
+from vispeech.postprocess import LEARNED_JAW
 
 SYMBOLS = ("AA", "IY", "UW", "B", "S", "L")
 CHANNELS = ("jawOpen", "mouthPucker")
@@ -191,6 +192,7 @@ def test_a_fitted_model_saves_and_loads_to_identical_predictions(tmp_path):
         model.fit(train, validation=[], channels=CHANNELS, max_iterations=3, progress=False)
         loaded = ControlModel.load(model.save(tmp_path / model.name))
         assert type(loaded) is type(model) and loaded.get_params() == model.get_params()
+        assert loaded.postprocessing == dict(LEARNED_JAW)  # a fitted jaw is left to the model
         for phones in (english, swedish):
             assert np.array_equal(loaded.predict(phones, 30).values, model.predict(phones, 30).values)
         # phones and languages the data lacks keep their defaults

@@ -11,6 +11,7 @@ from vispeech.models.registry import create_model, load_model
 from vispeech.models.sliding_window import SlidingWindowNetwork
 from vispeech.models.tdnn import TimeDelayNetwork
 from vispeech.motion.arkit import ARKIT_NAMES
+from vispeech.postprocess import LEARNED_JAW
 
 VOWELS = ("AA", "AE", "IY", "UW", "OW", "EH")
 CONSONANTS = ("P", "B", "M", "T", "S", "K", "F", "L")
@@ -127,6 +128,7 @@ def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_p
     loaded = load_model(folder)
     assert type(loaded) is type(model) and loaded.name == model.name
     assert loaded.history == model.history
+    assert loaded.postprocessing == dict(LEARNED_JAW)  # a learned jaw is left to the model
     for utterance in held_out:
         a, b = model.predict(utterance.phones, FPS), loaded.predict(utterance.phones, FPS)
         assert a.channels == b.channels

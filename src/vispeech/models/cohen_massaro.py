@@ -33,6 +33,7 @@ from vispeech.models.segments import Segments
 from vispeech.models.targets import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES
+from vispeech.postprocess import LEARNED_JAW
 
 _PARAMETERS = ("alpha", "theta", "phi", "c")
 
@@ -139,6 +140,7 @@ class CohenMassaro(PhoneTargetModel):
             params[name] = with_phone_values(params[name], tying, data.channels, values[name], self.channels)
         self.__init__(params)
         self.history = history
+        self.postprocessing = dict(LEARNED_JAW)
         return self
 
 

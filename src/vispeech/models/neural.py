@@ -43,6 +43,7 @@ from vispeech.models.encoding import InputEncoding
 from vispeech.models.training import STATE_JSON, TrainingHistory
 from vispeech.motion.arkit import ARKIT_NAMES, MOUTH_CHANNELS
 from vispeech.motion.track import Track
+from vispeech.postprocess import LEARNED_JAW
 
 if TYPE_CHECKING:
     import torch
@@ -243,6 +244,7 @@ class NeuralControlModel(ControlModel):
             torch.set_num_threads(threads)
         self.history = state.history
         self._inference = None
+        self.postprocessing = dict(LEARNED_JAW)
         return self
 
     def _prepare(self, train_set: list, corpus) -> None:

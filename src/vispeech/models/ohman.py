@@ -34,6 +34,7 @@ from vispeech.models.segments import Segments
 from vispeech.models.targets import phone_rows, resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
+from vispeech.postprocess import LEARNED_JAW
 
 
 def smoothstep(s: np.ndarray) -> np.ndarray:
@@ -106,6 +107,7 @@ class Ohman(PhoneTargetModel):
         params["w_c"] = with_phone_values(params["w_c"], factors, data.channels, x[:, n:].T, self.channels)
         self.__init__(params)
         self.history = history
+        self.postprocessing = dict(LEARNED_JAW)
         return self
 
 

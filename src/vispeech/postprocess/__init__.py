@@ -19,7 +19,14 @@ from vispeech.phonetics.inventory import is_vowel
 from vispeech.postprocess.overlays import anchor_frames, consonant_overlays, upper_lip_overlay
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
 
-__all__ = ["DEFAULT_CEILINGS", "PostprocessConfig", "SoftCeiling", "postprocess"]
+__all__ = ["DEFAULT_CEILINGS", "LEARNED_JAW", "PostprocessConfig", "SoftCeiling", "postprocess"]
+
+LEARNED_JAW: Mapping = {
+    "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ["bilabial", "labiodental"], "keep_jaw": True,
+}
+"""The post-processing a model fitted to recordings recommends (saved in its config.json):
+no jaw range shift or absolute ceilings (tuned for iPhone-scale authored targets), overlays
+only for /p b m/ and /f v/, closing the lips through mouthClose and leaving the learned jaw alone."""
 
 DEFAULT_CEILINGS: Mapping[str, SoftCeiling] = {
     "jawOpen": SoftCeiling(threshold=0.45, maximum=0.55),
