@@ -43,7 +43,7 @@ def offline(rows, language: str = "en") -> PhoneSequence:
 def client(tmp_path_factory):
     cache = tmp_path_factory.mktemp("stream") / "cache.sqlite3"
     # the window stream over a data-free model (the shipped default network streams itself)
-    config = ServeConfig(cache=cache, rate_limit=0, default_model="baseline")
+    config = ServeConfig(cache=cache, rate_limit=0, default_model="baseline", stream_model="baseline")
     with TestClient(create_app(config)) as client:
         yield client
 
@@ -265,3 +265,10 @@ def test_stream_command_times_a_real_server(tmp_path):
         thread.join(10)
     gone = CliRunner().invoke(main, ["stream", "hi", "--url", url])
     assert gone.exit_code == 2 and "failed" in gone.output
+
+
+def test_streams_use_the_shipped_low_latency_network_by_default(tmp_path):
+    from fastapi.testclient import TestClient
+
+    with TestClient(create_app(ServeConfig(cache=":memory:", rate_limit=0))) as served:
+        assert served.get("/api/config").json()["stream_model"] == "grid-tdnn-lowlatency"

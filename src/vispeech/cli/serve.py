@@ -22,7 +22,7 @@ from vispeech.pipeline import DEFAULT_MODEL
 @click.option("--model", "default_model", default=DEFAULT_MODEL, show_default=True,
               help="Default model of /api/speak and /api/chat.")
 @click.option("--stream-model", help="Model name or saved model folder for /api/stream "
-              "[default: tdnn-lowlatency when trained, else --model].")
+              "[default: the shipped grid-tdnn-lowlatency].")
 @click.option("--rate-limit", default=2.0, show_default=True, type=click.FloatRange(min=0),
               help="Requests a second per client IP for speak, chat and stream texts (0: no limit).")
 @click.option("--burst", default=20, show_default=True, type=click.IntRange(min=1),

@@ -55,8 +55,8 @@ log = logging.getLogger("vispeech.serve")
 STATIC_DIR = Path(__file__).parent / "static"
 """Where ``web/build.mjs`` puts the built web app."""
 
-LOW_LATENCY_MODEL = "tdnn-lowlatency"
-"""The model the stream prefers when it is trained."""
+LOW_LATENCY_MODEL = "grid-tdnn-lowlatency"
+"""The shipped low-latency network (2 frames of look-ahead): what the stream uses unless told otherwise."""
 
 _PAGES = {"/": "index.html", "/player": "player.html", "/viewer": "viewer.html"}
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -69,7 +69,7 @@ class ServeConfig:
 
     ``cache``: SQLite file of the utterance cache (``None``: the user cache folder,
     ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
-    when a message names none; ``None`` picks ``tdnn-lowlatency`` if it is trained and
+    when a message names none; ``None`` picks the shipped ``grid-tdnn-lowlatency`` if it is there and
     otherwise ``default_model``. ``rate_limit``: requests a second per client IP for speak,
     chat and stream text messages (0 = no limit), with bursts of ``burst``. Sizes are bytes.
     ``static_dir``: the built web app (default :data:`STATIC_DIR`). ``avatar_credit``: a
