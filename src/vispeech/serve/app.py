@@ -37,7 +37,7 @@ from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import VOICES
 from vispeech.models.base import ControlModel
-from vispeech.models.registry import MODEL_NAMES, create_model, load_model
+from vispeech.models.registry import MODEL_NAMES, PRETRAINED, create_model, load_model, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, speak
@@ -102,7 +102,7 @@ class SpeechService:
         for name in MODEL_NAMES:
             model = create_model(name)
             if getattr(model, "is_trained", True):
-                self._add(name, model)
+                self._add(name, model, pretrained_path(name) if name in PRETRAINED else None)
         if config.default_model not in self.models:
             raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
         self.stream_model = self._choose_stream_model(config.stream_model)
