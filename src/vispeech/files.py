@@ -12,6 +12,27 @@ from pathlib import Path
 from vispeech.errors import VispeechError
 
 
+def read_text(path: str | os.PathLike, what: str = "file") -> str:
+    """The text of ``path`` (UTF-8 with or without BOM, UTF-16 with BOM, else Latin-1).
+
+    Raises :class:`VispeechError` naming ``what`` when the file is missing, unreadable or blank.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise VispeechError(f"{what} not found: {path}") from None
+    except OSError as exc:
+        raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("utf-16") if data[:2] in (b"\xff\xfe", b"\xfe\xff") else data.decode("latin-1")
+    if not text.strip():
+        raise VispeechError(f"{what} is empty: {path}")
+    return text
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -26,7 +26,7 @@ from praatio.utilities.constants import Interval
 
 from vispeech.alignment.phones import Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, read_text
 from vispeech.phonetics.inventory import guess_language, is_silence, is_vowel, parse_symbol
 
 JSON_FORMAT = "vispeech-phones"
@@ -53,7 +53,7 @@ def read_alignment(path: str | os.PathLike, language: str | None = None) -> Phon
     """
     path = Path(path)
     suffix = _suffix(path)
-    text = _read_text(path)
+    text = read_text(path, "alignment file")
     if suffix == ".json":
         return _from_json(text, path, language)
     if suffix == ".textgrid":
@@ -85,7 +85,7 @@ def write_alignment(phones: PhoneSequence, path: str | os.PathLike) -> None:
 def read_textgrid(path: str | os.PathLike, language: str | None = None) -> PhoneSequence:
     """Read an MFA-style TextGrid (see :func:`read_alignment`)."""
     path = Path(path)
-    _read_text(path)
+    read_text(path, "alignment file")
     phones, words = _textgrid_spans(path)
     return _build(phones, words, path, language)
 
@@ -116,7 +116,7 @@ def read_word_alignment(path: str | os.PathLike) -> list[Word]:
     """
     path = Path(path)
     suffix = _suffix(path)
-    text = _read_text(path)
+    text = read_text(path, "alignment file")
     if suffix == ".json":
         return _from_json(text, path, None).words
     if suffix == ".textgrid":
@@ -132,22 +132,6 @@ def _suffix(path: Path) -> str:
         raise VispeechError(
             f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)")
     return suffix
-
-
-def _read_text(path: Path) -> str:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise VispeechError(f"alignment file not found: {path}") from None
-    except OSError as exc:
-        raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = data.decode("utf-16") if data[:2] in (b"\xff\xfe", b"\xfe\xff") else data.decode("latin-1")
-    if not text.strip():
-        raise VispeechError(f"alignment file is empty: {path}")
-    return text
 
 
 def _table_spans(text: str, path: Path, units: int) -> list[_Span]:

@@ -107,19 +107,24 @@ class ControlModel(ABC):
         arrays = _read_arrays(folder / "weights.npz", names) if names else {}
         return cls._from_saved(config["params"], arrays)
 
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the model into folder ``path`` (created if needed) atomically; returns the folder."""
-        arrays = self._arrays()
+    def _config(self, arrays: list[str]) -> dict:
+        """The ``config.json`` every saved model starts from (``arrays``: names in its weights)."""
         config = {
             "model": self.name,
             "version": FORMAT_VERSION,
             "vispeech": _package_version(),
             "channels": list(self.channels),
             "params": self.get_params(),
-            "arrays": sorted(arrays),
+            "arrays": arrays,
         }
         if self.postprocessing is not None:
             config["postprocessing"] = self.postprocessing
+        return config
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model into folder ``path`` (created if needed) atomically; returns the folder."""
+        arrays = self._arrays()
+        config = self._config(sorted(arrays))
         with atomic_output_dir(path) as staging:
             (staging / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if arrays:

@@ -38,7 +38,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.base import FORMAT_VERSION, ControlModel, _package_version
+from vispeech.models.base import ControlModel
 from vispeech.models.encoding import InputEncoding
 from vispeech.models.training import STATE_JSON, TrainingHistory
 from vispeech.motion.arkit import ARKIT_NAMES, MOUTH_CHANNELS
@@ -352,22 +352,13 @@ class NeuralControlModel(ControlModel):
 
         from vispeech.models.training import save_state
 
-        config = {
-            "model": self.name,
-            "version": FORMAT_VERSION,
-            "vispeech": _package_version(),
-            "channels": list(self.channels),
-            "params": self.get_params(),
-            "arrays": [],
-            "state": None if self.encoding is None else {
-                "encoding": self.encoding.to_dict(),
-                "outputs": list(self.outputs),
-                "fps": self.fps,
-                "history": history.to_dict(),
-            },
+        config = self._config([])
+        config["state"] = None if self.encoding is None else {
+            "encoding": self.encoding.to_dict(),
+            "outputs": list(self.outputs),
+            "fps": self.fps,
+            "history": history.to_dict(),
         }
-        if self.postprocessing is not None:
-            config["postprocessing"] = self.postprocessing
         with atomic_output_dir(folder) as staging:
             (staging / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if weights is not None:

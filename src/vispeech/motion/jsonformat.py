@@ -24,7 +24,7 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, read_text
 from vispeech.motion.track import Track
 
 ANIMATION_FORMAT = "vispeech-animation"
@@ -136,14 +136,7 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
 def load_json(path: str | os.PathLike) -> dict:
     """A JSON object from ``path``; :class:`VispeechError` if missing, empty or not an object."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise VispeechError(f"file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise VispeechError(f"cannot read {path}: {exc}") from None
-    if not text.strip():
-        raise VispeechError(f"file is empty: {path}")
+    text = read_text(path)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

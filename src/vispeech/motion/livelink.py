@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, read_text
 from vispeech.motion.track import Track
 
 LIVELINK_COLUMNS: tuple[str, ...] = (
@@ -102,15 +102,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
     Returns a :class:`Track` whose ``start_time`` is the first timecode in seconds.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise VispeechError(f"Live Link CSV not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise VispeechError(f"cannot read {path}: {exc}") from None
-    lines = [line for line in text.splitlines() if line.strip()]
-    if not lines:
-        raise VispeechError(f"Live Link CSV is empty: {path}")
+    lines = [line for line in read_text(path, "Live Link CSV").splitlines() if line.strip()]
     header = [name.strip() for name in lines[0].split(",")]
     if tuple(header[:2]) != _HEADER or len(header) < 3:
         raise VispeechError(f"{path} is not a Live Link Face CSV: the header must start with Timecode,BlendshapeCount")
