@@ -1,0 +1,53 @@
+"""Record the golden tracks that ``tests/test_golden.py`` reproduces.
+
+Run once, from the repository root, before a change that must not alter any model's output::
+
+    python tests/golden/record.py
+
+It writes ``tests/golden/phones.json`` (the espeak-ng phones of the 20 acceptance sentences,
+kept so that later runs do not depend on espeak-ng's run-to-run jitter) and
+``tests/golden/tracks.npz`` (for every model and sentence, the post-processed track at
+30 fps: float32 values, with the channel names in ``channels/<model>``).
+First recorded at commit 7c41688, before the model-contract rework (issue 7).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+MODELS = ("baseline", "beskow-rules", "cohen-massaro", "ohman", "grid-tdnn", "grid-tdnn-lowlatency")
+FPS = 30.0
+
+
+def main() -> None:
+    from vispeech.alignment.phones import PhoneSequence
+    from vispeech.frontends.espeak import synthesize
+    from vispeech.pipeline import animate
+
+    sentences = [(lang, line.strip()) for lang in ("en", "sv")
+                 for line in (HERE.parent / "data" / f"sentences_{lang}.txt").read_text(encoding="utf-8").splitlines()
+                 if line.strip()]
+    phones_path = HERE / "phones.json"
+    if phones_path.is_file():
+        recorded = json.loads(phones_path.read_text(encoding="utf-8"))
+    else:
+        recorded = [{"text": text, **synthesize(text, lang).phones.to_dict()} for lang, text in sentences]
+        phones_path.write_text(json.dumps(recorded, indent=1) + "\n", encoding="utf-8")
+    arrays: dict[str, np.ndarray] = {}
+    for model in MODELS:
+        for i, entry in enumerate(recorded):
+            phones = PhoneSequence.from_dict(entry)
+            track = animate(phones, model, FPS)
+            arrays[f"{model}/{i}"] = track.values.astype(np.float32)
+            arrays[f"channels/{model}"] = np.array(track.channels)
+    np.savez_compressed(HERE / "tracks.npz", **arrays)
+    print(f"{len(recorded)} sentences x {len(MODELS)} models -> {HERE / 'tracks.npz'}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
