@@ -65,7 +65,7 @@ if [[ $STEP == evaluate || $STEP == all ]]; then
 import math
 import sys
 
-from vispeech.models.targets import TARGET_CHANNELS
+from vispeech.targets.tables import TARGET_CHANNELS
 
 LIPS = [c for c in TARGET_CHANNELS if c.startswith("mouth")]
 

@@ -11,7 +11,7 @@ import pytest
 
 from vispeech import Phone, PhoneSequence, Track, VispeechError
 from vispeech.models.registry import MODEL_NAMES, PRETRAINED, create_model, load_model, pretrained_path
-from vispeech.models.tdnn import TimeDelayNetwork
+from vispeech.models.networks.tdnn import TimeDelayNetwork
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.pipeline import DEFAULT_MODEL, animate, postprocess_config
 from vispeech.postprocess import PostprocessConfig, SoftCeiling, postprocess

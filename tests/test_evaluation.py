@@ -15,7 +15,7 @@ from vispeech.evaluation import (
 from vispeech.evaluation.closures import phone_frames
 from vispeech.evaluation.plots import plot_utterance
 from vispeech.evaluation.report import predict_on_frames
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.models.registry import create_model
 
 FPS = 10.0

@@ -1,4 +1,4 @@
-"""Least-squares fitting of the Cohen–Massaro and Öhman models (vispeech.models.dominance_fit)."""
+"""Least-squares fitting of the Cohen–Massaro and Öhman models (vispeech.models.rules.dominance_fit)."""
 
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,12 +9,12 @@ import pytest
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
-from vispeech.models import cohen_massaro, ohman
-from vispeech.models.base import ControlModel
-from vispeech.models.cohen_massaro import CohenMassaro
-from vispeech.models.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
-from vispeech.models.ohman import Ohman
-from vispeech.models.targets import phone_rows
+from vispeech.models.rules import cohen_massaro, ohman
+from vispeech.models.contract import ControlModel
+from vispeech.models.rules.cohen_massaro import CohenMassaro
+from vispeech.models.rules.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
+from vispeech.models.rules.ohman import Ohman
+from vispeech.targets.tables import phone_rows
 from vispeech.motion.track import Track
 from vispeech.postprocess import LEARNED_JAW
 

@@ -8,12 +8,12 @@ from scipy.signal import find_peaks
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import ControlModel
-from vispeech.models.baseline import Baseline
-from vispeech.models.cohen_massaro import CohenMassaro
-from vispeech.models.ohman import Ohman, smoothstep
+from vispeech.models.contract import ControlModel
+from vispeech.models.rules.baseline import Baseline
+from vispeech.models.rules.cohen_massaro import CohenMassaro
+from vispeech.models.rules.ohman import Ohman, smoothstep
 from vispeech.models.registry import create_model, load_model
-from vispeech.models.targets import TARGET_CHANNELS, target_matrix
+from vispeech.targets.tables import TARGET_CHANNELS, target_matrix
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.phonetics.inventory import get_inventory, is_silence, is_vowel
 from vispeech.postprocess import postprocess
@@ -209,7 +209,7 @@ class _ArrayModel(ControlModel):
 
 
 def test_arrays_round_trip_through_weights_npz_without_pickle(tmp_path, monkeypatch):
-    from vispeech.models import base
+    from vispeech.models import contract as base
 
     monkeypatch.setitem(base._MODELS, _ArrayModel.name, _ArrayModel)
     folder = _ArrayModel(gain=2.0, weights=np.array([0.25, -1.5, 3.0])).save(tmp_path / "a")

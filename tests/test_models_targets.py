@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vispeech.errors import VispeechError
-from vispeech.models.targets import (
+from vispeech.targets.tables import (
     TARGET_CHANNELS,
     TargetTable,
     phone_rows,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from vispeech import Phone, PhoneSequence, Track, VispeechError
-from vispeech.models.neural import THESIS_CHANNELS
+from vispeech.models.networks.network import THESIS_CHANNELS
 from vispeech.models.registry import create_model, load_model
-from vispeech.models.sliding_window import SlidingWindowNetwork
-from vispeech.models.tdnn import TimeDelayNetwork
+from vispeech.models.networks.sliding_window import SlidingWindowNetwork
+from vispeech.models.networks.tdnn import TimeDelayNetwork
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.postprocess import LEARNED_JAW
 

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from vispeech import Phone, PhoneSequence, VispeechError
-from vispeech.models.encoding import LINGUISTIC_NAMES, InputEncoding
-from vispeech.models.networks import overlap_average
+from vispeech.models.networks.encoding import LINGUISTIC_NAMES, InputEncoding
+from vispeech.models.networks.modules import overlap_average
 from vispeech.phonetics.features import FEATURE_NAMES, phone_features
 from vispeech.phonetics.inventory import get_inventory
 

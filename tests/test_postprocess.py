@@ -6,7 +6,7 @@ from scipy.signal import find_peaks
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.targets import phone_targets
+from vispeech.targets.tables import phone_targets
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.motion.track import Track
 from vispeech.postprocess import PostprocessConfig, SoftCeiling, postprocess

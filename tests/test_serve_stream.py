@@ -19,7 +19,7 @@ from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.models.registry import create_model  # noqa: E402
 from vispeech.pipeline import animate  # noqa: E402
 from vispeech.serve import ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
-from vispeech.serve.streaming import ModelPhoneStream, WindowPhoneStream  # noqa: E402
+from vispeech.streaming import ModelPhoneStream, WindowPhoneStream  # noqa: E402
 
 # "hello world", then a pause: (symbol, start, end)
 HELLO = [("sil", 0.0, 0.1), ("HH", 0.1, 0.16), ("AH0", 0.16, 0.22), ("L", 0.22, 0.28), ("OW1", 0.28, 0.45),

@@ -13,7 +13,7 @@ from vispeech.alignment.phones import Phone, Word
 from vispeech.cli import main
 from vispeech.corpus import split_of
 from vispeech.errors import VispeechError
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
 from vispeech.phonetics.inventory import is_vowel
 
@@ -96,7 +96,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
     def fail(self, path):
         raise VispeechError("disk full")
 
-    monkeypatch.setattr("vispeech.models.neural.NeuralControlModel.save", fail)
+    monkeypatch.setattr("vispeech.models.networks.network.NeuralControlModel.save", fail)
     result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "1",
                     "-q", "-o", out)
     assert result.exit_code == 2 and "error: disk full" in result.output

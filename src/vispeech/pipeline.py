@@ -16,7 +16,7 @@ from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.models.registry import load_model
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track

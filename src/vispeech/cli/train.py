@@ -42,8 +42,8 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
     interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
     """
-    from vispeech.models.base import ControlModel
-    from vispeech.models.neural import NeuralControlModel
+    from vispeech.models.contract import ControlModel
+    from vispeech.models.networks.network import NeuralControlModel
     from vispeech.models.registry import model_class
 
     defaults = model_class(model_name).default_params()
@@ -89,7 +89,7 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
 def _summary(model, corpus, out_dir: Path) -> None:
     """Print what fitting did and the model's jaw scores on the test split."""
     from vispeech.evaluation.report import available_channels, evaluate_models
-    from vispeech.models.neural import LOSS_CURVE
+    from vispeech.models.networks.network import LOSS_CURVE
 
     click.echo(f"saved {model.name} -> {out_dir}")
     history = getattr(model, "history", None)

@@ -23,7 +23,7 @@ from vispeech.evaluation.closures import (
     lip_opening, model_closed, tracked_closed,
 )
 from vispeech.evaluation.metrics import SPEECH_MARGIN, ChannelScores, score_channels, speech_frames
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.motion.arkit import MOUTH_CHANNELS
 from vispeech.motion.track import Track
 

@@ -1,6 +1,6 @@
 """Models by name: create a default-configured one, load a shipped trained one or a saved folder.
 
-A model module registers its class with :func:`vispeech.models.base.register_model`; the
+A model module registers its class with :func:`vispeech.models.contract.register_model`; the
 modules imported here are the ones the registry knows. A new model adds its import below.
 Trained models shipped with the package live in ``vispeech/models/pretrained`` (see its
 ``MODEL_CARD.md``) and are listed in :data:`PRETRAINED`.
@@ -13,10 +13,9 @@ from importlib import resources
 from pathlib import Path
 
 from vispeech.errors import VispeechError
-from vispeech.models import (  # noqa: F401  (registration)
-    baseline, beskow_rules, cohen_massaro, ohman, sliding_window, tdnn,
-)
-from vispeech.models.base import _MODELS, ControlModel
+from vispeech.models.networks import sliding_window, tdnn  # noqa: F401  (registration)
+from vispeech.models.rules import baseline, beskow_rules, cohen_massaro, ohman  # noqa: F401  (registration)
+from vispeech.models.contract import _MODELS, ControlModel
 
 PRETRAINED: dict[str, str] = {
     "grid-tdnn": "grid_tdnn",

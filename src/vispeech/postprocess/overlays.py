@@ -1,6 +1,6 @@
 """Consonant overlays and the upper-lip overlay of the thesis (section 4, steps 6 and 7).
 
-Every consonant's viseme is its target in :mod:`vispeech.models.targets`, restricted to the
+Every consonant's viseme is its target in :mod:`vispeech.targets.tables`, restricted to the
 channels the consonant defines. It is blended in with strength s(t), x ← x + s·(v − x):
 a Bézier fade-in of ``fade_in`` phone lengths that reaches 1 at the phone's onset, full
 strength up to the phone's *anchor frame*, then a Bézier fade-out of a per-consonant number
@@ -30,7 +30,7 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.targets import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
+from vispeech.targets.tables import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
 from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES

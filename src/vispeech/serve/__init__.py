@@ -7,7 +7,7 @@ describes the routes, the stream protocol and the limits.
 from vispeech.serve.app import ServeConfig, SpeechService, create_app
 from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache, default_cache_path
-from vispeech.serve.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
+from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
 
 __all__ = [
     "CacheKey", "ChatBot", "ChatBotError", "HTTPChatBot", "PhoneStream", "RuleBot", "ServeConfig",

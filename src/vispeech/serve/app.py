@@ -36,7 +36,7 @@ import vispeech.preview
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import VOICES
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.models.registry import MODEL_NAMES, PRETRAINED, create_model, load_model, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
@@ -48,7 +48,7 @@ from vispeech.serve.schemas import (
     MAX_TEXT_CHARS, ChatRequest, ChatResponse, ClientMessage, ConfigResponse, ErrorResponse,
     PhonesMessage, SpeakRequest, SpeakResponse, TextMessage,
 )
-from vispeech.serve.streaming import PhoneStream, open_phone_stream, speech_messages
+from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages
 
 log = logging.getLogger("vispeech.serve")
 
@@ -269,7 +269,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
     @app.websocket("/api/stream")
     async def stream(websocket: WebSocket) -> None:
-        """Speech animation as it is computed (see :mod:`vispeech.serve.streaming`)."""
+        """Speech animation as it is computed (see :mod:`vispeech.streaming`)."""
         await _serve_stream(websocket, service)
 
     @app.get("/avatar.glb", include_in_schema=False)

@@ -1,6 +1,6 @@
 """The shared base of the trainable torch networks: inputs, targets, fit, predict, save, load.
 
-A network reads per-frame input vectors (:class:`~vispeech.models.encoding.InputEncoding`)
+A network reads per-frame input vectors (:class:`~vispeech.models.networks.encoding.InputEncoding`)
 at its own frame rate (the corpus's unless ``fps`` is set) and predicts target channels:
 
 - ``targets="mouth"`` (default): the thesis's 18 reduced mouth channels
@@ -21,7 +21,7 @@ frames). ``fit`` trains on ``corpus.split("train")`` and validates on
 optional ``validation`` set. A saved model folder holds ``config.json`` (the common model
 format plus a ``state`` entry with what fitting learned), ``weights.safetensors``,
 ``loss_curve.png`` and, for a checkpoint written during fitting, ``training_state.json`` and
-``training_state.safetensors`` (see :mod:`vispeech.models.training`).
+``training_state.safetensors`` (see :mod:`vispeech.models.networks.training`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,9 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.base import ControlModel
-from vispeech.models.encoding import InputEncoding
-from vispeech.models.training import STATE_JSON, TrainingHistory
+from vispeech.models.contract import ControlModel
+from vispeech.models.networks.encoding import InputEncoding
+from vispeech.models.networks.training import STATE_JSON, TrainingHistory
 from vispeech.motion.arkit import ARKIT_NAMES, MOUTH_CHANNELS
 from vispeech.motion.track import Track
 from vispeech.postprocess import LEARNED_JAW
@@ -48,7 +48,7 @@ from vispeech.postprocess import LEARNED_JAW
 if TYPE_CHECKING:
     import torch
 
-    from vispeech.models.training import TrainingState
+    from vispeech.models.networks.training import TrainingState
 
 THESIS_CHANNELS: tuple[str, ...] = (
     "jawForward", "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker",
@@ -190,7 +190,7 @@ class NeuralControlModel(ControlModel):
         """
         import torch
 
-        from vispeech.models.training import train
+        from vispeech.models.networks.training import train
 
         train_set, validation_set = _split(corpus, validation)
         if not train_set:
@@ -350,7 +350,7 @@ class NeuralControlModel(ControlModel):
         import torch
         from safetensors.torch import save as to_safetensors
 
-        from vispeech.models.training import save_state
+        from vispeech.models.networks.training import save_state
 
         config = self._config([])
         config["state"] = None if self.encoding is None else {
@@ -404,7 +404,7 @@ class NeuralControlModel(ControlModel):
 
     def _resume(self, folder: Path) -> TrainingState:
         """Take over a saved run: its learned set-up, weights and (if any) training state."""
-        from vispeech.models.training import TrainingState, load_state
+        from vispeech.models.networks.training import TrainingState, load_state
 
         saved = ControlModel.load(folder)
         if saved.name != self.name or not isinstance(saved, NeuralControlModel) or saved._module is None:

@@ -12,7 +12,7 @@ segments on either side of a frame's own segment are summed; beyond a few segmen
 dominance is negligible, and the cost stays linear in the utterance length.
 
 :meth:`CohenMassaro.fit` estimates all five per phone and channel from recorded tracks
-(see :mod:`vispeech.models.dominance_fit`).
+(see :mod:`vispeech.models.rules.dominance_fit`).
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import PhoneTargetModel, register_model
-from vispeech.models.dominance_fit import (
+from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.rules.dominance_fit import (
     ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
     with_target_values,
 )
-from vispeech.models.segments import Segments
-from vispeech.models.targets import resolve_spec
+from vispeech.models.rules.segments import Segments
+from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.postprocess import LEARNED_JAW
@@ -54,7 +54,7 @@ exponent at 0.1 s, ``θ·0.1^c``; targets stay in [0, 1])."""
 @register_model
 class CohenMassaro(PhoneTargetModel):
     """Dominance-function coarticulation. Parameters: per-phone specs ``alpha``, ``theta``,
-    ``phi``, ``c`` (see :func:`vispeech.models.targets.resolve_spec`), ``window`` (segments),
+    ``phi``, ``c`` (see :func:`vispeech.targets.tables.resolve_spec`), ``window`` (segments),
     ``targets`` (per-phone target overrides)."""
 
     name = "cohen-massaro"
@@ -97,7 +97,7 @@ class CohenMassaro(PhoneTargetModel):
 
         ``corpus`` is any iterable of utterances with ``.phones`` and ``.track``; a corpus
         with splits fits its ``train`` split and stops early on its ``validation`` split
-        unless ``validation`` is given (see :meth:`~vispeech.models.dominance_fit.FitData.gather`).
+        unless ``validation`` is given (see :meth:`~vispeech.models.rules.dominance_fit.FitData.gather`).
         ``channels`` default to the model's channels the tracks have; each is fitted
         separately at the tracks' own frame times. Phones and channels the training data
         lacks keep their values. ``history`` holds the per-iteration losses afterwards.

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
-from vispeech.models.targets import TargetTable, phone_rows
+from vispeech.targets.tables import TargetTable, phone_rows
 from vispeech.phonetics.features import FEATURE_NAMES
 
 _VOWEL = FEATURE_NAMES.index("vowel")
@@ -18,7 +18,7 @@ _SILENCE = FEATURE_NAMES.index("silence")
 class Segments:
     """One segment per phone of the gap-filled sequence, times in seconds.
 
-    ``rows`` index :func:`vispeech.models.targets.phone_rows`; ``targets`` and ``defined``
+    ``rows`` index :func:`vispeech.targets.tables.phone_rows`; ``targets`` and ``defined``
     (segments × channels) come from the model's target table; ``times`` are the frame
     times ``k / fps`` of the ``phones.n_frames(fps)`` output frames.
     """

@@ -1,7 +1,7 @@
 """Beskow's (1995) rule-based model: under-specified targets, interpolation, smoothing.
 
 Each phone aims at its target vector, whose undefined entries (see
-:class:`vispeech.models.targets.TargetTable`) take no part: every channel is linearly
+:class:`vispeech.targets.tables.TargetTable`) take no part: every channel is linearly
 interpolated between the target points of the phones that define it, so lip rounding, for
 instance, runs straight from one vowel to the next across a consonant cluster. A phone's
 target points sit at its centre ± ``hold``/2 of its duration (one point at the centre when
@@ -18,7 +18,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import PhoneTargetModel, register_model
+from vispeech.models.contract import PhoneTargetModel, register_model
 from vispeech.motion.track import Track
 
 

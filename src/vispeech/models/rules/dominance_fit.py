@@ -27,9 +27,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.models.segments import Segments
-from vispeech.models.targets import expand_channel, phone_rows
-from vispeech.models.training import TrainingHistory
+from vispeech.models.rules.segments import Segments
+from vispeech.targets.tables import expand_channel, phone_rows
+from vispeech.models.networks.training import TrainingHistory
 
 TOLERANCE = 1e-4
 """A channel has converged when an accepted step lowers its squared error by less than this fraction."""
@@ -69,7 +69,7 @@ class FitData:
 
     @classmethod
     def gather(cls, model, corpus, validation: Iterable | None, channels: Sequence[str] | None) -> FitData:
-        """Lay out ``corpus`` for ``model`` (a :class:`~vispeech.models.base.PhoneTargetModel`).
+        """Lay out ``corpus`` for ``model`` (a :class:`~vispeech.models.contract.PhoneTargetModel`).
 
         With ``validation`` None and a corpus that has splits, fits its ``train`` split and
         validates on its ``validation`` split; otherwise fits all of ``corpus`` and validates
@@ -126,7 +126,7 @@ class PhoneTying:
     """Fitted parameters tied per phone symbol.
 
     ``symbols`` are the fitted ones (those the training segments use, in inventory order);
-    ``column[row]`` is, for each row of :func:`~vispeech.models.targets.phone_rows`, the
+    ``column[row]`` is, for each row of :func:`~vispeech.targets.tables.phone_rows`, the
     position of its symbol in ``symbols``, or -1 where the symbol is not fitted.
     """
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import PhoneTargetModel, register_model
-from vispeech.models.targets import phone_rows
+from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.targets.tables import phone_rows
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.postprocess.bezier import bezier_ease

@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.models.base import register_model
-from vispeech.models.neural import COMMON_PARAMS, NeuralControlModel
+from vispeech.models.contract import register_model
+from vispeech.models.networks.network import COMMON_PARAMS, NeuralControlModel
 
 PRESETS: dict[str, dict] = {
     "taylor": {
@@ -97,7 +97,7 @@ class SlidingWindowNetwork(NeuralControlModel):
             raise VispeechError(f"update must be windows or utterance, got {p['update']!r}")
 
     def _build_module(self, n_inputs: int, n_outputs: int):
-        from vispeech.models.networks import WindowMLP
+        from vispeech.models.networks.modules import WindowMLP
 
         p = self._params
         kx = p["input_window"]
@@ -112,7 +112,7 @@ class SlidingWindowNetwork(NeuralControlModel):
     def _batches(self, examples, rng):
         import torch
 
-        from vispeech.models.networks import edge_pad
+        from vispeech.models.networks.modules import edge_pad
 
         kx, ky = self._params["input_window"], self._params["output_window"]
         if self._params["update"] == "utterance":
@@ -134,8 +134,8 @@ class SlidingWindowNetwork(NeuralControlModel):
         ]
 
     def _data_loss(self, module, batch):
-        from vispeech.models.networks import overlap_average, windows
-        from vispeech.models.training import sequence_loss
+        from vispeech.models.networks.modules import overlap_average, windows
+        from vispeech.models.networks.training import sequence_loss
 
         weight = self._params["motion_weight"]
         if self._params["update"] == "utterance":
@@ -146,7 +146,7 @@ class SlidingWindowNetwork(NeuralControlModel):
         return sequence_loss(module(x_all[x_index]), y_all[y_index], weight), float(len(x_index))
 
     def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
-        from vispeech.models.networks import edge_pad, overlap_average, windows
+        from vispeech.models.networks.modules import edge_pad, overlap_average, windows
 
         padded = edge_pad(inputs, self._pad).double()
         out = module(windows(padded, self._params["input_window"]))

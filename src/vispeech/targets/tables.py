@@ -32,7 +32,7 @@ from vispeech.phonetics.inventory import LANGUAGES, get_inventory
 
 @cache
 def _data() -> dict:
-    text = resources.files("vispeech.models").joinpath("data/targets.json").read_text(encoding="utf-8")
+    text = resources.files("vispeech.targets").joinpath("data/targets.json").read_text(encoding="utf-8")
     return json.loads(text)
 
 

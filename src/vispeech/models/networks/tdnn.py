@@ -33,8 +33,8 @@ import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import register_model
-from vispeech.models.neural import COMMON_PARAMS, NeuralControlModel
+from vispeech.models.contract import register_model
+from vispeech.models.networks.network import COMMON_PARAMS, NeuralControlModel
 
 _BESKOW = {
     **COMMON_PARAMS,
@@ -85,7 +85,7 @@ class TimeDelayNetwork(NeuralControlModel):
         return self._params["look_back"] + self._params["look_ahead"] + 1
 
     def _build_module(self, n_inputs: int, n_outputs: int):
-        from vispeech.models.networks import GroupedNetworks, RecurrentTimeDelayNet
+        from vispeech.models.networks.modules import GroupedNetworks, RecurrentTimeDelayNet
 
         p = self._params
         groups = p["groups"] or [list(self.outputs)]
@@ -122,7 +122,7 @@ class TimeDelayNetwork(NeuralControlModel):
         return batches
 
     def _data_loss(self, module, batch):
-        from vispeech.models.training import sequence_loss
+        from vispeech.models.networks.training import sequence_loss
 
         inputs, targets, mask = batch
         loss = sequence_loss(module(inputs), targets, self._params["motion_weight"], mask)

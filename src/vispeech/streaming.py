@@ -36,7 +36,7 @@ import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.base import ControlModel
+from vispeech.models.contract import ControlModel
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, animate
 

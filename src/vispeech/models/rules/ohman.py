@@ -12,7 +12,7 @@ start and end stand in for missing neighbours). The coarticulation factor w ∈ 
 consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel track alone.
 
 :meth:`Ohman.fit` estimates the targets and the factors from recorded tracks (see
-:mod:`vispeech.models.dominance_fit`).
+:mod:`vispeech.models.rules.dominance_fit`).
 """
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.base import PhoneTargetModel, register_model
-from vispeech.models.dominance_fit import (
+from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.rules.dominance_fit import (
     ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
     with_target_values,
 )
-from vispeech.models.segments import Segments
-from vispeech.models.targets import phone_rows, resolve_spec
+from vispeech.models.rules.segments import Segments
+from vispeech.targets.tables import phone_rows, resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
 from vispeech.postprocess import LEARNED_JAW
@@ -81,7 +81,7 @@ class Ohman(PhoneTargetModel):
     ) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
         squares; returns ``self``. Arguments as for
-        :meth:`vispeech.models.cohen_massaro.CohenMassaro.fit`."""
+        :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
         data = FitData.gather(self, corpus, validation, channels)
         tying = PhoneTying.of(data.language, data.train)
         factors = PhoneTying.of(data.language, data.train, rows=phone_rows(data.language).mask("consonant"))

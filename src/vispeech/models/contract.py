@@ -22,8 +22,8 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.segments import Segments
-from vispeech.models.targets import TargetTable, default_model_params
+from vispeech.models.rules.segments import Segments
+from vispeech.targets.tables import TargetTable, default_model_params
 from vispeech.motion.track import Track
 
 FORMAT_VERSION = 1
