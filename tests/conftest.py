@@ -1,11 +1,50 @@
-"""Shared test fixtures: the acceptance sentences and the shared data folder."""
+"""Shared test fixtures: the acceptance sentences, the shared data folder, and :func:`require`.
 
+Every test that needs something from its surroundings (the ``../shared`` folder, Node.js,
+Chromium, an installed extra) checks for it through :func:`require` or
+:func:`require_module`: on a developer's machine a missing piece skips the test; with
+``CI=true`` in the environment it fails the test, so CI cannot pass by skipping.
+"""
+
+import importlib
+import os
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
 DATA = Path(__file__).parent / "data"
 SHARED = Path(__file__).resolve().parents[2] / "shared"
+CI_VALUES = ("1", "true", "yes")
+"""Values of the ``CI`` environment variable (any case) under which :func:`require` fails instead of skipping."""
+
+
+def in_ci() -> bool:
+    """Whether the tests run under CI (``CI=true``), where nothing may be skipped for being missing."""
+    return os.environ.get("CI", "").strip().lower() in CI_VALUES
+
+
+def require(condition: object, what: str) -> None:
+    """Go on if ``condition`` holds; otherwise skip the test, or under ``CI=true`` fail it.
+
+    ``what`` names what is missing and how to get it, e.g. ``"Chromium (/usr/bin/chromium;
+    apt-get install chromium)"``. Works in tests, fixtures and at module level.
+    """
+    if condition:
+        return
+    if in_ci():
+        pytest.fail(f"CI=true and {what} is missing: a test that needs it fails under CI instead of skipping",
+                    pytrace=False)
+    pytest.skip(f"{what} is missing", allow_module_level=True)
+
+
+def require_module(name: str, what: str | None = None) -> ModuleType:
+    """The module ``name``, imported; if it cannot be imported, :func:`require` fails or skips."""
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        require(False, f"{what or f'the Python module {name}'} ({exc})")
+        raise  # not reached: require raises
 
 
 def read_sentences(language: str) -> list[str]:
@@ -16,7 +55,14 @@ def read_sentences(language: str) -> list[str]:
 
 @pytest.fixture
 def shared_dir() -> Path:
-    """The read-only ``shared`` folder beside the repository; skips when absent."""
-    if not SHARED.is_dir():
-        pytest.skip("shared/ folder not available")
+    """The read-only ``shared`` folder beside the repository (skips when absent, fails under CI)."""
+    require(SHARED.is_dir(), f"the shared data folder {SHARED}")
     return SHARED
+
+
+@pytest.fixture
+def grid_s1(shared_dir) -> Path:
+    """GRID speaker 1 in the shared folder (``shared/data/grid_s1``; skips when absent, fails under CI)."""
+    folder = shared_dir / "data" / "grid_s1"
+    require(folder.is_dir(), f"GRID speaker 1 ({folder})")
+    return folder

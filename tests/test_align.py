@@ -16,10 +16,8 @@ TEXT = "bin blue at f two now"
 
 
 @pytest.fixture
-def grid_utterance(shared_dir):
-    folder = shared_dir / "data" / "grid_s1" / "utterances"
-    if not folder.is_dir():
-        pytest.skip("grid_s1 not available")
+def grid_utterance(grid_s1):
+    folder = grid_s1 / "utterances"
     return folder / "bbaf2n.flac", read_word_alignment(folder / "bbaf2n.align")
 
 

@@ -3,7 +3,8 @@
 The real server (``create_app`` under uvicorn, on a free loopback port) serves the viewer
 with the ICT head; headless Chromium renders it with SwiftShader and plays the audio for
 real (no virtual time). Skipped when ``/usr/bin/chromium``, the ``playwright`` package or
-the shared ICT head is missing; ``.ci/run`` installs the first two. Set
+the shared ICT head is missing, and failed then under ``CI=true``; ``.ci/run`` installs the
+first two. Set
 ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots there as well.
 
 Clock sync is measured at each draw of the page's performer (``Performer.tick``, wrapped by
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SHARED
+from conftest import SHARED, require, require_module
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.motion.track import Track
 
@@ -48,18 +49,16 @@ OPEN_APERTURE = 0.1
 """Lip aperture (0..1, ``lip_aperture``) the head must reach at an open vowel's centre: the default model
 learned GRID's MediaPipe-tracked jaw, which opens less than iPhone ARKit capture (jawOpen about 0.25)."""
 
-if not CHROMIUM.is_file():
-    pytest.skip(f"{CHROMIUM} is not installed", allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api")
-uvicorn = pytest.importorskip("uvicorn")
-from vispeech.serve import ServeConfig, create_app  # noqa: E402
-
 
 @pytest.fixture(scope="module")
 def server_url(tmp_path_factory) -> str:
     """The vispeech server with the ICT head, in a thread on a free 127.0.0.1 port."""
-    if not ICT_HEAD.is_file():
-        pytest.skip(f"{ICT_HEAD} not available")
+    require(CHROMIUM.is_file(), f"Chromium ({CHROMIUM}: apt-get install chromium)")
+    require_module("playwright.sync_api", "Playwright (the test extra)")
+    uvicorn = require_module("uvicorn", "uvicorn (the serve extra)")
+    require(ICT_HEAD.is_file(), f"the ICT head ({ICT_HEAD}, in the shared data folder)")
+    from vispeech.serve import ServeConfig, create_app
+
     config = ServeConfig(avatar=ICT_HEAD, avatar_credit="3D head: ICT-FaceKit (USC ICT), MIT licence",
                          cache=tmp_path_factory.mktemp("browser") / "cache.sqlite3", rate_limit=0)
     sock = socket.socket()
@@ -80,6 +79,8 @@ def server_url(tmp_path_factory) -> str:
 @pytest.fixture(scope="module")
 def page(server_url):
     """The viewer (idle motion off) in headless Chromium, ready, with the page's errors in ``page.errors``."""
+    from playwright import sync_api
+
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
         page = browser.new_page(viewport={"width": 480, "height": 480})

@@ -29,11 +29,8 @@ def cache_home(tmp_path, monkeypatch):
 
 
 @pytest.fixture
-def grid_src(shared_dir):
-    folder = shared_dir / "data" / "grid_s1"
-    if not folder.is_dir():
-        pytest.skip("grid_s1 not available")
-    return folder
+def grid_src(grid_s1):
+    return grid_s1
 
 
 def make_grid(src, dst, ids, extra_sentences=()):

@@ -10,12 +10,10 @@ from vispeech.corpus import split_of
 
 
 @pytest.fixture
-def small_grid(shared_dir, tmp_path, monkeypatch):
+def small_grid(grid_s1, tmp_path, monkeypatch):
     """Two GRID utterances and one listed without its files."""
     monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache"))
-    src = shared_dir / "data" / "grid_s1"
-    if not src.is_dir():
-        pytest.skip("grid_s1 not available")
+    src = grid_s1
     root = tmp_path / "grid"
     (root / "utterances").mkdir(parents=True)
     for uid in ("bbaf2n", "lrae3s"):

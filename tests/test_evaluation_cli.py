@@ -76,10 +76,8 @@ def test_empty_split_and_bad_corpus(tmp_path):
 
 
 @pytest.fixture
-def grid5(shared_dir, tmp_path):
-    src = shared_dir / "data" / "grid_s1"
-    if not src.is_dir():
-        pytest.skip("grid_s1 not available")
+def grid5(grid_s1, tmp_path):
+    src = grid_s1
     texts = dict(line.split("\t") for line in (src / "sentences.tsv").read_text().splitlines()[1:])
     dst = tmp_path / "grid5"
     (dst / "utterances").mkdir(parents=True)

@@ -12,10 +12,11 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
+from conftest import require_module
 from scipy.io import wavfile
 
-pytest.importorskip("fastapi")
-pytest.importorskip("httpx")
+require_module("fastapi", "fastapi (the serve extra)")
+require_module("httpx", "httpx (the test extra)")
 from fastapi.testclient import TestClient  # noqa: E402
 
 import vispeech.preview  # noqa: E402

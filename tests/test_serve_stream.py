@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from conftest import require_module
 
-pytest.importorskip("fastapi")
-pytest.importorskip("httpx")
+require_module("fastapi", "fastapi (the serve extra)")
+require_module("httpx", "httpx (the test extra)")
 from fastapi.testclient import TestClient  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
@@ -208,7 +209,7 @@ class _Example:
 
 
 def test_model_stream_runs_the_models_own_streaming(tmp_path):
-    pytest.importorskip("torch")
+    require_module("torch", "torch (the train extra)")
     examples = [_Example(offline(HELLO), animate(offline(HELLO), "baseline", fps=60.0)),
                 _Example(offline(HELLO[:5]), animate(offline(HELLO[:5]), "baseline", fps=60.0))]
     model = create_model("tdnn-lowlatency", epochs=1, hidden=4, progress=False,

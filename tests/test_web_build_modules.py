@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require
 
 WEB_SRC = Path(__file__).resolve().parents[1] / "web" / "src"
 LIVE_LINK_HEADER = (
@@ -25,8 +26,8 @@ LIVE_LINK_HEADER = (
 def run_node(script: str):
     """Run an ES-module `script` (web/src importable as ./name.js) and return what it prints as JSON."""
     node = shutil.which("node")
-    if node is None or not WEB_SRC.is_dir():
-        pytest.skip("needs node and the web/src sources")
+    require(node is not None, "Node.js (node on PATH)")
+    require(WEB_SRC.is_dir(), f"the web app's sources ({WEB_SRC})")
     result = subprocess.run(
         [node, "--input-type=module", "-e", script], cwd=WEB_SRC, capture_output=True, text=True, timeout=60
     )
