@@ -5,22 +5,21 @@ The CLI (``say``, ``animate-phones``) and the server are thin layers over these 
 
 from __future__ import annotations
 
-import io
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.io import wavfile
 
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.contract import ControlModel
+from vispeech.frontends.audio import wav_bytes
+from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track
-from vispeech.postprocess import PostprocessConfig, SoftCeiling, postprocess
+from vispeech.postprocess import PostprocessConfig, postprocess
 
 DEFAULT_FPS = 30.0
 DEFAULT_MODEL = "grid-tdnn"
@@ -46,58 +45,39 @@ class Utterance:
         """The audio as a 16-bit PCM WAV file in memory (``None`` without audio)."""
         if self.audio is None:
             return None
-        buffer = io.BytesIO()
-        pcm = np.clip(np.asarray(self.audio) * 32767.0, -32768, 32767).astype(np.int16)
-        wavfile.write(buffer, int(self.sample_rate), pcm)
-        return buffer.getvalue()
+        return wav_bytes(self.audio, int(self.sample_rate))
 
 
 def animate(
     phones: PhoneSequence,
-    model: str | ControlModel = DEFAULT_MODEL,
+    model: str | Estimator = DEFAULT_MODEL,
     fps: float = DEFAULT_FPS,
     postprocessing: PostprocessConfig | bool = True,
 ) -> Track:
     """Animation for a time-aligned phone sequence at ``fps`` frames per second.
 
-    ``model`` is a model name (see :data:`vispeech.models.registry.MODEL_NAMES`), a saved
+    ``model`` is a model name (see :data:`vispeech.models.registry.RUNNABLE`), a saved
     model folder or a model object; ``postprocessing`` is a configuration, ``True`` for the
-    one the model recommends (:func:`postprocess_config`) or ``False`` for none.
+    preset the model recommends (:attr:`~vispeech.models.contract.Estimator.postprocessing`)
+    or ``False`` for none.
     """
     phones.validate()
-    estimator = model if isinstance(model, ControlModel) else load_model(model)
+    estimator = model if isinstance(model, Estimator) else load_model(model)
     track = estimator.predict(phones, fps)
     if postprocessing is False:
         return track
-    config = postprocessing if isinstance(postprocessing, PostprocessConfig) else postprocess_config(estimator)
+    if isinstance(postprocessing, PostprocessConfig):
+        config = postprocessing
+    else:
+        config = PostprocessConfig.from_preset(estimator.postprocessing)
     return postprocess(track, phones, config)
-
-
-def postprocess_config(model: ControlModel) -> PostprocessConfig:
-    """The post-processing ``model`` recommends: its :attr:`~ControlModel.postprocessing` entry
-    (fields of :class:`PostprocessConfig`, ceilings as ``{channel: {"threshold", "maximum",
-    "input_max"}}``) over the defaults, or the defaults when it has none."""
-    recommended = model.postprocessing
-    if recommended is None:
-        return PostprocessConfig()
-    known = {f.name for f in fields(PostprocessConfig)}
-    unknown = sorted(set(recommended) - known)
-    if unknown:
-        raise VispeechError(f"model {model.name} recommends unknown post-processing settings: {', '.join(unknown)}")
-    settings = dict(recommended)
-    try:
-        if "ceilings" in settings:
-            settings["ceilings"] = {channel: SoftCeiling(**ceiling) for channel, ceiling in settings["ceilings"].items()}
-        return PostprocessConfig(**settings)
-    except (TypeError, AttributeError) as exc:
-        raise VispeechError(f"model {model.name} recommends bad post-processing settings: {exc}") from None
 
 
 def speak(
     text: str,
     language: str = "en",
     *,
-    model: str | ControlModel = DEFAULT_MODEL,
+    model: str | Estimator = DEFAULT_MODEL,
     rate: float = 1.0,
     fps: float = DEFAULT_FPS,
     postprocessing: PostprocessConfig | bool = True,

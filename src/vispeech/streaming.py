@@ -10,38 +10,36 @@ from its own clause's track. Audio goes in pieces of ``chunk_seconds`` (PCM16, b
 preceded by the frames up to its end.
 
 **Phones.** :func:`open_phone_stream` takes timed phones as a recogniser or a TTS engine
-emits them and gives each frame as soon as it may be computed:
-
-- a model with ``predict_stream`` (the low-latency network, ``tdnn-lowlatency``) runs its own
-  streaming prediction at its own frame rate, frame t leaving once the phones covering
-  ``t + look_ahead`` frames are known (:class:`ModelPhoneStream`);
-- any other model gives frame t once phones cover frame ``t + lookahead`` (default 2) by
-  re-predicting a bounded recent window: the phones of the last ``context`` seconds (0.5)
-  before the first frame not yet sent, up to the latest phone end, with the default
-  post-processing (:class:`WindowPhoneStream`).
+emits them and gives each frame as soon as it may be computed: the model's own
+:meth:`~vispeech.models.contract.Estimator.stream` (exact for the time-delay networks, a
+re-predicted recent window for the others) gives raw frames once phones cover its
+look-ahead, and :class:`PhoneStream` post-processes them on a recent window with the
+preset the model recommends.
 """
 
 from __future__ import annotations
 
 import base64
 import math
-import queue
 import re
-import threading
-from abc import ABC, abstractmethod
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from dataclasses import replace
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence, n_frames_for
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ControlModel
+from vispeech.frontends.audio import to_pcm16
+from vispeech.models.contract import Estimator
+from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, animate
+from vispeech.postprocess import PostprocessConfig, postprocess
 
 MAX_PHONE_SECONDS = 10.0
 """Longest step (seconds) from one phone's end to the next's in a phone stream."""
+POSTPROCESS_LOOKAHEAD = 2
+"""Frames a phone stream holds back beyond the model's look-ahead for post-processing."""
 
 _CLAUSE_BREAK = re.compile(r"(?<=[.!?;:,…])\s+|\s*\n\s*")
 
@@ -70,7 +68,7 @@ def split_clauses(text: str) -> list[str]:
     return clauses
 
 
-def stream_channels(model: ControlModel, language: str, fps: float) -> tuple[str, ...]:
+def stream_channels(model: Estimator, language: str, fps: float) -> tuple[str, ...]:
     """The channels of ``model``'s post-processed tracks (those a stream's frames carry)."""
     probe = PhoneSequence([Phone(SILENCE, 0.0, 1.0 / fps)], language)
     return animate(probe, model, fps).channels
@@ -79,7 +77,7 @@ def stream_channels(model: ControlModel, language: str, fps: float) -> tuple[str
 def speech_messages(
     text: str,
     language: str,
-    model: ControlModel,
+    model: Estimator,
     *,
     fps: float = DEFAULT_FPS,
     rate: float = 1.0,
@@ -109,7 +107,7 @@ def speech_messages(
             sample_rate = speech.sample_rate
             messages.append({"type": "start", "fps": fps, "channels": list(channels),
                              "sample_rate": sample_rate, "model": model.name})
-        pcm = np.clip(speech.audio * 32767.0, -32768, 32767).astype("<i2")
+        pcm = to_pcm16(speech.audio)
         clause_start = samples_done / sample_rate
         frame_end = _frames_before((samples_done + len(pcm)) / sample_rate, fps)
         values = _sample_rows(track.values, np.arange(frames_done, frame_end) - clause_start * fps)
@@ -145,38 +143,83 @@ def _sample_rows(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return values[lo] * (1.0 - weight) + values[hi] * weight
 
 
-class PhoneStream(ABC):
-    """Frames for a stream of timed phones; see :func:`open_phone_stream`.
+class PhoneStream:
+    """Post-processed frames for timed phones as they arrive: the engine over a model's
+    :meth:`~vispeech.models.contract.Estimator.stream`.
 
-    :meth:`push` takes the next phones (in time order, none overlapping the ones before) and
-    returns ``(start_frame, frames)``: the frames (rows over :attr:`channels`, at :attr:`fps`)
-    that became computable, possibly none; :meth:`finish` returns the rest.
+    :meth:`push` checks the next phones (known symbols, time order, no step longer than
+    :data:`MAX_PHONE_SECONDS`), hands them to the model's stream and returns ``(start_frame,
+    frames)``: the post-processed rows over :attr:`channels` at :attr:`fps` that became
+    ready, possibly none; :meth:`finish` returns the rest. Post-processing runs on a window of
+    the recent raw frames and phones (``context`` seconds back) and holds each frame back
+    :data:`POSTPROCESS_LOOKAHEAD` frames more than the model does.
     """
 
-    fps: float
-    channels: tuple[str, ...]
-    lookahead: int
-    """Frames of phones after frame t that must be known before frame t is given."""
-
-    def __init__(self, language: str) -> None:
+    def __init__(self, model: Estimator, language: str, fps: float = DEFAULT_FPS, context: float = 0.5) -> None:
+        self.model = model
         self.language = language
+        self._inner = model.stream(language, fps)
+        self.fps = self._inner.fps
+        self.channels = stream_channels(model, language, self.fps)
+        self.lookahead = self._inner.lookahead + POSTPROCESS_LOOKAHEAD
+        self._config = PostprocessConfig.from_preset(model.postprocessing)
+        self._context = round(context * self.fps)
+        self._raw: list[np.ndarray] = []  # model frames from frame _raw_start on
+        self._raw_start = 0
+        self._phones: list[Phone] = []
         self.end = 0.0
         """Latest phone end so far, seconds."""
         self.emitted = 0
         """Frames given so far."""
         self.closed = False
 
-    @abstractmethod
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         """Add phones; the frames that became ready."""
+        new = self._checked(phones)
+        if new:
+            self._phones += new
+            self.end = new[-1].end
+        self._take(*self._inner.push(new))
+        return self._emit(final=False)
 
-    @abstractmethod
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed, up to the last phone's end."""
+        if self.closed:
+            raise VispeechError("this phone stream has ended")
+        self._take(*self._inner.finish())
+        out = self._emit(final=True)
+        self.close()
+        return out
 
     def close(self) -> None:
         """Drop the stream (a client went away); safe to call more than once."""
         self.closed = True
+        self._inner.close()
+
+    def _take(self, start: int, rows: np.ndarray) -> None:
+        self._raw.extend(rows)
+
+    def _emit(self, final: bool) -> tuple[int, np.ndarray]:
+        available = self._raw_start + len(self._raw)
+        upto = available if final else available - POSTPROCESS_LOOKAHEAD
+        if upto <= self.emitted:
+            return self.emitted, np.zeros((0, len(self.channels)))
+        first = max(self._raw_start, self.emitted - self._context)
+        seconds = first / self.fps
+        window = [replace(p, start=max(p.start - seconds, 0.0), end=p.end - seconds)
+                  for p in self._phones if p.end > seconds + TIME_TOLERANCE]
+        raw = Track(np.stack(self._raw[first - self._raw_start:available - self._raw_start]),
+                    self._inner.channels, self.fps)
+        if window:
+            raw = postprocess(raw, PhoneSequence(window, self.language), self._config)
+        rows = raw.select(self.channels).values[self.emitted - first:upto - first]
+        start, self.emitted = self.emitted, upto
+        keep = max(0, self.emitted - self._context)
+        del self._raw[:max(0, keep - self._raw_start)]
+        self._raw_start = max(self._raw_start, keep)
+        keep_after = keep / self.fps
+        self._phones = [p for p in self._phones if p.end > keep_after] or self._phones[-1:]
+        return start, rows
 
     def _checked(self, phones: Iterable[Phone]) -> list[Phone]:
         """The phones in the inventory's symbols; raises :class:`VispeechError` on bad timing."""
@@ -188,7 +231,7 @@ class PhoneStream(ABC):
             symbol, stress = parse_symbol(p.symbol, self.language)
             if not (math.isfinite(p.start) and math.isfinite(p.end)) or p.end <= p.start:
                 raise VispeechError(f"phone {p.symbol!r} at {p.start} s must end after it starts")
-            if p.start < end - 1e-6:
+            if p.start < end - TIME_TOLERANCE:
                 raise VispeechError(
                     f"phone {p.symbol!r} starts at {p.start:.3f} s, before the previous one ends ({end:.3f} s)"
                 )
@@ -198,147 +241,7 @@ class PhoneStream(ABC):
             end = p.end
         return out
 
-    def _empty(self, start: int) -> tuple[int, np.ndarray]:
-        return start, np.zeros((0, len(self.channels)))
 
-
-class WindowPhoneStream(PhoneStream):
-    """Frame t once phones cover frame ``t + lookahead``, from a re-prediction of a recent window.
-
-    Each step animates (with post-processing) the phones from ``context`` seconds before the
-    first frame not yet given up to the latest phone end, on a frame grid aligned with the
-    stream's, and keeps the frames now ready.
-    """
-
-    def __init__(self, model: ControlModel, language: str, fps: float = DEFAULT_FPS,
-                 lookahead: int = 2, context: float = 0.5) -> None:
-        super().__init__(language)
-        if lookahead < 0 or context < 0:
-            raise VispeechError("lookahead and context must be >= 0")
-        self.model = model
-        self.fps = float(fps)
-        self.lookahead = int(lookahead)
-        self.context_frames = round(context * fps)
-        self.channels = stream_channels(model, language, self.fps)
-        self._recent: list[Phone] = []
-
-    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
-        new = self._checked(phones)
-        if new:
-            self._recent += new
-            self.end = new[-1].end
-        return self._emit(final=False)
-
-    def finish(self) -> tuple[int, np.ndarray]:
-        out = self._emit(final=True)
-        self.close()
-        return out
-
-    def _emit(self, final: bool) -> tuple[int, np.ndarray]:
-        known = _frames_before(self.end, self.fps)
-        upto = known if final else known - self.lookahead
-        if upto <= self.emitted or not self._recent:
-            return self._empty(self.emitted)
-        first_time = max(0, self.emitted - self.context_frames) / self.fps
-        window = [p for p in self._recent if p.end > first_time] or self._recent[-1:]
-        shift = math.floor(window[0].start * self.fps + 1e-9)  # whole frames, so the grids agree
-        seconds = shift / self.fps
-        local = PhoneSequence([replace(p, start=p.start - seconds, end=p.end - seconds) for p in window],
-                              self.language).with_gaps_filled()
-        values = animate(local, self.model, self.fps).select(self.channels).values
-        rows = values[np.clip(np.arange(self.emitted, upto) - shift, 0, len(values) - 1)]
-        start, self.emitted = self.emitted, upto
-        keep_after = max(0, self.emitted - self.context_frames) / self.fps
-        self._recent = [p for p in self._recent if p.end > keep_after] or self._recent[-1:]
-        return start, rows
-
-
-_WANT, _DONE = object(), object()
-
-
-class ModelPhoneStream(PhoneStream):
-    """A model's own ``predict_stream`` driven phone by phone (at the model's frame rate).
-
-    ``predict_stream`` pulls phones from an iterator; here it runs in a helper thread that
-    pulls from a queue, and :meth:`push` hands it phones one at a time, collecting what it
-    yields until it asks for the next one.
-    """
-
-    def __init__(self, model: ControlModel, language: str) -> None:
-        super().__init__(language)
-        self.model = model
-        self.fps = float(model.fps)
-        self.channels = tuple(model.channels)
-        self.lookahead = int(model.get_params().get("look_ahead", 0))
-        self._inputs: queue.Queue = queue.Queue()
-        self._outputs: queue.Queue = queue.Queue()
-        self._thread = threading.Thread(target=self._run, name="vispeech-phone-stream", daemon=True)
-        self._thread.start()
-        self._collect(_WANT)
-
-    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
-        rows: list[np.ndarray] = []
-        for phone in self._checked(phones):
-            self._inputs.put(phone)
-            self.end = phone.end
-            rows += self._collect(_WANT)
-        return self._result(rows)
-
-    def finish(self) -> tuple[int, np.ndarray]:
-        if self.closed:
-            raise VispeechError("this phone stream has ended")
-        self.closed = True
-        self._inputs.put(_DONE)
-        return self._result(self._collect(_DONE))
-
-    def close(self) -> None:
-        if not self.closed:
-            self.closed = True
-            self._inputs.put(_DONE)
-
-    def _run(self) -> None:
-        def phones() -> Iterator[Phone]:
-            while True:
-                self._outputs.put(_WANT)
-                item = self._inputs.get()
-                if item is _DONE:
-                    return
-                yield item
-
-        try:
-            for index, values in self.model.predict_stream(phones(), self.language):
-                self._outputs.put((index, values))
-            self._outputs.put(_DONE)
-        except Exception as exc:  # handed to the caller of push/finish
-            self._outputs.put(exc)
-
-    def _collect(self, until: object) -> list[np.ndarray]:
-        rows = []
-        while True:
-            item = self._outputs.get()
-            if item is until:
-                return rows
-            if item is _DONE:  # the model stopped early: nothing more will come
-                self.closed = True
-                return rows
-            if isinstance(item, Exception):
-                self.closed = True
-                raise item if isinstance(item, VispeechError) else VispeechError(f"streaming prediction failed: {item}")
-            rows.append(np.asarray(item[1], dtype=float))
-
-    def _result(self, rows: Sequence[np.ndarray]) -> tuple[int, np.ndarray]:
-        start = self.emitted
-        self.emitted += len(rows)
-        return (start, np.stack(rows)) if rows else self._empty(start)
-
-
-def open_phone_stream(model: ControlModel, language: str, fps: float = DEFAULT_FPS,
-                      lookahead: int = 2, context: float = 0.5) -> PhoneStream:
-    """A :class:`ModelPhoneStream` for a trained model with ``predict_stream``, else a :class:`WindowPhoneStream`.
-
-    ``fps``, ``lookahead`` (frames) and ``context`` (seconds) apply to the window stream
-    only; a model's own streaming runs at its frame rate with its own look-ahead.
-    """
-    if hasattr(model, "predict_stream") and getattr(model, "is_trained", True):
-        return ModelPhoneStream(model, language)
-    return WindowPhoneStream(model, language, fps, lookahead, context)
+def open_phone_stream(model: Estimator, language: str, fps: float = DEFAULT_FPS) -> PhoneStream:
+    """A :class:`PhoneStream` of ``model`` for phones of ``language`` at ``fps``."""
+    return PhoneStream(model, language, fps)

@@ -83,7 +83,7 @@ class PhoneSequence:
                 raise VispeechError(f"phone {i} has an empty symbol")
             if not (np.isfinite(p.start) and np.isfinite(p.end)) or p.end <= p.start:
                 raise VispeechError(f"phone {i} ({p.symbol}) has start {p.start} >= end {p.end}")
-            if p.start < previous_end - 1e-6:
+            if p.start < previous_end - TIME_TOLERANCE:
                 raise VispeechError(f"phone {i} ({p.symbol}) starts at {p.start:.3f} s, before the previous phone ends")
             if p.word is not None and not 0 <= p.word < len(self.words):
                 raise VispeechError(f"phone {i} ({p.symbol}) refers to missing word {p.word}")
@@ -95,7 +95,7 @@ class PhoneSequence:
         filled: list[Phone] = []
         t = 0.0
         for p in self.phones:
-            if p.start > t + 1e-9:
+            if p.start > t + TIME_TOLERANCE:
                 filled.append(Phone(SILENCE, t, p.start))
             filled.append(p)
             t = p.end
@@ -115,7 +115,7 @@ class PhoneSequence:
         idx = np.searchsorted(self.ends, times, side="right")
         idx = np.minimum(idx, len(self.phones) - 1) if self.phones else np.full(n, -1)
         if self.phones:
-            inside = (self.starts[idx] <= times + 1e-9) & (times < self.ends[idx])
+            inside = (self.starts[idx] <= times + TIME_TOLERANCE) & (times < self.ends[idx])
             idx = np.where(inside, idx, -1)
         return idx.astype(int)
 
@@ -157,8 +157,21 @@ class PhoneSequence:
             raise VispeechError(f"malformed phone sequence: {exc}") from None
 
 
+TIME_TOLERANCE = 1e-6
+"""Seconds: two times closer than this are the same time (phone boundaries, frame times)."""
+
+
+def first_frame(seconds: float | np.ndarray, fps: float, after: bool = True) -> int | np.ndarray:
+    """The first frame k whose time ``k / fps`` is at or after ``seconds`` (``after``), or the
+    last one at or before it; within :data:`TIME_TOLERANCE` counts as at."""
+    position = np.asarray(seconds, dtype=float) * fps
+    slack = TIME_TOLERANCE * fps
+    frame = np.ceil(position - slack) if after else np.floor(position + slack)
+    return int(frame) if frame.ndim == 0 else frame.astype(int)
+
+
 def n_frames_for(duration: float, fps: float) -> int:
     """Frames at ``fps`` needed to cover ``duration`` seconds (at least 1)."""
     if fps <= 0:
         raise VispeechError(f"fps must be positive, got {fps}")
-    return max(1, int(np.ceil(duration * fps - 1e-6)))
+    return max(1, first_frame(duration, fps))

@@ -15,12 +15,14 @@ CHECKPOINT = "checkpoint"
 """Sub-folder of the output folder where a network's training state is kept after every epoch."""
 
 _TARGETS = {"arkit": "mouth", "articulatory": "articulatory"}
+LOSS_CURVE = "loss_curve.png"
+"""The loss curve train draws beside the saved model."""
 
 
 @main.command("train")
 @corpus_option
 @click.option("--model", "-m", "model_name", required=True,
-              help="Registered model name (sliding-window-thesis, sliding-window-taylor, tdnn-beskow, ...).")
+              help="Model family to fit (tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, cohen-massaro, ohman).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
 @click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
 @click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
@@ -41,59 +43,68 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
 
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
     interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
+    The loss curve is drawn into OUTPUT/loss_curve.png.
     """
-    from vispeech.models.contract import ControlModel
-    from vispeech.models.networks.network import NeuralControlModel
-    from vispeech.models.registry import model_class
+    from vispeech.models.networks.network import Network
+    from vispeech.models.registry import FAMILIES, family_class
 
-    defaults = model_class(model_name).default_params()
+    if model_name not in FAMILIES:
+        raise VispeechError(f"unknown model family {model_name!r} (train one of: {', '.join(FAMILIES)})")
+    cls = family_class(model_name)
+    if not cls.trainable:
+        raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
     given = {"--epochs": ("epochs", epochs), "--seed": ("seed", seed), "--input": ("inputs", inputs),
              "--targets": ("targets", _TARGETS.get(targets))}
     options = {}
     for flag, (key, value) in given.items():
         if value is None:
             continue
-        if key not in defaults:
+        if key not in cls.defaults:
             raise VispeechError(f"model {model_name} takes no {flag}")
         options[key] = value
-    if quiet and "progress" in defaults:
-        options["progress"] = False
-    model = model_class(model_name)(**options)
-    if type(model).fit is ControlModel.fit:
-        raise VispeechError(f"model {model_name} is not trainable")
-    neural = isinstance(model, NeuralControlModel)
+    neural = issubclass(cls, Network)
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
+    checkpoint = out_dir / CHECKPOINT
+    if neural:
+        if resume is not None:
+            source = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
+            if source.resolve() != checkpoint.resolve():
+                shutil.rmtree(checkpoint, ignore_errors=True)
+                shutil.copytree(source, checkpoint)
+        else:
+            shutil.rmtree(checkpoint, ignore_errors=True)
+        options["checkpoint_dir"] = str(checkpoint)
+    model = cls(**options)
 
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
+    if options.get("targets") == "articulatory":
+        from vispeech.corpus import with_articulatory_tracks
+
+        corpus = with_articulatory_tracks(corpus)
     sizes = {name: len(corpus.split(name)) for name in ("train", "validation", "test")}
     if not sizes["train"]:
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
     click.echo(f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
                f"utterances at {corpus.fps:g} fps")
 
+    model.fit(corpus, progress=not quiet)
+    model.name = out_dir.name
+    model.save(out_dir)
     if neural:
-        checkpoint = out_dir / CHECKPOINT
-        start = None
-        if resume is not None:
-            start = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
-        model.fit(corpus, resume_from=start, checkpoint_dir=checkpoint)
-        model.save(out_dir)
         shutil.rmtree(checkpoint, ignore_errors=True)
-    else:
-        model.fit(corpus, progress=not quiet)
-        model.save(out_dir)
+    if model.history_.epochs:
+        model.history_.plot(out_dir / LOSS_CURVE)
     _summary(model, corpus, out_dir)
 
 
 def _summary(model, corpus, out_dir: Path) -> None:
     """Print what fitting did and the model's jaw scores on the test split."""
     from vispeech.evaluation.report import available_channels, evaluate_models
-    from vispeech.models.networks.network import LOSS_CURVE
 
     click.echo(f"saved {model.name} -> {out_dir}")
-    history = getattr(model, "history", None)
-    if history is not None and history.epochs:
+    history = model.history_
+    if history.epochs:
         best = history.best_epoch
         loss = history.validation_loss[best - 1]
         which = "validation"

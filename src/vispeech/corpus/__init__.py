@@ -5,7 +5,7 @@ Link Face takes (:func:`read_takes`); :func:`read_corpus` tells them apart.
 """
 
 from vispeech.corpus.alignment import align_corpus
-from vispeech.corpus.articulation import ARTICULATORY_CHANNELS, articulatory_parameters
+from vispeech.corpus.articulation import ARTICULATORY_CHANNELS, articulatory_parameters, with_articulatory_tracks
 from vispeech.corpus.cache import CorpusCache
 from vispeech.corpus.corpus import SPLITS, Corpus, CorpusWarning, Utterance, split_of
 from vispeech.corpus.grid import read_grid
@@ -13,7 +13,7 @@ from vispeech.corpus.read import read_corpus
 from vispeech.corpus.takes import read_takes
 
 __all__ = [
-    "ARTICULATORY_CHANNELS",
+    "ARTICULATORY_CHANNELS", "with_articulatory_tracks",
     "SPLITS",
     "Corpus",
     "CorpusCache",

@@ -10,21 +10,14 @@ corners (about 9 cm on an adult face), whatever the head's pose and distance to 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from vispeech.corpus.corpus import Utterance
+from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
+from vispeech.motion.arkit import ARTICULATORY_CHANNELS
 from vispeech.motion.track import Track
-
-ARTICULATORY_CHANNELS = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
-"""Channels of :func:`articulatory_parameters`.
-
-- ``jaw_opening``: chin (152) to nose tip (1) distance.
-- ``lip_aperture``: inner-lip gap, upper (13) to lower (14).
-- ``lip_width``: outer mouth corners 61 to 291.
-- ``protrusion``: how far the lip midpoints (0, 17) stand out of the face beyond the mouth
-  corners (61, 291), along the head frame's forward axis; it grows when the lips round.
-"""
 
 FRAME_SIZE = (360, 288)
 """Width and height in pixels of the video the GRID landmarks were tracked on."""
@@ -75,3 +68,10 @@ def _head_frame(points: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
     return {
         k: np.einsum("fij,fj->fi", rotation, p - points[1]) / eye_distance for k, p in points.items()
     }
+
+
+def with_articulatory_tracks(corpus: Corpus) -> Corpus:
+    """A copy of ``corpus`` whose utterances' tracks are their :func:`articulatory_parameters`
+    (what a model with ``targets="articulatory"`` trains on)."""
+    utterances = [replace(u, track=articulatory_parameters(u)) for u in corpus.utterances]
+    return replace(corpus, utterances=utterances, channels=ARTICULATORY_CHANNELS)

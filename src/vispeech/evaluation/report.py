@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vispeech.corpus.articulation import ARTICULATORY_CHANNELS, articulatory_parameters
+from vispeech.corpus.articulation import articulatory_parameters
 from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.evaluation.closures import (
@@ -23,8 +23,8 @@ from vispeech.evaluation.closures import (
     lip_opening, model_closed, tracked_closed,
 )
 from vispeech.evaluation.metrics import SPEECH_MARGIN, ChannelScores, score_channels, speech_frames
-from vispeech.models.contract import ControlModel
-from vispeech.motion.arkit import MOUTH_CHANNELS
+from vispeech.models.contract import Estimator
+from vispeech.motion.arkit import ARTICULATORY_CHANNELS, MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
 EVALUATED_CHANNELS: tuple[str, ...] = MOUTH_CHANNELS + ARTICULATORY_CHANNELS
@@ -164,7 +164,7 @@ def available_channels(corpus: Corpus) -> tuple[str, ...]:
     return tuple(corpus.channels) + (ARTICULATORY_CHANNELS if landmarks else ())
 
 
-def model_channels(model: ControlModel, corpus: Corpus, channels: Iterable[str] | None = None) -> tuple[str, ...]:
+def model_channels(model: Estimator, corpus: Corpus, channels: Iterable[str] | None = None) -> tuple[str, ...]:
     """The channels to score a model on: ``channels`` (default: those of
     :data:`EVALUATED_CHANNELS` that the model predicts and the corpus has), with ``jawOpen``
     first whenever both have it."""
@@ -202,7 +202,7 @@ def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
     return Track(values, tuple(channels), utterance.track.fps, utterance.track.start_time)
 
 
-def predict_on_frames(model: ControlModel, utterance: Utterance, postprocessing: bool = True) -> Track:
+def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bool = True) -> Track:
     """The model's animation of the utterance's phones on the frames of its recorded track.
 
     The model predicts at the track's frame rate from time 0 (post-processed when
@@ -236,7 +236,7 @@ def scored_frames(utterance: Utterance) -> np.ndarray:
 
 def evaluate_models(
     corpus: Corpus,
-    models: Mapping[str, ControlModel],
+    models: Mapping[str, Estimator],
     *,
     channels: Iterable[str] | None = None,
     postprocessing: bool = True,

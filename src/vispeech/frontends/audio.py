@@ -41,3 +41,23 @@ def audio_duration(path: str | os.PathLike) -> float:
 def _check_exists(path: str | os.PathLike) -> None:
     if not Path(path).is_file():
         raise VispeechError(f"audio file not found: {path}")
+
+
+def to_pcm16(samples: np.ndarray) -> np.ndarray:
+    """Float samples in [-1, 1] as 16-bit little-endian PCM (clipped), the one conversion
+    for WAV files and streamed audio alike."""
+    return np.clip(np.asarray(samples) * 32767.0, -32768, 32767).astype("<i2")
+
+
+def wav_bytes(samples: np.ndarray, sample_rate: int) -> bytes:
+    """A mono 16-bit PCM WAV file of ``samples`` (floats in [-1, 1]) in memory."""
+    import io
+    import wave
+
+    buffer = io.BytesIO()
+    with wave.open(buffer, "wb") as out:
+        out.setnchannels(1)
+        out.setsampwidth(2)
+        out.setframerate(int(sample_rate))
+        out.writeframes(to_pcm16(samples).tobytes())
+    return buffer.getvalue()

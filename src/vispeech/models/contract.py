@@ -1,9 +1,28 @@
-"""The control-model protocol: ``predict`` phones to a track, ``fit``, ``save`` and ``load``.
+"""The model contract: what every control model is and does, whatever its family or input.
 
-Every model saves to the same folder format: ``config.json`` holding
-``{"model", "version", "vispeech", "channels", "params", "arrays"}`` (plus
-``"postprocessing"`` when the model recommends its own post-processing) and, only when the
-model has arrays (``"arrays"`` lists their names), ``weights.npz`` (read without pickle).
+A control model is an estimator in scikit-learn's sense:
+
+- the constructor stores *hyper-parameters* only (the training budget included), given by
+  keyword over the family's :attr:`Estimator.defaults`; :meth:`~Estimator.get_params` returns
+  them and never changes after :meth:`~Estimator.fit`;
+- :meth:`~Estimator.fit` ``(corpus, *, progress=None) -> self`` learns from a corpus (an object
+  with ``split("train")`` and ``split("validation")``, or any iterable of utterances with
+  ``.phones`` and ``.track``, all of them used for training); what it learns lives in
+  attributes whose names end in ``_``; data-free families (rules with authored parameters)
+  are ready without it;
+- :meth:`~Estimator.predict` ``(inputs, fps) -> Track`` animates one utterance's inputs
+  (a :class:`~vispeech.alignment.phones.PhoneSequence` for the phone families; audio
+  families take audio through the same call); :attr:`~Estimator.is_fitted` says whether it can;
+- :attr:`~Estimator.lookahead` is how many frames of input after frame t a stream needs
+  before it gives frame t, and :meth:`~Estimator.stream` predicts incrementally as inputs
+  arrive (:class:`ModelStream`);
+- :meth:`~Estimator.save` and :meth:`Estimator.load` are the same for every family: a folder
+  with ``config.json`` (``format``, ``version``, ``name``, ``family``, ``input``, ``params``,
+  the learned ``state`` as JSON, the names of the learned ``arrays`` and the recommended
+  ``postprocessing`` preset) and, when there are arrays, ``weights.safetensors``. No pickle.
+
+A model is known by one :attr:`~Estimator.name`: its family's for a fresh one, the shipped
+name (``grid-tdnn``) for a shipped one, and whatever name it was saved under otherwise.
 """
 
 from __future__ import annotations
@@ -11,198 +30,327 @@ from __future__ import annotations
 import copy
 import json
 import os
-import zipfile
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.rules.segments import Segments
-from vispeech.targets.tables import TargetTable, default_model_params
 from vispeech.motion.track import Track
 
-FORMAT_VERSION = 1
-"""Version of the saved-model folder format; loading refuses newer ones."""
+FORMAT = "vispeech-model"
+FORMAT_VERSION = 2
+"""Version of the saved-model folder format; loading refuses others."""
+CONFIG = "config.json"
+WEIGHTS = "weights.safetensors"
+INPUT_KINDS = ("phones", "audio")
 
-_MODELS: dict[str, type[ControlModel]] = {}
-
-
-def register_model(cls: type[ControlModel]) -> type[ControlModel]:
-    """Class decorator: make a model known by its ``name`` to the registry and to :meth:`ControlModel.load`."""
-    if not cls.name or cls.name in _MODELS:
-        raise VispeechError(f"cannot register model {cls.name!r}: empty or taken name")
-    _MODELS[cls.name] = cls
-    return cls
+_Self = TypeVar("_Self", bound="Estimator")
 
 
-class ControlModel(ABC):
-    """Turns a time-aligned phone sequence into an animation track.
+class Estimator(ABC):
+    """Base of every control model; see the module docstring for the contract."""
 
-    Parameters come from :meth:`default_params`, replaced key by key by ``params`` and then
-    by keyword ``options``; :meth:`get_params` gives them back as a plain JSON-ready dict.
-    """
+    family: ClassVar[str] = ""
+    """The registered name of the family (``cohen-massaro``, ``tdnn-beskow``, ...)."""
+    input_kind: ClassVar[str] = "phones"
+    """What :meth:`predict` takes: ``"phones"`` or ``"audio"``."""
+    data_free: ClassVar[bool] = False
+    """True when the family predicts from its hyper-parameters alone (no fit needed)."""
+    trainable: ClassVar[bool] = True
+    """False when :meth:`fit` has nothing to learn (authored rules)."""
+    defaults: ClassVar[Mapping[str, Any]] = {}
+    """Every hyper-parameter with its default value."""
 
-    name: ClassVar[str] = ""
-    channels: tuple[str, ...] = ()
-    postprocessing: dict | None = None
-    """Recommended post-processing: :class:`vispeech.postprocess.PostprocessConfig` fields as
-    plain JSON, used by :func:`vispeech.pipeline.animate` instead of the defaults; saved in
-    ``config.json`` as ``"postprocessing"`` (left out when ``None``)."""
+    def __init__(self, **params: Any) -> None:
+        unknown = sorted(set(params) - set(self.defaults))
+        if unknown:
+            known = ", ".join(sorted(self.defaults)) or "none"
+            raise VispeechError(f"model {self.family} has no parameter {unknown[0]!r} (it has: {known})")
+        self._params = {key: copy.deepcopy(params.get(key, value)) for key, value in self.defaults.items()}
+        self.name = self.family
+        self._check_params()
 
-    def __init__(self, params: Mapping | None = None, **options):
-        merged = self.default_params()
-        for source in (params or {}, options):
-            for key, value in source.items():
-                if key not in merged:
-                    known = ", ".join(sorted(merged))
-                    raise VispeechError(f"model {self.name} has no parameter {key!r} (it has: {known})")
-                merged[key] = copy.deepcopy(value)
-        self._params = merged
+    def _check_params(self) -> None:
+        """Raise :class:`VispeechError` on a bad hyper-parameter value."""
 
-    @classmethod
-    def default_params(cls) -> dict:
-        """The parameters a model has when none are given."""
-        return {}
-
-    @abstractmethod
-    def predict(self, phones: PhoneSequence, fps: float) -> Track:
-        """A track of ``phones.n_frames(fps)`` frames from time 0 over :attr:`channels`."""
-
-    def fit(self, corpus) -> ControlModel:
-        """Estimate the parameters from a corpus; returns ``self``."""
-        raise VispeechError(f"model {self.name} is not trainable")
-
-    def get_params(self) -> dict:
-        """A copy of the parameters as a plain dict."""
+    def get_params(self) -> dict[str, Any]:
+        """A copy of the hyper-parameters."""
         return copy.deepcopy(self._params)
 
+    # -- what every family defines ---------------------------------------------------------
+
     @property
-    def params(self) -> dict:
-        return self.get_params()
+    @abstractmethod
+    def channels(self) -> tuple[str, ...]:
+        """The channels :meth:`predict` gives, in order."""
 
-    def _arrays(self) -> dict[str, np.ndarray]:
-        """Arrays saved beside the parameters in ``weights.npz`` (none by default)."""
-        return {}
+    @property
+    def is_fitted(self) -> bool:
+        """Whether :meth:`predict` can run: always for data-free families, else after :meth:`fit`."""
+        return self.data_free or self._learned_state() is not None
 
-    @classmethod
-    def _from_saved(cls, params: dict, arrays: dict[str, np.ndarray]) -> ControlModel:
-        """Rebuild a saved model; models with arrays override this."""
-        if arrays:
-            raise VispeechError(f"model {cls.name} has no arrays but the saved folder has {sorted(arrays)}")
-        return cls(params)
+    @property
+    def lookahead(self) -> int:
+        """Frames of input after frame t that :meth:`stream` waits for before giving frame t."""
+        return 2
 
-    @classmethod
-    def _from_folder(cls, folder: Path, config: dict) -> ControlModel:
-        """Rebuild a saved model from its folder and parsed ``config.json``.
+    @property
+    def postprocessing(self) -> str:
+        """The post-processing preset this model recommends (:data:`vispeech.targets.presets.PRESETS`)."""
+        return "authored" if self._learned_state() is None else "learned-jaw"
 
-        Reads ``weights.npz`` and calls :meth:`_from_saved`; models that keep their weights
-        in another file (the torch networks: ``weights.safetensors``) override this.
-        """
-        names = list(config.get("arrays", []))
-        arrays = _read_arrays(folder / "weights.npz", names) if names else {}
-        return cls._from_saved(config["params"], arrays)
+    @abstractmethod
+    def fit(self: _Self, corpus, *, progress: bool | None = None) -> _Self:
+        """Learn from ``corpus``; returns ``self``. ``progress``: bars and lines on stderr
+        (``None``: when stderr is a terminal)."""
 
-    def _config(self, arrays: list[str]) -> dict:
-        """The ``config.json`` every saved model starts from (``arrays``: names in its weights)."""
-        config = {
-            "model": self.name,
-            "version": FORMAT_VERSION,
-            "vispeech": _package_version(),
-            "channels": list(self.channels),
-            "params": self.get_params(),
-            "arrays": arrays,
-        }
-        if self.postprocessing is not None:
-            config["postprocessing"] = self.postprocessing
-        return config
+    @abstractmethod
+    def predict(self, inputs: PhoneSequence, fps: float) -> Track:
+        """A track of ``inputs.n_frames(fps)`` frames from time 0 over :attr:`channels`."""
+
+    def stream(self, language: str, fps: float) -> ModelStream:
+        """An incremental prediction for phones of ``language`` as they arrive, at ``fps``."""
+        self.check_fitted()
+        return WindowStream(self, language, fps)
+
+    # -- learned state, for save and load --------------------------------------------------
+
+    @abstractmethod
+    def _learned_state(self) -> tuple[dict, dict[str, np.ndarray]] | None:
+        """What fitting learned, as JSON and named arrays (``None`` before fitting)."""
+
+    @abstractmethod
+    def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
+        """Take over a state given by :meth:`_learned_state` (raise :class:`VispeechError` if it does not fit)."""
+
+    def check_fitted(self) -> None:
+        """Raise :class:`VispeechError` unless :attr:`is_fitted`."""
+        if not self.is_fitted:
+            raise VispeechError(f"model {self.name} is not trained: fit it on a corpus (vispeech train) "
+                                "or load a trained one")
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the model into folder ``path`` (created if needed) atomically; returns the folder."""
-        arrays = self._arrays()
-        config = self._config(sorted(arrays))
+        from safetensors.numpy import save as to_safetensors
+
+        learned = self._learned_state()
+        state, arrays = learned if learned is not None else (None, {})
+        config = {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "name": self.name,
+            "family": self.family,
+            "input": self.input_kind,
+            "vispeech": _package_version(),
+            "channels": list(self.channels) if self.is_fitted else None,
+            "params": self.get_params(),
+            "state": state,
+            "arrays": sorted(arrays),
+            "postprocessing": self.postprocessing,
+        }
         with atomic_output_dir(path) as staging:
-            (staging / "config.json").write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+            (staging / CONFIG).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if arrays:
-                with open(staging / "weights.npz", "wb") as handle:
-                    np.savez(handle, **arrays)
+                tensors = {key: np.ascontiguousarray(value) for key, value in arrays.items()}
+                (staging / WEIGHTS).write_bytes(to_safetensors(tensors))
         return Path(path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> ControlModel:
-        """Read a folder written by :meth:`save`; raises :class:`VispeechError` if it is missing or corrupt."""
-        import vispeech.models.registry  # noqa: F401  (registers the built-in models)
+    def load(cls: type[_Self], path: str | os.PathLike) -> _Self:
+        """Read a folder written by :meth:`save` into a model of this family (or a subclass's).
 
+        Raises :class:`VispeechError` if the folder is missing or corrupt or holds another family.
+        """
         folder = Path(path)
-        config_path = folder / "config.json"
-        if not config_path.is_file():
-            raise VispeechError(f"no saved model at {folder} (config.json missing)")
+        config = read_config(folder)
+        if config["family"] != cls.family:
+            raise VispeechError(f"{folder} holds a {config['family']} model, not a {cls.family} model")
+        return cls._from_config(folder, config)
+
+    @classmethod
+    def _from_config(cls: type[_Self], folder: Path, config: dict) -> _Self:
         try:
-            config = json.loads(config_path.read_text(encoding="utf-8"))
-            name, version, params = config["model"], config["version"], config["params"]
-            channels = list(config["channels"])
-        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
-            raise VispeechError(f"corrupt model config {config_path}: {exc}") from None
-        if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise VispeechError(f"{config_path} has format version {version!r}; this vispeech reads up to {FORMAT_VERSION}")
-        if name not in _MODELS:
-            raise VispeechError(f"{config_path} names unknown model {name!r}")
-        model_cls = _MODELS[name]
-        if not issubclass(model_cls, cls):
-            raise VispeechError(f"{folder} holds a {name} model, not a {cls.name} model")
-        if not isinstance(params, dict) or not isinstance(config.get("arrays", []), list):
-            raise VispeechError(f"corrupt model config {config_path}: params must be an object and arrays a list")
-        recommended = config.get("postprocessing")
-        if recommended is not None and not isinstance(recommended, dict):
-            raise VispeechError(f"corrupt model config {config_path}: postprocessing must be an object")
-        model = model_cls._from_folder(folder, config)
-        if list(model.channels) != channels:
-            raise VispeechError(f"{config_path} lists channels that do not match the {name} model's")
-        model.postprocessing = recommended
+            model = cls(**config["params"])
+        except TypeError as exc:
+            raise VispeechError(f"corrupt model config in {folder}: {exc}") from None
+        model.name = config["name"]
+        if config["state"] is not None:
+            arrays = _read_arrays(folder / WEIGHTS, config["arrays"])
+            try:
+                model._set_learned_state(config["state"], arrays)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise VispeechError(f"corrupt model state in {folder}: {exc}") from None
+        if config["channels"] is not None and list(model.channels) != config["channels"]:
+            raise VispeechError(f"{folder / CONFIG} lists channels that do not match the {model.family} model's")
         return model
 
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name!r} ({self.family}{'' if self.is_fitted else ', not fitted'})>"
 
-def _read_arrays(path: Path, names: list[str]) -> dict[str, np.ndarray]:
+
+def read_config(folder: Path) -> dict:
+    """The checked ``config.json`` of a saved-model folder."""
+    path = folder / CONFIG
+    if not path.is_file():
+        raise VispeechError(f"no saved model at {folder} ({CONFIG} missing)")
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {key: npz[key] for key in npz.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        config = json.loads(path.read_text(encoding="utf-8"))
+        if config.get("format") != FORMAT:
+            raise ValueError(f"not a {FORMAT} folder")
+        if config.get("version") != FORMAT_VERSION:
+            raise ValueError(f"format version {config.get('version')!r}; this vispeech reads {FORMAT_VERSION}")
+        for key, kind in (("name", str), ("family", str), ("params", dict), ("arrays", list),
+                          ("postprocessing", str)):
+            if not isinstance(config.get(key), kind):
+                raise ValueError(f"{key} must be a {kind.__name__}")
+        if config.get("input") not in INPUT_KINDS or not isinstance(config.get("state"), dict | None):
+            raise ValueError("input must be phones or audio and state an object or null")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError) as exc:
+        raise VispeechError(f"corrupt model config {path}: {exc}") from None
+    return config
+
+
+def _read_arrays(path: Path, names: Sequence[str]) -> dict[str, np.ndarray]:
+    if not names:
+        return {}
+    from safetensors import SafetensorError
+    from safetensors.numpy import load_file
+
+    try:
+        arrays = load_file(path)
+    except (OSError, SafetensorError, ValueError) as exc:
         raise VispeechError(f"cannot read model weights {path}: {exc}") from None
     if sorted(arrays) != sorted(names):
-        raise VispeechError(f"{path} holds arrays {sorted(arrays)}, the config lists {sorted(names)}")
+        raise VispeechError(f"{path} holds arrays {sorted(arrays)[:4]}..., its config lists others")
     return arrays
 
 
 def _package_version() -> str:
-    from vispeech import __version__
+    from importlib.metadata import PackageNotFoundError, version
 
-    return __version__
+    try:
+        return version("vispeech")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
 
 
-class PhoneTargetModel(ControlModel):
-    """A data-free model driven by the per-phone target table.
+def training_split(corpus) -> tuple[list, list]:
+    """``(train, validation)`` utterances of what :meth:`Estimator.fit` is given.
 
-    Defaults come from the ``models`` section of ``data/targets.json``; the extra parameter
-    ``targets`` holds per-phone target overrides (``{"sv": {symbol: {channel: value}}}``)
-    applied on top of the data file's, so estimated targets can be plugged in.
+    A corpus with splits gives its ``train`` and ``validation`` splits; any other iterable
+    of utterances trains on all of it with no validation. Raises :class:`VispeechError` on an
+    empty training set or an utterance without phones.
+    """
+    if hasattr(corpus, "split"):
+        train, validation = list(corpus.split("train")), list(corpus.split("validation"))
+    elif isinstance(corpus, Iterable) and not isinstance(corpus, str | bytes):
+        train, validation = list(corpus), []
+    else:
+        raise VispeechError("fit needs a corpus: an iterable of utterances with .phones and .track")
+    if not train:
+        raise VispeechError("cannot fit on an empty corpus")
+    for utterance in train + validation:
+        if getattr(utterance, "phones", None) is None:
+            raise VispeechError(f"utterance {getattr(utterance, 'id', '?')} has no phones: align the corpus first")
+    return train, validation
+
+
+def show_progress(progress: bool | None) -> bool:
+    """What ``progress=None`` means: bars and lines when stderr is a terminal."""
+    if progress is None:
+        import sys
+
+        return sys.stderr.isatty()
+    return bool(progress)
+
+
+class ModelStream(ABC):
+    """Frames for phones that arrive in time order (a recogniser's or a TTS engine's).
+
+    :meth:`push` takes the next phones (none overlapping the ones before) and returns
+    ``(start_frame, frames)``: the rows over :attr:`channels` at :attr:`fps` that became
+    computable, possibly none; :meth:`finish` returns the rest, up to the last phone's end.
+    Frame t is given once the phones cover frame ``t + lookahead``.
     """
 
-    def __init__(self, params: Mapping | None = None, **options):
-        super().__init__(params, **options)
-        self.table = TargetTable(self._params["targets"])
-        self.channels = self.table.channels
+    def __init__(self, model: Estimator, language: str, fps: float) -> None:
+        if not (np.isfinite(fps) and fps > 0):
+            raise VispeechError(f"fps must be positive, got {fps}")
+        self.model = model
+        self.language = language
+        self.fps = float(fps)
+        self.channels = tuple(model.channels)
+        self.lookahead = model.lookahead
+        self.end = 0.0
+        """Latest phone end so far, seconds."""
+        self.emitted = 0
+        """Frames given so far."""
+        self.closed = False
 
-    @classmethod
-    def default_params(cls) -> dict:
-        return {**default_model_params(cls.name), "targets": {}}
+    @abstractmethod
+    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
+        """Add phones; the frames that became ready."""
 
-    def segments(self, phones: PhoneSequence, fps: float) -> Segments:
-        """The gap-filled segments of ``phones`` with their targets, and the frame times."""
-        return Segments.build(phones, fps, self.table)
+    @abstractmethod
+    def finish(self) -> tuple[int, np.ndarray]:
+        """End the stream; the frames still owed."""
 
-    def _track(self, values: np.ndarray, fps: float) -> Track:
-        return Track(np.clip(values, 0.0, 1.0), self.channels, fps)
+    def close(self) -> None:
+        """Drop the stream (a client went away); safe to call more than once."""
+        self.closed = True
+
+    def _empty(self) -> tuple[int, np.ndarray]:
+        return self.emitted, np.zeros((0, len(self.channels)))
+
+
+class WindowStream(ModelStream):
+    """Any model streamed by re-predicting a bounded recent window.
+
+    Each step predicts the phones from ``context`` seconds before the first frame not yet
+    given up to the latest phone end, on a frame grid aligned with the stream's, and keeps the
+    frames now ready (those ``lookahead`` frames before the phones' end).
+    """
+
+    def __init__(self, model: Estimator, language: str, fps: float, context: float = 0.5) -> None:
+        super().__init__(model, language, fps)
+        self.context_frames = round(context * self.fps)
+        self._recent: list[Phone] = []
+
+    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
+        new = list(phones)
+        if self.closed:
+            raise VispeechError("this phone stream has ended")
+        if new:
+            self._recent += new
+            self.end = new[-1].end
+        return self._emit(final=False)
+
+    def finish(self) -> tuple[int, np.ndarray]:
+        if self.closed:
+            raise VispeechError("this phone stream has ended")
+        out = self._emit(final=True)
+        self.close()
+        return out
+
+    def _emit(self, final: bool) -> tuple[int, np.ndarray]:
+        known = first_frame(self.end, self.fps)  # frames before the phones' end
+        upto = known if final else known - self.lookahead
+        if upto <= self.emitted or not self._recent:
+            return self._empty()
+        first_time = max(0, self.emitted - self.context_frames) / self.fps
+        window = [p for p in self._recent if p.end > first_time] or self._recent[-1:]
+        shift = first_frame(window[0].start, self.fps, after=False)  # whole frames, so the grids agree
+        local = PhoneSequence(window, self.language).shifted(-shift / self.fps).with_gaps_filled()
+        values = self.model.predict(local, self.fps).values
+        rows = values[np.clip(np.arange(self.emitted, upto) - shift, 0, len(values) - 1)]
+        start, self.emitted = self.emitted, upto
+        keep_after = max(0, self.emitted - self.context_frames) / self.fps
+        self._recent = [p for p in self._recent if p.end > keep_after] or self._recent[-1:]
+        return start, rows
+
+

@@ -1,38 +1,63 @@
-"""Models by name: create a default-configured one, load a shipped trained one or a saved folder.
+"""Models by name: the families, the shipped trained models, and saved folders.
 
-A model module registers its class with :func:`vispeech.models.contract.register_model`; the
-modules imported here are the ones the registry knows. A new model adds its import below.
-Trained models shipped with the package live in ``vispeech/models/pretrained`` (see its
-``MODEL_CARD.md``) and are listed in :data:`PRETRAINED`.
+One name per model: :func:`load_model` takes a shipped model's name (``grid-tdnn``), a
+data-free family's name (``baseline``: its authored parameters) or a saved model folder, and
+the model it gives reports that name as :attr:`~vispeech.models.contract.Estimator.name`.
+Families that need training are created with :func:`create_model` and fitted (``vispeech
+train``). Family classes are imported when first asked for, so naming a model costs nothing.
+Shipped models live in ``vispeech/models/pretrained`` (see its ``MODEL_CARD.md``).
 """
 
 from __future__ import annotations
 
+import importlib
 import os
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from vispeech.errors import VispeechError
-from vispeech.models.networks import sliding_window, tdnn  # noqa: F401  (registration)
-from vispeech.models.rules import baseline, beskow_rules, cohen_massaro, ohman  # noqa: F401  (registration)
-from vispeech.models.contract import _MODELS, ControlModel
+from vispeech.models.contract import Estimator, read_config
+
+FAMILIES: dict[str, str] = {
+    "baseline": "vispeech.models.rules.baseline:Baseline",
+    "beskow-rules": "vispeech.models.rules.beskow_rules:BeskowRules",
+    "cohen-massaro": "vispeech.models.rules.cohen_massaro:CohenMassaro",
+    "ohman": "vispeech.models.rules.ohman:Ohman",
+    "sliding-window-thesis": "vispeech.models.networks.sliding_window:SlidingWindowNetwork",
+    "sliding-window-taylor": "vispeech.models.networks.sliding_window:TaylorNetwork",
+    "tdnn-beskow": "vispeech.models.networks.tdnn:TimeDelayNetwork",
+    "tdnn-lowlatency": "vispeech.models.networks.tdnn:LowLatencyNetwork",
+}
+"""Every family: name → ``module:class``."""
+
+DATA_FREE: tuple[str, ...] = ("baseline", "beskow-rules", "cohen-massaro", "ohman")
+"""Families that run on their authored parameters without training."""
 
 PRETRAINED: dict[str, str] = {
     "grid-tdnn": "grid_tdnn",
     "grid-tdnn-lowlatency": "grid_tdnn_lowlatency",
+    "grid-cohen-massaro": "grid_cohen_massaro",
+    "grid-ohman": "grid_ohman",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 
-MODEL_NAMES: tuple[str, ...] = tuple(_MODELS) + tuple(PRETRAINED)
-"""Names :func:`create_model` and :func:`load_model` accept."""
+RUNNABLE: tuple[str, ...] = (*PRETRAINED, *DATA_FREE)
+"""Names :func:`load_model` takes: what ``--model`` offers."""
 
 
-def model_class(name: str) -> type[ControlModel]:
-    """The class registered under ``name``."""
+def family_class(family: str) -> type[Estimator]:
+    """The class of a family (imported on first use)."""
     try:
-        return _MODELS[name]
+        module, _, name = FAMILIES[family].partition(":")
     except KeyError:
-        raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(_MODELS)})") from None
+        raise VispeechError(f"unknown model family {family!r} (use one of: {', '.join(FAMILIES)})") from None
+    return getattr(importlib.import_module(module), name)
+
+
+def create_model(family: str, **params) -> Estimator:
+    """A new model of ``family`` with ``params`` over its default hyper-parameters."""
+    return family_class(family)(**params)
 
 
 def pretrained_path(name: str) -> Path:
@@ -42,24 +67,54 @@ def pretrained_path(name: str) -> Path:
     return Path(str(resources.files("vispeech.models") / "pretrained" / PRETRAINED[name]))
 
 
-def create_model(name: str, **options) -> ControlModel:
-    """A model ``name`` with its default parameters, replaced by ``options``; a
-    :data:`PRETRAINED` name gives that trained model as shipped (it takes no options)."""
-    if name in PRETRAINED:
-        if options:
-            raise VispeechError(f"the shipped model {name} takes no options; create its architecture "
-                                f"({ControlModel.load(pretrained_path(name)).name}) to train one")
-        return ControlModel.load(pretrained_path(name))
-    return model_class(name)(**options)
+def load_model(name_or_path: str | os.PathLike) -> Estimator:
+    """The model a name of :data:`RUNNABLE` or a saved folder gives, known by that name.
+
+    Raises :class:`VispeechError` for anything else (naming the families to train instead).
+    """
+    if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
+        return load_folder(pretrained_path(name_or_path))
+    if isinstance(name_or_path, str) and name_or_path in DATA_FREE:
+        return create_model(name_or_path)
+    if isinstance(name_or_path, str) and name_or_path in FAMILIES:
+        raise VispeechError(f"model {name_or_path} must be trained first (vispeech train --model {name_or_path}); "
+                            f"ready to run: {', '.join(RUNNABLE)}")
+    if not os.path.isdir(name_or_path):
+        raise VispeechError(f"unknown model {str(name_or_path)!r}: not one of {', '.join(RUNNABLE)} "
+                            "nor a saved model folder")
+    return load_folder(Path(name_or_path))
 
 
-def load_model(path_or_name: str | os.PathLike) -> ControlModel:
-    """A registered or shipped model name gives that model (:func:`create_model`); anything
-    else is a saved model folder."""
-    if isinstance(path_or_name, str) and path_or_name in MODEL_NAMES:
-        return create_model(path_or_name)
-    if not os.path.isdir(path_or_name):
-        raise VispeechError(
-            f"unknown model {str(path_or_name)!r}: not one of {', '.join(MODEL_NAMES)} nor a saved model folder"
-        )
-    return ControlModel.load(path_or_name)
+def load_folder(folder: Path) -> Estimator:
+    """The model saved in ``folder``, whatever its family."""
+    config = read_config(folder)
+    return family_class(config["family"])._from_config(folder, config)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """One line of ``vispeech models``: what a runnable model is and how well it does."""
+
+    name: str
+    family: str
+    input: str
+    lookahead: int
+    fps: float | None
+    trained_on: str
+    score: str
+
+
+def describe_models() -> list[ModelInfo]:
+    """Every runnable model with its family, input, look-ahead, training data and test-split figure."""
+    import json
+
+    infos = []
+    for name in RUNNABLE:
+        model = load_model(name)
+        trained_on, score = "authored (data-free)", "n/a"
+        if name in PRETRAINED:
+            card = json.loads((pretrained_path(name) / "card.json").read_text(encoding="utf-8"))
+            trained_on, score = card["trained_on"], card["test"]
+        infos.append(ModelInfo(name, model.family, model.input_kind, model.lookahead,
+                               getattr(model, "fps_", None), trained_on, score))
+    return infos

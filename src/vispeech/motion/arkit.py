@@ -32,6 +32,10 @@ MOUTH_CHANNELS: tuple[str, ...] = (
 )
 """Jaw, lip, cheek-puff and tongue channels: what speech animation drives."""
 
+ARTICULATORY_CHANNELS: tuple[str, ...] = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
+"""Beskow-style articulatory parameters (not ARKit shapes), in eye-corner distances; measured on
+face landmarks by :func:`vispeech.corpus.articulation.articulatory_parameters`."""
+
 
 LIP_CLOSED = 0.05
 """Lip aperture (see :func:`lip_aperture`) at or below which the lips count as closed."""

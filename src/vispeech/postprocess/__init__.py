@@ -12,21 +12,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 from vispeech.postprocess.overlays import anchor_frames, consonant_overlays, upper_lip_overlay
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
+from vispeech.targets.presets import PRESETS
 
-__all__ = ["DEFAULT_CEILINGS", "LEARNED_JAW", "PostprocessConfig", "SoftCeiling", "postprocess"]
-
-LEARNED_JAW: Mapping = {
-    "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ["bilabial", "labiodental"], "keep_jaw": True,
-}
-"""The post-processing a model fitted to recordings recommends (saved in its config.json):
-no jaw range shift or absolute ceilings (tuned for iPhone-scale authored targets), overlays
-only for /p b m/ and /f v/, closing the lips through mouthClose and leaving the learned jaw alone."""
+__all__ = ["DEFAULT_CEILINGS", "PostprocessConfig", "SoftCeiling", "postprocess"]
 
 DEFAULT_CEILINGS: Mapping[str, SoftCeiling] = {
     "jawOpen": SoftCeiling(threshold=0.45, maximum=0.55),
@@ -60,6 +54,13 @@ class PostprocessConfig:
     jaw_peaks_in_vowels: bool = True
     ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
     close_within_jaw: bool = True
+
+    @classmethod
+    def from_preset(cls, name: str) -> PostprocessConfig:
+        """The settings of a named preset (:data:`vispeech.targets.presets.PRESETS`)."""
+        if name not in PRESETS:
+            raise VispeechError(f"unknown post-processing preset {name!r} (use {', '.join(PRESETS)})")
+        return cls(**PRESETS[name])
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.jaw_shift < 1.0 and self.fade_in >= 0.0 and 0.0 <= self.upper_lip <= 1.0):
@@ -102,8 +103,8 @@ def _vowel_frames(track: Track, phones: PhoneSequence) -> np.ndarray:
     starts = np.array([p.start for p in vowels]) - track.start_time
     ends = np.array([p.end for p in vowels]) - track.start_time
     mask = np.zeros(track.n_frames, dtype=bool)
-    first = np.maximum(np.ceil(starts * track.fps - 1e-9), 0).astype(int)
-    stop = np.ceil(ends * track.fps - 1e-9).astype(int)
+    first = np.maximum(first_frame(starts, track.fps), 0)
+    stop = first_frame(ends, track.fps)
     for a, b in zip(first, stop):
         mask[a:b] = True
     mask[anchor_frames(starts, ends, track.fps, track.n_frames)] = True

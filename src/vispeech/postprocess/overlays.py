@@ -28,14 +28,14 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.targets.tables import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
 from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES
 from vispeech.phonetics.inventory import is_vowel
-from vispeech.postprocess.bezier import bezier_ease
+from vispeech.targets.easing import bezier_ease
 
 DEFAULT_FADE_OUT: Mapping = {
     "default": 1.5,
@@ -57,8 +57,8 @@ def anchor_frames(starts: np.ndarray, ends: np.ndarray, fps: float, n_frames: in
 
     Times are seconds from the first frame; frame k sits at k / fps.
     """
-    first = np.ceil(starts * fps - 1e-9)
-    last = np.ceil(ends * fps - 1e-9) - 1
+    first = first_frame(starts, fps).astype(float)
+    last = first_frame(ends, fps).astype(float) - 1
     centre = np.round(0.5 * (starts + ends) * fps)
     inside = np.clip(centre, first, np.maximum(first, last))
     return np.clip(np.where(last >= first, inside, centre), 0, n_frames - 1).astype(int)

@@ -36,8 +36,8 @@ import vispeech.preview
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import VOICES
-from vispeech.models.contract import ControlModel
-from vispeech.models.registry import MODEL_NAMES, PRETRAINED, create_model, load_model, pretrained_path
+from vispeech.models.contract import Estimator
+from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, speak
@@ -97,12 +97,10 @@ class SpeechService:
 
     def __init__(self, config: ServeConfig) -> None:
         self.config = config
-        self.models: dict[str, ControlModel] = {}
+        self.models: dict[str, Estimator] = {}
         self.versions: dict[str, str] = {}
-        for name in MODEL_NAMES:
-            model = create_model(name)
-            if getattr(model, "is_trained", True):
-                self._add(name, model, pretrained_path(name) if name in PRETRAINED else None)
+        for name in RUNNABLE:
+            self._add(name, load_model(name), pretrained_path(name) if name in PRETRAINED else None)
         if config.default_model not in self.models:
             raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
         self.stream_model = self._choose_stream_model(config.stream_model)
@@ -110,7 +108,7 @@ class SpeechService:
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.active_streams = 0
 
-    def _add(self, name: str, model: ControlModel, folder: Path | None = None) -> None:
+    def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
         """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
         about = {"vispeech": vispeech.__version__, "model": name, "params": model.get_params()}
         digest = hashlib.sha256(json.dumps(about, sort_keys=True, default=str).encode())
@@ -130,8 +128,7 @@ class SpeechService:
         if spec in self.models:
             return spec
         model = load_model(spec)
-        if not getattr(model, "is_trained", True):
-            raise VispeechError(f"stream model {spec!r} is not trained")
+        model.check_fitted()
         folder = Path(spec)
         name = model.name if model.name not in self.models else f"{model.name}:{folder.name}"
         self._add(name, model, folder)
@@ -144,7 +141,7 @@ class SpeechService:
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
 
-    def model(self, name: str | None, stream: bool = False) -> tuple[str, ControlModel]:
+    def model(self, name: str | None, stream: bool = False) -> tuple[str, Estimator]:
         """The model called ``name`` (``None``: the default, or the stream model when ``stream``)."""
         name = name or (self.stream_model if stream else self.config.default_model)
         if name not in self.models:

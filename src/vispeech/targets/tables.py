@@ -16,7 +16,6 @@ Keys apply in order, later ones over earlier ones, phone keys last.
 
 from __future__ import annotations
 
-import copy
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -38,11 +37,6 @@ def _data() -> dict:
 
 TARGET_CHANNELS: tuple[str, ...] = tuple(_data()["channels"])
 """The ARKit channels every phone has a target for (and the data-free models predict)."""
-
-def default_model_params(model: str) -> dict:
-    """A fresh copy of a model's default parameters from the data file."""
-    return copy.deepcopy(_data()["models"][model])
-
 
 def expand_channel(name: str, channels: Sequence[str] = TARGET_CHANNELS) -> tuple[str, ...]:
     """``name`` itself, or for a pair name such as ``mouthSmile`` its ``Left`` and ``Right`` channels."""

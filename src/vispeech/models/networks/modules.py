@@ -1,6 +1,6 @@
-"""The torch modules of the trainable networks and their window operations.
+"""The torch modules the networks train (prediction runs on :mod:`vispeech.models.networks.kernels`).
 
-Kept apart from the model classes so that importing the model registry does not import torch.
+Only training imports this module, and with it torch (the ``train`` extra).
 """
 
 from __future__ import annotations
@@ -90,12 +90,6 @@ class RecurrentTimeDelayNet(nn.Module):
             states.append(h)
         return self.output(torch.stack(states, dim=1))
 
-    def step(self, window: torch.Tensor, past: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """One frame: ``(batch, window, inputs)`` and the past states to outputs and new states."""
-        drive = self.input(window.transpose(1, 2))[:, :, 0]
-        h = torch.tanh(drive + self.recurrent(torch.cat(past, dim=1)))
-        return self.output(h), [h, *past[:-1]]
-
 
 class GroupedNetworks(nn.Module):
     """Several networks, each predicting some outputs; outputs come back in the model's order."""
@@ -108,10 +102,3 @@ class GroupedNetworks(nn.Module):
 
     def forward(self, padded: torch.Tensor) -> torch.Tensor:
         return torch.cat([net(padded) for net in self.nets], dim=-1)[..., self.order]
-
-    def initial_state(self, dtype: torch.dtype) -> list[list[torch.Tensor]]:
-        return [net.initial_state(1, dtype) for net in self.nets]
-
-    def step(self, window: torch.Tensor, past: list[list[torch.Tensor]]) -> tuple[torch.Tensor, list]:
-        outs, states = zip(*(net.step(window, p) for net, p in zip(self.nets, past, strict=True)), strict=True)
-        return torch.cat(outs, dim=-1)[..., self.order], list(states)

@@ -6,12 +6,12 @@ window. Windows slide one frame at a time; the input is padded at both ends by
 ``(Kx + Ky) / 2 - 1`` copies of its first and last frame, so every frame lies in exactly Ky
 output windows, whose predictions are averaged.
 
-Presets:
+Families:
 
-- ``taylor``: Kx = 11, Ky = 5, three hidden layers of 3000 tanh units with dropout 0.5, a
+- ``sliding-window-taylor``: Kx = 11, Ky = 5, three hidden layers of 3000 tanh units with dropout 0.5, a
   linear output, squared loss on each output window, mini-batch SGD (100 windows, momentum
   0.9), phone one-hot plus linguistic indicator inputs, standardised targets.
-- ``thesis``: Kx = Ky = 15, hidden layers of 0.5·Kx·nf and Kx·nb units (675 -> 338 -> 270 ->
+- ``sliding-window-thesis``: Kx = Ky = 15, hidden layers of 0.5·Kx·nf and Kx·nb units (675 -> 338 -> 270 ->
   270 for nf = 45 inputs and nb = 18 outputs) with LeakyReLU (0.1) and dropout 0.6 / 0.1,
   He initialisation (output layer N(0, 0.05²)), one utterance per update with the loss
   (MSE + 1.8e-8·Σ‖W‖² + 1e-4·motion term) on the overlap-averaged sequence, Adam (1e-3)
@@ -24,50 +24,49 @@ from __future__ import annotations
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.models.contract import register_model
-from vispeech.models.networks.network import COMMON_PARAMS, NeuralControlModel
+from vispeech.models.networks.kernels import WindowKernel
+from vispeech.models.networks.network import COMMON_PARAMS, Network
 
-PRESETS: dict[str, dict] = {
-    "taylor": {
-        **COMMON_PARAMS,
-        "linguistic": True,
-        "standardize": True,
-        "optimizer": "sgd",
-        "learning_rate": 0.01,
-        "momentum": 0.9,
-        "input_window": 11,
-        "output_window": 5,
-        "hidden": [3000, 3000, 3000],
-        "activation": "tanh",
-        "dropout": [0.5, 0.5, 0.5],
-        "init": "default",
-        "update": "windows",
-        "batch_size": 100,
-    },
-    "thesis": {
-        **COMMON_PARAMS,
-        "zero_center": True,
-        "lr_step_down": True,
-        "l2": 1.8e-8,
-        "motion_weight": 1e-4,
-        "input_window": 15,
-        "output_window": 15,
-        "hidden": None,
-        "activation": "leaky_relu",
-        "dropout": [0.6, 0.1],
-        "init": "he",
-        "update": "utterance",
-        "batch_size": 1,
-    },
+TAYLOR: dict = {
+    **COMMON_PARAMS,
+    "linguistic": True,
+    "standardize": True,
+    "optimizer": "sgd",
+    "learning_rate": 0.01,
+    "momentum": 0.9,
+    "input_window": 11,
+    "output_window": 5,
+    "hidden": [3000, 3000, 3000],
+    "activation": "tanh",
+    "dropout": [0.5, 0.5, 0.5],
+    "init": "default",
+    "update": "windows",
+    "batch_size": 100,
 }
-"""Parameters of the published configurations; ``hidden=None`` is the thesis's sizing rule."""
+"""Hyper-parameters of Taylor et al. (2017): ``sliding-window-taylor``."""
+
+THESIS: dict = {
+    **COMMON_PARAMS,
+    "zero_center": True,
+    "lr_step_down": True,
+    "l2": 1.8e-8,
+    "motion_weight": 1e-4,
+    "input_window": 15,
+    "output_window": 15,
+    "hidden": None,
+    "activation": "leaky_relu",
+    "dropout": [0.6, 0.1],
+    "init": "he",
+    "update": "utterance",
+    "batch_size": 1,
+}
+"""Hyper-parameters of the thesis's network (``sliding-window-thesis``); ``hidden=None`` is its sizing rule."""
 
 _ACTIVATIONS = ("tanh", "leaky_relu")
 
 
-@register_model
-class SlidingWindowNetwork(NeuralControlModel):
-    """Sliding-window network; ``preset`` is ``"thesis"`` (default) or ``"taylor"``.
+class SlidingWindowNetwork(Network):
+    """The thesis's sliding-window network.
 
     Window parameters: ``input_window``, ``output_window`` (Kx - Ky even), ``hidden`` (layer
     sizes, or ``None`` for the thesis rule 0.5·Kx·inputs, Kx·outputs), ``activation``
@@ -77,12 +76,10 @@ class SlidingWindowNetwork(NeuralControlModel):
     averaged sequence). The others are the common network parameters (``docs/networks.md``).
     """
 
-    name = "sliding-window-thesis"
-    presets = PRESETS
-    default_preset = "thesis"
-    preset_names = {"thesis": "sliding-window-thesis", "taylor": "sliding-window-taylor"}
+    family = "sliding-window-thesis"
+    defaults = THESIS
 
-    def _check_params(self) -> None:
+    def _check_architecture(self) -> None:
         p = self._params
         kx, ky = p["input_window"], p["output_window"]
         if not (isinstance(kx, int) and isinstance(ky, int) and 1 <= ky <= kx and (kx - ky) % 2 == 0):
@@ -145,21 +142,21 @@ class SlidingWindowNetwork(NeuralControlModel):
         x_all, x_index, y_all, y_index = batch
         return sequence_loss(module(x_all[x_index]), y_all[y_index], weight), float(len(x_index))
 
-    def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
-        from vispeech.models.networks.modules import edge_pad, overlap_average, windows
+    @property
+    def lookahead(self) -> int:
+        """Frames after frame t (at the model's own rate) whose inputs frame t's output windows read."""
+        return self._pad
 
-        padded = edge_pad(inputs, self._pad).double()
-        out = module(windows(padded, self._params["input_window"]))
-        return overlap_average(out, len(inputs)).numpy()
+    def _make_kernel(self) -> WindowKernel:
+        p = self._params
+        return WindowKernel(self.weights_, p["input_window"], p["output_window"], p["activation"])
 
 
-@register_model
 class TaylorNetwork(SlidingWindowNetwork):
-    """:class:`SlidingWindowNetwork` with the ``taylor`` preset by default."""
+    """Taylor et al.'s (2017) sliding-window network: :class:`SlidingWindowNetwork` with their hyper-parameters."""
 
-    name = "sliding-window-taylor"
-    default_preset = "taylor"
-
+    family = "sliding-window-taylor"
+    defaults = TAYLOR
 
 
 def _offsets(blocks: list) -> np.ndarray:

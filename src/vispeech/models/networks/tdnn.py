@@ -1,7 +1,7 @@
 """Beskow's (2004) recurrent time-delay networks, offline (ANN 1) and low-latency (ANN 2).
 
 Each network has three layers. At frame t (of the model's frame rate, 60 fps in the
-presets as in the paper):
+hyper-parameters as in the paper):
 
 - the input window is the input vectors of frames ``t - look_back .. t + look_ahead``
   (the sequence padded with copies of its first and last frame), fully connected to the
@@ -17,26 +17,27 @@ several such networks (Beskow: occlusion, rounding, protrusion, jaw), each with 
 hidden size (``hidden`` an int or one int per group). Training is back-propagation through
 time over whole utterances, ``batch_size`` utterances per update, Adam.
 
-Presets: ``beskow`` (ANN 1): look-back 15, look-ahead 15 frames; ``beskow-lowlatency``
+Families: ``tdnn-beskow`` (ANN 1): look-back 15, look-ahead 15 frames; ``tdnn-lowlatency``
 (ANN 2): look-back 28, look-ahead 2 (33 ms at 60 fps). Both read articulatory feature
 vectors (``inputs="features"``) and standardise the targets.
 
-:meth:`TimeDelayNetwork.predict_stream` runs the same network on phones as they arrive and
-yields frame t as soon as the inputs up to ``t + look_ahead`` are known.
+:meth:`TimeDelayNetwork.stream` runs the same network on phones as they arrive and gives
+frame t as soon as the inputs up to ``t + look_ahead`` are known (:class:`RecurrentStream`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, first_frame, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.contract import register_model
-from vispeech.models.networks.network import COMMON_PARAMS, NeuralControlModel
+from vispeech.models.contract import ModelStream
+from vispeech.models.networks.kernels import RecurrentKernel
+from vispeech.models.networks.network import COMMON_PARAMS, Network
 
-_BESKOW = {
+BESKOW: dict = {
     **COMMON_PARAMS,
     "inputs": "features",
     "standardize": True,
@@ -49,30 +50,22 @@ _BESKOW = {
     "groups": None,
     "batch_size": 8,
 }
-
-PRESETS: dict[str, dict] = {
-    "beskow": _BESKOW,
-    "beskow-lowlatency": {**_BESKOW, "look_back": 28, "look_ahead": 2},
-}
-"""Parameters of ANN 1 (``beskow``) and ANN 2 (``beskow-lowlatency``)."""
+"""Hyper-parameters of ANN 1 (``tdnn-beskow``); ANN 2 (``tdnn-lowlatency``) looks 28 back and 2 ahead."""
 
 
-@register_model
-class TimeDelayNetwork(NeuralControlModel):
-    """Beskow's recurrent time-delay network; ``preset`` is ``"beskow"`` or ``"beskow-lowlatency"``.
+class TimeDelayNetwork(Network):
+    """Beskow's recurrent time-delay network, ANN 1 (look-back and look-ahead 15 frames).
 
-    Architecture parameters: ``look_back``, ``look_ahead`` (frames), ``hidden`` (units, or
-    one count per group), ``delays`` (hidden feedback delays 1..delays), ``groups`` (``None``:
-    one network for all outputs; else a list of channel-name lists covering the outputs),
-    ``batch_size`` (utterances per update). The others are the common network parameters.
+    Architecture hyper-parameters: ``look_back``, ``look_ahead`` (frames), ``hidden`` (units,
+    or one count per group), ``delays`` (hidden feedback delays 1..delays), ``groups``
+    (``None``: one network for all outputs; else a list of channel-name lists covering the
+    outputs), ``batch_size`` (utterances per update). The others are the common network ones.
     """
 
-    name = "tdnn-beskow"
-    presets = PRESETS
-    default_preset = "beskow"
-    preset_names = {"beskow": "tdnn-beskow", "beskow-lowlatency": "tdnn-lowlatency"}
+    family = "tdnn-beskow"
+    defaults = BESKOW
 
-    def _check_params(self) -> None:
+    def _check_architecture(self) -> None:
         p = self._params
         for key in ("look_back", "look_ahead"):
             if not (isinstance(p[key], int) and p[key] >= 0):
@@ -84,24 +77,38 @@ class TimeDelayNetwork(NeuralControlModel):
     def window(self) -> int:
         return self._params["look_back"] + self._params["look_ahead"] + 1
 
-    def _build_module(self, n_inputs: int, n_outputs: int):
-        from vispeech.models.networks.modules import GroupedNetworks, RecurrentTimeDelayNet
+    @property
+    def lookahead(self) -> int:
+        """Frames of input after frame t (at the model's own frame rate) that frame t needs."""
+        return self._params["look_ahead"]
 
-        p = self._params
-        groups = p["groups"] or [list(self.outputs)]
+    def _group_columns(self) -> list[list[int]]:
+        """The output columns of each group's network."""
+        groups = self._params["groups"] or [list(self.outputs)]
         columns = []
         for group in groups:
             unknown = [c for c in group if c not in self.outputs]
             if unknown:
                 raise VispeechError(f"groups name channels the model does not predict: {', '.join(unknown)}")
             columns.append([self.outputs.index(c) for c in group])
-        if sorted(c for group in columns for c in group) != list(range(n_outputs)):
+        if sorted(c for group in columns for c in group) != list(range(len(self.outputs))):
             raise VispeechError(f"groups must cover each output channel once: {', '.join(self.outputs)}")
-        hidden = list(p["hidden"]) if isinstance(p["hidden"], list | tuple) else [p["hidden"]] * len(groups)
-        if len(hidden) != len(groups):
-            raise VispeechError(f"hidden needs one size per group ({len(groups)}), got {hidden}")
+        return columns
+
+    def _build_module(self, n_inputs: int, n_outputs: int):
+        from vispeech.models.networks.modules import GroupedNetworks, RecurrentTimeDelayNet
+
+        p = self._params
+        columns = self._group_columns()
+        hidden = list(p["hidden"]) if isinstance(p["hidden"], list | tuple) else [p["hidden"]] * len(columns)
+        if len(hidden) != len(columns):
+            raise VispeechError(f"hidden needs one size per group ({len(columns)}), got {hidden}")
         nets = [RecurrentTimeDelayNet(n_inputs, len(c), self.window, h, p["delays"]) for c, h in zip(columns, hidden)]
         return GroupedNetworks(nets, columns)
+
+    def _make_kernel(self) -> RecurrentKernel:
+        return RecurrentKernel(self.weights_, self._group_columns(), self._params["look_back"],
+                               self._params["look_ahead"])
 
     def _pad(self, inputs: np.ndarray) -> np.ndarray:
         return np.pad(inputs, ((self._params["look_back"], self._params["look_ahead"]), (0, 0)), mode="edge")
@@ -128,63 +135,92 @@ class TimeDelayNetwork(NeuralControlModel):
         loss = sequence_loss(module(inputs), targets, self._params["motion_weight"], mask)
         return loss, float(mask.sum())
 
-    def _infer(self, module, inputs: np.ndarray) -> np.ndarray:
-        import torch
+    def stream(self, language: str, fps: float) -> ModelStream:
+        """The exact recurrence run frame by frame as phones arrive (:class:`RecurrentStream`)."""
+        self.check_fitted()
+        self.encoding_.check(PhoneSequence([], language))
+        return RecurrentStream(self, language, fps)
 
-        return module(torch.from_numpy(self._pad(inputs)).double()[None])[0].numpy()
 
-    def predict_stream(self, phone_events: Iterable[Phone], language: str = "en") -> Iterator[tuple[int, np.ndarray]]:
-        """Predict while phones arrive: yield ``(frame index, values)`` at the model's fps.
+class LowLatencyNetwork(TimeDelayNetwork):
+    """Beskow's ANN 2: :class:`TimeDelayNetwork` looking 28 frames back and 2 ahead (33 ms at 60 fps)."""
 
-        ``phone_events`` gives the phones of ``language`` in time order (each with its start
-        and end in seconds). Frame t (at ``t / fps`` s) comes out as soon as the inputs of
-        frames up to ``t + look_ahead`` are known, i.e. once a phone ending after
-        ``(t + look_ahead) / fps`` has arrived; the last frames come when the stream ends.
-        ``values`` follow :attr:`channels`. The frames equal those of :meth:`predict` at
-        ``self.fps`` on the whole sequence.
-        """
-        import torch
+    family = "tdnn-lowlatency"
+    defaults = {**BESKOW, "look_back": 28, "look_ahead": 2}
 
-        module = self._inference_module()
-        self.encoding.check(PhoneSequence([], language))
-        back, ahead = self._params["look_back"], self._params["look_ahead"]
-        rows: list[np.ndarray] = []  # encoded input frames so far
-        recent: list[Phone] = []  # the phones still needed to encode the next frames
-        past = module.initial_state(torch.float64)
-        emitted = 0
 
-        def ready(final: bool) -> Iterator[tuple[int, np.ndarray]]:
-            nonlocal emitted, past
-            n = len(rows)
-            while emitted < n and (final or emitted + ahead < n):
-                index = np.clip(np.arange(emitted - back, emitted + ahead + 1), 0, n - 1)
-                window = torch.from_numpy(np.stack([rows[i] for i in index])).double()[None]
-                with torch.no_grad():
-                    out, past = module.step(window, past)
-                yield emitted, self._denormalise(out[0].numpy())
-                emitted += 1
+class RecurrentStream(ModelStream):
+    """A time-delay network driven phone by phone.
 
-        for phone in phone_events:
-            if not phone.end > phone.start or (recent and phone.start < recent[-1].end - 1e-6):
-                raise VispeechError(f"phone {phone.symbol} at {phone.start:.3f} s is empty or starts "
-                                    "before the previous one ends")
-            recent.append(phone)
-            sequence = PhoneSequence(recent, language)
-            known = sequence.n_frames(self.fps)
-            if known > len(rows):
-                rows.extend(self.encoding.encode(sequence, self.fps, n_frames=known, start_frame=len(rows)))
+    Model frame t (at the model's ``fps_``) is computed once the phones cover frame
+    ``t + look_ahead``; stream frame k (at the stream's ``fps``) is interpolated from the model
+    frames around ``k / fps`` as :meth:`TimeDelayNetwork.predict` resamples, so the stream's
+    frames equal :meth:`~TimeDelayNetwork.predict`'s on the whole sequence.
+    """
+
+    def __init__(self, model: TimeDelayNetwork, language: str, fps: float) -> None:
+        super().__init__(model, language, fps)
+        self.lookahead = int(np.ceil((model.lookahead + 1) * self.fps / model.fps_))
+        self._kernel = model.kernel
+        self._state = self._kernel.initial_state()
+        self._rows: list[np.ndarray] = []  # encoded input frames so far
+        self._recent: list[Phone] = []  # the phones still needed to encode the next frames
+        self._frames: list[np.ndarray] = []  # model outputs from model frame _first on (denormalised)
+        self._first = 0
+
+    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
+        if self.closed:
+            raise VispeechError("this phone stream has ended")
+        model = self.model
+        for phone in phones:
+            if self._recent and phone.start < self._recent[-1].end - TIME_TOLERANCE:
+                raise VispeechError(f"phone {phone.symbol} at {phone.start:.3f} s starts before the previous one ends")
+            self._recent.append(phone)
+            self.end = phone.end
+            sequence = PhoneSequence(self._recent, self.language)
+            known = sequence.n_frames(model.fps_)
+            if known > len(self._rows):
+                self._rows.extend(model.encoding_.encode(sequence, model.fps_, n_frames=known,
+                                                         start_frame=len(self._rows)))
                 # Keep the phone before the first one covering the frame before the next to
                 # encode, so a silence gap after it starts where it ends (as offline).
-                keep = np.searchsorted(sequence.ends, (len(rows) - 1) / self.fps, side="right")
-                recent = recent[max(keep - 1, 0):]
-            yield from ready(final=False)
-        yield from ready(final=True)
+                keep = np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right")
+                self._recent = self._recent[max(keep - 1, 0):]
+        self._advance(len(self._rows) - model.lookahead)
+        computed = self._first + len(self._frames)
+        upto = first_frame((computed - 1) / model.fps_, self.fps, after=False) + 1 if computed else 0
+        return self._give(min(upto, n_frames_for(self.end, self.fps)))
 
+    def finish(self) -> tuple[int, np.ndarray]:
+        if self.closed:
+            raise VispeechError("this phone stream has ended")
+        self._advance(len(self._rows))
+        out = self._give(n_frames_for(self.end, self.fps)) if self._rows else self._empty()
+        self.close()
+        return out
 
-@register_model
-class LowLatencyNetwork(TimeDelayNetwork):
-    """:class:`TimeDelayNetwork` with the ``beskow-lowlatency`` preset (ANN 2) by default."""
+    def _advance(self, upto: int) -> None:
+        """Compute model frames up to (not including) ``upto``."""
+        back, ahead = self.model.get_params()["look_back"], self.model.lookahead
+        n = len(self._rows)
+        while self._first + len(self._frames) < upto:
+            t = self._first + len(self._frames)
+            index = np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)
+            out, self._state = self._kernel.step(np.stack([self._rows[i] for i in index]), self._state)
+            self._frames.append(self.model._denormalise(out))
 
-    name = "tdnn-lowlatency"
-    default_preset = "beskow-lowlatency"
-
+    def _give(self, upto: int) -> tuple[int, np.ndarray]:
+        """Stream frames ``emitted .. upto - 1``, interpolated from the model frames as
+        :meth:`vispeech.motion.track.Track.resample` does; model frames no later frame needs are dropped."""
+        if upto <= self.emitted or not self._frames:
+            return self._empty()
+        model_fps = self.model.fps_
+        times = np.arange(self.emitted, upto) / self.fps
+        source = (self._first + np.arange(len(self._frames))) / model_fps
+        values = np.stack(self._frames)
+        rows = np.column_stack([np.interp(times, source, values[:, j]) for j in range(values.shape[1])])
+        start, self.emitted = self.emitted, upto
+        drop = max(0, int(np.floor(self.emitted * model_fps / self.fps)) - 1 - self._first)
+        del self._frames[:drop]
+        self._first += drop
+        return start, rows

@@ -11,35 +11,33 @@ of :func:`vispeech.postprocess.postprocess`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
-from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.targets.tables import phone_rows
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
-from vispeech.postprocess.bezier import bezier_ease
+from vispeech.targets.easing import bezier_ease
 
 
-@register_model
 class Baseline(PhoneTargetModel):
     """Thesis baseline (section 3.3). Parameter ``lead_in``: frames (int ≥ 0) of the extra silence apex."""
 
-    name = "baseline"
+    family = "baseline"
+    defaults = family_defaults("baseline")
 
-    def __init__(self, params: Mapping | None = None, **options):
-        super().__init__(params, **options)
+    def _check_params(self) -> None:
+        super()._check_params()
         lead_in = self._params["lead_in"]
         if isinstance(lead_in, bool) or not isinstance(lead_in, int) or lead_in < 0:
             raise VispeechError(f"baseline lead_in must be a whole number of frames >= 0, got {lead_in!r}")
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
-        silence = self.table.values(seg.language)[phone_rows(seg.language).keys[SILENCE, False]]
-        first_frames = np.ceil(seg.starts * fps - 1e-9)
+        silence = self.tables(seg.language)["targets"][phone_rows(seg.language).keys[SILENCE, False]]
+        first_frames = first_frame(seg.starts, fps).astype(float)
         anchor = seg.vowel | seg.silence
         apices: list[tuple[float, np.ndarray]] = []
         if not anchor[0]:

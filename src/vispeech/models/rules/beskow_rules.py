@@ -11,26 +11,24 @@ target points sit at its centre ± ``hold``/2 of its duration (one point at the 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.motion.track import Track
 
 
-@register_model
 class BeskowRules(PhoneTargetModel):
     """Interpolated under-specified targets. Parameters: ``hold`` (fraction of a phone held
     at its target, 0..1), ``sigma`` (smoothing in seconds, ≥ 0), ``targets``."""
 
-    name = "beskow-rules"
+    family = "beskow-rules"
+    defaults = family_defaults("beskow-rules")
 
-    def __init__(self, params: Mapping | None = None, **options):
-        super().__init__(params, **options)
+    def _check_params(self) -> None:
+        super()._check_params()
         hold, sigma = self._params["hold"], self._params["sigma"]
         if not isinstance(hold, (int, float)) or not 0.0 <= hold <= 1.0:
             raise VispeechError(f"beskow-rules hold must lie in [0, 1], got {hold!r}")

@@ -17,23 +17,21 @@ dominance is negligible, and the cost stays linear in the utterance length.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
 from functools import partial
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.contract import show_progress
 from vispeech.models.rules.dominance_fit import (
-    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
-    with_target_values,
+    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian,
 )
+from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES
-from vispeech.postprocess import LEARNED_JAW
 
 _PARAMETERS = ("alpha", "theta", "phi", "c")
 
@@ -51,71 +49,72 @@ BOUNDS: dict[str, tuple[float, float]] = {
 exponent at 0.1 s, ``θ·0.1^c``; targets stay in [0, 1])."""
 
 
-@register_model
 class CohenMassaro(PhoneTargetModel):
-    """Dominance-function coarticulation. Parameters: per-phone specs ``alpha``, ``theta``,
-    ``phi``, ``c`` (see :func:`vispeech.targets.tables.resolve_spec`), ``window`` (segments),
-    ``targets`` (per-phone target overrides)."""
+    """Dominance-function coarticulation.
 
-    name = "cohen-massaro"
+    Hyper-parameters: per-phone specs ``alpha``, ``theta``, ``phi``, ``c`` (see
+    :func:`vispeech.targets.tables.resolve_spec`), ``window`` (segments), ``targets``
+    (per-phone target overrides); for :meth:`fit`: ``channels`` (``None``: the model's
+    channels every training track has), ``max_iterations`` and ``patience`` (iterations
+    without a better validation error before a channel stops).
+    """
 
-    def __init__(self, params: Mapping | None = None, **options):
-        super().__init__(params, **options)
+    family = "cohen-massaro"
+    defaults = {**family_defaults("cohen-massaro"), "channels": None, "max_iterations": 100, "patience": 3}
+    trainable = True
+    table_names = ("targets", *_PARAMETERS)
+
+    def _check_params(self) -> None:
+        super()._check_params()
         window = self._params["window"]
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise VispeechError(f"cohen-massaro window must be a whole number of segments >= 1, got {window!r}")
-        self._tables: dict[str, tuple[np.ndarray, ...]] = {}
         for language in LANGUAGES:
-            alpha, theta, phi, c = (resolve_spec(self._params[p], language, self.channels) for p in _PARAMETERS)
+            alpha, theta, phi, c = (self._authored(language)[p] for p in _PARAMETERS)
             if (alpha <= 0).any() or (theta < 0).any() or (phi < 0).any() or (c <= 0).any():
                 raise VispeechError("cohen-massaro needs alpha > 0, theta >= 0, phi >= 0 and c > 0")
-            self._tables[language] = (np.log(alpha), theta, phi, c)
-        self._unit_exponent = all((table[3] == 1.0).all() for table in self._tables.values())
+
+    def _authored_tables(self, language: str) -> dict[str, np.ndarray]:
+        specs = {p: resolve_spec(self._params[p], language, self.channels) for p in _PARAMETERS}
+        return {**super()._authored_tables(language), **specs}
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
-        log_alpha, theta, phi, c = (a[seg.rows] for a in self._tables[seg.language])
+        tables = self.tables(seg.language)
+        alpha, theta, phi, c = (tables[p][seg.rows] for p in _PARAMETERS)
         idx, dt, valid = _window(seg, self._params["window"])
         distance = np.abs(dt)[:, :, None]
-        if not self._unit_exponent:
+        if not (c == 1.0).all():
             distance = distance ** c[idx]
-        d = _dominance(log_alpha[idx], theta[idx], phi[idx], distance, (dt < 0)[:, :, None], valid)
+        d = _dominance(np.log(alpha)[idx], theta[idx], phi[idx], distance, (dt < 0)[:, :, None], valid)
         out = np.einsum("fkc,fkc->fc", d, seg.targets[idx]) / d.sum(axis=1)
         return self._track(out, fps)
 
-    def fit(
-        self,
-        corpus: Iterable,
-        *,
-        validation: Iterable | None = None,
-        channels: Sequence[str] | None = None,
-        max_iterations: int = 100,
-        patience: int = 3,
-        progress: bool = True,
-    ) -> CohenMassaro:
+    def fit(self, corpus, *, progress: bool | None = None) -> CohenMassaro:
         """Estimate T, α, θ, φ and c per phone symbol and channel by least squares; returns ``self``.
 
-        ``corpus`` is any iterable of utterances with ``.phones`` and ``.track``; a corpus
-        with splits fits its ``train`` split and stops early on its ``validation`` split
-        unless ``validation`` is given (see :meth:`~vispeech.models.rules.dominance_fit.FitData.gather`).
-        ``channels`` default to the model's channels the tracks have; each is fitted
-        separately at the tracks' own frame times. Phones and channels the training data
-        lacks keep their values. ``history`` holds the per-iteration losses afterwards.
+        Fits the ``train`` split of a corpus with splits and stops each channel early on its
+        ``validation`` split (any other iterable of utterances: all of it, no early stop).
+        Each channel is fitted separately at the tracks' own frame times. Phones and channels
+        the training data lacks keep their authored values. Learns ``tables_`` (per
+        language, the per-row T, α, θ, φ, c), ``fitted_channels_`` and ``history_``.
         """
-        data = FitData.gather(self, corpus, validation, channels)
+        p = self._params
+        data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)
-        window = self._params["window"]
+        window = p["window"]
         train = _Design(data.train, window, tying)
         held = _Design(data.validation, window, tying) if any(len(r.values) for r in data.validation) else None
         n = len(tying)
         first = tying.first_rows
         columns = [self.channels.index(c) for c in data.channels]
-        targets = self.table.values(data.language)
+        authored = self._authored(data.language)
+        targets = authored["targets"]
+        log_alpha, theta, phi, c = np.log(authored["alpha"]), authored["theta"], authored["phi"], authored["c"]
         means = tying.frame_means(data.train, targets[first][:, columns])
-        log_alpha, theta, phi, c = self._tables[data.language]
         theta, phi = theta * _UNIT**c, phi * _UNIT**c  # rates per distance in units of _UNIT
-        lower = np.concatenate([np.zeros(n)] + [np.full(n, np.log(BOUNDS[p][0])) for p in _PARAMETERS])
-        upper = np.concatenate([np.ones(n)] + [np.full(n, np.log(BOUNDS[p][1])) for p in _PARAMETERS])
+        lower = np.concatenate([np.zeros(n)] + [np.full(n, np.log(BOUNDS[q][0])) for q in _PARAMETERS])
+        upper = np.concatenate([np.ones(n)] + [np.full(n, np.log(BOUNDS[q][1])) for q in _PARAMETERS])
         # α is defined up to a common factor: hold that of the phone with the most frames
         anchor = np.argmax(np.bincount(np.concatenate([tying.column[r.own_rows] for r in data.train]), minlength=n))
         lower[n + anchor] = upper[n + anchor] = 0.0
@@ -129,18 +128,20 @@ class CohenMassaro(PhoneTargetModel):
                     x0, lower, upper, partial(train.residuals, base, j),
                     None if held is None else partial(held.residuals, base, j))
         fitted, history = levenberg_marquardt(
-            problems, max_iterations=max_iterations, patience=patience, progress=progress)
-        x = np.array([fitted[channel] for channel in data.channels])  # channels × 5 symbols
-        params = self.get_params()
-        params["targets"] = with_target_values(params["targets"], tying, data.channels, x[:, :n].T, self.channels)
-        values = dict(zip(_PARAMETERS, (np.exp(x[:, k * n:(k + 1) * n]).T for k in range(1, 5))))
-        values["theta"] /= _UNIT ** values["c"]
-        values["phi"] /= _UNIT ** values["c"]
-        for name in _PARAMETERS:
-            params[name] = with_phone_values(params[name], tying, data.channels, values[name], self.channels)
-        self.__init__(params)
-        self.history = history
-        self.postprocessing = dict(LEARNED_JAW)
+            problems, max_iterations=p["max_iterations"], patience=p["patience"], progress=show_progress(progress))
+        learned = {name: values.copy() for name, values in authored.items()}
+        for channel, m in zip(data.channels, columns):
+            blocks = [fitted[channel][k * n:(k + 1) * n] for k in range(5)]
+            exponent = tying.expand(learned["c"][:, m], np.exp(blocks[4]))
+            learned["targets"][:, m] = tying.expand(learned["targets"][:, m], blocks[0])
+            learned["alpha"][:, m] = tying.expand(learned["alpha"][:, m], np.exp(blocks[1]))
+            for name, block in (("theta", blocks[2]), ("phi", blocks[3])):
+                scaled = tying.expand(learned[name][:, m] * _UNIT ** learned["c"][:, m], np.exp(block))
+                learned[name][:, m] = scaled / _UNIT**exponent
+            learned["c"][:, m] = exponent
+        self.tables_ = {data.language: learned}
+        self.fitted_channels_ = data.channels
+        self.history_ = history
         return self
 
 

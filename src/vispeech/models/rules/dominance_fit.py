@@ -18,7 +18,6 @@ parameters (per-phone ``targets`` overrides and ``<language>:<symbol>`` spec ent
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -28,8 +27,9 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.models.rules.segments import Segments
-from vispeech.targets.tables import expand_channel, phone_rows
-from vispeech.models.networks.training import TrainingHistory
+from vispeech.targets.tables import phone_rows
+from vispeech.models.contract import training_split
+from vispeech.models.history import TrainingHistory
 
 TOLERANCE = 1e-4
 """A channel has converged when an accepted step lowers its squared error by less than this fraction."""
@@ -68,38 +68,24 @@ class FitData:
     validation: list[Recording]
 
     @classmethod
-    def gather(cls, model, corpus, validation: Iterable | None, channels: Sequence[str] | None) -> FitData:
-        """Lay out ``corpus`` for ``model`` (a :class:`~vispeech.models.contract.PhoneTargetModel`).
-
-        With ``validation`` None and a corpus that has splits, fits its ``train`` split and
-        validates on its ``validation`` split; otherwise fits all of ``corpus`` and validates
-        on ``validation`` (none if None). ``channels`` default to the model's channels that
-        every training track has.
-        """
-        if validation is None and hasattr(corpus, "split"):
-            train_set, held_out = list(corpus.split("train")), list(corpus.split("validation"))
-        else:
-            if not isinstance(corpus, Iterable) or not isinstance(validation or [], Iterable):
-                raise VispeechError("fit needs a corpus: an iterable of utterances with .phones and .track")
-            train_set, held_out = list(corpus), list(validation or [])
-        if not train_set:
-            raise VispeechError("cannot fit on an empty corpus")
-        for utterance in train_set + held_out:
-            if getattr(utterance, "phones", None) is None:
-                raise VispeechError(f"utterance {getattr(utterance, 'id', '?')} has no phones: align the corpus first")
+    def gather(cls, model, corpus, channels: Sequence[str] | None) -> FitData:
+        """Lay out ``corpus`` (see :func:`~vispeech.models.contract.training_split`) for ``model``
+        (a :class:`~vispeech.models.rules.phone_targets.PhoneTargetModel`); ``channels``
+        default to the model's channels that every training track has."""
+        train_set, held_out = training_split(corpus)
         language = train_set[0].phones.language
         if any(u.phones.language != language for u in train_set + held_out):
             raise VispeechError("cannot fit on utterances of more than one language")
         if channels is None:
             channels = tuple(c for c in model.channels if all(c in u.track.channels for u in train_set))
             if not channels:
-                raise VispeechError(f"the corpus tracks have none of the {model.name} model's channels")
+                raise VispeechError(f"the corpus tracks have none of the {model.family} model's channels")
         else:
             channels = tuple(dict.fromkeys([channels] if isinstance(channels, str) else channels))
             unknown = [c for c in channels if c not in model.channels]
             if unknown or not channels:
                 named = ", ".join(unknown) or "(none given)"
-                raise VispeechError(f"model {model.name} does not predict channels {named}")
+                raise VispeechError(f"model {model.family} does not predict channels {named}")
         train = [_recording(model, u, channels) for u in train_set]
         if not any(len(r.values) for r in train):
             raise VispeechError("the training utterances have no tracked frames within their phones")
@@ -316,12 +302,10 @@ def levenberg_marquardt(
         raise VispeechError(f"max_iterations must be a whole number >= 0, got {max_iterations!r}")
     if isinstance(patience, bool) or not isinstance(patience, int) or patience < 1:
         raise VispeechError(f"patience must be a whole number >= 1, got {patience!r}")
-    from tqdm import tqdm
-
+    write = _writer(progress)
     states = {name: _Channel(problem) for name, problem in problems.items()}
     history = TrainingHistory()
-    if progress:
-        tqdm.write(f"start: {_summary(states.values())}")
+    write(f"start: {_summary(states.values())}")
     for iteration in range(1, max_iterations + 1):
         running = [s for s in states.values() if s.active]
         if not running:
@@ -336,9 +320,17 @@ def levenberg_marquardt(
         history.seconds.append(time.perf_counter() - started)
         if any(changed):
             history.best_epoch = iteration
-        if progress:
-            tqdm.write(f"iteration {iteration}: {_summary(states.values())}, {history.seconds[-1]:.1f} s")
+        write(f"iteration {iteration}: {_summary(states.values())}, {history.seconds[-1]:.1f} s")
     return {name: s.best_x for name, s in states.items()}, history
+
+
+def _writer(progress: bool) -> Callable[[str], None]:
+    """A function printing one progress line to stderr, or doing nothing."""
+    import sys
+
+    if not progress:
+        return lambda line: None
+    return lambda line: print(line, file=sys.stderr, flush=True)
 
 
 def _mean_losses(states: Iterable[_Channel]) -> tuple[float, float | None]:
@@ -353,46 +345,3 @@ def _summary(states: Iterable[_Channel]) -> str:
     train, validation = _mean_losses(states)
     shown = "" if validation is None else f", validation MSE {validation:.4g}"
     return f"training MSE {train:.4g}{shown} ({sum(s.active for s in states)}/{len(states)} channels running)"
-
-
-def with_phone_values(
-    spec: Mapping,
-    tying: PhoneTying,
-    channels: Sequence[str],
-    values: np.ndarray,
-    model_channels: Sequence[str],
-) -> dict:
-    """A copy of a per-phone spec with ``<language>:<symbol>`` entries setting ``channels`` of
-    each fitted symbol to ``values`` (symbols × channels); other channels keep what the
-    symbol's entry had."""
-    out = copy.deepcopy(dict(spec))
-    for symbol, row in zip(tying.symbols, values):
-        key = f"{tying.language}:{symbol}"
-        old = out.pop(key, None)
-        entry = _by_channel(old, model_channels)
-        entry.update({c: float(v) for c, v in zip(channels, row)})
-        out[key] = entry
-    return out
-
-
-def with_target_values(targets: Mapping, tying: PhoneTying, channels: Sequence[str], values: np.ndarray,
-                       model_channels: Sequence[str]) -> dict:
-    """A copy of a model's ``targets`` overrides with the fitted symbols' targets of ``channels``
-    set to ``values`` (symbols × channels, in [0, 1])."""
-    out = copy.deepcopy(dict(targets))
-    table = dict(out.get(tying.language, {}))
-    for symbol, row in zip(tying.symbols, values):
-        entry = _by_channel(table.get(symbol), model_channels)
-        entry.update({c: float(v) for c, v in zip(channels, row)})
-        table[symbol] = entry
-    out[tying.language] = table
-    return out
-
-
-def _by_channel(value, channels: Sequence[str]) -> dict:
-    """A spec or override entry as ``{channel: value}`` with pair names expanded (empty for None)."""
-    if value is None:
-        return {}
-    if not isinstance(value, Mapping):
-        return {c: value for c in channels}
-    return {channel: v for name, v in value.items() for channel in expand_channel(name, channels)}

@@ -17,7 +17,6 @@ consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel trac
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 
@@ -25,16 +24,15 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import PhoneTargetModel, register_model
+from vispeech.models.contract import show_progress
 from vispeech.models.rules.dominance_fit import (
-    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian, with_phone_values,
-    with_target_values,
+    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian,
 )
+from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.targets.tables import phone_rows, resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
-from vispeech.postprocess import LEARNED_JAW
 
 
 def smoothstep(s: np.ndarray) -> np.ndarray:
@@ -43,23 +41,31 @@ def smoothstep(s: np.ndarray) -> np.ndarray:
     return s * s * (3.0 - 2.0 * s)
 
 
-@register_model
 class Ohman(PhoneTargetModel):
-    """Vowel track plus consonant gestures. Parameters: ``w_c`` (per-phone spec of the
-    coarticulation factor, values in [0, 1]) and ``targets`` (per-phone target overrides)."""
+    """Vowel track plus consonant gestures. Hyper-parameters: ``w_c`` (per-phone spec of the
+    coarticulation factor, values in [0, 1]), ``targets`` (per-phone target overrides) and,
+    for :meth:`fit`, ``channels``, ``max_iterations`` and ``patience`` as for
+    :class:`~vispeech.models.rules.cohen_massaro.CohenMassaro`."""
 
-    name = "ohman"
+    family = "ohman"
+    defaults = {**family_defaults("ohman"), "channels": None, "max_iterations": 100, "patience": 3}
+    trainable = True
+    table_names = ("targets", "w_c")
 
-    def __init__(self, params: Mapping | None = None, **options):
-        super().__init__(params, **options)
-        self._w = {language: resolve_spec(self._params["w_c"], language, self.channels) for language in LANGUAGES}
-        if any(((w < 0) | (w > 1)).any() for w in self._w.values()):
+    def _check_params(self) -> None:
+        super()._check_params()
+        if any(((w < 0) | (w > 1)).any() for w in (self._authored(lang)["w_c"] for lang in LANGUAGES)):
             raise VispeechError("ohman w_c values must lie in [0, 1]")
+
+    def _authored_tables(self, language: str) -> dict[str, np.ndarray]:
+        return {**super()._authored_tables(language),
+                "w_c": resolve_spec(self._params["w_c"], language, self.channels)}
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
         blend = _Blend.of(seg)
-        targets, w = self.table.values(seg.language), self._w[seg.language]
+        tables = self.tables(seg.language)
+        targets, w = tables["targets"], tables["w_c"]
         first = targets[blend.anchors[:, 0]]
         vowel_track = first + blend.shift[:, None] * (targets[blend.anchors[:, 1]] - first)
         out = vowel_track.copy()
@@ -69,27 +75,20 @@ class Ohman(PhoneTargetModel):
             out += gain * (targets[k] - vowel_track)
         return self._track(out, fps)
 
-    def fit(
-        self,
-        corpus: Iterable,
-        *,
-        validation: Iterable | None = None,
-        channels: Sequence[str] | None = None,
-        max_iterations: int = 100,
-        patience: int = 3,
-        progress: bool = True,
-    ) -> Ohman:
+    def fit(self, corpus, *, progress: bool | None = None) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
-        squares; returns ``self``. Arguments as for
+        squares; returns ``self``. Splits, channels and learned attributes as for
         :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
-        data = FitData.gather(self, corpus, validation, channels)
+        p = self._params
+        data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)
         factors = PhoneTying.of(data.language, data.train, rows=phone_rows(data.language).mask("consonant"))
         train = _Design(data.train, tying, factors)
         held = _Design(data.validation, tying, factors) if any(len(r.values) for r in data.validation) else None
         n, n_w = len(tying), len(factors)
         columns = [self.channels.index(c) for c in data.channels]
-        targets, w = self.table.values(data.language), self._w[data.language]
+        authored = self._authored(data.language)
+        targets, w = authored["targets"], authored["w_c"]
         means = tying.frame_means(data.train, targets[tying.first_rows][:, columns])
         lower, upper = np.zeros(n + n_w), np.ones(n + n_w)
         problems = {}
@@ -100,14 +99,14 @@ class Ohman(PhoneTargetModel):
                 x0, lower, upper, partial(train.residuals, base, j),
                 None if held is None else partial(held.residuals, base, j))
         fitted, history = levenberg_marquardt(
-            problems, max_iterations=max_iterations, patience=patience, progress=progress)
-        x = np.array([fitted[channel] for channel in data.channels])  # channels × (targets, factors)
-        params = self.get_params()
-        params["targets"] = with_target_values(params["targets"], tying, data.channels, x[:, :n].T, self.channels)
-        params["w_c"] = with_phone_values(params["w_c"], factors, data.channels, x[:, n:].T, self.channels)
-        self.__init__(params)
-        self.history = history
-        self.postprocessing = dict(LEARNED_JAW)
+            problems, max_iterations=p["max_iterations"], patience=p["patience"], progress=show_progress(progress))
+        learned = {name: values.copy() for name, values in authored.items()}
+        for channel, m in zip(data.channels, columns):
+            learned["targets"][:, m] = tying.expand(targets[:, m], fitted[channel][:n])
+            learned["w_c"][:, m] = factors.expand(w[:, m], fitted[channel][n:])
+        self.tables_ = {data.language: learned}
+        self.fitted_channels_ = data.channels
+        self.history_ = history
         return self
 
 

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
-from vispeech.targets.tables import TargetTable, phone_rows
+from vispeech.targets.tables import phone_rows
 from vispeech.phonetics.features import FEATURE_NAMES
 
 _VOWEL = FEATURE_NAMES.index("vowel")
@@ -34,7 +34,8 @@ class Segments:
     times: np.ndarray
 
     @classmethod
-    def build(cls, phones: PhoneSequence, fps: float, table: TargetTable) -> Segments:
+    def build(cls, phones: PhoneSequence, fps: float, targets: np.ndarray, defined: np.ndarray) -> Segments:
+        """The segments of ``phones`` with their rows of the per-row ``targets`` and ``defined`` tables."""
         phones.validate()
         n_frames = phones.n_frames(fps)
         filled = phones.with_gaps_filled().phones
@@ -48,10 +49,14 @@ class Segments:
             rows=index,
             vowel=features[:, _VOWEL] > 0,
             silence=features[:, _SILENCE] > 0,
-            targets=table.values(phones.language)[index],
-            defined=table.defined(phones.language)[index],
+            targets=targets[index],
+            defined=defined[index],
             times=np.arange(n_frames) / fps,
         )
+
+    def with_targets(self, targets: np.ndarray) -> Segments:
+        """A copy whose targets are read from another per-row table."""
+        return replace(self, targets=targets[self.rows])
 
     @property
     def centres(self) -> np.ndarray:

@@ -1,0 +1,173 @@
+"""NumPy forward passes of the trained networks: what prediction runs on, without torch.
+
+The weights are the torch modules' state dicts (``vispeech.models.networks.modules``) as
+NumPy arrays; each kernel computes what its module computes in float64 (to 1e-7 or better).
+
+:class:`RecurrentKernel` (Beskow's time-delay networks) splits the work in two:
+
+- the input window term ``conv_t = b + Σ_k W_k x_{t-back+k}``. Inputs are piecewise constant
+  (one row per phone, and a different one on a phone's first frame), so with
+  ``G_r[m] = Σ_{k<m} W_k v_r`` for each run r of equal rows v_r,
+  ``conv_t = G_{run(t+K-1)}[K] + Σ_{boundaries b in (t, t+K)} (G_r − G_{r+1})[b − t]``:
+  a few slice additions per phone instead of a K-frame product per frame. ``G`` of a row is
+  cached (phone rows recur across utterances);
+- the recurrence ``h_t = tanh(conv_t + Σ_d R_d h_{t-d})``, one small matrix-vector product
+  per frame and network, in float32 (the weights' own precision) on a state buffer laid out
+  oldest first, so the delayed states are one contiguous slice.
+
+:class:`WindowKernel` (the sliding-window networks) is a plain MLP over the flattened windows
+with the outputs' overlap average.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+_CACHE_ROWS = 1024
+"""Input rows whose window terms a :class:`RecurrentKernel` keeps (about 20 KB each for the shipped networks)."""
+
+
+class RecurrentKernel:
+    """Grouped recurrent time-delay networks (``GroupedNetworks`` of ``RecurrentTimeDelayNet``).
+
+    ``columns[i]`` are the output columns network i predicts; ``back`` and ``ahead`` the
+    input window's frames before and after the current one.
+    """
+
+    def __init__(self, weights: Mapping[str, np.ndarray], columns: Sequence[Sequence[int]], back: int, ahead: int):
+        self.back, self.ahead = back, ahead
+        self.window = back + ahead + 1
+        self.order = np.argsort([c for group in columns for c in group])
+        self.nets = []
+        cumulative = []
+        for i in range(len(columns)):
+            conv = np.asarray(weights[f"nets.{i}.input.weight"], dtype=np.float64)  # hidden, inputs, window
+            hidden, n_inputs, window = conv.shape
+            if window != self.window:
+                raise ValueError(f"network {i} has an input window of {window} frames, expected {self.window}")
+            recurrent = np.asarray(weights[f"nets.{i}.recurrent.weight"], dtype=np.float64)  # hidden, delays*hidden
+            delays = recurrent.shape[1] // hidden
+            oldest_first = recurrent.reshape(hidden, delays, hidden)[:, ::-1, :].reshape(hidden, delays * hidden)
+            per_frame = np.transpose(conv, (2, 1, 0))  # window, inputs, hidden
+            cumulative.append(np.concatenate([np.zeros((1, n_inputs, hidden)), np.cumsum(per_frame, axis=0)]))
+            self.nets.append({
+                "hidden": hidden, "delays": delays,
+                "bias": np.asarray(weights[f"nets.{i}.input.bias"], dtype=np.float64),
+                "conv": np.ascontiguousarray(per_frame.reshape(window * n_inputs, hidden)),
+                "recurrent": np.ascontiguousarray(oldest_first, dtype=np.float32),
+                "out_weight": np.asarray(weights[f"nets.{i}.output.weight"], dtype=np.float64).T,
+                "out_bias": np.asarray(weights[f"nets.{i}.output.bias"], dtype=np.float64),
+            })
+        self.n_inputs = n_inputs
+        self.hidden = sum(net["hidden"] for net in self.nets)
+        # C[f, m, :] = Σ_{k<m} W_k[f, :] over every network's hidden units, as inputs × (window+1)·hidden
+        self._cumulative = np.concatenate(cumulative, axis=2).transpose(1, 0, 2).reshape(n_inputs, -1)
+        self._bias = np.concatenate([net["bias"] for net in self.nets])
+        self._rows: dict[bytes, np.ndarray] = {}
+
+    # -- offline ---------------------------------------------------------------------------
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        """Outputs (frames × outputs, float64) for one utterance's input rows (frames × inputs)."""
+        drive = self._window_terms(np.asarray(inputs))
+        outputs, start = [], 0
+        for net in self.nets:
+            hidden = self._recur(net, drive[:, start:start + net["hidden"]])
+            outputs.append(hidden.astype(np.float64) @ net["out_weight"] + net["out_bias"])
+            start += net["hidden"]
+        return np.concatenate(outputs, axis=1)[:, self.order]
+
+    def _window_terms(self, x: np.ndarray) -> np.ndarray:
+        """``conv_t`` of every frame (frames × all hidden units), float32."""
+        n, k = len(x), self.window
+        change = np.flatnonzero(np.any(x[1:] != x[:-1], axis=1)) + 1
+        starts = np.concatenate([[0], change])
+        terms = self._row_terms(x[starts])  # runs × (window+1) × hidden
+        ends = self.back + np.append(change, n)  # run ends in padded frames; the last run's end is never used
+        out = np.empty((n, self.hidden))
+        # the run holding each window's last frame t + k - 1 contributes G[K]
+        last = np.searchsorted(ends, np.arange(n) + k - 1, side="right")
+        out[:] = terms[np.minimum(last, len(starts) - 1), k]
+        for r, b in enumerate(ends[:-1]):  # boundary b between runs r and r+1, felt by frames b-k+1 .. b-1
+            lo, hi = max(b - k + 1, 0), min(b - 1, n - 1)
+            if lo > hi:
+                continue
+            step = terms[r, b - hi:b - lo + 1] - terms[r + 1, b - hi:b - lo + 1]
+            out[lo:hi + 1] += step[::-1]
+        out += self._bias
+        return out.astype(np.float32)
+
+    def _row_terms(self, rows: np.ndarray) -> np.ndarray:
+        """``G`` of each row: (rows × (window+1) × hidden), from the cache or computed."""
+        keys = [row.tobytes() for row in rows]
+        missing = list(dict.fromkeys(key for key in keys if key not in self._rows))
+        if missing:
+            if len(self._rows) + len(missing) > _CACHE_ROWS:
+                self._rows.clear()
+            fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1)
+            computed = (fresh.astype(np.float64) @ self._cumulative).reshape(len(missing), self.window + 1, -1)
+            self._rows.update(zip(missing, computed))
+        return np.stack([self._rows[key] for key in keys])
+
+    @staticmethod
+    def _recur(net: dict, drive: np.ndarray) -> np.ndarray:
+        """Hidden states (frames × hidden, float32) of one network for its window terms."""
+        hidden, delays, recurrent = net["hidden"], net["delays"], net["recurrent"]
+        states = np.zeros((len(drive) + delays, hidden), dtype=np.float32)
+        flat = states.reshape(-1)
+        size = delays * hidden
+        step = np.empty(hidden, dtype=np.float32)
+        dot, tanh = np.dot, np.tanh
+        for t in range(len(drive)):
+            dot(recurrent, flat[t * hidden:t * hidden + size], out=step)
+            step += drive[t]
+            tanh(step, out=states[delays + t])
+        return states[delays:]
+
+    # -- one frame at a time ---------------------------------------------------------------
+
+    def initial_state(self) -> list[np.ndarray]:
+        """Hidden states before the first frame, one (delays × hidden) buffer per network, oldest first."""
+        return [np.zeros((net["delays"], net["hidden"]), dtype=np.float32) for net in self.nets]
+
+    def step(self, window: np.ndarray, state: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The outputs of one frame from its input window (window × inputs) and the states before it."""
+        flat = np.asarray(window, dtype=np.float64).reshape(-1)
+        outputs, new_state = [], []
+        for net, past in zip(self.nets, state):
+            drive = (flat @ net["conv"] + net["bias"]).astype(np.float32)
+            h = np.tanh(net["recurrent"] @ past.reshape(-1) + drive)
+            new_state.append(np.concatenate([past[1:], h[None]]))
+            outputs.append(h.astype(np.float64) @ net["out_weight"] + net["out_bias"])
+        return np.concatenate(outputs)[self.order], new_state
+
+
+class WindowKernel:
+    """A sliding-window MLP (``WindowMLP``): linear layers with ``activation`` between them."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], input_window: int, output_window: int, activation: str):
+        layers = sorted({int(key.split(".")[1]) for key in weights if key.startswith("layers.")})
+        self.layers = [(np.asarray(weights[f"layers.{i}.weight"], dtype=np.float64).T,
+                        np.asarray(weights[f"layers.{i}.bias"], dtype=np.float64)) for i in layers]
+        self.input_window, self.output_window = input_window, output_window
+        self.activation = activation
+        self.pad = (input_window + output_window) // 2 - 1
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        """Outputs (frames × outputs) for one utterance's input rows: every window, overlap-averaged."""
+        padded = np.pad(np.asarray(inputs, dtype=np.float64), ((self.pad, self.pad), (0, 0)), mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, self.input_window, axis=0)
+        h = windows.transpose(0, 2, 1).reshape(len(windows), -1)
+        for i, (weight, bias) in enumerate(self.layers):
+            h = h @ weight + bias
+            if i < len(self.layers) - 1:
+                h = np.tanh(h) if self.activation == "tanh" else np.where(h > 0, h, 0.1 * h)
+        ky = self.output_window
+        out = h.reshape(len(h), ky, -1)
+        n = len(inputs)
+        total = np.zeros((len(out) + ky - 1, out.shape[2]))
+        for k in range(ky):  # window w predicts frames w - ky + 1 .. w
+            total[k:k + len(out)] += out[:, k]
+        return total[ky - 1:ky - 1 + n] / ky

@@ -1,0 +1,22 @@
+"""Named post-processing presets: what a model recommends for its output, by name.
+
+A model says which preset suits it (:attr:`vispeech.models.contract.Estimator.postprocessing`);
+:meth:`vispeech.postprocess.PostprocessConfig.from_preset` turns the name into settings. Each
+preset is a set of :class:`~vispeech.postprocess.PostprocessConfig` fields over its defaults.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from types import MappingProxyType
+
+PRESETS: Mapping[str, Mapping] = MappingProxyType({
+    "authored": {},
+    "learned-jaw": {
+        "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ("bilabial", "labiodental"), "keep_jaw": True,
+    },
+})
+"""``authored``: every step with its defaults, tuned for the iPhone-scale authored targets of the
+data-free models (jaw range shift, soft ceilings, all consonant overlays). ``learned-jaw``: for
+models fitted to recordings: no jaw shift or absolute ceilings, overlays only for /p b m/ and
+/f v/, closing the lips through mouthClose and leaving the learned jaw alone."""
