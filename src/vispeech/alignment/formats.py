@@ -21,9 +21,6 @@ import math
 import os
 from pathlib import Path
 
-from praatio import textgrid
-from praatio.utilities.constants import Interval
-
 from vispeech.alignment.phones import Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
@@ -97,6 +94,9 @@ def write_textgrid(phones: PhoneSequence, path: str | os.PathLike) -> None:
     time not covered by any phone or word becomes an empty interval. The file is written
     atomically.
     """
+    from praatio import textgrid  # imported here: only TextGrids need praatio
+    from praatio.utilities.constants import Interval
+
     phones.validate()
     end = max(phones.duration, max((w.end for w in phones.words), default=0.0))
     grid = textgrid.Textgrid(minTimestamp=0.0, maxTimestamp=end)
@@ -150,6 +150,8 @@ def _table_spans(text: str, path: Path, units: int) -> list[_Span]:
 
 
 def _textgrid_spans(path: Path) -> tuple[list[_Span], list[_Span]]:
+    from praatio import textgrid
+
     try:
         grid = textgrid.openTextgrid(str(path), includeEmptyIntervals=True, reportingMode="silence")
     except Exception as exc:  # praatio raises assorted exception types on malformed input

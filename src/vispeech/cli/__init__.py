@@ -1,26 +1,65 @@
 """The ``vispeech`` command line: a thin layer over the library.
 
-Each sub-command lives in a module of this package named for it; bad input ends in a
-one-line ``error: ...`` message and exit code 2.
+Each sub-command lives in a module of this package named for it (``animate-phones`` lives
+with ``say``); a module is imported only when its command runs or ``--help`` lists it, and
+imports what is heavy inside the command, so every command starts quickly. Bad input ends in
+a one-line ``error: ...`` message and exit code 2, and so does a command whose optional
+dependencies (an extra: ``pip install "vispeech[train]"``) are not installed.
 """
 
 from __future__ import annotations
 
+import importlib
+import os
 import sys
 
 import click
 
 from vispeech.errors import VispeechError
 
+_MODULES = {"animate-phones": "say"}
+"""Commands that do not live in a module of their own name: command → module of this package."""
+
+EXTRAS = {
+    "torch": "train", "pocketsphinx": "train", "matplotlib": "train", "tqdm": "train",
+    "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
+}
+"""Optional top-level modules → the extra that installs them."""
+
+
+def _command_names() -> set[str]:
+    """Every command: one per module of this package, and the commands of :data:`_MODULES`."""
+    modules = {name[:-3] for name in os.listdir(os.path.dirname(__file__))
+               if name.endswith(".py") and not name.startswith("_")}
+    return modules | {command for command, module in _MODULES.items() if module in modules}
+
 
 class _Group(click.Group):
-    """Turns library errors into one line on stderr and exit code 2."""
+    """Imports a command's module when the command is asked for; turns errors into one line and exit code 2."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(self.commands) | _command_names())
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands:
+            module = _MODULES.get(cmd_name, cmd_name)
+            if module in _command_names():
+                importlib.import_module(f"{__name__}.{module}")
+        return self.commands.get(cmd_name)
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except VispeechError as exc:
             click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        except ModuleNotFoundError as exc:
+            top = (exc.name or "").partition(".")[0]
+            if top not in EXTRAS:
+                raise
+            command = ctx.invoked_subcommand or "this command"
+            click.echo(f"error: vispeech {command} needs {top}, which is not installed: "
+                       f'pip install "vispeech[{EXTRAS[top]}]"', err=True)
             sys.exit(2)
         except OSError as exc:
             where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
@@ -32,15 +71,3 @@ class _Group(click.Group):
 @click.version_option(package_name="vispeech")
 def main() -> None:
     """Visual speech synthesis: text, phones or audio to talking-head animation."""
-
-
-def _register_commands() -> None:
-    """Import every module of this package; each adds its commands to :data:`main`."""
-    import importlib
-    import pkgutil
-
-    for module in pkgutil.iter_modules(__path__):
-        importlib.import_module(f"{__name__}.{module.name}")
-
-
-_register_commands()

@@ -24,7 +24,6 @@ from pathlib import Path
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.motion.gltf import write_gltf_animation
 from vispeech.motion.jsonformat import (
     ANIMATION_FORMAT,
     load_json,
@@ -141,6 +140,8 @@ def write_track(
     else:
         if base_glb is None:
             raise VispeechError("writing glTF needs a base model (.glb with ARKit-named morph targets)")
+        from vispeech.motion.gltf import write_gltf_animation  # pygltflib: imported only for glTF
+
         write_gltf_animation(track, base_glb, path)
 
 

@@ -1,0 +1,69 @@
+"""The command group: commands load on demand, missing extras are one line, start-up stays light."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+from click.testing import CliRunner
+
+import vispeech.cli
+from vispeech.cli import main
+from vispeech.motion.livelink import write_livelink_csv
+from vispeech.motion.track import Track
+
+EXTRA_MODULES = ("torch", "matplotlib", "pocketsphinx", "tqdm", "fastapi", "starlette", "uvicorn", "websockets")
+"""What no core command may import before it needs it (the train and serve extras)."""
+
+
+def test_every_command_is_listed_and_lives_where_the_group_looks():
+    listed = main.list_commands(click.Context(main))
+    for path in Path(vispeech.cli.__file__).parent.glob("*.py"):
+        if not path.name.startswith("_"):
+            importlib.import_module(f"vispeech.cli.{path.stem}")
+    assert sorted(main.commands) == listed
+    assert {"say", "animate-phones", "convert", "align", "corpus", "evaluate", "train", "rig", "serve",
+            "stream"} <= set(listed)
+
+
+def test_help_lists_every_command():
+    result = CliRunner().invoke(main, ["--help"])
+    assert result.exit_code == 0, result.output
+    for name in main.list_commands(click.Context(main)):
+        assert f"  {name} " in result.output, name
+
+
+def test_a_missing_extra_is_one_line(monkeypatch):
+    monkeypatch.setitem(sys.modules, "uvicorn", None)  # import uvicorn raises ModuleNotFoundError
+    result = CliRunner().invoke(main, ["serve"])
+    assert result.exit_code == 2
+    assert result.output.strip() == 'error: vispeech serve needs uvicorn, which is not installed: pip install "vispeech[serve]"'
+
+
+def _imported_by(args: list[str], cwd: Path) -> list[str]:
+    """The extra modules (and pygltflib) a fresh process imported to run ``vispeech ARGS``."""
+    script = (
+        "import sys\nfrom vispeech.cli import main\n"
+        f"try:\n    main({args!r})\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
+        "print('\\n' + __import__('json').dumps(sorted({m.partition('.')[0] for m in sys.modules})))\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    result = subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, env=env,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    imported = set(json.loads(result.stdout.strip().splitlines()[-1]))
+    return sorted(imported & {*EXTRA_MODULES, "pygltflib"})
+
+
+def test_start_up_imports_no_extra(tmp_path):
+    """--help and convert (CSV to JSON) import nothing from the extras, nor pygltflib."""
+    write_livelink_csv(Track(np.zeros((3, 1)), ("jawOpen",), 30.0), tmp_path / "in.csv")
+    assert _imported_by(["--help"], tmp_path) == []
+    assert _imported_by(["convert", "in.csv", "out.json"], tmp_path) == []
+    assert (tmp_path / "out.json").is_file()
