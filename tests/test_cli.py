@@ -39,6 +39,19 @@ def test_help_lists_every_command():
         assert f"  {name} " in result.output, name
 
 
+def test_every_language_option_is_lang(tmp_path):
+    """The same option name everywhere; the same default (en) wherever there is one."""
+    for name in main.list_commands(click.Context(main)):
+        command = main.get_command(click.Context(main), name)
+        commands = command.commands.values() if isinstance(command, click.Group) else [command]
+        for sub in commands:
+            for param in sub.params:
+                assert not {"--language"} & set(param.opts), (name, sub.name)
+                if "--lang" in param.opts:
+                    assert param.opts == ["--lang", "-l"] or param.opts == ["-l", "--lang"], (name, param.opts)
+                    assert param.default == ("en" if sub.name != "animate-phones" else None), (sub.name, param.default)
+
+
 def test_a_missing_extra_is_one_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "uvicorn", None)  # import uvicorn raises ModuleNotFoundError
     result = CliRunner().invoke(main, ["serve"])

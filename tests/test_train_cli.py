@@ -77,7 +77,7 @@ def _train(*args):
 
 def test_train_saves_a_model_and_reports_test_scores(takes, tmp_path):
     out = tmp_path / "model"
-    result = _train("--corpus", takes, "--language", "en", "--model", "sliding-window-thesis",
+    result = _train("--corpus", takes, "--lang", "en", "--model", "sliding-window-thesis",
                     "--epochs", "2", "--seed", "3", "--quiet", "-o", out)
     assert result.exit_code == 0, result.output
     assert "train 17, validation 1, test 2 utterances at 25 fps" in result.output
@@ -97,14 +97,14 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
         raise VispeechError("disk full")
 
     monkeypatch.setattr("vispeech.models.networks.network.NeuralControlModel.save", fail)
-    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "1",
+    result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "1",
                     "-q", "-o", out)
     assert result.exit_code == 2 and "error: disk full" in result.output
     assert not (out / "config.json").exists()
     assert (out / "checkpoint" / "training_state.json").is_file()
     monkeypatch.undo()
 
-    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "2",
+    result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "2",
                     "-q", "--resume", out, "-o", out)
     assert result.exit_code == 0, result.output
     history = json.loads((out / "config.json").read_text())["state"]["history"]
@@ -113,7 +113,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
 
 
 def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
-    result = _train("--corpus", takes, "--language", "en", "-m", "tdnn-beskow", "--targets", "articulatory",
+    result = _train("--corpus", takes, "--lang", "en", "-m", "tdnn-beskow", "--targets", "articulatory",
                     "--epochs", "1", "-q", "-o", tmp_path / "m")
     assert result.exit_code == 2 and "no face landmarks" in result.output
 
@@ -129,7 +129,7 @@ def test_train_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "empty").mkdir()
     places = {"missing": tmp_path / "missing", "empty": tmp_path / "empty", "takes": takes}
     args = [a.format(**places) for a in args]
-    result = _train(*args, "--language", "en", "-q", "-o", tmp_path / "out")
+    result = _train(*args, "--lang", "en", "-q", "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert result.output.startswith("error: ") and message in result.output
     assert not (tmp_path / "out" / "config.json").exists()

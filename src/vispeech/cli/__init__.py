@@ -17,6 +17,9 @@ import click
 
 from vispeech.errors import VispeechError
 
+DEFAULT_LANG = "en"
+"""The default of every command's ``--lang``: the language of a text, speech or corpus."""
+
 _MODULES = {"animate-phones": "say"}
 """Commands that do not live in a module of their own name: command → module of this package."""
 
@@ -32,6 +35,11 @@ def _command_names() -> set[str]:
     modules = {name[:-3] for name in os.listdir(os.path.dirname(__file__))
                if name.endswith(".py") and not name.startswith("_")}
     return modules | {command for command, module in _MODULES.items() if module in modules}
+
+
+def lang_option(help: str, default: str | None = DEFAULT_LANG, name: str = "lang"):
+    """The ``--lang/-l`` option, the same in every command (``name``: the parameter it fills)."""
+    return click.option("--lang", "-l", name, default=default, show_default=default is not None, help=help)
 
 
 class _Group(click.Group):

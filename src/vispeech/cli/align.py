@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import lang_option, main
 
 
 @main.command("align")
@@ -14,7 +14,7 @@ from vispeech.cli import main
 @click.argument("text")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.")
-@click.option("--language", default="en", show_default=True, help="Language of the speech (only en).")
+@lang_option("Language of the speech (only en).", name="language")
 def align_command(audio: Path, text: str, output: Path, language: str) -> None:
     """Align TEXT with the speech in AUDIO (WAV, FLAC) and write its words and phones."""
     from vispeech.alignment.formats import write_alignment

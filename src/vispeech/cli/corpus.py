@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
+from vispeech.cli.evaluate import cache_option, language_option
 
 
 @main.group("corpus")
@@ -17,9 +18,8 @@ def corpus_group() -> None:
 @corpus_group.command("info")
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--no-phones", is_flag=True, help="Skip phone coverage (and the alignment it may need).")
-@click.option("--language", default="sv", show_default=True, help="Language of a takes folder (GRID is en).")
-@click.option("--cache", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Cache folder for alignments [default: ~/.cache/vispeech/<name>-<hash>, or $VISPEECH_CACHE].")
+@language_option
+@cache_option
 @click.option("--strict", is_flag=True, help="Fail on the first bad utterance instead of skipping it.")
 def info_command(directory: Path, no_phones: bool, language: str, cache: Path | None, strict: bool) -> None:
     """Print utterances, duration, frame rate, channels, splits and phone coverage of DIRECTORY."""

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import lang_option, main
 from vispeech.corpus.corpus import SPLITS, Corpus
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
@@ -14,8 +14,9 @@ from vispeech.files import atomic_output_file
 corpus_option = click.option(
     "--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
     help="Corpus folder (GRID layout or a folder of Live Link takes).")
-language_option = click.option(
-    "--language", default="sv", show_default=True, help="Language of a takes folder (GRID is en).")
+language_option = lang_option(
+    "Language of a folder of takes (its transcripts and TextGrid symbols): sv or en; a GRID folder is en.",
+    name="language")
 cache_option = click.option(
     "--cache", type=click.Path(file_okay=False, path_type=Path), default=None,
     help="Cache folder for alignments [default: ~/.cache/vispeech/<name>-<hash>, or $VISPEECH_CACHE].")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import lang_option, main
 from vispeech.errors import VispeechError
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, speak, write_outputs
 
@@ -19,7 +19,7 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 
 @main.command()
 @click.argument("text", required=False)
-@click.option("--lang", "-l", default="en", show_default=True, help="Language: sv or en.")
+@lang_option("Language of the text: sv or en.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @_model_option
 @_fps_option
@@ -44,7 +44,7 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 @main.command("animate-phones")
 @click.argument("alignment", type=click.Path(path_type=Path))
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
-@click.option("--lang", "-l", default=None, help="Language of the symbols (sv or en); guessed when left out.")
+@lang_option("Language of the symbols: sv or en [default: guessed from the symbols].", default=None)
 @_model_option
 @_fps_option
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import lang_option, main
 from vispeech.errors import VispeechError
 
 
 @main.command()
 @click.argument("text")
 @click.option("--url", default="ws://127.0.0.1:8000/api/stream", show_default=True, help="The server's stream URL.")
-@click.option("--lang", "-l", default="en", show_default=True, help="Language: sv or en.")
+@lang_option("Language of the text: sv or en.")
 @click.option("--model", "-m", default=None, help="Model name [default: the server's stream model].")
 @click.option("--timeout", default=60.0, show_default=True, type=float, help="Seconds to wait for the whole stream.")
 def stream(text: str, url: str, lang: str, model: str | None, timeout: float) -> None:
