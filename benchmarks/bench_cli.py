@@ -1,0 +1,135 @@
+"""Whole-process start-up of the command line, on one core.
+
+    python benchmarks/bench_cli.py [--runs N] [--model NAME]
+
+Times, as the median (and minimum) wall time of N runs of a fresh process each:
+
+- ``python -c pass``: the interpreter alone, for scale, and ``vispeech --help``;
+- ``vispeech animate-phones TAKE.TextGrid -o DIR``: a 3-s utterance (the second golden
+  sentence, tests/golden/phones.json, written as a TextGrid by
+  :func:`vispeech.alignment.formats.write_alignment`);
+- ``vispeech say "SENTENCE" -o DIR``: the same sentence spoken by espeak-ng;
+- espeak-ng's own synthesis of that sentence in-process
+  (:func:`vispeech.frontends.espeak.synthesize`): the first call in a process (loads the
+  library and the voice, as ``say`` does once) and later calls.
+
+Targets (issue 7): animate-phones ≤ 0.6 s; say ≤ 0.6 s plus espeak-ng's first-call time.
+Every process is pinned to one CPU with OpenMP/OpenBLAS/MKL threads set to 1.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+GOLDEN_PHONES = ROOT / "tests" / "golden" / "phones.json"
+TARGET = 0.6
+"""Seconds: the whole-process target of animate-phones, and of say beyond espeak-ng's own time."""
+CPU = min(os.sched_getaffinity(0))
+
+_ESPEAK_TIMER = """
+import json, sys, time
+from vispeech.frontends.espeak import synthesize
+text, runs = sys.argv[1], int(sys.argv[2])
+times = []
+for _ in range(runs + 1):
+    start = time.perf_counter()
+    synthesize(text, "en")
+    times.append(time.perf_counter() - start)
+print(json.dumps(times))
+"""
+
+
+def _pin() -> None:
+    os.sched_setaffinity(0, {CPU})
+
+
+def vispeech_command() -> list[str]:
+    """The installed ``vispeech`` script beside this interpreter, else ``python -c`` on the entry point."""
+    script = Path(sys.executable).with_name("vispeech")
+    if script.is_file():
+        return [str(script)]
+    found = shutil.which("vispeech")
+    if found:
+        return [found]
+    return [sys.executable, "-c", "import sys; from vispeech.cli import main; sys.exit(main())"]
+
+
+def wall_times(command: list[str], runs: int, cwd: Path) -> list[float]:
+    """Wall seconds of ``runs`` runs of ``command`` (after one untimed warm-up run); stops on a failure."""
+    times = []
+    for i in range(runs + 1):
+        start = time.perf_counter()
+        result = subprocess.run(command, cwd=cwd, capture_output=True, text=True, preexec_fn=_pin)
+        elapsed = time.perf_counter() - start
+        if result.returncode != 0:
+            raise SystemExit(f"{' '.join(command)} failed ({result.returncode}):\n{result.stderr}")
+        if i:
+            times.append(elapsed)
+    return times
+
+
+def make_take(folder: Path) -> tuple[Path, str, float]:
+    """The 3-s TextGrid of golden sentence 1, its text and its duration."""
+    from vispeech.alignment.formats import write_alignment
+    from vispeech.alignment.phones import PhoneSequence
+
+    entry = json.loads(GOLDEN_PHONES.read_text(encoding="utf-8"))[1]
+    phones = PhoneSequence.from_dict(entry)
+    path = folder / "take.TextGrid"
+    write_alignment(phones, path)
+    return path, entry["text"], phones.duration
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=7, help="Timed runs per command (median reported).")
+    parser.add_argument("--model", default=None, help="--model for animate-phones and say [default: theirs].")
+    args = parser.parse_args()
+    _pin()
+    vispeech = vispeech_command()
+    model = ["--model", args.model] if args.model else []
+    with tempfile.TemporaryDirectory(prefix="bench_cli_") as tmp:
+        tmp = Path(tmp)
+        take, text, duration = make_take(tmp)
+        rows = [
+            ("python -c pass", wall_times([sys.executable, "-c", "pass"], args.runs, tmp), None),
+            ("vispeech --help", wall_times([*vispeech, "--help"], args.runs, tmp), None),
+            (f"vispeech animate-phones ({duration:.2f}-s TextGrid)",
+             wall_times([*vispeech, "animate-phones", str(take), "-o", str(tmp / "take"), *model], args.runs, tmp),
+             TARGET),
+        ]
+        espeak = subprocess.run([sys.executable, "-c", _ESPEAK_TIMER, text, str(args.runs)], capture_output=True,
+                                text=True, preexec_fn=_pin, check=True)
+        first, *warm = json.loads(espeak.stdout)
+        rows.append(("espeak-ng synthesize, first call in a process", [first], None))
+        rows.append(("espeak-ng synthesize, later calls", warm, None))
+        rows.append((f'vispeech say "{text}"',
+                     wall_times([*vispeech, "say", text, "-o", str(tmp / "say"), *model], args.runs, tmp),
+                     TARGET + first))
+
+    print(f"one core (CPU {CPU}), {args.runs} runs each, model {args.model or 'default'}; seconds")
+    print(f"{'':<66} {'median':>7} {'min':>7} {'target':>7}")
+    for name, times, target in rows:
+        median = statistics.median(times)
+        mark = "" if target is None else f"{target:7.3f} {'ok' if median <= target else 'OVER'}"
+        print(f"{name[:66]:<66} {median:7.3f} {min(times):7.3f} {mark}")
+    say = statistics.median(rows[-1][1])
+    print(f"say minus espeak-ng's first call: {say - first:.3f} s (target {TARGET} s)")
+
+
+if __name__ == "__main__":
+    main()
