@@ -92,7 +92,11 @@ class Estimator(ABC):
     @property
     def is_fitted(self) -> bool:
         """Whether :meth:`predict` can run: always for data-free families, else after :meth:`fit`."""
-        return self.data_free or self._learned_state() is not None
+        return self.data_free or self._has_learned()
+
+    def _has_learned(self) -> bool:
+        """Whether fitting (or loading) left learned attributes (public names ending in ``_``)."""
+        return any(name.endswith("_") and not name.startswith("_") for name in vars(self))
 
     @property
     def lookahead(self) -> int:
@@ -102,7 +106,7 @@ class Estimator(ABC):
     @property
     def postprocessing(self) -> str:
         """The post-processing preset this model recommends (:data:`vispeech.targets.presets.PRESETS`)."""
-        return "authored" if self._learned_state() is None else "learned-jaw"
+        return "learned-jaw" if self._has_learned() else "authored"
 
     @abstractmethod
     def fit(self: _Self, corpus, *, progress: bool | None = None) -> _Self:

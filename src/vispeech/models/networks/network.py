@@ -297,6 +297,9 @@ class Network(Estimator):
 
     # -- prediction ------------------------------------------------------------------------
 
+    def _has_learned(self) -> bool:
+        return hasattr(self, "weights_")
+
     @property
     def kernel(self):
         """The NumPy forward pass (built once from :attr:`weights_`)."""
