@@ -89,13 +89,25 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
                f"utterances at {corpus.fps:g} fps")
 
     model.fit(corpus, progress=not quiet)
+    if neural:
+        model = _without_checkpoint(model)
     model.name = out_dir.name
     model.save(out_dir)
     if neural:
         shutil.rmtree(checkpoint, ignore_errors=True)
     if model.history_.epochs:
-        model.history_.plot(out_dir / LOSS_CURVE)
+        from vispeech.evaluation.plots import plot_history
+
+        plot_history(model.history_, out_dir / LOSS_CURVE)
     _summary(model, corpus, out_dir)
+
+
+def _without_checkpoint(model):
+    """The fitted network with ``checkpoint_dir`` unset, to be saved: the checkpoint folder goes once
+    the model is saved, and a loaded model that kept its path would checkpoint (and resume) there when fitted."""
+    clean = type(model)(**{**model.get_params(), "checkpoint_dir": None})
+    clean._set_learned_state(*model._learned_state())
+    return clean
 
 
 def _summary(model, corpus, out_dir: Path) -> None:

@@ -12,6 +12,7 @@ from vispeech.corpus.corpus import Utterance
 from vispeech.errors import VispeechError
 from vispeech.evaluation.report import scored_frames, target_track
 from vispeech.files import atomic_output_file
+from vispeech.models.history import TrainingHistory
 from vispeech.motion.track import Track
 
 
@@ -59,6 +60,32 @@ def plot_utterance(
     axes.set_ylabel(channel)
     axes.set_title(f"{utterance.id}: {utterance.text}", fontsize=9, pad=18)
     axes.legend(fontsize=8, loc="upper right")
+    figure.tight_layout()
+    with atomic_output_file(path) as tmp:
+        figure.savefig(tmp, format="png")
+    return Path(path)
+
+
+def plot_history(history: TrainingHistory, path: str | os.PathLike) -> Path:
+    """Draw a fit's training and validation loss per epoch (log scale) into a PNG at ``path``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(6, 4), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    epochs = np.arange(1, history.epochs + 1)
+    axes.plot(epochs, history.train_loss, marker="o", markersize=3, label="training")
+    validation = [np.nan if v is None else v for v in history.validation_loss]
+    if not np.all(np.isnan(validation)):
+        axes.plot(epochs, validation, marker="o", markersize=3, label="validation")
+    if history.best_epoch:
+        axes.axvline(history.best_epoch, color="grey", linestyle=":", label=f"best (epoch {history.best_epoch})")
+    if history.epochs and min(history.train_loss) > 0:
+        axes.set_yscale("log")
+    axes.set_xlabel("epoch")
+    axes.set_ylabel("loss")
+    axes.legend()
     figure.tight_layout()
     with atomic_output_file(path) as tmp:
         figure.savefig(tmp, format="png")
