@@ -108,13 +108,15 @@ def describe_models() -> list[ModelInfo]:
     """Every runnable model with its family, input, look-ahead, training data and test-split figure."""
     import json
 
+    authored = json.loads(resources.files("vispeech.models.rules").joinpath("cards.json").read_text(encoding="utf-8"))
     infos = []
     for name in RUNNABLE:
         model = load_model(name)
-        trained_on, score = "authored (data-free)", "n/a"
         if name in PRETRAINED:
             card = json.loads((pretrained_path(name) / "card.json").read_text(encoding="utf-8"))
             trained_on, score = card["trained_on"], card["test"]
+        else:
+            trained_on, score = "authored (data-free)", authored[name]
         infos.append(ModelInfo(name, model.family, model.input_kind, model.lookahead,
                                getattr(model, "fps_", None), trained_on, score))
     return infos
