@@ -1,15 +1,18 @@
-"""Speed of the data-free control models: phones → track, and text → audio + track.
+"""Speed of every runnable model: phones → track, and text → audio + track.
 
     python benchmarks/bench_models.py [--sentences N] [--fps FPS] [--seed S]
 
 1. phones → track: builds N random ~3 s sentences (half Swedish, half English: silence,
-   then syllables of random consonants and vowels of 40–160 ms, then silence), predicts
-   each with every model and prints frames per second per model, and for post-processing.
+   then syllables of random consonants and vowels of 40–160 ms, then silence) and animates
+   each with every model of ``vispeech models`` (:func:`vispeech.pipeline.animate`: the
+   model and the post-processing it recommends), printing frames per second of output,
+   and the model's prediction alone. Target: ``grid-tdnn`` ≥ 20,000 frames/s with
+   post-processing (≤ 4.5 ms per 3-s sentence at 30 fps).
 2. text → audio + track: speaks N real sentences (half Swedish, half English: the test
    sentences and, when ../shared is there, GRID's transcripts) through
    :func:`vispeech.pipeline.speak` (espeak-ng + model + post-processing) with every model.
 
-Runs on one core (BLAS threads pinned to 1).
+Runs in one process on one core (BLAS threads pinned to 1; pin the process with taskset -c 0).
 """
 
 from __future__ import annotations
@@ -27,14 +30,14 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
-from vispeech.models.registry import create_model  # noqa: E402
+from vispeech.models.registry import RUNNABLE, load_model  # noqa: E402
 from vispeech.phonetics.inventory import get_inventory, is_silence  # noqa: E402
-from vispeech.pipeline import speak  # noqa: E402
-from vispeech.postprocess import postprocess  # noqa: E402
+from vispeech.pipeline import animate, speak  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
-DATA_FREE = ("baseline", "beskow-rules", "cohen-massaro", "ohman")
+TARGET = {"grid-tdnn": 20_000}
+"""Frames per second of phones → track with post-processing that a model must reach."""
 
 
 def random_sentence(rng: np.random.Generator, language: str, seconds: float = 3.0) -> PhoneSequence:
@@ -76,23 +79,27 @@ def main() -> None:
     sentences = [random_sentence(rng, ("sv", "en")[i % 2]) for i in range(args.sentences)]
     frames = sum(s.n_frames(args.fps) for s in sentences)
     print(f"{len(sentences)} sentences, {frames} frames at {args.fps:g} fps")
-    for name in DATA_FREE:
-        model = create_model(name)
-        model.predict(sentences[0], args.fps)  # warm-up
+    print(f"{'model':>22}  {'with post-processing':>22}  {'prediction alone':>18}")
+    for name in RUNNABLE:
+        model = load_model(name)
+        animate(sentences[0], model, args.fps)  # warm-up
         t0 = time.perf_counter()
-        tracks = [model.predict(s, args.fps) for s in sentences]
-        seconds = time.perf_counter() - t0
-        print(f"{name:>15}: {frames / seconds:12,.0f} frames/s  ({1e3 * seconds / len(sentences):.2f} ms/sentence)")
-    t0 = time.perf_counter()
-    for track, sentence in zip(tracks, sentences):
-        postprocess(track, sentence)
-    seconds = time.perf_counter() - t0
-    print(f"{'postprocess':>15}: {frames / seconds:12,.0f} frames/s  ({1e3 * seconds / len(sentences):.2f} ms/sentence)")
+        for s in sentences:
+            animate(s, model, args.fps)
+        whole = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for s in sentences:
+            model.predict(s, args.fps)
+        alone = time.perf_counter() - t0
+        target = f"  (target {TARGET[name]:,}: {'met' if frames / whole >= TARGET[name] else 'NOT met'})" \
+            if name in TARGET else ""
+        print(f"{name:>22}  {frames / whole:10,.0f} frames/s {1e3 * whole / len(sentences):5.2f} ms"
+              f"  {frames / alone:10,.0f} frames/s{target}")
 
     texts = real_sentences(args.sentences)
     print(f"\ntext -> audio + track, {len(texts)} sentences (espeak-ng + model + post-processing)")
-    for name in DATA_FREE:
-        model = create_model(name)
+    for name in RUNNABLE:
+        model = load_model(name)
         t0 = time.perf_counter()
         utterances = [speak(text, language, model=model, fps=args.fps) for language, text in texts]
         seconds = time.perf_counter() - t0
