@@ -15,7 +15,7 @@ from vispeech.evaluation import (
 from vispeech.evaluation.closures import phone_frames
 from vispeech.evaluation.plots import plot_utterance
 from vispeech.evaluation.report import predict_on_frames
-from vispeech.models.contract import ControlModel
+from vispeech.models.contract import Estimator
 from vispeech.models.registry import create_model
 
 FPS = 10.0
@@ -159,20 +159,31 @@ def _utterance(name: str, seed: int) -> Utterance:
                      landmarks=_landmarks(opening / 10), frame_mask=mask)
 
 
-class Replay(ControlModel):
+class Replay(Estimator):
     """Plays back the recorded track of whichever utterance's phones it is given."""
 
-    name = "replay"
+    family = "replay"
+    data_free = True
+    trainable = False
+    defaults = {"offset": 0.0}
     channels = ("jawOpen", "mouthClose", "mouthPucker", "eyeBlinkLeft")
 
     def __init__(self, utterances, offset: float = 0.0):
-        super().__init__()
+        super().__init__(offset=offset)
         self.by_phones = {id(u.phones): u.track.select(self.channels) for u in utterances}
-        self.offset = offset
+
+    def fit(self, corpus, *, progress=None):
+        raise VispeechError("replay is data-free")
 
     def predict(self, phones, fps):
         track = self.by_phones[id(phones)]
-        return Track(track.values + self.offset, track.channels, fps)
+        return Track(track.values + self.get_params()["offset"], track.channels, fps)
+
+    def _learned_state(self):
+        return None
+
+    def _set_learned_state(self, state, arrays):
+        raise ValueError("replay learns nothing")
 
 
 @pytest.fixture

@@ -56,7 +56,8 @@ def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
     (["-m", "baseline", "--channels", "headYaw"], "does not predict channel 'headYaw'"),
     (["-m", "baseline", "--channels", "lip_aperture"], "has no channel 'lip_aperture'"),
     (["-m", "baseline", "--plot", "{tmp}/p.png", "--plot-utterance", "u01"], "no utterance 'u01'"),
-    (["-m", "sliding-window-thesis"], "not trained"),
+    (["-m", "sliding-window-thesis"], "must be trained first"),
+    (["-m", "tdnn-lowlatency"], "must be trained first"),
 ])
 def test_evaluate_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "corrupt").mkdir()

@@ -1,6 +1,7 @@
 """The data-free control models: shapes, closures after post-processing, save/load, maths."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,16 +9,16 @@ from scipy.signal import find_peaks
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ControlModel
+from vispeech.models.contract import Estimator
 from vispeech.models.rules.baseline import Baseline
 from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.ohman import Ohman, smoothstep
-from vispeech.models.registry import create_model, load_model
+from vispeech.models.registry import create_model, load_folder, load_model
 from vispeech.targets.tables import TARGET_CHANNELS, target_matrix
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.phonetics.inventory import get_inventory, is_silence, is_vowel
 from vispeech.postprocess import postprocess
-from vispeech.postprocess.bezier import bezier_ease
+from vispeech.targets.easing import bezier_ease
 
 DATA_FREE = ("baseline", "beskow-rules", "cohen-massaro", "ohman")
 BILABIALS = {"sv": {"p", "b", "m"}, "en": {"P", "B", "M"}}
@@ -115,13 +116,15 @@ def test_postprocessed_jaw_peaks_fall_inside_vowels(model):
 def test_save_load_round_trip_predicts_identically(model, tmp_path):
     params = model.get_params()
     params["targets"] = {"sv": {"a": {"jawOpen": 0.5}}, "en": {"AA": {"mouthFunnel": None}}}
-    original = type(model)(params)
+    original = type(model)(**params)
     folder = original.save(tmp_path / "saved")
     config = json.loads((folder / "config.json").read_text())
-    assert config["model"] == model.name and config["params"] == params
-    assert not (folder / "weights.npz").exists()
-    for loaded in (load_model(folder), ControlModel.load(folder), type(model).load(folder)):
-        assert type(loaded) is type(model) and loaded.get_params() == params
+    assert config["name"] == config["family"] == model.family and config["params"] == params
+    assert config["format"] == "vispeech-model" and config["version"] == 2 and config["state"] is None
+    assert config["postprocessing"] == "authored" and config["channels"] == list(TARGET_CHANNELS)
+    assert not (folder / "weights.safetensors").exists()  # authored parameters only: no arrays
+    for loaded in (load_model(folder), load_folder(folder), type(model).load(folder)):
+        assert type(loaded) is type(model) and loaded.get_params() == params and loaded.name == model.family
         for _, phones in SENTENCES[:4]:
             assert np.array_equal(loaded.predict(phones, 30).values, original.predict(phones, 30).values)
 
@@ -133,8 +136,10 @@ def test_unknown_model_and_parameter_are_refused():
         load_model("no-such-model")
     with pytest.raises(VispeechError, match="no parameter"):
         create_model("ohman", smoothing=3)
-    with pytest.raises(VispeechError, match="not trainable"):
+    with pytest.raises(VispeechError, match="data-free"):
         create_model("baseline").fit(None)
+    with pytest.raises(VispeechError, match="data-free"):
+        create_model("beskow-rules").fit([])
 
 
 @pytest.mark.parametrize(
@@ -143,7 +148,7 @@ def test_unknown_model_and_parameter_are_refused():
 )
 def test_bad_cohen_massaro_params_are_refused(params):
     with pytest.raises(VispeechError):
-        CohenMassaro(params)
+        CohenMassaro(**params)
 
 
 def test_bad_params_of_other_models_are_refused():
@@ -157,22 +162,42 @@ def test_bad_params_of_other_models_are_refused():
         create_model("baseline", targets={"sv": {"a": {"jawOpen": 7}}})
 
 
+def _fitted_ohman() -> Ohman:
+    """An Öhman model fitted (one iteration) to the baseline's jawOpen on two sentences."""
+    from vispeech.corpus import Utterance
+
+    baseline = create_model("baseline")
+    swedish = [phones for lang, phones in SENTENCES if lang == "sv"][:2]
+    utterances = [Utterance(f"u{k}", "", Path("none.wav"), phones.duration,
+                            baseline.predict(phones, 30).select(("jawOpen",)), phones=phones)
+                  for k, phones in enumerate(swedish)]
+    return Ohman(max_iterations=1).fit(utterances, progress=False)
+
+
 def test_corrupt_or_missing_folders_are_refused(tmp_path):
     with pytest.raises(VispeechError):
         load_model(tmp_path / "missing")
     with pytest.raises(VispeechError, match="config.json"):
-        ControlModel.load(tmp_path)
+        load_folder(tmp_path)
     folder = create_model("ohman").save(tmp_path / "m")
     config = json.loads((folder / "config.json").read_text())
     with pytest.raises(VispeechError, match="not a baseline"):
         Baseline.load(folder)
     bad_configs = [
         "{not json",
-        json.dumps({**config, "model": "nonexistent"}),
+        json.dumps({**config, "family": "nonexistent"}),
         json.dumps({key: value for key, value in config.items() if key != "params"}),
+        json.dumps({key: value for key, value in config.items() if key != "family"}),
+        json.dumps({**config, "format": "something-else"}),
         json.dumps({**config, "version": 99}),
+        json.dumps({**config, "version": 1}),
+        json.dumps({**config, "name": 3}),
+        json.dumps({**config, "input": "video"}),
+        json.dumps({**config, "postprocessing": {"jaw_shift": 0.0}}),
         json.dumps({**config, "params": {**config["params"], "w_c": {"default": 7}}}),
-        json.dumps({**config, "arrays": ["w"]}),
+        json.dumps({**config, "params": {**config["params"], "smoothing": 3}}),
+        json.dumps({**config, "state": [1]}),
+        json.dumps({**config, "state": {"channels": ["jawOpen"]}}),
         json.dumps({**config, "channels": ["jawOpen"]}),
         json.dumps({**config, "arrays": 3}),
         json.dumps({**config, "params": {**config["params"], "targets": [1]}}),
@@ -181,45 +206,80 @@ def test_corrupt_or_missing_folders_are_refused(tmp_path):
         (folder / "config.json").write_text(text)
         with pytest.raises(VispeechError):
             load_model(folder)
+    # a fitted model's learned tables must be there, under the names and shapes its config lists
+    fitted = _fitted_ohman().save(tmp_path / "fitted")
+    config = json.loads((fitted / "config.json").read_text())
+    weights = (fitted / "weights.safetensors").read_bytes()
+    assert config["state"]["channels"] == ["jawOpen"] and config["arrays"] == ["sv.targets", "sv.w_c"]
+    assert config["postprocessing"] == "learned-jaw"
+    from safetensors.numpy import save as to_safetensors
+
+    for text, data in [
+        (json.dumps({**config, "arrays": ["sv.targets", "sv.w_c", "w"]}), weights),
+        (json.dumps({**config, "arrays": ["sv.targets"]}), weights),
+        (json.dumps(config), b"garbage"),
+        (json.dumps(config), to_safetensors({"sv.targets": np.zeros((2, 2)), "sv.w_c": np.zeros((2, 2))})),
+        (json.dumps(config), to_safetensors({"sv.targets": np.zeros((2, 2)), "sv.alpha": np.zeros((2, 2))})),
+    ]:
+        (fitted / "config.json").write_text(text)
+        (fitted / "weights.safetensors").write_bytes(data)
+        with pytest.raises(VispeechError):
+            load_model(fitted)
+    (fitted / "config.json").write_text(json.dumps(config))
+    (fitted / "weights.safetensors").unlink()
+    with pytest.raises(VispeechError, match="weights"):
+        load_model(fitted)
 
 
-class _ArrayModel(ControlModel):
-    """A model with arrays, to exercise weights.npz (not registered: loaded through its class)."""
+class _ArrayModel(Estimator):
+    """A model with arrays, to exercise weights.safetensors (not registered: loaded through its class)."""
 
-    name = "test-arrays"
+    family = "test-arrays"
+    defaults = {"gain": 1.0}
     channels = ("jawOpen",)
 
-    def __init__(self, params=None, weights=None, **options):
-        super().__init__(params, **options)
-        self.weights = np.zeros(3) if weights is None else weights
-
-    @classmethod
-    def default_params(cls):
-        return {"gain": 1.0}
+    def fit(self, corpus, *, progress=None):
+        self.weights_ = np.arange(3.0) * self._params["gain"]
+        return self
 
     def predict(self, phones, fps):
         raise NotImplementedError
 
-    def _arrays(self):
-        return {"weights": self.weights}
+    def _learned_state(self):
+        if not hasattr(self, "weights_"):
+            return None
+        return {"size": len(self.weights_)}, {"weights": self.weights_}
 
-    @classmethod
-    def _from_saved(cls, params, arrays):
-        return cls(params, weights=arrays["weights"])
+    def _set_learned_state(self, state, arrays):
+        if len(arrays["weights"]) != state["size"]:
+            raise ValueError("wrong size")
+        self.weights_ = arrays["weights"]
 
 
-def test_arrays_round_trip_through_weights_npz_without_pickle(tmp_path, monkeypatch):
-    from vispeech.models import contract as base
+def test_arrays_round_trip_through_safetensors_without_pickle(tmp_path):
+    from safetensors.numpy import save as to_safetensors
 
-    monkeypatch.setitem(base._MODELS, _ArrayModel.name, _ArrayModel)
-    folder = _ArrayModel(gain=2.0, weights=np.array([0.25, -1.5, 3.0])).save(tmp_path / "a")
+    model = _ArrayModel(gain=2.0)
+    assert not model.is_fitted and model.postprocessing == "authored"
+    unfitted = _ArrayModel.load(model.save(tmp_path / "u"))
+    assert not unfitted.is_fitted and not (tmp_path / "u" / "weights.safetensors").exists()
+    model.fit(None)
+    model.weights_ = np.array([0.25, -1.5, 3.0])
+    folder = model.save(tmp_path / "a")
+    assert json.loads((folder / "config.json").read_text())["arrays"] == ["weights"]
+    assert not any(path.suffix in (".npz", ".npy", ".pkl") for path in folder.iterdir())
     loaded = _ArrayModel.load(folder)
-    assert loaded.get_params() == {"gain": 2.0} and np.array_equal(loaded.weights, [0.25, -1.5, 3.0])
-    np.savez(folder / "weights.npz", weights=np.array([{"x": 1}], dtype=object))
+    assert loaded.is_fitted and loaded.postprocessing == "learned-jaw"
+    assert loaded.get_params() == {"gain": 2.0} and np.array_equal(loaded.weights_, [0.25, -1.5, 3.0])
+    assert loaded.weights_.dtype == np.float64
+    (folder / "weights.safetensors").write_bytes(to_safetensors({"weights": np.zeros(4)}))
+    with pytest.raises(VispeechError, match="corrupt model state"):
+        _ArrayModel.load(folder)
+    (folder / "weights.safetensors").write_bytes(to_safetensors({"other": np.zeros(3)}))
     with pytest.raises(VispeechError):
         _ArrayModel.load(folder)
-    (folder / "weights.npz").write_bytes(b"garbage")
-    with pytest.raises(VispeechError):
+    (folder / "weights.safetensors").write_bytes(b"garbage")
+    with pytest.raises(VispeechError, match="cannot read model weights"):
         _ArrayModel.load(folder)
 
 
@@ -233,7 +293,7 @@ def test_cohen_massaro_matches_a_hand_computed_two_segment_value():
     }
     targets, _ = target_matrix(["a", "m"], "sv")
     for window in (1, 6):
-        track = CohenMassaro(params, window=window).predict(phones, fps=10.0)
+        track = CohenMassaro(**params, window=window).predict(phones, fps=10.0)
         for k, t in enumerate(track.times):
             d_a = 1.0 * np.exp(-(12.0 if t < 0.05 else 8.0) * abs(t - 0.05) ** 1.5)
             d_m = 2.0 * np.exp(-(6.0 if t < 0.2 else 10.0) * abs(t - 0.2) ** 0.8)

@@ -1,0 +1,278 @@
+"""The estimator contract (vispeech.models.contract) held by every family and every runnable model.
+
+Hyper-parameters only in ``__init__`` (unknown ones refused), ``get_params`` never changed by
+``fit``, ``fit(corpus) -> self`` with learned state in ``_`` attributes, ``predict`` refused
+before fitting, one saved-folder format whose save → load round trip reproduces ``predict``,
+and one name per model.
+"""
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from conftest import require_module
+
+from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream
+from vispeech.models.networks.network import Network
+from vispeech.models.registry import (
+    DATA_FREE, FAMILIES, PRETRAINED, RUNNABLE, create_model, family_class, load_folder, load_model, pretrained_path,
+)
+from vispeech.motion.track import Track
+from vispeech.targets.presets import PRESETS
+
+TRAINABLE = tuple(f for f in FAMILIES if f not in DATA_FREE)
+NETWORK_TOLERANCE = 1e-9
+"""How far a network's prediction may move through save → load (float32 weights, NumPy kernels)."""
+RULE_TOLERANCE = 1e-12
+CONFIG_KEYS = {"format", "version", "name", "family", "input", "vispeech", "channels", "params", "state", "arrays",
+               "postprocessing"}
+FPS = 25.0
+SYMBOLS = ("AA", "IY", "UW", "B", "M", "S", "L", "F")
+TINY_NETWORKS = {
+    "sliding-window-thesis": {"input_window": 5, "output_window": 3, "hidden": [6, 6], "dropout": [0.0, 0.0]},
+    "sliding-window-taylor": {"input_window": 5, "output_window": 3, "hidden": [6], "dropout": [0.0],
+                              "batch_size": 16},
+    "tdnn-beskow": {"look_back": 3, "look_ahead": 3, "hidden": 4, "delays": 2, "fps": None, "batch_size": 2},
+    "tdnn-lowlatency": {"look_back": 4, "look_ahead": 1, "hidden": 4, "delays": 2, "fps": None, "batch_size": 2},
+}
+"""Small hyper-parameters for a quick fit of each network family on :func:`tiny_corpus`."""
+
+
+@dataclass
+class Recorded:
+    """The least an utterance needs for fitting."""
+
+    phones: PhoneSequence
+    track: Track
+    id: str = "u"
+
+
+@dataclass
+class Splits:
+    """A corpus with a train and a validation split."""
+
+    train: list
+    validation: list
+
+    def split(self, name: str) -> list:
+        return {"train": self.train, "validation": self.validation}[name]
+
+
+def sentence(seed: int, language: str = "en") -> PhoneSequence:
+    """Silence, 4–7 phones of 60–200 ms, silence."""
+    rng = np.random.default_rng(seed)
+    symbols = SYMBOLS if language == "en" else ("a", "i:", "u:", "b", "m", "s", "l", "f")
+    phones, t = [Phone("sil", 0.0, 0.2)], 0.2
+    for symbol in rng.choice(symbols, rng.integers(4, 8)):
+        duration = float(rng.uniform(0.06, 0.2))
+        phones.append(Phone(str(symbol), t, t + duration))
+        t += duration
+    phones.append(Phone("sil", t, t + 0.2))
+    return PhoneSequence(phones, language)
+
+
+def tiny_corpus(seeds=range(4)) -> list[Recorded]:
+    """English utterances whose jawOpen and mouthPucker tracks are Öhman's authored predictions at 25 fps."""
+    teacher = create_model("ohman")
+    return [Recorded(p, teacher.predict(p, FPS).select(("jawOpen", "mouthPucker")), f"u{seed}")
+            for seed, p in ((seed, sentence(seed)) for seed in seeds)]
+
+
+def tiny_fitted(family: str) -> Estimator:
+    """A model of ``family`` fitted briefly on :func:`tiny_corpus` (networks need torch)."""
+    if family in TINY_NETWORKS:
+        require_module("torch", "torch (the train extra: pip install vispeech[train])")
+        params = {**TINY_NETWORKS[family], "targets": ["jawOpen", "mouthPucker"], "epochs": 2, "num_threads": 1}
+        return create_model(family, **params).fit(tiny_corpus(), progress=False)
+    return create_model(family, max_iterations=2).fit(tiny_corpus(), progress=False)
+
+
+PROBES = [sentence(50), sentence(51), sentence(52, "sv")]
+"""Phone sequences to compare predictions on (two English, one Swedish)."""
+
+
+def probes_for(model: Estimator) -> list[PhoneSequence]:
+    """The probes the model can read (a network on phone identities reads its own language only)."""
+    encoding = getattr(model, "encoding_", None)
+    if encoding is None or encoding.kind != "phones":
+        return PROBES
+    return [p for p in PROBES if p.language == encoding.language]
+
+
+def runnable(name: str) -> Estimator:
+    """``load_model(name)``; skips while a shipped model is not in the package yet."""
+    if name in PRETRAINED and not pretrained_path(name).is_dir():
+        pytest.skip(f"shipped model {name} is not trained yet ({pretrained_path(name)} absent)")
+    return load_model(name)
+
+
+def tolerance(model: Estimator) -> float:
+    return NETWORK_TOLERANCE if isinstance(model, Network) else RULE_TOLERANCE
+
+
+def assert_same_predictions(a: Estimator, b: Estimator) -> None:
+    for phones in probes_for(a):
+        for fps in (30.0, FPS):
+            x, y = a.predict(phones, fps), b.predict(phones, fps)
+            assert x.channels == y.channels and x.n_frames == y.n_frames == phones.n_frames(fps)
+            np.testing.assert_allclose(y.values, x.values, rtol=0, atol=tolerance(a))
+
+
+# -- every family ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_every_family_obeys_the_contract(family):
+    cls = family_class(family)
+    assert issubclass(cls, Estimator) and cls.family == family
+    model = create_model(family)
+    assert type(model) is cls and model.name == family
+    assert model.input_kind in ("phones", "audio") and isinstance(model.lookahead, int) and model.lookahead >= 0
+    assert model.get_params() == dict(cls.defaults)
+    params = model.get_params()
+    params[next(iter(params))] = "changed"  # a copy: the model keeps its own
+    assert model.get_params() == dict(cls.defaults)
+    assert cls(**model.get_params()).get_params() == model.get_params()
+    assert model.data_free == (family in DATA_FREE) == model.is_fitted
+    assert model.postprocessing in PRESETS
+    with pytest.raises(VispeechError, match=f"model {family} has no parameter 'no_such_parameter'"):
+        cls(no_such_parameter=1)
+    with pytest.raises(TypeError):
+        cls({"window": 3})  # hyper-parameters by keyword only
+    if model.is_fitted:
+        track = model.predict(PROBES[0], FPS)
+        assert track.channels == model.channels and track.n_frames == PROBES[0].n_frames(FPS)
+        assert isinstance(model.stream("en", FPS), ModelStream)
+
+
+@pytest.mark.parametrize("family", TRAINABLE)
+def test_an_untrained_network_refuses_to_predict_and_names_training(family, tmp_path):
+    model = create_model(family)
+    assert not model.is_fitted and isinstance(model, Network) and model.postprocessing == "authored"
+    with pytest.raises(VispeechError, match=f"model {family} is not trained: fit it on a corpus"):
+        model.predict(PROBES[0], FPS)
+    with pytest.raises(VispeechError, match="not trained"):
+        model.stream("en", FPS)
+    with pytest.raises(VispeechError, match=f"model {family} must be trained first"):
+        load_model(family)
+    folder = model.save(tmp_path / "untrained")  # an untrained model saves its hyper-parameters only
+    config = json.loads((folder / "config.json").read_text())
+    assert config["state"] is None and config["arrays"] == [] and config["channels"] is None
+    assert not (folder / "weights.safetensors").exists()
+    loaded = load_folder(folder)
+    assert type(loaded) is type(model) and not loaded.is_fitted and loaded.get_params() == model.get_params()
+    with pytest.raises(VispeechError, match="not trained"):
+        loaded.predict(PROBES[0], FPS)
+
+
+@pytest.mark.parametrize("family", ["baseline", "beskow-rules"])
+def test_authored_rules_refuse_to_fit(family):
+    with pytest.raises(VispeechError, match=f"model {family} is data-free"):
+        create_model(family).fit(tiny_corpus())
+
+
+@pytest.mark.parametrize("family", ["cohen-massaro", "ohman", *TINY_NETWORKS])
+def test_fit_learns_into_underscore_attributes_and_leaves_the_parameters(family, tmp_path):
+    if family in TINY_NETWORKS:
+        require_module("torch", "torch (the train extra: pip install vispeech[train])")
+        model = create_model(family, **TINY_NETWORKS[family], targets=["jawOpen", "mouthPucker"], epochs=2,
+                             num_threads=1)
+    else:
+        model = create_model(family, max_iterations=2)
+    params = model.get_params()
+    before = set(vars(model))
+    assert model.fit(tiny_corpus(), progress=False) is model
+    assert model.get_params() == params and model.is_fitted
+    learned = {key for key in set(vars(model)) - before if not key.startswith("_")}
+    assert learned and all(key.endswith("_") for key in learned), learned
+    assert model.history_.epochs >= 1 and all(v is None for v in model.history_.validation_loss)
+    assert model.postprocessing == "learned-jaw"
+    for phones in probes_for(model):
+        track = model.predict(phones, FPS)
+        assert track.channels == model.channels and track.n_frames == phones.n_frames(FPS)
+        assert np.isfinite(track.values).all()
+    # refitting on a corpus with a validation split: same parameters, a validation loss
+    corpus = tiny_corpus()
+    model.fit(Splits(corpus[:3], corpus[3:]), progress=False)
+    assert model.get_params() == params and None not in model.history_.validation_loss
+
+
+def test_fit_refuses_what_is_not_a_corpus():
+    for family in ("cohen-massaro", "ohman"):
+        with pytest.raises(VispeechError, match="empty"):
+            create_model(family).fit([], progress=False)
+        with pytest.raises(VispeechError, match="needs a corpus"):
+            create_model(family).fit(3, progress=False)
+        with pytest.raises(VispeechError, match="align"):
+            create_model(family).fit([Recorded(None, tiny_corpus()[0].track)], progress=False)
+
+
+# -- every runnable model ----------------------------------------------------------------
+
+@pytest.mark.parametrize("name", RUNNABLE)
+def test_runnable_models_are_known_by_the_name_they_were_loaded_by(name):
+    model = runnable(name)
+    assert model.name == name and model.is_fitted
+    assert model.family == (name if name in DATA_FREE else json.loads(
+        (pretrained_path(name) / "config.json").read_text())["family"])
+    if name in PRETRAINED:
+        assert model.postprocessing == "learned-jaw"
+    assert repr(model).startswith(f"<{type(model).__name__} {name!r}")
+
+
+@pytest.mark.parametrize("name", RUNNABLE)
+def test_save_load_round_trip_reproduces_predict(name, tmp_path):
+    model = runnable(name)
+    folder = model.save(tmp_path / "saved")
+    config = json.loads((folder / "config.json").read_text())
+    assert set(config) == CONFIG_KEYS
+    assert (config["format"], config["version"], config["name"], config["family"]) == (
+        FORMAT, FORMAT_VERSION, name, model.family)
+    assert config["input"] == model.input_kind and config["channels"] == list(model.channels)
+    assert config["params"] == model.get_params() and config["postprocessing"] == model.postprocessing
+    assert (folder / "weights.safetensors").exists() == bool(config["arrays"]) == (config["state"] is not None)
+    for loaded in (load_model(folder), load_folder(folder), type(model).load(folder)):
+        assert type(loaded) is type(model) and loaded.name == name and loaded.family == model.family
+        assert loaded.get_params() == model.get_params() and loaded.channels == model.channels
+        assert loaded.lookahead == model.lookahead and loaded.postprocessing == model.postprocessing
+        assert_same_predictions(model, loaded)
+    if name in PRETRAINED:  # the shipped folder itself loads to the same model
+        assert_same_predictions(model, load_folder(pretrained_path(name)))
+
+
+@pytest.mark.parametrize("family", ["cohen-massaro", "ohman", *TINY_NETWORKS])
+def test_save_load_round_trip_of_a_fitted_model(family, tmp_path):
+    model = tiny_fitted(family)
+    model.name = "my-model"
+    loaded = load_model(model.save(tmp_path / "m"))
+    assert type(loaded) is type(model) and loaded.name == "my-model" and loaded.is_fitted
+    assert loaded.get_params() == model.get_params() and loaded.history_ == model.history_
+    assert loaded.postprocessing == model.postprocessing == "learned-jaw"
+    assert_same_predictions(model, loaded)
+
+
+@pytest.mark.parametrize("name", RUNNABLE)
+def test_streams_give_every_frame_once_in_order(name):
+    model = runnable(name)
+    phones = PROBES[0]
+    stream = model.stream(phones.language, 30.0)
+    assert stream.channels == model.channels and stream.fps == 30.0 and stream.lookahead >= 0
+    chunks = [stream.push([p]) for p in phones] + [stream.finish()]
+    starts = [start for start, _ in chunks]
+    rows = np.concatenate([frames for _, frames in chunks])
+    lengths = np.cumsum([0] + [len(frames) for _, frames in chunks])
+    assert starts == list(lengths[:-1])  # contiguous, none twice
+    assert rows.shape == (phones.n_frames(30.0), len(model.channels)) and np.isfinite(rows).all()
+    with pytest.raises(VispeechError, match="ended"):
+        stream.push([])
+
+
+def test_a_version_1_folder_is_refused(tmp_path):
+    folder = load_model("cohen-massaro").save(tmp_path / "m")
+    config = json.loads((folder / "config.json").read_text())
+    old = {"format": FORMAT, "version": 1, "model": "cohen-massaro", "params": config["params"]}
+    (folder / "config.json").write_text(json.dumps(old))
+    with pytest.raises(VispeechError, match="format version 1; this vispeech reads 2"):
+        load_model(folder)
