@@ -64,7 +64,7 @@ class RecurrentKernel:
         self.hidden = sum(net["hidden"] for net in self.nets)
         # C[f, m, :] = Σ_{k<m} W_k[f, :] over every network's hidden units, as inputs × (window+1)·hidden
         self._cumulative = np.concatenate(cumulative, axis=2).transpose(1, 0, 2).reshape(n_inputs, -1)
-        self._bias = np.concatenate([net["bias"] for net in self.nets])
+        self._bias = np.concatenate([net["bias"] for net in self.nets]).astype(np.float32)
         self._rows: dict[bytes, np.ndarray] = {}
 
     # -- offline ---------------------------------------------------------------------------
@@ -72,59 +72,63 @@ class RecurrentKernel:
     def forward(self, inputs: np.ndarray) -> np.ndarray:
         """Outputs (frames × outputs, float64) for one utterance's input rows (frames × inputs)."""
         drive = self._window_terms(np.asarray(inputs))
-        outputs, start = [], 0
-        for net in self.nets:
-            hidden = self._recur(net, drive[:, start:start + net["hidden"]])
-            outputs.append(hidden.astype(np.float64) @ net["out_weight"] + net["out_bias"])
-            start += net["hidden"]
+        hidden = self._recur(drive)
+        outputs = [h.astype(np.float64) @ net["out_weight"] + net["out_bias"] for net, h in zip(self.nets, hidden)]
         return np.concatenate(outputs, axis=1)[:, self.order]
 
     def _window_terms(self, x: np.ndarray) -> np.ndarray:
         """``conv_t`` of every frame (frames × all hidden units), float32."""
         n, k = len(x), self.window
         change = np.flatnonzero(np.any(x[1:] != x[:-1], axis=1)) + 1
-        starts = np.concatenate([[0], change])
-        terms = self._row_terms(x[starts])  # runs × (window+1) × hidden
-        ends = self.back + np.append(change, n)  # run ends in padded frames; the last run's end is never used
-        out = np.empty((n, self.hidden))
+        terms = self._row_terms(x[np.concatenate([[0], change])])  # per run: G[K - j] at row j
+        ends = self.back + change  # boundaries between runs, in padded frames
         # the run holding each window's last frame t + k - 1 contributes G[K]
         last = np.searchsorted(ends, np.arange(n) + k - 1, side="right")
-        out[:] = terms[np.minimum(last, len(starts) - 1), k]
-        for r, b in enumerate(ends[:-1]):  # boundary b between runs r and r+1, felt by frames b-k+1 .. b-1
+        out = np.stack([g[0] for g in terms])[last]
+        add, subtract = np.add, np.subtract
+        for r, b in enumerate(ends.tolist()):  # boundary b between runs r and r+1 is felt by frames b-k+1 .. b-1
             lo, hi = max(b - k + 1, 0), min(b - 1, n - 1)
             if lo > hi:
                 continue
-            step = terms[r, b - hi:b - lo + 1] - terms[r + 1, b - hi:b - lo + 1]
-            out[lo:hi + 1] += step[::-1]
+            rows = slice(k - b + lo, k - b + hi + 1)  # (G_r − G_{r+1})[b − t] for t = lo .. hi
+            view = out[lo:hi + 1]
+            add(view, terms[r][rows], out=view)
+            subtract(view, terms[r + 1][rows], out=view)
         out += self._bias
-        return out.astype(np.float32)
+        return out
 
-    def _row_terms(self, rows: np.ndarray) -> np.ndarray:
-        """``G`` of each row: (rows × (window+1) × hidden), from the cache or computed."""
+    def _row_terms(self, rows: np.ndarray) -> list[np.ndarray]:
+        """``G`` of each row, reversed (row j holds ``G[K - j]``), float32: from the cache or computed."""
         keys = [row.tobytes() for row in rows]
-        missing = list(dict.fromkeys(key for key in keys if key not in self._rows))
+        cache = self._rows
+        missing = list(dict.fromkeys(key for key in keys if key not in cache))
         if missing:
-            if len(self._rows) + len(missing) > _CACHE_ROWS:
-                self._rows.clear()
+            if len(cache) + len(missing) > _CACHE_ROWS:
+                cache.clear()
             fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1)
             computed = (fresh.astype(np.float64) @ self._cumulative).reshape(len(missing), self.window + 1, -1)
-            self._rows.update(zip(missing, computed))
-        return np.stack([self._rows[key] for key in keys])
+            cache.update(zip(missing, np.ascontiguousarray(computed[:, ::-1], dtype=np.float32)))
+        return [cache[key] for key in keys]
 
-    @staticmethod
-    def _recur(net: dict, drive: np.ndarray) -> np.ndarray:
-        """Hidden states (frames × hidden, float32) of one network for its window terms."""
-        hidden, delays, recurrent = net["hidden"], net["delays"], net["recurrent"]
-        states = np.zeros((len(drive) + delays, hidden), dtype=np.float32)
-        flat = states.reshape(-1)
-        size = delays * hidden
-        step = np.empty(hidden, dtype=np.float32)
+    def _recur(self, drive: np.ndarray) -> list[np.ndarray]:
+        """Hidden states (frames × hidden, float32) of every network for their window terms."""
+        n = len(drive)
+        loops, states, start = [], [], 0
+        for net in self.nets:
+            hidden, delays = net["hidden"], net["delays"]
+            buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row d + t is h_t
+            own = np.ascontiguousarray(drive[:, start:start + hidden])
+            loops.append((net["recurrent"], buffer.reshape(-1), hidden, delays * hidden, own, buffer[delays:],
+                          np.empty(hidden, dtype=np.float32)))
+            states.append(buffer[delays:])
+            start += hidden
         dot, tanh = np.dot, np.tanh
-        for t in range(len(drive)):
-            dot(recurrent, flat[t * hidden:t * hidden + size], out=step)
-            step += drive[t]
-            tanh(step, out=states[delays + t])
-        return states[delays:]
+        for t in range(n):
+            for recurrent, flat, hidden, size, own, out, step in loops:
+                dot(recurrent, flat[t * hidden:t * hidden + size], out=step)
+                step += own[t]
+                tanh(step, out=out[t])
+        return states
 
     # -- one frame at a time ---------------------------------------------------------------
 
