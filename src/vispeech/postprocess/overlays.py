@@ -25,6 +25,7 @@ whatever height the model put the jaw.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from functools import cache
 
 import numpy as np
 
@@ -50,6 +51,12 @@ UPPER_LIP_RISE = 5.0
 
 _VOWEL = FEATURE_NAMES.index("vowel")
 _SILENCE = FEATURE_NAMES.index("silence")
+
+
+@cache
+def _default_fade_out(language: str) -> np.ndarray:
+    """:data:`DEFAULT_FADE_OUT` over every phone row of ``language``."""
+    return resolve_spec(DEFAULT_FADE_OUT, language)
 
 
 def anchor_frames(starts: np.ndarray, ends: np.ndarray, fps: float, n_frames: int) -> np.ndarray:
@@ -97,7 +104,7 @@ def consonant_overlays(
     table = default_targets()
     visemes = table.values(language)[index]
     defined = table.defined(language)[index]
-    fade_out_lengths = resolve_spec(fade_out if fade_out is not None else DEFAULT_FADE_OUT, language)[index]
+    fade_out_lengths = (_default_fade_out(language) if fade_out is None else resolve_spec(fade_out, language))[index]
 
     fps, n = out.fps, out.n_frames
     starts = np.array([p.start for p in consonants]) - out.start_time

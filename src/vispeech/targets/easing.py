@@ -34,8 +34,19 @@ def bezier_ease(x, length, c1: float = 0.5, c2: float = 0.5) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(length > 0, x / length, np.where(x >= 0, 1.0, 0.0))
     u = np.clip(u, 0.0, 1.0)
-    t = _solve(u, c1, c2)
+    t = _solve_symmetric(u) if c1 == c2 == 0.5 else _solve(u, c1, c2)
     return 3.0 * (1.0 - t) * t * t + t * t * t
+
+
+def _solve_symmetric(u: np.ndarray) -> np.ndarray:
+    """t with x(t)/a = u for c1 = c2 = 1/2, in closed form.
+
+    Then x(t)/a = t³ − 1.5t² + 1.5t; with t = s + 1/2 this is the depressed cubic
+    s³ + 0.75·s + (1/2 − u) = 0, whose one real root Cardano's formula gives.
+    """
+    half = 0.5 * (u - 0.5)
+    root = np.sqrt(half * half + 1.0 / 64.0)
+    return 0.5 + np.cbrt(half + root) + np.cbrt(half - root)
 
 
 def _solve(u: np.ndarray, c1: float, c2: float) -> np.ndarray:
