@@ -71,7 +71,7 @@ class Estimator(ABC):
         if unknown:
             known = ", ".join(sorted(self.defaults)) or "none"
             raise VispeechError(f"model {self.family} has no parameter {unknown[0]!r} (it has: {known})")
-        self._params = {key: copy.deepcopy(params.get(key, value)) for key, value in self.defaults.items()}
+        self._params = {key: _plain(params.get(key, value)) for key, value in self.defaults.items()}
         self.name = self.family
         self._check_params()
 
@@ -100,7 +100,9 @@ class Estimator(ABC):
 
     @property
     def lookahead(self) -> int:
-        """Frames of input after frame t that :meth:`stream` waits for before giving frame t."""
+        """Frames of input after frame t that :meth:`stream` waits for before giving frame t, at
+        the model's own frame rate (a network's ``fps_``; the stream's for models without one).
+        A :class:`ModelStream` states its own in its frames."""
         return 2
 
     @property
@@ -183,6 +185,10 @@ class Estimator(ABC):
         except TypeError as exc:
             raise VispeechError(f"corrupt model config in {folder}: {exc}") from None
         model.name = config["name"]
+        if config["input"] != model.input_kind:
+            raise VispeechError(f"{folder / CONFIG} says input {config['input']}, but {model.family} takes {model.input_kind}")
+        if config["state"] is None and config["arrays"]:
+            raise VispeechError(f"{folder / CONFIG} lists learned arrays but no learned state")
         if config["state"] is not None:
             arrays = _read_arrays(folder / WEIGHTS, config["arrays"])
             try:
@@ -191,10 +197,28 @@ class Estimator(ABC):
                 raise VispeechError(f"corrupt model state in {folder}: {exc}") from None
         if config["channels"] is not None and list(model.channels) != config["channels"]:
             raise VispeechError(f"{folder / CONFIG} lists channels that do not match the {model.family} model's")
+        if config["postprocessing"] != model.postprocessing:
+            raise VispeechError(f"{folder / CONFIG} recommends post-processing {config['postprocessing']!r}, "
+                                f"but a {'fitted' if model.is_fitted else 'new'} {model.family} model recommends "
+                                f"{model.postprocessing!r}")
         return model
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r} ({self.family}{'' if self.is_fitted else ', not fitted'})>"
+
+
+def _plain(value: Any) -> Any:
+    """``value`` as JSON gives it back (tuples as lists, paths as strings, NumPy scalars as
+    numbers), so that :meth:`Estimator.get_params` is the same before saving and after loading."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return copy.deepcopy(value)
 
 
 def read_config(folder: Path) -> dict:

@@ -27,7 +27,9 @@ frame t as soon as the inputs up to ``t + look_ahead`` are known (:class:`Recurr
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
+from fractions import Fraction
 
 import numpy as np
 
@@ -160,7 +162,7 @@ class RecurrentStream(ModelStream):
 
     def __init__(self, model: TimeDelayNetwork, language: str, fps: float) -> None:
         super().__init__(model, language, fps)
-        self.lookahead = int(np.ceil((model.lookahead + 1) * self.fps / model.fps_))
+        self.lookahead = stream_lookahead(model.lookahead, model.fps_, self.fps)
         self._kernel = model.kernel
         self._state = self._kernel.initial_state()
         self._rows: list[np.ndarray] = []  # encoded input frames so far
@@ -224,3 +226,17 @@ class RecurrentStream(ModelStream):
         del self._frames[:drop]
         self._first += drop
         return start, rows
+
+
+def stream_lookahead(ahead: int, model_fps: float, fps: float) -> int:
+    """Stream frames after frame k that the phones must cover before :class:`RecurrentStream` gives k.
+
+    Stream frame k interpolates model frames up to ``m = ceil(k · model_fps / fps)``, which needs
+    the inputs up to model frame ``m + ahead``. ``m`` lies at most ``1 - 1/q`` model frames after
+    ``k``'s time, where ``q`` is the denominator of ``model_fps / fps`` (0 at the model's own rate or
+    a whole multiple of it; nearly 1 for a ratio that is no simple fraction).
+    """
+    ratio = model_fps / fps
+    simple = Fraction(ratio).limit_denominator(1000)
+    slack = 1.0 - 1.0 / simple.denominator if abs(float(simple) - ratio) < 1e-9 else 1.0
+    return max(0, math.ceil((ahead + slack) / ratio - 1e-9))

@@ -66,6 +66,7 @@ class CohenMassaro(PhoneTargetModel):
 
     def _check_params(self) -> None:
         super()._check_params()
+        self._check_fit_params()
         window = self._params["window"]
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise VispeechError(f"cohen-massaro window must be a whole number of segments >= 1, got {window!r}")

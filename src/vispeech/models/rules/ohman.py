@@ -54,6 +54,7 @@ class Ohman(PhoneTargetModel):
 
     def _check_params(self) -> None:
         super()._check_params()
+        self._check_fit_params()
         if any(((w < 0) | (w > 1)).any() for w in (self._authored(lang)["w_c"] for lang in LANGUAGES)):
             raise VispeechError("ohman w_c values must lie in [0, 1]")
 

@@ -76,6 +76,19 @@ class PhoneTargetModel(Estimator):
         learned = self.tables(phones.language)["targets"]
         return segments if learned is table.values(phones.language) else segments.with_targets(learned)
 
+    def _check_fit_params(self) -> None:
+        """Raise :class:`VispeechError` on bad ``channels``, ``max_iterations`` or ``patience``."""
+        p = self._params
+        if p["channels"] is not None:
+            unknown = [c for c in ([p["channels"]] if isinstance(p["channels"], str) else p["channels"])
+                       if c not in self.channels]
+            if unknown or not p["channels"]:
+                raise VispeechError(f"model {self.family} does not predict channels {', '.join(unknown) or '(none)'}")
+        for key, least in (("max_iterations", 0), ("patience", 1)):
+            value = p[key]
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise VispeechError(f"{key} must be a whole number >= {least}, got {value!r}")
+
     def _track(self, values: np.ndarray, fps: float) -> Track:
         return Track(np.clip(values, 0.0, 1.0), self.channels, fps)
 
@@ -99,6 +112,9 @@ class PhoneTargetModel(Estimator):
             if values.shape != expected:
                 raise ValueError(f"table {key} has shape {values.shape}, expected {expected}")
             learned.setdefault(language, {})[name] = values.astype(np.float64)
+        incomplete = [language for language, tables in learned.items() if set(tables) != set(self.table_names)]
+        if not learned or incomplete:
+            raise ValueError(f"learned tables must give {', '.join(self.table_names)} for each language")
         self.tables_ = learned
         self.fitted_channels_ = tuple(state["channels"])
         self.history_ = TrainingHistory.from_dict(state["history"])
