@@ -27,7 +27,7 @@ from fastapi import FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect, WebSocketDisconnected
 
@@ -45,8 +45,9 @@ from vispeech.serve.bot import ChatBot, ChatBotError, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
 from vispeech.serve.safety import BodySizeLimit, RateLimit, TokenBucket, client_key
 from vispeech.serve.schemas import (
-    MAX_TEXT_CHARS, ChatRequest, ChatResponse, ClientMessage, ConfigResponse, ErrorResponse,
-    PhonesMessage, SpeakRequest, SpeakResponse, TextMessage,
+    MAX_TEXT_CHARS, ChatRequest, ChatResponse, ClientMessage, ConfigResponse, EndMessage, ErrorMessage,
+    ErrorResponse, FramesMessage, PhonesMessage, ServerMessage, SpeakRequest, SpeakResponse, StartMessage,
+    TextMessage,
 )
 from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages
 
@@ -303,12 +304,14 @@ def _page(path: Path, not_built: dict):
     return page
 
 
-async def _send(websocket: WebSocket, message: dict) -> None:
-    await websocket.send_text(json.dumps(message, separators=(",", ":")))
+async def _send(websocket: WebSocket, message: BaseModel | dict) -> None:
+    """Send one server message (a model of :data:`ServerMessage`, or the engine's dict form of one)."""
+    typed = message if isinstance(message, BaseModel) else ServerMessage.validate_python(message)
+    await websocket.send_text(typed.model_dump_json())
 
 
 async def _error(websocket: WebSocket, message: str) -> None:
-    await _send(websocket, {"type": "error", "message": message})
+    await _send(websocket, ErrorMessage(message=message))
 
 
 async def _serve_stream(websocket: WebSocket, service: SpeechService) -> None:
@@ -389,8 +392,8 @@ async def _stream_text(websocket: WebSocket, service: SpeechService, message: Te
 async def _open_phone_stream(websocket: WebSocket, service: SpeechService, message: PhonesMessage) -> PhoneStream:
     name, model = service.model(message.model, stream=True)
     stream = await run_in_threadpool(open_phone_stream, model, message.lang or "en", service.config.fps)
-    await _send(websocket, {"type": "start", "fps": stream.fps, "channels": list(stream.channels),
-                            "sample_rate": None, "model": name, "lookahead": stream.lookahead})
+    await _send(websocket, StartMessage(fps=stream.fps, channels=list(stream.channels), sample_rate=None,
+                                        model=name, lookahead=stream.lookahead))
     return stream
 
 
@@ -404,7 +407,7 @@ async def _stream_phones(websocket: WebSocket, stream: PhoneStream, message: Pho
         results.append(await run_in_threadpool(stream.finish))
     for start, rows in results:
         if len(rows):
-            await _send(websocket, {"type": "frames", "start_frame": start, "frames": rows.round(6).tolist()})
+            await _send(websocket, FramesMessage(start_frame=start, frames=rows.round(6).tolist()))
     if message.final:
-        await _send(websocket, {"type": "end", "n_frames": stream.emitted, "duration": stream.end})
+        await _send(websocket, EndMessage(n_frames=stream.emitted, duration=stream.end))
     return message.final

@@ -159,3 +159,60 @@ class PhonesMessage(BaseModel):
 
 ClientMessage = TypeAdapter(Annotated[TextMessage | PhonesMessage, Field(discriminator="type")])
 """Parses one stream client message (JSON text) into :class:`TextMessage` or :class:`PhonesMessage`."""
+
+
+class StartMessage(BaseModel):
+    """Stream server message, first of a stream: the frame rate and channels of the frames to come.
+
+    ``sample_rate`` is the audio's (``None`` for a phone stream, which has no audio);
+    ``lookahead`` (phone streams) is how many frames after frame t the phones must cover
+    before frame t comes.
+    """
+
+    type: Literal["start"] = "start"
+    fps: float
+    channels: list[str]
+    sample_rate: int | None
+    model: str
+    lookahead: int | None = None
+
+
+class FramesMessage(BaseModel):
+    """Stream server message: consecutive frames from ``start_frame`` on, one row per frame over
+    the start message's channels (frame k sits at k / fps seconds)."""
+
+    type: Literal["frames"] = "frames"
+    start_frame: int
+    frames: list[list[float]]
+
+
+class AudioMessage(BaseModel):
+    """Stream server message: the next piece of audio, ``start`` seconds into the stream, as
+    base64 16-bit little-endian mono PCM at the start message's sample rate."""
+
+    type: Literal["audio"] = "audio"
+    seq: int
+    start: float
+    pcm16: str
+
+
+class EndMessage(BaseModel):
+    """Stream server message, last of a stream: frames sent and seconds covered."""
+
+    type: Literal["end"] = "end"
+    n_frames: int
+    duration: float
+
+
+class ErrorMessage(BaseModel):
+    """Stream server message: what was wrong with the last client message (the connection stays open
+    unless a close follows)."""
+
+    type: Literal["error"] = "error"
+    message: str
+
+
+ServerMessage = TypeAdapter(
+    Annotated[StartMessage | FramesMessage | AudioMessage | EndMessage | ErrorMessage, Field(discriminator="type")]
+)
+"""Every message the server sends on ``/api/stream``; validates one (a dict or JSON) into its model."""
