@@ -74,12 +74,12 @@ def write_livelink_csv(track: Track, path: str | os.PathLike, start_timecode: st
     origin = _parse_timecode(start_timecode, rate, "start timecode")
     if origin + track.start_time < 0:
         raise VispeechError(f"the first frame would have a negative timecode (start time {track.start_time} s)")
-    values = track.select(LIVELINK_CHANNELS).values
+    values = track.select(LIVELINK_CHANNELS).values.tolist()  # Python floats format 3x faster than numpy's
     lines = [",".join(_HEADER + LIVELINK_COLUMNS)]
     for k, row in enumerate(values):
         seconds = origin + track.start_time + k / track.fps
         fields = [_format_timecode(round(seconds * rate * 1000), rate), str(len(LIVELINK_COLUMNS))]
-        fields.extend(f"{v:.10f}" for v in row)
+        fields.extend([f"{v:.10f}" for v in row])
         lines.append(",".join(fields))
     with atomic_output_file(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="")
