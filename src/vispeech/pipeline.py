@@ -5,21 +5,19 @@ The CLI (``say``, ``animate-phones``) and the server are thin layers over these 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.frontends.audio import wav_bytes
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track
 from vispeech.postprocess import PostprocessConfig, postprocess
+from vispeech.utterance import Utterance
 
 DEFAULT_FPS = 30.0
 DEFAULT_MODEL = "grid-tdnn"
@@ -29,23 +27,6 @@ GREETINGS = {
     "en": "Hello, how can I help you today?",
 }
 """What ``vispeech say`` speaks when given no text."""
-
-
-@dataclass
-class Utterance:
-    """A synthesised or aligned utterance: phones, animation and (when synthesised) audio."""
-
-    phones: PhoneSequence
-    track: Track
-    text: str | None = None
-    audio: np.ndarray | None = None
-    sample_rate: int | None = None
-
-    def wav_bytes(self) -> bytes | None:
-        """The audio as a 16-bit PCM WAV file in memory (``None`` without audio)."""
-        if self.audio is None:
-            return None
-        return wav_bytes(self.audio, int(self.sample_rate))
 
 
 def animate(
@@ -87,7 +68,7 @@ def speak(
 
     speech = synthesize(text, language, rate=rate)
     track = animate(speech.phones, model, fps, postprocessing)
-    return Utterance(speech.phones, track, text, speech.audio, speech.sample_rate)
+    return Utterance(text=text, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
 
 
 def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None) -> list[Path]:

@@ -58,5 +58,5 @@ def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str,
 
     phones = read_alignment(alignment, lang)
     track = animate(phones, model, fps, not no_postprocess)
-    write_outputs(Utterance(phones, track), out_dir)
+    write_outputs(Utterance(phones=phones, track=track), out_dir)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

@@ -9,13 +9,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence, Word
 from vispeech.corpus.cache import CorpusCache
 from vispeech.errors import VispeechError
-from vispeech.frontends.audio import read_audio
 from vispeech.motion.track import Track
+from vispeech.utterance import Utterance  # noqa: F401  (the corpus type of utterances)
 
 SPLITS: dict[str, tuple[float, float]] = {
     "train": (0.0, 0.8),
@@ -30,34 +28,6 @@ MAX_DURATION_MISMATCH = 0.5
 
 class CorpusWarning(UserWarning):
     """An utterance was skipped while reading a corpus; the message names it and says why."""
-
-
-@dataclass
-class Utterance:
-    """One recorded sentence: transcript, audio file, word timings, phones and face track.
-
-    ``track`` holds the face channels (ARKit names, plus head pose ``headYaw``, ``headPitch``,
-    ``headRoll`` in degrees and, where tracked, ``headX``, ``headY``, ``headZ`` in cm) at the
-    corpus frame rate. ``frame_mask[k]`` is False where frame k was not tracked and its values
-    were filled in (see the reader). ``landmarks`` maps a name such as ``"lm13"`` (MediaPipe
-    face-mesh index) to per-frame ``(n_frames, 3)`` image-normalised coordinates.
-    ``duration`` is the audio's length in seconds; the audio itself is read on demand by
-    :meth:`load_audio`.
-    """
-
-    id: str
-    text: str
-    audio_path: Path
-    duration: float
-    track: Track
-    words: list[Word] = field(default_factory=list)
-    phones: PhoneSequence | None = None
-    landmarks: dict[str, np.ndarray] | None = None
-    frame_mask: np.ndarray | None = None
-
-    def load_audio(self) -> tuple[np.ndarray, int]:
-        """The audio as float samples in [-1, 1] (mono, channels averaged) and its sample rate in Hz."""
-        return read_audio(self.audio_path)
 
 
 def split_of(utterance_id: str) -> str:
