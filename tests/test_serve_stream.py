@@ -17,10 +17,12 @@ from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
 from vispeech.errors import VispeechError  # noqa: E402
+from vispeech.models.contract import WindowStream  # noqa: E402
 from vispeech.models.registry import create_model  # noqa: E402
+from vispeech.models.rules.cohen_massaro import CohenMassaro  # noqa: E402
 from vispeech.pipeline import animate  # noqa: E402
-from vispeech.serve import ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
-from vispeech.streaming import ModelPhoneStream, WindowPhoneStream  # noqa: E402
+from vispeech.serve import PhoneStream, ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
+from vispeech.streaming import POSTPROCESS_LOOKAHEAD  # noqa: E402
 
 # "hello world", then a pause: (symbol, start, end)
 HELLO = [("sil", 0.0, 0.1), ("HH", 0.1, 0.16), ("AH0", 0.16, 0.22), ("L", 0.22, 0.28), ("OW1", 0.28, 0.45),
@@ -102,9 +104,9 @@ def test_phones_stream_over_the_websocket(client):
     with client.websocket_connect("/api/stream") as ws:
         ws.send_json({"type": "phones", "lang": "en", "phones": phone_dicts(rows[:4])})
         start = ws.receive_json()
-        assert start["type"] == "start" and start["fps"] == 30.0 and start["lookahead"] == 2
-        first = ws.receive_json()  # phones up to 0.28 s: frames 0..8 known, 0..6 ready
-        assert first["type"] == "frames" and first["start_frame"] == 0 and len(first["frames"]) == 7
+        assert start["type"] == "start" and start["fps"] == 30.0 and start["lookahead"] == 2 + POSTPROCESS_LOOKAHEAD
+        first = ws.receive_json()  # phones up to 0.28 s: frames 0..8 known, 0..6 predicted, 0..4 post-processed
+        assert first["type"] == "frames" and first["start_frame"] == 0 and len(first["frames"]) == 5
         ws.send_json({"type": "phones", "phones": phone_dicts(rows[4:]), "final": True})
         messages = receive_until_end(ws)
     assert [m["type"] for m in messages][-1] == "end"
@@ -164,42 +166,86 @@ def test_stream_rate_limit_and_stream_count(tmp_path):
             assert "server busy" in second.receive_json()["message"]
 
 
-def test_window_stream_gives_each_frame_after_its_lookahead():
+def push_each(stream, phones, fps: float, lookahead: int) -> np.ndarray:
+    """Push ``phones`` one at a time, checking that each push gives the next frames, and every frame
+    once the phones cover ``lookahead`` frames after it; then finish. All the frames."""
+    chunks = []
+    for phone in phones:
+        start, rows = stream.push([phone])
+        assert start == sum(len(c) for c in chunks) and rows.shape[1] == len(stream.channels)
+        assert stream.emitted == max(0, math.ceil(phone.end * fps - 1e-6) - lookahead)
+        chunks.append(rows)
+    start, rows = stream.finish()
+    assert start == sum(len(c) for c in chunks)
+    return np.concatenate(chunks + [rows])
+
+
+def test_phone_stream_gives_each_frame_after_its_lookahead():
     model = create_model("baseline")
     stream = open_phone_stream(model, "en")
-    assert isinstance(stream, WindowPhoneStream) and stream.lookahead == 2
-    chunks = []
-    for phone in phones_of(HELLO):
-        start, rows = stream.push([Phone(phone.symbol, phone.start, phone.end)])
-        assert start == sum(len(c) for c in chunks)
-        assert stream.emitted == max(0, math.ceil(phone.end * 30 - 1e-6) - 2)
-        chunks.append(rows)
-    chunks.append(stream.finish()[1])
-    assert sum(len(c) for c in chunks) == 30
+    assert isinstance(stream, PhoneStream)
+    assert (stream.fps, stream.lookahead) == (30.0, model.lookahead + POSTPROCESS_LOOKAHEAD) == (30.0, 4)
+    assert len(push_each(stream, phones_of(HELLO), 30.0, stream.lookahead)) == 30
     with pytest.raises(VispeechError, match="ended"):
         stream.push(phones_of(HELLO[:1]))
+    stream.close()  # again: no harm
+
+
+def test_window_stream_gives_raw_frames_after_the_models_lookahead():
+    model = create_model("cohen-massaro")
+    stream = model.stream("en", 30.0)
+    assert isinstance(stream, WindowStream) and (stream.fps, stream.lookahead) == (30.0, model.lookahead) == (30.0, 2)
+    assert stream.channels == model.channels
+    frames = push_each(stream, list(offline(HELLO)), 30.0, 2)
+    assert len(frames) == 30
+    with pytest.raises(VispeechError, match="ended"):
+        stream.push(list(offline(HELLO))[:1])
+
+
+class FarSighted(CohenMassaro):
+    """Cohen-Massaro streamed with a look-ahead of 10 frames."""
+
+    @property
+    def lookahead(self) -> int:
+        return 10
 
 
 def test_window_stream_matches_offline_prediction():
-    """With a long look-ahead the windows reproduce the offline track (a frame off would not)."""
+    """With the whole context the window reproduces the offline track; with a long look-ahead the
+    windows come close (a frame off would not)."""
     model = create_model("cohen-massaro")
-    reference = animate(offline(HELLO), model).values
-    exact = WindowPhoneStream(model, "en", lookahead=1000, context=10.0)
-    exact.push(phones_of(HELLO))
-    assert np.allclose(exact.finish()[1], reference, atol=1e-9)
-    windowed = WindowPhoneStream(model, "en", lookahead=10, context=1.0)
-    frames = np.concatenate([windowed.push([p])[1] for p in phones_of(HELLO)] + [windowed.finish()[1]])
+    reference = model.predict(offline(HELLO), 30.0).values
+    exact = WindowStream(model, "en", 30.0, context=10.0)
+    first = exact.push(list(offline(HELLO)))[1]
+    assert np.allclose(np.concatenate([first, exact.finish()[1]]), reference, atol=1e-9)
+    windowed = WindowStream(FarSighted(), "en", 30.0, context=1.0)
+    assert windowed.lookahead == 10
+    frames = np.concatenate([windowed.push([p])[1] for p in offline(HELLO)] + [windowed.finish()[1]])
     assert np.abs(frames - reference).mean() < 1e-3
     assert np.abs(frames[1:] - reference[:-1]).mean() > 5e-3
 
 
-def test_window_stream_refuses_bad_phones():
-    stream = WindowPhoneStream(create_model("baseline"), "sv")
+def test_phone_stream_post_processes_as_animate_does():
+    """On the whole context the stream's post-processed frames are animate's; frame by frame close to them."""
+    model = create_model("ohman")
+    reference = animate(offline(HELLO), model).values  # the preset the model recommends, at 30 fps
+    whole = PhoneStream(model, "en", context=10.0)
+    assert whole.channels == animate(offline(HELLO), model).channels
+    first = whole.push(phones_of(HELLO))[1]
+    assert np.allclose(np.concatenate([first, whole.finish()[1]]), reference, atol=1e-9)
+    frames = push_each(open_phone_stream(model, "en"), phones_of(HELLO), 30.0, 4)
+    assert np.abs(frames - reference).mean() < 0.02
+
+
+def test_phone_stream_refuses_bad_phones():
+    stream = PhoneStream(create_model("baseline"), "sv")
     for bad, words in [([Phone("a", 0.2, 0.1)], "end after"), ([Phone("AA", 0.0, 0.1)], "unknown phone"),
-                       ([Phone("a", 0.0, 30.0)], "more than")]:
+                       ([Phone("a", 0.0, 30.0)], "more than"), ([Phone("a", float("nan"), 0.1)], "end after")]:
         with pytest.raises(VispeechError, match=words):
             stream.push(bad)
     assert stream.push([Phone("'a", 0.0, 0.2)])[1].shape[1] == len(stream.channels)
+    with pytest.raises(VispeechError, match="before the previous one ends"):
+        stream.push([Phone("a", 0.1, 0.3)])
 
 
 @dataclass
@@ -210,18 +256,25 @@ class _Example:
 
 def test_model_stream_runs_the_models_own_streaming(tmp_path):
     require_module("torch", "torch (the train extra)")
+    from vispeech.models.networks.tdnn import RecurrentStream
+
     examples = [_Example(offline(HELLO), animate(offline(HELLO), "baseline", fps=60.0)),
                 _Example(offline(HELLO[:5]), animate(offline(HELLO[:5]), "baseline", fps=60.0))]
-    model = create_model("tdnn-lowlatency", epochs=1, hidden=4, progress=False,
-                         targets=["jawOpen", "mouthClose", "mouthFunnel"]).fit(examples)
+    model = create_model("tdnn-lowlatency", epochs=1, hidden=4,
+                         targets=["jawOpen", "mouthClose", "mouthFunnel"]).fit(examples, progress=False)
+    assert model.fps_ == 60.0 and model.lookahead == 2
+    # the network's own stream: at its 60 fps 2 frames behind, at 30 fps 1, equal to predict at either
+    for fps, lookahead in ((60.0, 2), (30.0, 1)):
+        raw = model.stream("en", fps)
+        assert isinstance(raw, RecurrentStream) and (raw.fps, raw.lookahead) == (fps, lookahead)
+        frames = push_each(raw, list(offline(HELLO)), fps, lookahead)
+        np.testing.assert_allclose(frames, model.predict(offline(HELLO), fps).values, atol=1e-6)
+    # the engine over it: at the server's 30 fps, post-processed, POSTPROCESS_LOOKAHEAD frames later
     stream = open_phone_stream(model, "en")
-    assert isinstance(stream, ModelPhoneStream) and (stream.fps, stream.lookahead) == (60.0, 2)
-    chunks = []
-    for phone in phones_of(HELLO):
-        chunks.append(stream.push([phone])[1])
-        assert stream.emitted == math.ceil(phone.end * 60 - 1e-6) - 2
-    chunks.append(stream.finish()[1])
-    assert np.allclose(np.concatenate(chunks), model.predict(offline(HELLO), 60.0).values, atol=1e-9)
+    assert (stream.fps, stream.lookahead) == (30.0, 1 + POSTPROCESS_LOOKAHEAD)
+    frames = push_each(stream, phones_of(HELLO), 30.0, stream.lookahead)
+    reference = animate(offline(HELLO), model).select(stream.channels).values
+    assert len(frames) == 30 and np.abs(frames - reference).mean() < 0.02
 
     model.save(tmp_path / "lowlatency")
     config = ServeConfig(cache=":memory:", stream_model=str(tmp_path / "lowlatency"), rate_limit=0)
@@ -229,8 +282,13 @@ def test_model_stream_runs_the_models_own_streaming(tmp_path):
         assert served.get("/api/config").json()["stream_model"] == "tdnn-lowlatency"
         ws.send_json({"type": "phones", "phones": phone_dicts(HELLO), "final": True})
         messages = receive_until_end(ws)
-        assert (messages[0]["fps"], messages[0]["model"]) == (60.0, "tdnn-lowlatency")
-        assert messages[-1]["n_frames"] == 60
+        start = messages[0]
+        assert (start["fps"], start["model"], start["lookahead"]) == (30.0, "tdnn-lowlatency", 3)
+        assert messages[-1]["n_frames"] == 30
+    sent = [row for m in messages if m["type"] == "frames" for row in m["frames"]]
+    same = open_phone_stream(model, "en")  # the phones arrived in one message
+    first = same.push(phones_of(HELLO))[1]
+    np.testing.assert_allclose(sent, np.concatenate([first, same.finish()[1]]), atol=1e-6)
 
 
 def test_stream_command_times_a_real_server(tmp_path):
@@ -273,3 +331,16 @@ def test_streams_use_the_shipped_low_latency_network_by_default(tmp_path):
 
     with TestClient(create_app(ServeConfig(cache=":memory:", rate_limit=0))) as served:
         assert served.get("/api/config").json()["stream_model"] == "grid-tdnn-lowlatency"
+        with served.websocket_connect("/api/stream") as ws:
+            ws.send_json({"type": "phones", "lang": "en", "phones": phone_dicts(HELLO[:4])})
+            start = ws.receive_json()
+            # 2 frames ahead at the network's 60 fps are 1 at 30 fps, and post-processing holds back 2 more
+            assert (start["fps"], start["model"], start["lookahead"]) == (30.0, "grid-tdnn-lowlatency", 3)
+            first = ws.receive_json()  # phones up to 0.28 s: frames 0..8 known, 0..5 ready
+            assert first["type"] == "frames" and first["start_frame"] == 0 and len(first["frames"]) == 6
+            ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[4:]), "final": True})
+            messages = receive_until_end(ws)
+    frames = first["frames"] + [row for m in messages if m["type"] == "frames" for row in m["frames"]]
+    assert len(frames) == messages[-1]["n_frames"] == 30
+    reference = animate(offline(HELLO), "grid-tdnn-lowlatency").select(start["channels"]).values
+    assert np.abs(np.array(frames) - reference).mean() < 0.02

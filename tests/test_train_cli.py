@@ -13,7 +13,8 @@ from vispeech.alignment.phones import Phone, Word
 from vispeech.cli import main
 from vispeech.corpus import split_of
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ControlModel
+from vispeech.models.networks.network import Network
+from vispeech.models.registry import load_model
 from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
 from vispeech.phonetics.inventory import is_vowel
 
@@ -76,7 +77,7 @@ def _train(*args):
 
 
 def test_train_saves_a_model_and_reports_test_scores(takes, tmp_path):
-    out = tmp_path / "model"
+    out = tmp_path / "my-thesis"
     result = _train("--corpus", takes, "--lang", "en", "--model", "sliding-window-thesis",
                     "--epochs", "2", "--seed", "3", "--quiet", "-o", out)
     assert result.exit_code == 0, result.output
@@ -85,30 +86,41 @@ def test_train_saves_a_model_and_reports_test_scores(takes, tmp_path):
     assert "test split (2 utterances, no post-processing): jawOpen r " in result.output
     assert (out / "loss_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (out / "checkpoint").exists()
-    model = ControlModel.load(out)
-    assert model.name == "sliding-window-thesis" and model.history.epochs == 2
-    assert model.get_params()["seed"] == 3 and model.get_params()["progress"] is False
+    assert {p.name for p in out.iterdir()} == {"config.json", "weights.safetensors", "loss_curve.png"}
+    model = load_model(out)
+    assert model.name == "my-thesis" and model.family == "sliding-window-thesis"
+    assert model.is_fitted and model.history_.epochs == 2 and model.postprocessing == "learned-jaw"
+    assert model.get_params()["seed"] == 3 and model.get_params()["epochs"] == 2
+    assert "progress" not in model.get_params()
+    assert model.get_params()["checkpoint_dir"] is None  # the checkpoint folder is gone
 
 
 def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatch):
     out = tmp_path / "model"
 
-    def fail(self, path):
-        raise VispeechError("disk full")
+    save = Network.save
 
-    monkeypatch.setattr("vispeech.models.networks.network.NeuralControlModel.save", fail)
+    def fail(self, path):  # the checkpoints after every epoch are written, the model at the end is not
+        if path != out / "checkpoint":
+            raise VispeechError("disk full")
+        return save(self, path)
+
+    monkeypatch.setattr(Network, "save", fail)
     result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "1",
                     "-q", "-o", out)
     assert result.exit_code == 2 and "error: disk full" in result.output
     assert not (out / "config.json").exists()
     assert (out / "checkpoint" / "training_state.json").is_file()
+    first = json.loads((out / "checkpoint" / "config.json").read_text())["state"]["history"]["train_loss"]
+    assert len(first) == 1
     monkeypatch.undo()
 
     result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "2",
                     "-q", "--resume", out, "-o", out)
     assert result.exit_code == 0, result.output
-    history = json.loads((out / "config.json").read_text())["state"]["history"]
-    assert len(history["train_loss"]) == 2
+    config = json.loads((out / "config.json").read_text())
+    assert config["name"] == "model" and len(config["state"]["history"]["train_loss"]) == 2
+    assert config["state"]["history"]["train_loss"][0] == first[0]  # went on, did not start over
     assert not (out / "checkpoint").exists()
 
 
@@ -121,9 +133,11 @@ def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["--corpus", "{missing}", "-m", "sliding-window-thesis"], "corpus folder not found"),
     (["--corpus", "{empty}", "-m", "sliding-window-thesis"], "holds no takes"),
-    (["--corpus", "{takes}", "-m", "nonesuch"], "unknown model 'nonesuch'"),
-    (["--corpus", "{takes}", "-m", "baseline"], "not trainable"),
-    (["--corpus", "{takes}", "-m", "baseline", "--epochs", "3"], "model baseline takes no --epochs"),
+    (["--corpus", "{takes}", "-m", "nonesuch"], "unknown model family 'nonesuch'"),
+    (["--corpus", "{takes}", "-m", "grid-tdnn"], "unknown model family 'grid-tdnn'"),
+    (["--corpus", "{takes}", "-m", "baseline"], "model baseline is data-free"),
+    (["--corpus", "{takes}", "-m", "cohen-massaro", "--epochs", "3"], "model cohen-massaro takes no --epochs"),
+    (["--corpus", "{takes}", "-m", "ohman", "--resume", "{takes}"], "--resume needs a network"),
 ])
 def test_train_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "empty").mkdir()
