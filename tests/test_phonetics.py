@@ -15,7 +15,6 @@ from vispeech.phonetics.inventory import (
     is_vowel,
     parse_symbol,
 )
-from vispeech.phonetics.visemes import OCULUS_VISEMES, RHUBARB_SHAPES, oculus_viseme, rhubarb_shape
 
 BESKOW_17 = (
     "vowel", "bilabial", "labiodental", "dental", "alveolar", "retroflex", "velar",
@@ -97,7 +96,7 @@ def test_guess_language():
 
 
 @pytest.mark.parametrize("language", LANGUAGES)
-def test_every_symbol_has_features_and_visemes(language):
+def test_every_symbol_has_features(language):
     symbols, matrix = feature_table(language)
     assert symbols == get_inventory(language).symbols
     assert matrix.shape == (len(symbols), len(FEATURE_NAMES)) and matrix.dtype == np.float64
@@ -108,8 +107,6 @@ def test_every_symbol_has_features_and_visemes(language):
         np.testing.assert_array_equal(phone_features(symbol, language), row)
         assert row[FEATURE_NAMES.index("vowel")] == is_vowel(symbol, language)
         assert row[FEATURE_NAMES.index("silence")] == is_silence(symbol)
-        assert oculus_viseme(symbol, language) in OCULUS_VISEMES
-        assert rhubarb_shape(symbol, language) in RHUBARB_SHAPES
 
 
 def test_feature_names_start_with_beskow():
@@ -169,13 +166,13 @@ def test_silence_features():
     assert sil.sum() == 1 and sp[FEATURE_NAMES.index("pause")] == 1
 
 
-def test_feature_and_viseme_errors():
+def test_feature_errors():
     with pytest.raises(VispeechError, match="unknown phone symbol 'AA1' for language en"):
         phone_features("AA1", "en")
     with pytest.raises(VispeechError, match="unknown language"):
         feature_table("de")
     with pytest.raises(VispeechError, match="unknown phone symbol 'AA' for language sv"):
-        oculus_viseme("AA", "sv")
+        phone_features("AA", "sv")
 
 
 def test_feature_table_is_read_only_and_copies_are_safe():
@@ -185,29 +182,3 @@ def test_feature_table_is_read_only_and_copies_are_safe():
     vector = phone_features("a", "sv")
     vector[:] = 9
     assert phone_features("a", "sv").max() == 1
-
-
-@pytest.mark.parametrize(
-    ("symbol", "language", "oculus", "rhubarb"),
-    [
-        ("sil", "sv", "sil", "X"), ("sp", "en", "sil", "X"),
-        ("p", "sv", "PP", "A"), ("b", "sv", "PP", "A"), ("m", "sv", "PP", "A"),
-        ("P", "en", "PP", "A"), ("M", "en", "PP", "A"),
-        ("f", "sv", "FF", "G"), ("V", "en", "FF", "G"),
-        ("TH", "en", "TH", "B"), ("S", "en", "SS", "B"), ("SH", "en", "CH", "B"),
-        ("L", "en", "nn", "H"), ("l", "sv", "nn", "H"),
-        ("AA", "en", "aa", "D"), ("A:", "sv", "aa", "D"), ("EH", "en", "E", "C"),
-        ("IY", "en", "ih", "B"), ("AO", "en", "oh", "E"), ("UW", "en", "ou", "F"), ("W", "en", "ou", "F"),
-        ("y:", "sv", "ou", "F"), ("o:", "sv", "ou", "F"), ("O", "sv", "oh", "E"), ("r", "sv", "RR", "B"),
-    ],
-)
-def test_viseme_tables(symbol, language, oculus, rhubarb):
-    assert oculus_viseme(symbol, language) == oculus
-    assert rhubarb_shape(symbol, language) == rhubarb
-
-
-def test_every_oculus_viseme_is_used():
-    used = {oculus_viseme(s, lang) for lang in LANGUAGES for s in get_inventory(lang).symbols}
-    assert used == set(OCULUS_VISEMES)
-    shapes = {rhubarb_shape(s, lang) for lang in LANGUAGES for s in get_inventory(lang).symbols}
-    assert shapes == set(RHUBARB_SHAPES)

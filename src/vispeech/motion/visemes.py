@@ -24,7 +24,9 @@ from vispeech.files import atomic_output_file
 from vispeech.motion.jsonformat import write_animation_json
 from vispeech.motion.retarget import PoseTable
 from vispeech.motion.track import Track
-from vispeech.phonetics.visemes import OCULUS_VISEMES
+
+OCULUS_VISEMES = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
+"""The 15 Oculus/Meta visemes in OVRLipSync index order."""
 
 _OCULUS_BY_KEY = {v.lower(): v for v in OCULUS_VISEMES} | {"i": "ih", "o": "oh", "u": "ou"}
 
