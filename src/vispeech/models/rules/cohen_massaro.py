@@ -17,16 +17,11 @@ dominance is negligible, and the cost stays linear in the utterance length.
 
 from __future__ import annotations
 
-from functools import partial
-
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import show_progress
-from vispeech.models.rules.dominance_fit import (
-    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian,
-)
+from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.targets.tables import resolve_spec
@@ -119,17 +114,14 @@ class CohenMassaro(PhoneTargetModel):
         # α is defined up to a common factor: hold that of the phone with the most frames
         anchor = np.argmax(np.bincount(np.concatenate([tying.column[r.own_rows] for r in data.train]), minlength=n))
         lower[n + anchor] = upper[n + anchor] = 0.0
-        problems = {}
-        with np.errstate(divide="ignore"):
-            for j, (channel, m) in enumerate(zip(data.channels, columns)):
-                base = (targets[:, m], log_alpha[:, m], theta[:, m], phi[:, m], c[:, m])
+        def start(j: int, m: int) -> tuple[tuple, np.ndarray]:
+            base = (targets[:, m], log_alpha[:, m], theta[:, m], phi[:, m], c[:, m])
+            with np.errstate(divide="ignore"):
                 x0 = np.concatenate([means[:, j], log_alpha[first, m], np.log(theta[first, m]),
                                      np.log(phi[first, m]), np.log(c[first, m])])
-                problems[channel] = ChannelProblem(
-                    x0, lower, upper, partial(train.residuals, base, j),
-                    None if held is None else partial(held.residuals, base, j))
-        fitted, history = levenberg_marquardt(
-            problems, max_iterations=p["max_iterations"], patience=p["patience"], progress=show_progress(progress))
+            return base, x0
+
+        fitted = fit_channels(self, data, start, lower, upper, train, held, progress)
         learned = {name: values.copy() for name, values in authored.items()}
         for channel, m in zip(data.channels, columns):
             blocks = [fitted[channel][k * n:(k + 1) * n] for k in range(5)]
@@ -141,8 +133,6 @@ class CohenMassaro(PhoneTargetModel):
                 learned[name][:, m] = scaled / _UNIT**exponent
             learned["c"][:, m] = exponent
         self.tables_ = {data.language: learned}
-        self.fitted_channels_ = data.channels
-        self.history_ = history
         return self
 
 

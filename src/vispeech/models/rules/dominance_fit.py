@@ -22,13 +22,14 @@ import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.models.rules.segments import Segments
 from vispeech.targets.tables import phone_rows
-from vispeech.models.contract import training_split
+from vispeech.models.contract import show_progress, training_split
 from vispeech.models.history import TrainingHistory
 
 TOLERANCE = 1e-4
@@ -345,3 +346,28 @@ def _summary(states: Iterable[_Channel]) -> str:
     train, validation = _mean_losses(states)
     shown = "" if validation is None else f", validation MSE {validation:.4g}"
     return f"training MSE {train:.4g}{shown} ({sum(s.active for s in states)}/{len(states)} channels running)"
+
+
+def fit_channels(
+    model, data: FitData, start: Callable[[int, int], tuple[tuple, np.ndarray]], lower: np.ndarray,
+    upper: np.ndarray, train, held, progress: bool | None,
+) -> dict[str, np.ndarray]:
+    """Solve each fitted channel's least-squares problem for ``model`` (a Cohen–Massaro or Öhman
+    model) with its ``max_iterations`` and ``patience``; returns the parameters per channel.
+
+    ``start(j, m)`` gives the per-row base tables and the starting parameters of fitted channel
+    j (column m of the model's channels); ``train`` and ``held`` (or ``None``) are the designs
+    whose ``residuals(base, j, x, jacobian)`` are minimised and validated. Sets the model's
+    ``fitted_channels_`` and ``history_``.
+    """
+    problems = {}
+    for j, channel in enumerate(data.channels):
+        base, x0 = start(j, model.channels.index(channel))
+        problems[channel] = ChannelProblem(x0, lower, upper, partial(train.residuals, base, j),
+                                           None if held is None else partial(held.residuals, base, j))
+    params = model.get_params()
+    fitted, model.history_ = levenberg_marquardt(
+        problems, max_iterations=params["max_iterations"], patience=params["patience"],
+        progress=show_progress(progress))
+    model.fitted_channels_ = data.channels
+    return fitted

@@ -18,16 +18,12 @@ consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel trac
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import show_progress
-from vispeech.models.rules.dominance_fit import (
-    ChannelProblem, FitData, PhoneTying, Recording, levenberg_marquardt, scatter_jacobian,
-)
+from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.targets.tables import phone_rows, resolve_spec
@@ -92,22 +88,15 @@ class Ohman(PhoneTargetModel):
         targets, w = authored["targets"], authored["w_c"]
         means = tying.frame_means(data.train, targets[tying.first_rows][:, columns])
         lower, upper = np.zeros(n + n_w), np.ones(n + n_w)
-        problems = {}
-        for j, (channel, m) in enumerate(zip(data.channels, columns)):
-            base = (targets[:, m], w[:, m])
-            x0 = np.concatenate([means[:, j], w[factors.first_rows, m]])
-            problems[channel] = ChannelProblem(
-                x0, lower, upper, partial(train.residuals, base, j),
-                None if held is None else partial(held.residuals, base, j))
-        fitted, history = levenberg_marquardt(
-            problems, max_iterations=p["max_iterations"], patience=p["patience"], progress=show_progress(progress))
+        def start(j: int, m: int) -> tuple[tuple, np.ndarray]:
+            return (targets[:, m], w[:, m]), np.concatenate([means[:, j], w[factors.first_rows, m]])
+
+        fitted = fit_channels(self, data, start, lower, upper, train, held, progress)
         learned = {name: values.copy() for name, values in authored.items()}
         for channel, m in zip(data.channels, columns):
             learned["targets"][:, m] = tying.expand(targets[:, m], fitted[channel][:n])
             learned["w_c"][:, m] = factors.expand(w[:, m], fitted[channel][n:])
         self.tables_ = {data.language: learned}
-        self.fitted_channels_ = data.channels
-        self.history_ = history
         return self
 
 
