@@ -8,11 +8,12 @@ import click
 
 from vispeech.cli import lang_option, main
 from vispeech.errors import VispeechError
+from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, speak, write_outputs
 
 _model_option = click.option(
     "--model", "-m", default=DEFAULT_MODEL, show_default=True,
-    help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a saved model folder.",
+    help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder.",
 )
 _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 

@@ -29,9 +29,11 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import os
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping, Sequence
+from fractions import Fraction
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
@@ -99,10 +101,15 @@ class Estimator(ABC):
         return any(name.endswith("_") and not name.startswith("_") for name in vars(self))
 
     @property
+    def frame_rate(self) -> float | None:
+        """The frame rate the model predicts at before resampling (``None``: at whatever is asked)."""
+        return None
+
+    @property
     def lookahead(self) -> int:
         """Frames of input after frame t that :meth:`stream` waits for before giving frame t, at
-        the model's own frame rate (a network's ``fps_``; the stream's for models without one).
-        A :class:`ModelStream` states its own in its frames."""
+        :attr:`frame_rate` (the stream's when that is ``None``). A :class:`ModelStream` states
+        its own in its frames."""
         return 2
 
     @property
@@ -348,6 +355,12 @@ class WindowStream(ModelStream):
         super().__init__(model, language, fps)
         self.context_frames = round(context * self.fps)
         self._recent: list[Phone] = []
+        self._grid = 1  # windows start on multiples of this many stream frames, a whole number of model frames
+        if model.frame_rate is not None:
+            ratio = Fraction(model.frame_rate / self.fps).limit_denominator(1000)
+            if abs(float(ratio) - model.frame_rate / self.fps) < 1e-9:
+                self._grid = ratio.denominator
+            self.lookahead = math.ceil((model.lookahead + 1) * self.fps / model.frame_rate)
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         new = list(phones)
@@ -372,7 +385,8 @@ class WindowStream(ModelStream):
             return self._empty()
         first_time = max(0, self.emitted - self.context_frames) / self.fps
         window = [p for p in self._recent if p.end > first_time] or self._recent[-1:]
-        shift = first_frame(window[0].start, self.fps, after=False)  # whole frames, so the grids agree
+        shift = first_frame(window[0].start, self.fps, after=False)
+        shift -= shift % self._grid  # whole stream (and model) frames, so the grids agree
         local = PhoneSequence(window, self.language).shifted(-shift / self.fps).with_gaps_filled()
         values = self.model.predict(local, self.fps).values
         rows = values[np.clip(np.arange(self.emitted, upto) - shift, 0, len(values) - 1)]

@@ -118,5 +118,5 @@ def describe_models() -> list[ModelInfo]:
         else:
             trained_on, score = "authored (data-free)", authored[name]
         infos.append(ModelInfo(name, model.family, model.input_kind, model.lookahead,
-                               getattr(model, "fps_", None), trained_on, score))
+                               model.frame_rate, trained_on, score))
     return infos

@@ -35,7 +35,7 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import Estimator, show_progress, training_split
+from vispeech.models.contract import Estimator, ModelStream, WindowStream, show_progress, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.motion.arkit import ARKIT_NAMES, ARTICULATORY_CHANNELS, MOUTH_CHANNELS
@@ -299,6 +299,18 @@ class Network(Estimator):
 
     def _has_learned(self) -> bool:
         return hasattr(self, "weights_")
+
+    @property
+    def frame_rate(self) -> float | None:
+        """``fps_`` once fitted: the network predicts at its training frame rate, then resamples."""
+        return getattr(self, "fps_", None)
+
+    def stream(self, language: str, fps: float) -> ModelStream:
+        """A re-predicted recent window (:class:`~vispeech.models.contract.WindowStream`), after
+        checking that the network takes ``language``'s phones."""
+        self.check_fitted()
+        self.encoding_.check(PhoneSequence([], language))
+        return WindowStream(self, language, fps)
 
     @property
     def kernel(self):
