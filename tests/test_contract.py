@@ -7,7 +7,6 @@ and one name per model.
 """
 
 import json
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -15,12 +14,12 @@ from conftest import require_module
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream
+from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream, Splits
 from vispeech.models.networks.network import Network
 from vispeech.models.registry import (
     DATA_FREE, FAMILIES, PRETRAINED, RUNNABLE, create_model, family_class, load_folder, load_model, pretrained_path,
 )
-from vispeech.motion.track import Track
+from vispeech.utterance import Utterance
 from vispeech.targets.presets import PRESETS
 
 TRAINABLE = tuple(f for f in FAMILIES if f not in DATA_FREE)
@@ -41,26 +40,6 @@ TINY_NETWORKS = {
 """Small hyper-parameters for a quick fit of each network family on :func:`tiny_corpus`."""
 
 
-@dataclass
-class Recorded:
-    """The least an utterance needs for fitting."""
-
-    phones: PhoneSequence
-    track: Track
-    id: str = "u"
-
-
-@dataclass
-class Splits:
-    """A corpus with a train and a validation split."""
-
-    train: list
-    validation: list
-
-    def split(self, name: str) -> list:
-        return {"train": self.train, "validation": self.validation}[name]
-
-
 def sentence(seed: int, language: str = "en") -> PhoneSequence:
     """Silence, 4–7 phones of 60–200 ms, silence."""
     rng = np.random.default_rng(seed)
@@ -74,10 +53,10 @@ def sentence(seed: int, language: str = "en") -> PhoneSequence:
     return PhoneSequence(phones, language)
 
 
-def tiny_corpus(seeds=range(4)) -> list[Recorded]:
+def tiny_corpus(seeds=range(4)) -> list[Utterance]:
     """English utterances whose jawOpen and mouthPucker tracks are Öhman's authored predictions at 25 fps."""
     teacher = create_model("ohman")
-    return [Recorded(p, teacher.predict(p, FPS).select(("jawOpen", "mouthPucker")), f"u{seed}")
+    return [Utterance(id=f"u{seed}", phones=p, track=teacher.predict(p, FPS).select(("jawOpen", "mouthPucker")))
             for seed, p in ((seed, sentence(seed)) for seed in seeds)]
 
 
@@ -206,7 +185,7 @@ def test_fit_refuses_what_is_not_a_corpus():
         with pytest.raises(VispeechError, match="needs a corpus"):
             create_model(family).fit(3, progress=False)
         with pytest.raises(VispeechError, match="align"):
-            create_model(family).fit([Recorded(None, tiny_corpus()[0].track)], progress=False)
+            create_model(family).fit([Utterance(track=tiny_corpus()[0].track)], progress=False)
 
 
 # -- every runnable model ----------------------------------------------------------------

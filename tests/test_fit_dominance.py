@@ -1,6 +1,5 @@
 """Least-squares fitting of the Cohen–Massaro and Öhman models (vispeech.models.rules.dominance_fit)."""
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +9,7 @@ from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.models.rules import cohen_massaro, ohman
-from vispeech.models.contract import Estimator
+from vispeech.models.contract import Estimator, Splits
 from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
 from vispeech.models.registry import load_folder
@@ -25,26 +24,6 @@ CHANNELS = ("jawOpen", "mouthPucker")
 FPS = 50.0
 
 
-@dataclass
-class Recorded:
-    """The least an utterance needs for fitting."""
-
-    phones: PhoneSequence
-    track: Track
-    id: str = "u"
-
-
-@dataclass
-class Splits:
-    """A corpus with a train and a validation split (what :meth:`fit` early-stops on)."""
-
-    train: list
-    validation: list
-
-    def split(self, name: str) -> list:
-        return {"train": self.train, "validation": self.validation}[name]
-
-
 def sentence(rng: np.random.Generator, symbols=SYMBOLS, language: str = "en") -> PhoneSequence:
     """Silence, 4–7 random phones of 60–200 ms, silence."""
     phones, t = [Phone("sil", 0.0, 0.2)], 0.2
@@ -56,12 +35,12 @@ def sentence(rng: np.random.Generator, symbols=SYMBOLS, language: str = "en") ->
     return PhoneSequence(phones, language)
 
 
-def recorded_by(model: Estimator, seeds, channels=CHANNELS) -> list[Recorded]:
+def recorded_by(model: Estimator, seeds, channels=CHANNELS) -> list[Utterance]:
     """Utterances whose tracks are ``model``'s own predictions of ``channels`` at 50 fps."""
     out = []
     for seed in seeds:
         phones = sentence(np.random.default_rng(seed))
-        out.append(Recorded(phones, model.predict(phones, FPS).select(channels), f"u{seed}"))
+        out.append(Utterance(id=f"u{seed}", phones=phones, track=model.predict(phones, FPS).select(channels)))
     return out
 
 
@@ -251,7 +230,7 @@ def test_fit_data_uses_the_corpus_splits_and_refuses_bad_input():
     with pytest.raises(VispeechError, match="does not predict"):
         FitData.gather(CohenMassaro(), corpus, ["headYaw"])
     with pytest.raises(VispeechError, match="align"):
-        FitData.gather(Ohman(), [Recorded(None, utterances[0].track)], None)
+        FitData.gather(Ohman(), [Utterance(track=utterances[0].track)], None)
     with pytest.raises(VispeechError, match="empty"):
         CohenMassaro().fit([], progress=False)
     with pytest.raises(VispeechError, match="max_iterations"):

@@ -7,6 +7,7 @@ import pytest
 
 from vispeech import Phone, PhoneSequence, Track, VispeechError
 from vispeech.alignment.phones import n_frames_for
+from vispeech.models.contract import Splits
 from vispeech.models.networks.network import THESIS_CHANNELS
 from vispeech.models.networks.sliding_window import SlidingWindowNetwork, TaylorNetwork
 from vispeech.models.networks.tdnn import LowLatencyNetwork, RecurrentStream, TimeDelayNetwork
@@ -49,16 +50,6 @@ def corpus() -> list:
 def held_out() -> list:
     rng = np.random.default_rng(1)
     return [synthetic_utterance(rng, 100 + i) for i in range(3)]
-
-
-class Splits:
-    """A corpus with train and validation splits, as :meth:`fit` reads one."""
-
-    def __init__(self, train: list, validation: list) -> None:
-        self.splits = {"train": train, "validation": validation}
-
-    def split(self, name: str) -> list:
-        return self.splits[name]
 
 
 def tiny_thesis(**options) -> SlidingWindowNetwork:

@@ -32,6 +32,7 @@ import json
 import math
 import os
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 from collections.abc import Iterable, Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
@@ -272,6 +273,19 @@ def _package_version() -> str:
         return version("vispeech")
     except PackageNotFoundError:  # pragma: no cover - running from a source tree
         return "unknown"
+
+
+@dataclass(frozen=True)
+class Splits:
+    """Training data given as lists, read by :meth:`Estimator.fit` as a corpus with splits
+    (``train`` to learn from, ``validation`` to stop early on)."""
+
+    train: Sequence
+    validation: Sequence = ()
+
+    def split(self, name: str) -> list:
+        """The utterances of split ``name`` (``train`` or ``validation``; ``test`` is empty)."""
+        return list({"train": self.train, "validation": self.validation}.get(name, ()))
 
 
 def training_split(corpus) -> tuple[list, list]:
