@@ -8,10 +8,14 @@ Chromium, an installed extra) checks for it through :func:`require` or
 
 import importlib
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pytest
+
+from vispeech.alignment.phones import Phone, PhoneSequence
 
 DATA = Path(__file__).parent / "data"
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -66,3 +70,14 @@ def grid_s1(shared_dir) -> Path:
     folder = shared_dir / "data" / "grid_s1"
     require(folder.is_dir(), f"GRID speaker 1 ({folder})")
     return folder
+
+
+def random_sentence(rng: np.random.Generator, symbols: Sequence[str], language: str = "en") -> PhoneSequence:
+    """Silence, 4–7 random phones of ``symbols`` lasting 60–200 ms each, silence."""
+    phones, t = [Phone("sil", 0.0, 0.2)], 0.2
+    for symbol in rng.choice(symbols, rng.integers(4, 8)):
+        duration = float(rng.uniform(0.06, 0.2))
+        phones.append(Phone(str(symbol), t, t + duration))
+        t += duration
+    phones.append(Phone("sil", t, t + 0.2))
+    return PhoneSequence(phones, language)

@@ -10,9 +10,9 @@ import json
 
 import numpy as np
 import pytest
-from conftest import require_module
+from conftest import random_sentence, require_module
 
-from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream, Splits
 from vispeech.models.networks.network import Network
@@ -42,15 +42,8 @@ TINY_NETWORKS = {
 
 def sentence(seed: int, language: str = "en") -> PhoneSequence:
     """Silence, 4–7 phones of 60–200 ms, silence."""
-    rng = np.random.default_rng(seed)
     symbols = SYMBOLS if language == "en" else ("a", "i:", "u:", "b", "m", "s", "l", "f")
-    phones, t = [Phone("sil", 0.0, 0.2)], 0.2
-    for symbol in rng.choice(symbols, rng.integers(4, 8)):
-        duration = float(rng.uniform(0.06, 0.2))
-        phones.append(Phone(str(symbol), t, t + duration))
-        t += duration
-    phones.append(Phone("sil", t, t + 0.2))
-    return PhoneSequence(phones, language)
+    return random_sentence(np.random.default_rng(seed), symbols, language)
 
 
 def tiny_corpus(seeds=range(4)) -> list[Utterance]:

@@ -4,8 +4,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import random_sentence
 
-from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.models.rules import cohen_massaro, ohman
@@ -25,14 +26,8 @@ FPS = 50.0
 
 
 def sentence(rng: np.random.Generator, symbols=SYMBOLS, language: str = "en") -> PhoneSequence:
-    """Silence, 4–7 random phones of 60–200 ms, silence."""
-    phones, t = [Phone("sil", 0.0, 0.2)], 0.2
-    for symbol in rng.choice(symbols, rng.integers(4, 8)):
-        duration = float(rng.uniform(0.06, 0.2))
-        phones.append(Phone(str(symbol), t, t + duration))
-        t += duration
-    phones.append(Phone("sil", t, t + 0.2))
-    return PhoneSequence(phones, language)
+    """Silence, 4–7 random phones of ``symbols``, silence."""
+    return random_sentence(rng, symbols, language)
 
 
 def recorded_by(model: Estimator, seeds, channels=CHANNELS) -> list[Utterance]:
