@@ -16,6 +16,7 @@ protrusion are also set for rounded consonants (``W``, ``SH``-like, Swedish ``S`
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterable
 from functools import cache
 from importlib import resources
 
@@ -75,3 +76,26 @@ def feature_table(language: str) -> tuple[tuple[str, ...], np.ndarray]:
     matrix = np.stack([_table()[language][s] for s in symbols])
     matrix.setflags(write=False)
     return symbols, matrix
+
+
+@cache
+def _rows(language: str) -> tuple[dict[tuple[str, bool], int], np.ndarray]:
+    """Every symbol of ``language`` unstressed and stressed: ``({(symbol, stressed): row}, matrix)``."""
+    symbols, matrix = feature_table(language)
+    stressed = matrix.copy()
+    stressed[[i for i, s in enumerate(symbols) if is_vowel(s, language)], _STRESS] = 1.0
+    keys = {(s, False): i for i, s in enumerate(symbols)} | {(s, True): len(symbols) + i for i, s in enumerate(symbols)}
+    both = np.concatenate([matrix, stressed])
+    both.setflags(write=False)
+    return keys, both
+
+
+def feature_rows(symbols: Iterable[str], language: str, stresses: Iterable[int]) -> np.ndarray:
+    """The feature vectors of many phones at once (phones × ``len(FEATURE_NAMES)``), as
+    :func:`phone_features` gives each."""
+    get_inventory(language)
+    keys, matrix = _rows(language)
+    try:
+        return matrix[[keys[s, bool(t)] for s, t in zip(symbols, stresses)]]
+    except KeyError as exc:
+        raise VispeechError(f"unknown phone symbol {exc.args[0][0]!r} for language {language}") from None

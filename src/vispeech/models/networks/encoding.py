@@ -34,7 +34,7 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.phonetics.features import FEATURE_NAMES, phone_features
+from vispeech.phonetics.features import FEATURE_NAMES, feature_rows
 from vispeech.phonetics.inventory import SILENCE, get_inventory
 
 INPUT_KINDS = ("phones", "features")
@@ -109,16 +109,12 @@ class InputEncoding:
         every = filled.frame_indices(fps, n)
         index = every[start_frame:]
         segments = filled.phones
-        rows = np.stack(
-            [self._base(p.symbol, phones.language, p.stress) for p in segments]
-            + [self._base(SILENCE, phones.language, 0)]
-        )
+        symbols = [p.symbol for p in segments] + [SILENCE]
+        stresses = [p.stress for p in segments] + [0]
+        features = feature_rows(symbols, phones.language, stresses)  # the last row: silence
+        rows = features if self.kind == "features" else self._one_hot(symbols)
         parts = [rows[index]]  # index -1 picks the silence row, last
         if self.linguistic:
-            features = np.stack(
-                [phone_features(p.symbol, phones.language, p.stress) for p in segments]
-                + [phone_features(SILENCE, phones.language)]
-            )
             classes = _classes(features)
             previous = np.concatenate([every[:1], every[:-1]])[start_frame:]
             changed = np.flatnonzero(index != previous)
@@ -133,15 +129,15 @@ class InputEncoding:
             parts.append(position[:, None])
         return np.concatenate(parts, axis=1).astype(np.float32)
 
-    def _base(self, symbol: str, language: str, stress: int) -> np.ndarray:
-        if self.kind == "features":
-            return phone_features(symbol, language, stress)
-        symbols = get_inventory(self.language).symbols
-        if symbol not in symbols:
-            raise VispeechError(f"phone {symbol!r} is not in this model's {self.language} inventory")
-        row = np.zeros(len(symbols))
-        row[symbols.index(symbol)] = 1.0
-        return row
+    def _one_hot(self, symbols: list[str]) -> np.ndarray:
+        """One row per symbol: a one-hot of this encoding's inventory."""
+        inventory = get_inventory(self.language).symbols
+        unknown = [s for s in symbols if s not in inventory]
+        if unknown:
+            raise VispeechError(f"phone {unknown[0]!r} is not in this model's {self.language} inventory")
+        rows = np.zeros((len(symbols), len(inventory)))
+        rows[np.arange(len(symbols)), [inventory.index(s) for s in symbols]] = 1.0
+        return rows
 
     def to_dict(self) -> dict:
         return asdict(self)
