@@ -33,10 +33,13 @@ class RecurrentKernel:
     """Grouped recurrent time-delay networks (``GroupedNetworks`` of ``RecurrentTimeDelayNet``).
 
     ``columns[i]`` are the output columns network i predicts; ``back`` and ``ahead`` the
-    input window's frames before and after the current one.
+    input window's frames before and after the current one; ``events`` the input columns that
+    are set on single frames (a phone's first): the window terms of a row are cached without
+    them and their own added, so the cache holds about one row per phone.
     """
 
-    def __init__(self, weights: Mapping[str, np.ndarray], columns: Sequence[Sequence[int]], back: int, ahead: int):
+    def __init__(self, weights: Mapping[str, np.ndarray], columns: Sequence[Sequence[int]], back: int, ahead: int,
+                 events: Sequence[int] = ()):
         self.back, self.ahead = back, ahead
         self.window = back + ahead + 1
         self.order = np.argsort([c for group in columns for c in group])
@@ -64,6 +67,10 @@ class RecurrentKernel:
         self.hidden = sum(net["hidden"] for net in self.nets)
         # C[f, m, :] = Σ_{k<m} W_k[f, :] over every network's hidden units, as inputs × (window+1)·hidden
         self._cumulative = np.concatenate(cumulative, axis=2).transpose(1, 0, 2).reshape(n_inputs, -1)
+        self._events = np.asarray(events, dtype=np.intp)
+        self._event_terms = np.ascontiguousarray(
+            self._cumulative[self._events].reshape(len(self._events), self.window + 1, self.hidden)[:, ::-1],
+            dtype=np.float32)
         self._bias = np.concatenate([net["bias"] for net in self.nets]).astype(np.float32)
         self._rows: dict[bytes, np.ndarray] = {}
 
@@ -98,8 +105,12 @@ class RecurrentKernel:
         return out
 
     def _row_terms(self, rows: np.ndarray) -> list[np.ndarray]:
-        """``G`` of each row, reversed (row j holds ``G[K - j]``), float32: from the cache or computed."""
-        keys = [row.tobytes() for row in rows]
+        """``G`` of each row, reversed (row j holds ``G[K - j]``), float32: the cached terms of the
+        row without its event columns, plus those of its events."""
+        events = rows[:, self._events]
+        base = rows.copy()
+        base[:, self._events] = 0
+        keys = [row.tobytes() for row in base]
         cache = self._rows
         missing = list(dict.fromkeys(key for key in keys if key not in cache))
         if missing:
@@ -108,26 +119,35 @@ class RecurrentKernel:
             fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1)
             computed = (fresh.astype(np.float64) @ self._cumulative).reshape(len(missing), self.window + 1, -1)
             cache.update(zip(missing, np.ascontiguousarray(computed[:, ::-1], dtype=np.float32)))
-        return [cache[key] for key in keys]
+        terms = [cache[key] for key in keys]
+        for r, e in zip(*np.nonzero(events)):
+            terms[r] = terms[r] + events[r, e] * self._event_terms[e]
+        return terms
 
     def _recur(self, drive: np.ndarray) -> list[np.ndarray]:
-        """Hidden states (frames × hidden, float32) of every network for their window terms."""
+        """Hidden states (frames × hidden, float32) of every network for their window terms.
+
+        One time loop for all networks; each step is a matrix-vector product, an addition and
+        a tanh written in place, on views made before the loop.
+        """
         n = len(drive)
-        loops, states, start = [], [], 0
+        states, steps, start = [], [], 0
         for net in self.nets:
             hidden, delays = net["hidden"], net["delays"]
-            buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row d + t is h_t
-            own = np.ascontiguousarray(drive[:, start:start + hidden])
-            loops.append((net["recurrent"], buffer.reshape(-1), hidden, delays * hidden, own, buffer[delays:],
-                          np.empty(hidden, dtype=np.float32)))
+            buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
+            flat = buffer.reshape(-1)
+            size = delays * hidden
+            windows = [flat[t * hidden:t * hidden + size] for t in range(n)]
+            steps.append(list(zip(windows, drive[:, start:start + hidden], buffer[delays:])))
             states.append(buffer[delays:])
             start += hidden
-        dot, tanh = np.dot, np.tanh
-        for t in range(n):
-            for recurrent, flat, hidden, size, own, out, step in loops:
-                dot(recurrent, flat[t * hidden:t * hidden + size], out=step)
-                step += own[t]
-                tanh(step, out=out[t])
+        weights = [(net["recurrent"], np.empty(net["hidden"], dtype=np.float32)) for net in self.nets]
+        dot, add, tanh = np.dot, np.add, np.tanh
+        for frame in zip(*steps):
+            for (recurrent, step), (window, own, out) in zip(weights, frame):
+                dot(recurrent, window, out=step)
+                add(step, own, out=step)
+                tanh(step, out=out)
         return states
 
     # -- one frame at a time ---------------------------------------------------------------

@@ -109,8 +109,9 @@ class TimeDelayNetwork(Network):
         return GroupedNetworks(nets, columns)
 
     def _make_kernel(self) -> RecurrentKernel:
+        events = [i for i, name in enumerate(self.encoding_.names) if ">" in name]  # phone-onset transitions
         return RecurrentKernel(self.weights_, self._group_columns(), self._params["look_back"],
-                               self._params["look_ahead"])
+                               self._params["look_ahead"], events)
 
     def _pad(self, inputs: np.ndarray) -> np.ndarray:
         return np.pad(inputs, ((self._params["look_back"], self._params["look_ahead"]), (0, 0)), mode="edge")
