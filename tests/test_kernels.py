@@ -1,0 +1,79 @@
+"""The NumPy inference path equals torch's forward pass on every shipped network (to 1e-5)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import require_module
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.models.networks.network import Network
+from vispeech.models.registry import PRETRAINED, load_model
+
+GOLDEN_PHONES = json.loads((Path(__file__).parent / "golden" / "phones.json").read_text(encoding="utf-8"))
+NETWORKS = [name for name in PRETRAINED if isinstance(load_model(name), Network)]
+
+
+def torch_outputs(model: Network, inputs: np.ndarray) -> np.ndarray:
+    """The trained module's forward pass in float64 (what prediction ran on before the NumPy kernels)."""
+    torch = require_module("torch", "torch (the train extra)")
+    module = model._build_module(model.encoding_.size, len(model.outputs_))
+    module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
+    module = module.double().eval()
+    p = model.get_params()
+    padded = np.pad(inputs, ((p["look_back"], p["look_ahead"]), (0, 0)), mode="edge")
+    with torch.no_grad():
+        return module(torch.from_numpy(padded).double()[None])[0].numpy()
+
+
+@pytest.mark.parametrize("name", NETWORKS)
+def test_numpy_kernel_equals_torch(name):
+    model = load_model(name)
+    worst = 0.0
+    for entry in GOLDEN_PHONES:
+        phones = PhoneSequence.from_dict(entry)
+        inputs = model.encoding_.encode(phones, model.fps_)
+        light = model._denormalise(model.kernel.forward(inputs))
+        reference = model._denormalise(torch_outputs(model, inputs))
+        worst = max(worst, float(np.abs(light - reference).max()))
+    assert worst <= 1e-5, f"{name}: largest difference {worst:.2e}"
+
+
+@pytest.mark.parametrize("name", NETWORKS)
+def test_frame_by_frame_step_equals_torch(name):
+    """The kernel's one-frame step (what streams run) gives the same frames as torch offline."""
+    model = load_model(name)
+    phones = PhoneSequence.from_dict(GOLDEN_PHONES[3])
+    inputs = model.encoding_.encode(phones, model.fps_)
+    p = model.get_params()
+    kernel, state, frames = model.kernel, model.kernel.initial_state(), []
+    for t in range(len(inputs)):
+        index = np.clip(np.arange(t - p["look_back"], t + p["look_ahead"] + 1), 0, len(inputs) - 1)
+        out, state = kernel.step(inputs[index], state)
+        frames.append(out)
+    reference = torch_outputs(model, inputs)
+    np.testing.assert_allclose(model._denormalise(np.array(frames)), model._denormalise(reference), atol=1e-5)
+
+
+@pytest.mark.parametrize("family", ["sliding-window-thesis", "sliding-window-taylor"])
+def test_window_kernel_equals_torch(family):
+    """The sliding-window networks' NumPy forward pass equals their torch module's (overlap-averaged)."""
+    torch = require_module("torch", "torch (the train extra)")
+    from test_contract import TINY_NETWORKS, tiny_corpus
+
+    from vispeech.models.networks.modules import edge_pad, overlap_average, windows
+    from vispeech.models.registry import create_model
+
+    model = create_model(family, epochs=2, num_threads=1, targets=["jawOpen", "mouthPucker"],
+                         **TINY_NETWORKS[family]).fit(tiny_corpus(), progress=False)
+    module = model._build_module(model.encoding_.size, len(model.outputs_))
+    module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
+    module = module.double().eval()
+    p = model.get_params()
+    for seed in (60, 61):
+        inputs = model.encoding_.encode(tiny_corpus([seed])[0].phones, model.fps_)
+        with torch.no_grad():
+            padded = edge_pad(inputs, (p["input_window"] + p["output_window"]) // 2 - 1).double()
+            reference = overlap_average(module(windows(padded, p["input_window"])), len(inputs)).numpy()
+        np.testing.assert_allclose(model.kernel.forward(inputs), reference, atol=1e-9)
