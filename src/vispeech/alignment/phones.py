@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -81,7 +82,7 @@ class PhoneSequence:
         for i, p in enumerate(self.phones):
             if not p.symbol:
                 raise VispeechError(f"phone {i} has an empty symbol")
-            if not (np.isfinite(p.start) and np.isfinite(p.end)) or p.end <= p.start:
+            if not (math.isfinite(p.start) and math.isfinite(p.end)) or p.end <= p.start:
                 raise VispeechError(f"phone {i} ({p.symbol}) has start {p.start} >= end {p.end}")
             if p.start < previous_end - TIME_TOLERANCE:
                 raise VispeechError(f"phone {i} ({p.symbol}) starts at {p.start:.3f} s, before the previous phone ends")

@@ -89,7 +89,7 @@ def consonant_overlays(
     """
     language = phones.language
     rows = phone_rows(language)
-    index = rows.indices(phones.symbols, [p.stress for p in phones])
+    index = all_rows = rows.indices(phones.symbols, [p.stress for p in phones])
     is_consonant = (rows.features[index, _VOWEL] == 0) & (rows.features[index, _SILENCE] == 0)
     if features is not None:
         unknown = [f for f in features if f not in FEATURE_NAMES]
@@ -116,7 +116,7 @@ def consonant_overlays(
     # Öhman's rule: a consonant's fades reach no further than its neighbours' peaks: the
     # full-strength stretch of the next consonant, or the anchor frame of the next vowel
     # (so that a vowel between two bilabials still opens the mouth at its centre)
-    vowels = [p for p in phones if is_vowel(p.symbol, language)]
+    vowels = [p for p, vowel in zip(phones, rows.features[all_rows, _VOWEL] > 0) if vowel]
     vowel_anchor = anchor_frames(
         np.array([p.start for p in vowels]) - out.start_time,
         np.array([p.end for p in vowels]) - out.start_time, fps, n,
@@ -146,22 +146,27 @@ def consonant_overlays(
     strength[~rising & (k <= peak_to[owner])] = 1.0
     offsets = np.concatenate(([0], np.cumsum(counts)))
 
-    columns = [out.channels.index(c) for c in TARGET_CHANNELS]
+    columns = np.array([out.channels.index(c) for c in TARGET_CHANNELS])
     jaw, close = TARGET_CHANNELS.index("jawOpen"), TARGET_CHANNELS.index("mouthClose")
     values = out.values
     bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
     for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i])):
         frames = slice(lo[i], hi[i] + 1)
-        s = strength[offsets[i]:offsets[i + 1]]
-        for ch in np.flatnonzero(defined[i]):
-            if keep_jaw and ch == jaw:
-                continue
-            col = values[frames, columns[ch]]
-            target = visemes[i, ch]
-            if keep_jaw and ch == close and defined[i, jaw]:
-                target = np.maximum(values[frames, columns[jaw]] - (visemes[i, jaw] - visemes[i, close]), 0.0)
-            blended = col + s * (target - col)
-            values[frames, columns[ch]] = np.minimum(col, blended) if ch == jaw else blended
+        s = strength[offsets[i]:offsets[i + 1], None]
+        channels = np.flatnonzero(defined[i])
+        if keep_jaw:
+            channels = channels[channels != jaw]
+        cols = columns[channels]
+        current = values[frames, cols]
+        target = np.repeat(visemes[i, channels][None], len(current), axis=0)
+        if keep_jaw and defined[i, jaw] and close in channels:
+            lip_gap = visemes[i, jaw] - visemes[i, close]
+            target[:, channels.tolist().index(close)] = np.maximum(values[frames, columns[jaw]] - lip_gap, 0.0)
+        blended = current + s * (target - current)
+        if jaw in channels:  # an overlay never raises the jaw
+            k = channels.tolist().index(jaw)
+            blended[:, k] = np.minimum(current[:, k], blended[:, k])
+        values[frames, cols] = blended
     return out
 
 
