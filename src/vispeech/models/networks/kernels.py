@@ -60,6 +60,7 @@ class RecurrentKernel:
                 "bias": np.asarray(weights[f"nets.{i}.input.bias"], dtype=np.float64),
                 "conv": np.ascontiguousarray(per_frame.reshape(window * n_inputs, hidden)),
                 "recurrent": np.ascontiguousarray(oldest_first, dtype=np.float32),
+                "recurrent_and_drive": np.concatenate([oldest_first, np.eye(hidden)], axis=1).astype(np.float32),
                 "out_weight": np.asarray(weights[f"nets.{i}.output.weight"], dtype=np.float64).T,
                 "out_bias": np.asarray(weights[f"nets.{i}.output.bias"], dtype=np.float64),
             })
@@ -127,26 +128,27 @@ class RecurrentKernel:
     def _recur(self, drive: np.ndarray) -> list[np.ndarray]:
         """Hidden states (frames × hidden, float32) of every network for their window terms.
 
-        One time loop for all networks; each step is a matrix-vector product, an addition and
-        a tanh written in place, on views made before the loop.
+        Row ``delays + t`` of a network's state buffer holds ``conv_t`` until ``h_t`` replaces
+        it, so the delayed states and ``conv_t`` are one contiguous slice and one product with
+        ``[R | I]`` gives ``conv_t + Σ_d R_d h_{t-d}``: a product and a tanh per frame and
+        network, on views made before the one time loop.
         """
         n = len(drive)
         states, steps, start = [], [], 0
         for net in self.nets:
             hidden, delays = net["hidden"], net["delays"]
             buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
+            buffer[delays:] = drive[:, start:start + hidden]
             flat = buffer.reshape(-1)
-            size = delays * hidden
-            windows = [flat[t * hidden:t * hidden + size] for t in range(n)]
-            steps.append(list(zip(windows, drive[:, start:start + hidden], buffer[delays:])))
+            size = (delays + 1) * hidden
+            steps.append(list(zip([flat[t * hidden:t * hidden + size] for t in range(n)], buffer[delays:])))
             states.append(buffer[delays:])
             start += hidden
-        weights = [(net["recurrent"], np.empty(net["hidden"], dtype=np.float32)) for net in self.nets]
-        dot, add, tanh = np.dot, np.add, np.tanh
+        weights = [(net["recurrent_and_drive"], np.empty(net["hidden"], dtype=np.float32)) for net in self.nets]
+        dot, tanh = np.dot, np.tanh
         for frame in zip(*steps):
-            for (recurrent, step), (window, own, out) in zip(weights, frame):
-                dot(recurrent, window, out=step)
-                add(step, own, out=step)
+            for (matrix, step), (window, out) in zip(weights, frame):
+                dot(matrix, window, out=step)
                 tanh(step, out=out)
         return states
 
