@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.corpus.articulation import FRAME_SIZE
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
@@ -98,8 +98,8 @@ def phone_frames(
 ) -> np.ndarray:
     """Indices of the frames a phone ``[start, end)`` (seconds) covers, widened by ``pad`` frames
     on each side. A phone shorter than a frame covers the frame nearest its middle."""
-    first = int(np.ceil((start - start_time) * fps - 1e-9))
-    last = int(np.ceil((end - start_time) * fps - 1e-9)) - 1
+    first = first_frame(start - start_time, fps)
+    last = first_frame(end - start_time, fps) - 1
     if last < first:
         first = last = int(round(((start + end) / 2 - start_time) * fps))
     return np.arange(max(first - pad, 0), min(last + pad, n_frames - 1) + 1)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vispeech.alignment.phones import Word
+from vispeech.alignment.phones import TIME_TOLERANCE, Word
 from vispeech.errors import VispeechError
 
 SPEECH_MARGIN = 0.1
@@ -33,7 +33,7 @@ def speech_frames(
         return mask
     times = start_time + np.arange(n_frames) / fps
     first, last = min(w.start for w in words), max(w.end for w in words)
-    mask[(times >= first - margin - 1e-9) & (times <= last + margin + 1e-9)] = True
+    mask[(times >= first - margin - TIME_TOLERANCE) & (times <= last + margin + TIME_TOLERANCE)] = True
     return mask
 
 

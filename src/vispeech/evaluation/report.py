@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vispeech.alignment.phones import TIME_TOLERANCE
 from vispeech.corpus.articulation import articulatory_parameters
 from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
@@ -216,7 +217,7 @@ def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bo
     fps = utterance.track.fps
     predicted = animate(utterance.phones, model, fps, postprocessing and "jawOpen" in model.channels)
     times = utterance.track.times
-    if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < 1e-9:
+    if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < TIME_TOLERANCE:
         return predicted
     values = np.column_stack([np.interp(times, predicted.times, predicted.values[:, j])
                               for j in range(len(predicted.channels))])

@@ -14,7 +14,7 @@ import threading
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence, Word
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 
@@ -127,7 +127,7 @@ def _to_phone_sequence(segments: list[tuple[str, list[tuple[str, int, int]]]], d
         for label, start_frame, n_frames in word_phones:
             start = min(max((start_frame - offset) / FRAMES_PER_SECOND, 0.0), duration)
             end = min(max((start_frame + n_frames - offset) / FRAMES_PER_SECOND, 0.0), duration)
-            if end - start < 1e-9:
+            if end - start < TIME_TOLERANCE:
                 continue
             symbol, stress = parse_symbol(label, "en")
             if symbol == SILENCE and phones and phones[-1].symbol == SILENCE:
@@ -139,6 +139,6 @@ def _to_phone_sequence(segments: list[tuple[str, list[tuple[str, int, int]]]], d
             if not own:
                 raise VispeechError(f"alignment failed: word {name!r} lies outside the audio")
             words.append(Word(_ALTERNATE.sub("", name), own[0].start, own[-1].end))
-    if phones and phones[-1].end < duration - 1e-9:
+    if phones and phones[-1].end < duration - TIME_TOLERANCE:
         phones.append(Phone(SILENCE, phones[-1].end, duration))
     return PhoneSequence(phones, "en", words).validate()

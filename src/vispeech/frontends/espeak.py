@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence, Word
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
 from vispeech.phonetics.espeak_names import espeak_to_symbols
 from vispeech.phonetics.inventory import SILENCE, get_inventory, is_silence
@@ -234,7 +234,7 @@ def _merge_retroflexes(phones: list[Phone]) -> list[Phone]:
     for p in phones:
         last = merged[-1] if merged else None
         if (last is not None and last.symbol == "r" and p.symbol in _RETROFLEX and p.word is not None
-                and last.word == p.word and abs(last.end - p.start) < 1e-9):
+                and last.word == p.word and abs(last.end - p.start) < TIME_TOLERANCE):
             merged[-1] = replace(p, symbol=_RETROFLEX[p.symbol], start=last.start)
         else:
             merged.append(p)

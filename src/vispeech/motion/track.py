@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vispeech.alignment.phones import TIME_TOLERANCE
 from vispeech.errors import VispeechError
 
 
@@ -102,7 +103,7 @@ class Track:
     def slice(self, start: float, end: float) -> Track:
         """Frames whose time lies in ``[start, end)`` seconds."""
         t = self.times
-        keep = (t >= start - 1e-9) & (t < end - 1e-9)
+        keep = (t >= start - TIME_TOLERANCE) & (t < end - TIME_TOLERANCE)
         idx = np.flatnonzero(keep)
         if idx.size == 0:
             raise VispeechError(f"no frames between {start} s and {end} s")
