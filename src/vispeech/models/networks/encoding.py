@@ -23,7 +23,8 @@ Optional extra columns, after those:
 - ``position``: where the frame lies within its phone, 0 at its start to 1 at its end.
 
 Each frame depends only on its own phone and the previous frame's, so frames can be
-encoded as phones arrive (see :meth:`TimeDelayNetwork.predict_stream`).
+encoded as phones arrive (:meth:`InputEncoding.encode` with ``start_frame``; see
+:class:`~vispeech.models.networks.tdnn.RecurrentStream`).
 """
 
 from __future__ import annotations
