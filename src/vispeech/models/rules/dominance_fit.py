@@ -12,8 +12,9 @@ corpus aligner gives none, and the per-phone spec format has no stress key).
 bound whose gradient points outward are held there for the step; the step is clipped to
 the box), and stops each channel early once its validation error has not improved for
 ``patience`` iterations, keeping the best parameters. The models supply the Jacobians; this
-module gathers the frames, ties the phones and writes the fitted values back into a model's
-parameters (per-phone ``targets`` overrides and ``<language>:<symbol>`` spec entries).
+module gathers the frames, ties the phones and poses and solves each channel's problem
+(:func:`fit_channels`); the models turn the fitted values into their learned per-row tables
+(``tables_``), leaving their hyper-parameters as they were.
 """
 
 from __future__ import annotations
