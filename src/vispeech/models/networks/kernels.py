@@ -130,26 +130,24 @@ class RecurrentKernel:
 
         Row ``delays + t`` of a network's state buffer holds ``conv_t`` until ``h_t`` replaces
         it, so the delayed states and ``conv_t`` are one contiguous slice and one product with
-        ``[R | I]`` gives ``conv_t + Σ_d R_d h_{t-d}``: a product and a tanh per frame and
-        network, on views made before the one time loop.
+        ``[R | I]`` gives ``conv_t + Σ_d R_d h_{t-d}``: a product and a tanh per frame, on views
+        made before the time loop.
         """
         n = len(drive)
-        states, steps, start = [], [], 0
+        states, start = [], 0
+        dot, tanh = np.dot, np.tanh
         for net in self.nets:
-            hidden, delays = net["hidden"], net["delays"]
+            hidden, delays, matrix = net["hidden"], net["delays"], net["recurrent_and_drive"]
             buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
             buffer[delays:] = drive[:, start:start + hidden]
             flat = buffer.reshape(-1)
             size = (delays + 1) * hidden
-            steps.append(list(zip([flat[t * hidden:t * hidden + size] for t in range(n)], buffer[delays:])))
-            states.append(buffer[delays:])
-            start += hidden
-        weights = [(net["recurrent_and_drive"], np.empty(net["hidden"], dtype=np.float32)) for net in self.nets]
-        dot, tanh = np.dot, np.tanh
-        for frame in zip(*steps):
-            for (matrix, step), (window, out) in zip(weights, frame):
+            step = np.empty(hidden, dtype=np.float32)
+            for window, out in zip([flat[t * hidden:t * hidden + size] for t in range(n)], buffer[delays:]):
                 dot(matrix, window, out=step)
                 tanh(step, out=out)
+            states.append(buffer[delays:])
+            start += hidden
         return states
 
     # -- one frame at a time ---------------------------------------------------------------
