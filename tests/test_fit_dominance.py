@@ -15,7 +15,7 @@ from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
 from vispeech.models.registry import load_folder
 from vispeech.models.rules.ohman import Ohman
-from vispeech.targets.tables import phone_rows
+from vispeech.phonetics.features import phone_rows
 from vispeech.motion.track import Track
 from vispeech.postprocess import PostprocessConfig
 from vispeech.targets.presets import PRESETS

@@ -82,22 +82,26 @@ class Track:
     def select(self, channels) -> Track:
         """A track with exactly ``channels`` in that order; channels it lacks are zero."""
         channels = tuple(channels)
+        position = {name: i for i, name in enumerate(self.channels)}
+        found = [(j, position[name]) for j, name in enumerate(channels) if name in position]
         out = np.zeros((self.n_frames, len(channels)))
-        for j, name in enumerate(channels):
-            if name in self.channels:
-                out[:, j] = self[name]
+        if found:
+            into, source = zip(*found)
+            out[:, list(into)] = self.values[:, list(source)]
         return Track(out, channels, self.fps, self.start_time)
 
     def resample(self, fps: float, n_frames: int | None = None) -> Track:
-        """Linear interpolation to another frame rate, same start time and duration."""
+        """Linear interpolation to another frame rate, same start time and duration (frames past
+        the last one hold its values)."""
         if fps <= 0:
             raise VispeechError(f"fps must be positive, got {fps}")
         n = n_frames if n_frames is not None else max(1, int(round(self.duration * fps)))
-        src = np.arange(self.n_frames) / self.fps
-        dst = np.arange(n) / fps
-        out = np.empty((n, len(self.channels)))
-        for j in range(len(self.channels)):
-            out[:, j] = np.interp(dst, src, self.values[:, j])
+        if self.n_frames == 1:
+            return Track(np.repeat(self.values, n, axis=0), self.channels, fps, self.start_time)
+        position = np.clip(np.arange(n) * (self.fps / fps), 0.0, self.n_frames - 1)
+        lo = np.minimum(position.astype(np.intp), self.n_frames - 2)
+        weight = (position - lo)[:, None]
+        out = self.values[lo] + weight * (self.values[lo + 1] - self.values[lo])
         return Track(out, self.channels, fps, self.start_time)
 
     def slice(self, start: float, end: float) -> Track:

@@ -16,14 +16,15 @@ protrusion are also set for rounded consonants (``W``, ``SH``-like, Swedish ``S`
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.phonetics.inventory import get_inventory, is_vowel
+from vispeech.phonetics.inventory import LANGUAGES, get_inventory, is_vowel
 
 FEATURE_NAMES: tuple[str, ...] = (
     # Beskow (2004), in his order
@@ -78,24 +79,56 @@ def feature_table(language: str) -> tuple[tuple[str, ...], np.ndarray]:
     return symbols, matrix
 
 
+@dataclass(frozen=True)
+class PhoneRows:
+    """Every phone of one language twice, unstressed and stressed, with its feature vector.
+
+    ``keys[(symbol, stressed)]`` is the row of a phone; tables over a language (targets,
+    resolved specs) are arrays with one row per key.
+    """
+
+    language: str
+    keys: Mapping[tuple[str, bool], int]
+    symbols: tuple[str, ...]
+    features: np.ndarray
+
+    def indices(self, symbols: Iterable[str], stresses: Iterable[int]) -> np.ndarray:
+        """Row of each (symbol, stress); raises :class:`VispeechError` on an unknown symbol."""
+        keys = self.keys
+        try:
+            return np.array([keys[s, t > 0] for s, t in zip(symbols, stresses)], dtype=np.intp)
+        except KeyError as exc:
+            symbol = exc.args[0][0]
+            raise VispeechError(f"unknown phone symbol {symbol!r} for language {self.language}") from None
+
+    def mask(self, key: str) -> np.ndarray:
+        """Rows a spec key selects: a class key, a feature name or ``<language>:<symbol>``."""
+        if key == "default":
+            return np.ones(len(self.symbols), dtype=bool)
+        if key == "consonant":
+            f = self.features
+            return (f[:, FEATURE_NAMES.index("vowel")] == 0) & (f[:, FEATURE_NAMES.index("silence")] == 0)
+        if key in FEATURE_NAMES:
+            return self.features[:, FEATURE_NAMES.index(key)] > 0
+        language, sep, symbol = key.partition(":")
+        if sep and language in LANGUAGES and symbol in get_inventory(language).symbols:
+            return np.array([language == self.language and s == symbol for s in self.symbols])
+        raise VispeechError(
+            f"unknown phone key {key!r} (use default, consonant, a feature name or <language>:<symbol>)"
+        )
+
+
 @cache
-def _rows(language: str) -> tuple[dict[tuple[str, bool], int], np.ndarray]:
-    """Every symbol of ``language`` unstressed and stressed: ``({(symbol, stressed): row}, matrix)``."""
-    symbols, matrix = feature_table(language)
-    stressed = matrix.copy()
-    stressed[[i for i, s in enumerate(symbols) if is_vowel(s, language)], _STRESS] = 1.0
-    keys = {(s, False): i for i, s in enumerate(symbols)} | {(s, True): len(symbols) + i for i, s in enumerate(symbols)}
-    both = np.concatenate([matrix, stressed])
-    both.setflags(write=False)
-    return keys, both
-
-
-def feature_rows(symbols: Iterable[str], language: str, stresses: Iterable[int]) -> np.ndarray:
-    """The feature vectors of many phones at once (phones × ``len(FEATURE_NAMES)``), as
-    :func:`phone_features` gives each."""
-    get_inventory(language)
-    keys, matrix = _rows(language)
-    try:
-        return matrix[[keys[s, bool(t)] for s, t in zip(symbols, stresses)]]
-    except KeyError as exc:
-        raise VispeechError(f"unknown phone symbol {exc.args[0][0]!r} for language {language}") from None
+def phone_rows(language: str) -> PhoneRows:
+    """The :class:`PhoneRows` of ``language``."""
+    symbols = get_inventory(language).symbols
+    keys: dict[tuple[str, bool], int] = {}
+    rows, features = [], []
+    for symbol in symbols:
+        for stressed in (False, True):
+            keys[symbol, stressed] = len(rows)
+            rows.append(symbol)
+            features.append(phone_features(symbol, language, int(stressed)))
+    matrix = np.array(features)
+    matrix.setflags(write=False)
+    return PhoneRows(language, keys, tuple(rows), matrix)

@@ -102,10 +102,9 @@ def _vowel_frames(track: Track, phones: PhoneSequence) -> np.ndarray:
     vowels = [p for p in phones if is_vowel(p.symbol, phones.language)]
     starts = np.array([p.start for p in vowels]) - track.start_time
     ends = np.array([p.end for p in vowels]) - track.start_time
-    mask = np.zeros(track.n_frames, dtype=bool)
-    first = np.maximum(first_frame(starts, track.fps), 0)
-    stop = first_frame(ends, track.fps)
-    for a, b in zip(first, stop):
-        mask[a:b] = True
-    mask[anchor_frames(starts, ends, track.fps, track.n_frames)] = True
-    return mask
+    n = track.n_frames
+    first = np.clip(first_frame(starts, track.fps), 0, n)
+    stop = np.clip(first_frame(ends, track.fps), first, n)
+    inside = np.cumsum(np.bincount(first, minlength=n + 1) - np.bincount(stop, minlength=n + 1))[:n] > 0
+    inside[anchor_frames(starts, ends, track.fps, n)] = True
+    return inside

@@ -31,7 +31,8 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
-from vispeech.targets.tables import TARGET_CHANNELS, default_targets, phone_rows, resolve_spec
+from vispeech.phonetics.features import phone_rows
+from vispeech.targets.tables import TARGET_CHANNELS, default_targets, resolve_spec
 from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES
@@ -57,6 +58,28 @@ _SILENCE = FEATURE_NAMES.index("silence")
 def _default_fade_out(language: str) -> np.ndarray:
     """:data:`DEFAULT_FADE_OUT` over every phone row of ``language``."""
     return resolve_spec(DEFAULT_FADE_OUT, language)
+
+
+@cache
+def _overlaid_rows(language: str, features: tuple[str, ...] | None) -> np.ndarray:
+    """Which phone rows of ``language`` get an overlay: consonants, with one of ``features`` if given."""
+    rows = phone_rows(language)
+    overlaid = (rows.features[:, _VOWEL] == 0) & (rows.features[:, _SILENCE] == 0)
+    if features is not None:
+        unknown = [f for f in features if f not in FEATURE_NAMES]
+        if unknown:
+            raise VispeechError(f"unknown articulatory features {', '.join(unknown)} for overlays")
+        overlaid &= (rows.features[:, [FEATURE_NAMES.index(f) for f in features]] > 0).any(axis=1)
+    overlaid.setflags(write=False)
+    return overlaid
+
+
+@cache
+def _viseme_aperture(language: str) -> np.ndarray:
+    """The lip aperture of every phone row's viseme (its defined targets, others 0): the overlays' order."""
+    table = default_targets()
+    visemes = np.where(table.defined(language), table.values(language), 0.0)
+    return lip_aperture(Track(visemes, TARGET_CHANNELS, 1.0))
 
 
 def anchor_frames(starts: np.ndarray, ends: np.ndarray, fps: float, n_frames: int) -> np.ndarray:
@@ -90,12 +113,7 @@ def consonant_overlays(
     language = phones.language
     rows = phone_rows(language)
     index = all_rows = rows.indices(phones.symbols, [p.stress for p in phones])
-    is_consonant = (rows.features[index, _VOWEL] == 0) & (rows.features[index, _SILENCE] == 0)
-    if features is not None:
-        unknown = [f for f in features if f not in FEATURE_NAMES]
-        if unknown:
-            raise VispeechError(f"unknown articulatory features {', '.join(unknown)} for overlays")
-        is_consonant &= (rows.features[np.ix_(index, [FEATURE_NAMES.index(f) for f in features])] > 0).any(axis=1)
+    is_consonant = _overlaid_rows(language, None if features is None else tuple(features))[index]
     consonants = [p for p, keep in zip(phones, is_consonant) if keep]
     index = index[is_consonant]
     out = track.select(track.channels + tuple(c for c in TARGET_CHANNELS if c not in track.channels))
@@ -131,7 +149,7 @@ def consonant_overlays(
     rise = np.clip(np.minimum(fade_in * length, peak_from - previous_peak), 0.0, None)
     fall = np.clip(np.minimum(fade_out_lengths * length, next_peak - peak_to), 0.0, None)
 
-    aperture = lip_aperture(Track(np.where(defined, visemes, 0.0), TARGET_CHANNELS, fps))
+    aperture = _viseme_aperture(language)[index]
     lo = np.maximum(np.ceil(peak_from - rise), 0).astype(int)
     hi = np.minimum(np.floor(peak_to + fall), n - 1).astype(int)
     counts = np.maximum(hi - lo + 1, 0)

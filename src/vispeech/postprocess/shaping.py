@@ -64,20 +64,29 @@ def confine_peaks(curve: np.ndarray, allowed: np.ndarray) -> np.ndarray:
     Each run of disallowed frames becomes the largest curve below the original that falls
     from its left neighbour and rises to its right neighbour, each by at least
     :data:`PEAK_SLOPE` per frame (so no flat top hides a peak). Allowed frames are untouched.
+    All runs are done at once: the running minima restart at each run because every run is
+    lifted above the ones after it (by ``lift``) before the minimum runs over them.
     """
     curve = np.asarray(curve, dtype=float)
     out = curve.copy()
     n = len(curve)
-    blocked = ~np.asarray(allowed, dtype=bool)
-    edges = np.diff(np.concatenate(([0], blocked.astype(np.int8), [0])))
-    for first, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
-        lo, hi = max(first - 1, 0), min(stop + 1, n)  # the run with its allowed neighbours
-        x = curve[lo:hi]
-        k = np.arange(len(x)) * PEAK_SLOPE
-        candidates = []
-        if first > 0 or stop == n:
-            candidates.append(np.minimum.accumulate(x + k) - k)  # falls from the left
-        if stop < n or first == 0:
-            candidates.append((np.minimum.accumulate((x - k)[::-1]))[::-1] + k)  # rises to the right
-        out[first:stop] = np.minimum(np.max(candidates, axis=0)[first - lo:stop - lo], curve[first:stop])
+    edges = np.diff(np.concatenate(([0], (~np.asarray(allowed, dtype=bool)).astype(np.int8), [0])))
+    first, stop = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    if not len(first):
+        return out
+    lo, hi = np.maximum(first - 1, 0), np.minimum(stop + 1, n)  # each run with its allowed neighbours
+    length = hi - lo
+    run = np.repeat(np.arange(len(first)), length)
+    k = np.arange(length.sum()) - np.repeat(np.cumsum(length) - length, length)  # frame within the run
+    x = curve[lo[run] + k]
+    slope = k * PEAK_SLOPE
+    lift = 4.0 + 2.0 * PEAK_SLOPE * n  # more than any x ± slope can differ within the whole curve
+    falls = np.minimum.accumulate(x + slope - lift * run) + lift * run - slope  # falls from the left
+    rises = (np.minimum.accumulate((x - slope + lift * run)[::-1]))[::-1] - lift * run + slope  # rises to the right
+    from_left = ((first > 0) | (stop == n))[run]
+    from_right = ((stop < n) | (first == 0))[run]
+    best = np.maximum(np.where(from_left, falls, -np.inf), np.where(from_right, rises, -np.inf))
+    inner = (k >= (first - lo)[run]) & (k < (stop - lo)[run])
+    frames = (lo[run] + k)[inner]
+    out[frames] = np.minimum(best[inner], curve[frames])
     return out

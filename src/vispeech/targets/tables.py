@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.phonetics.features import FEATURE_NAMES, phone_features
+from vispeech.phonetics.features import FEATURE_NAMES, PhoneRows, phone_rows
 from vispeech.phonetics.inventory import LANGUAGES, get_inventory
 
 
@@ -46,61 +45,6 @@ def expand_channel(name: str, channels: Sequence[str] = TARGET_CHANNELS) -> tupl
     if all(c in channels for c in pair):
         return pair
     raise VispeechError(f"unknown target channel {name!r}")
-
-
-@dataclass(frozen=True)
-class PhoneRows:
-    """Every phone of one language twice, unstressed and stressed, with its feature vector.
-
-    ``keys[(symbol, stressed)]`` is the row of a phone; tables over a language (targets,
-    resolved specs) are arrays with one row per key.
-    """
-
-    language: str
-    keys: Mapping[tuple[str, bool], int]
-    symbols: tuple[str, ...]
-    features: np.ndarray
-
-    def indices(self, symbols: Iterable[str], stresses: Iterable[int]) -> np.ndarray:
-        """Row of each (symbol, stress); raises :class:`VispeechError` on an unknown symbol."""
-        keys = self.keys
-        try:
-            return np.array([keys[s, t > 0] for s, t in zip(symbols, stresses)], dtype=np.intp)
-        except KeyError as exc:
-            symbol = exc.args[0][0]
-            raise VispeechError(f"unknown phone symbol {symbol!r} for language {self.language}") from None
-
-    def mask(self, key: str) -> np.ndarray:
-        """Rows a spec key selects: a class key, a feature name or ``<language>:<symbol>``."""
-        if key == "default":
-            return np.ones(len(self.symbols), dtype=bool)
-        if key == "consonant":
-            f = self.features
-            return (f[:, FEATURE_NAMES.index("vowel")] == 0) & (f[:, FEATURE_NAMES.index("silence")] == 0)
-        if key in FEATURE_NAMES:
-            return self.features[:, FEATURE_NAMES.index(key)] > 0
-        language, sep, symbol = key.partition(":")
-        if sep and language in LANGUAGES and symbol in get_inventory(language).symbols:
-            return np.array([language == self.language and s == symbol for s in self.symbols])
-        raise VispeechError(
-            f"unknown phone key {key!r} (use default, consonant, a feature name or <language>:<symbol>)"
-        )
-
-
-@cache
-def phone_rows(language: str) -> PhoneRows:
-    """The :class:`PhoneRows` of ``language``."""
-    symbols = get_inventory(language).symbols
-    keys: dict[tuple[str, bool], int] = {}
-    rows, features = [], []
-    for symbol in symbols:
-        for stressed in (False, True):
-            keys[symbol, stressed] = len(rows)
-            rows.append(symbol)
-            features.append(phone_features(symbol, language, int(stressed)))
-    matrix = np.array(features)
-    matrix.setflags(write=False)
-    return PhoneRows(language, keys, tuple(rows), matrix)
 
 
 def resolve_spec(spec: Mapping, language: str, channels: Sequence[str] | None = None) -> np.ndarray:

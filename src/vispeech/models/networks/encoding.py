@@ -30,12 +30,13 @@ encoded as phones arrive (:meth:`InputEncoding.encode` with ``start_frame``; see
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import cache
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.phonetics.features import FEATURE_NAMES, feature_rows
+from vispeech.phonetics.features import FEATURE_NAMES, phone_rows
 from vispeech.phonetics.inventory import SILENCE, get_inventory
 
 INPUT_KINDS = ("phones", "features")
@@ -111,17 +112,18 @@ class InputEncoding:
         index = every[start_frame:]
         segments = filled.phones
         symbols = [p.symbol for p in segments] + [SILENCE]
-        stresses = [p.stress for p in segments] + [0]
-        features = feature_rows(symbols, phones.language, stresses)  # the last row: silence
-        rows = features if self.kind == "features" else self._one_hot(symbols)
+        table = phone_rows(phones.language)
+        row = table.indices(symbols, [p.stress for p in segments] + [0])  # the last: silence
+        rows = table.features[row] if self.kind == "features" else self._one_hot(symbols)
         parts = [rows[index]]  # index -1 picks the silence row, last
         if self.linguistic:
-            classes = _classes(features)
+            categories, classes = _linguistic(phones.language)
+            categories, classes = categories[row], classes[row]
             previous = np.concatenate([every[:1], every[:-1]])[start_frame:]
             changed = np.flatnonzero(index != previous)
             transitions = np.zeros((len(index), len(_CLASSES) ** 2))
             transitions[changed, classes[previous[changed]] * len(_CLASSES) + classes[index[changed]]] = 1.0
-            parts += [_categories(features)[index], transitions]
+            parts += [categories[index], transitions]
         if self.position:
             starts = np.append(filled.starts, 0.0)[index]
             ends = np.append(filled.ends, 1.0)[index]
@@ -146,6 +148,13 @@ class InputEncoding:
     @classmethod
     def from_dict(cls, data: dict) -> InputEncoding:
         return cls(**{k: data[k] for k in ("kind", "language", "linguistic", "position") if k in data})
+
+
+@cache
+def _linguistic(language: str) -> tuple[np.ndarray, np.ndarray]:
+    """Category indicators and broad class of every row of :func:`~vispeech.phonetics.features.phone_rows`."""
+    features = phone_rows(language).features
+    return _categories(features), _classes(features)
 
 
 def _categories(features: np.ndarray) -> np.ndarray:

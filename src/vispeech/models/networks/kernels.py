@@ -87,28 +87,46 @@ class RecurrentKernel:
     def _window_terms(self, x: np.ndarray) -> np.ndarray:
         """``conv_t`` of every frame (frames × all hidden units), float32."""
         n, k = len(x), self.window
-        change = np.flatnonzero(np.any(x[1:] != x[:-1], axis=1)) + 1
-        terms = self._row_terms(x[np.concatenate([[0], change])])  # per run: G[K - j] at row j
+        change = np.flatnonzero((x[1:] != x[:-1]).any(axis=1)) + 1
+        rows = x[np.concatenate(([0], change))]
+        base = self._base_terms(rows)  # per run: G[K - j] at row j, without the event columns
+        events: list[list[tuple[int, float]]] = [[] for _ in range(len(rows))]
+        set_rows, set_events = np.nonzero(rows[:, self._events])
+        for r, e, weight in zip(set_rows.tolist(), set_events.tolist(), rows[set_rows, self._events[set_events]].tolist()):
+            events[r].append((e, weight))
         ends = self.back + change  # boundaries between runs, in padded frames
         # the run holding each window's last frame t + k - 1 contributes G[K]
-        last = np.searchsorted(ends, np.arange(n) + k - 1, side="right")
-        out = np.stack([g[0] for g in terms])[last]
+        heads = np.stack([g[0] for g in base])
+        for r, run_events in enumerate(events):
+            for e, weight in run_events:
+                heads[r] += self._event_terms[e, 0] if weight == 1.0 else weight * self._event_terms[e, 0]
+        out = heads[np.searchsorted(ends, np.arange(k - 1, n + k - 1), side="right")]
         add, subtract = np.add, np.subtract
         for r, b in enumerate(ends.tolist()):  # boundary b between runs r and r+1 is felt by frames b-k+1 .. b-1
-            lo, hi = max(b - k + 1, 0), min(b - 1, n - 1)
+            lo, hi = b - k + 1, b - 1
+            if lo < 0:
+                lo = 0
+            if hi > n - 1:
+                hi = n - 1
             if lo > hi:
                 continue
-            rows = slice(k - b + lo, k - b + hi + 1)  # (G_r − G_{r+1})[b − t] for t = lo .. hi
+            rows_at = slice(k - b + lo, k - b + hi + 1)  # (G_r − G_{r+1})[b − t] for t = lo .. hi
             view = out[lo:hi + 1]
-            add(view, terms[r][rows], out=view)
-            subtract(view, terms[r + 1][rows], out=view)
+            if base[r] is not base[r + 1]:  # a phone's onset and the rest of it share their base terms
+                add(view, base[r][rows_at], out=view)
+                subtract(view, base[r + 1][rows_at], out=view)
+            for e, weight in events[r]:
+                add(view, self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
+                    out=view)
+            for e, weight in events[r + 1]:
+                subtract(view, self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
+                         out=view)
         out += self._bias
         return out
 
-    def _row_terms(self, rows: np.ndarray) -> list[np.ndarray]:
-        """``G`` of each row, reversed (row j holds ``G[K - j]``), float32: the cached terms of the
-        row without its event columns, plus those of its events."""
-        events = rows[:, self._events]
+    def _base_terms(self, rows: np.ndarray) -> list[np.ndarray]:
+        """``G`` of each row without its event columns, reversed (row j holds ``G[K - j]``),
+        float32: from the cache (the same array for the same row) or computed."""
         base = rows.copy()
         base[:, self._events] = 0
         keys = [row.tobytes() for row in base]
@@ -120,10 +138,7 @@ class RecurrentKernel:
             fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1)
             computed = (fresh.astype(np.float64) @ self._cumulative).reshape(len(missing), self.window + 1, -1)
             cache.update(zip(missing, np.ascontiguousarray(computed[:, ::-1], dtype=np.float32)))
-        terms = [cache[key] for key in keys]
-        for r, e in zip(*np.nonzero(events)):
-            terms[r] = terms[r] + events[r, e] * self._event_terms[e]
-        return terms
+        return [cache[key] for key in keys]
 
     def _recur(self, drive: np.ndarray) -> list[np.ndarray]:
         """Hidden states (frames × hidden, float32) of every network for their window terms.

@@ -289,11 +289,19 @@ class Network(Estimator):
     def _denormalise(self, y: np.ndarray) -> np.ndarray:
         """Model outputs to output-channel values (mirrored, ARKit ones clipped to [0, 1])."""
         values = y * self.stats_["scale"] + self.stats_["mean"] + self.stats_["neutral"]
-        extra = [self.outputs_.index(c[: -len("Right")] + "Left") for c in self.channels[len(self.outputs_):]]
-        values = np.concatenate([values, values[..., extra]], axis=-1)
-        arkit = np.array([c in ARKIT_NAMES for c in self.channels])
+        twins, arkit = self._output_columns()
+        values = np.concatenate([values, values[..., twins]], axis=-1)
         values[..., arkit] = np.clip(values[..., arkit], 0.0, 1.0)
         return values
+
+    def _output_columns(self) -> tuple[list[int], np.ndarray]:
+        """The predicted column each mirrored twin copies, and which output channels are ARKit's."""
+        key = (self.outputs_, self.channels)
+        if getattr(self, "_columns_for", None) != key:
+            twins = [self.outputs_.index(c[: -len("Right")] + "Left") for c in self.channels[len(self.outputs_):]]
+            self._columns = (twins, np.array([c in ARKIT_NAMES for c in self.channels]))
+            self._columns_for = key
+        return self._columns
 
     # -- prediction ------------------------------------------------------------------------
 

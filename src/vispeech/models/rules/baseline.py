@@ -16,7 +16,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
-from vispeech.targets.tables import phone_rows
+from vispeech.phonetics.features import phone_rows
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.targets.easing import bezier_ease

@@ -29,7 +29,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.models.rules.segments import Segments
-from vispeech.targets.tables import phone_rows
+from vispeech.phonetics.features import phone_rows
 from vispeech.models.contract import show_progress, training_split
 from vispeech.models.history import TrainingHistory
 

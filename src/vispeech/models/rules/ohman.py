@@ -26,7 +26,8 @@ from vispeech.errors import VispeechError
 from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
-from vispeech.targets.tables import phone_rows, resolve_spec
+from vispeech.phonetics.features import phone_rows
+from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
-from vispeech.targets.tables import phone_rows
+from vispeech.phonetics.features import phone_rows
 from vispeech.phonetics.features import FEATURE_NAMES
 
 _VOWEL = FEATURE_NAMES.index("vowel")
