@@ -158,7 +158,8 @@ class RecurrentKernel:
             flat = buffer.reshape(-1)
             size = (delays + 1) * hidden
             step = np.empty(hidden, dtype=np.float32)
-            for window, out in zip([flat[t * hidden:t * hidden + size] for t in range(n)], buffer[delays:]):
+            windows = np.lib.stride_tricks.as_strided(flat, shape=(n, size), strides=(flat.strides[0] * hidden, flat.strides[0]))
+            for window, out in zip(windows, buffer[delays:]):
                 dot(matrix, window, out=step)
                 tanh(step, out=out)
             states.append(buffer[delays:])
