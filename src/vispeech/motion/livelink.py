@@ -24,29 +24,21 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
+from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
 
-LIVELINK_COLUMNS: tuple[str, ...] = (
-    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft",
-    "EyeSquintLeft", "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight",
-    "EyeLookOutRight", "EyeLookUpRight", "EyeSquintRight", "EyeWideRight",
-    "JawForward", "JawRight", "JawLeft", "JawOpen",
-    "MouthClose", "MouthFunnel", "MouthPucker", "MouthRight", "MouthLeft",
-    "MouthSmileLeft", "MouthSmileRight", "MouthFrownLeft", "MouthFrownRight",
-    "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft", "MouthStretchRight",
-    "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
-    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight",
-    "MouthUpperUpLeft", "MouthUpperUpRight",
-    "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
-    "CheekPuff", "CheekSquintLeft", "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight",
-    "TongueOut",
-    "HeadYaw", "HeadPitch", "HeadRoll",
-    "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll",
-)
-"""The 61 value columns of an iPhone take, in the app's order."""
+_APP_ORDER = {"jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthRight", "mouthRight": "mouthLeft"}
+"""Where the app's order differs from Apple's (:data:`~vispeech.motion.arkit.ARKIT_NAMES`): these pairs swap."""
 
-LIVELINK_CHANNELS: tuple[str, ...] = tuple(c[0].lower() + c[1:] for c in LIVELINK_COLUMNS)
-"""Track channel names of :data:`LIVELINK_COLUMNS` (52 ARKit names, then ``headYaw`` ...)."""
+LIVELINK_CHANNELS: tuple[str, ...] = tuple(_APP_ORDER.get(name, name) for name in ARKIT_NAMES) + (
+    "headYaw", "headPitch", "headRoll",
+    "leftEyeYaw", "leftEyePitch", "leftEyeRoll", "rightEyeYaw", "rightEyePitch", "rightEyeRoll",
+)
+"""Track channel names of an iPhone take's 61 value columns, in the app's order: the 52 ARKit
+shapes, then head and eye rotations."""
+
+LIVELINK_COLUMNS: tuple[str, ...] = tuple(c[0].upper() + c[1:] for c in LIVELINK_CHANNELS)
+"""The 61 value columns as the app names them (``EyeBlinkLeft`` ... ``RightEyeRoll``)."""
 
 DEFAULT_TIMECODE_RATE = 60
 """Timecode frame rate assumed when a take never crosses a second boundary and no fps is given."""
