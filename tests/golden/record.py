@@ -2,13 +2,15 @@
 
 Run once, from the repository root, before a change that must not alter any model's output::
 
-    python tests/golden/record.py
+    python tests/golden/record.py              # every model of MODELS, anew
+    python tests/golden/record.py grid-ohman   # add (or replace) one model, keeping the others
 
 It writes ``tests/golden/phones.json`` (the espeak-ng phones of the 20 acceptance sentences,
 kept so that later runs do not depend on espeak-ng's run-to-run jitter) and
 ``tests/golden/tracks.npz`` (for every model and sentence, the post-processed track at
 30 fps: float32 values, with the channel names in ``channels/<model>``).
-First recorded at commit 7c41688, before the model-contract rework (issue 7).
+First recorded at commit 7c41688, before the model-contract rework (issue 7); the fitted
+dominance models shipped by that rework (grid-cohen-massaro, grid-ohman) were added after it.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-MODELS = ("baseline", "beskow-rules", "cohen-massaro", "ohman", "grid-tdnn", "grid-tdnn-lowlatency")
+MODELS = ("baseline", "beskow-rules", "cohen-massaro", "ohman", "grid-tdnn", "grid-tdnn-lowlatency",
+          "grid-cohen-massaro", "grid-ohman")
 FPS = 30.0
 
 
@@ -38,15 +41,24 @@ def main() -> None:
     else:
         recorded = [{"text": text, **synthesize(text, lang).phones.to_dict()} for lang, text in sentences]
         phones_path.write_text(json.dumps(recorded, indent=1) + "\n", encoding="utf-8")
+    only = sys.argv[1:]
     arrays: dict[str, np.ndarray] = {}
-    for model in MODELS:
+    if only and (HERE / "tracks.npz").is_file():
+        with np.load(HERE / "tracks.npz") as kept:
+            arrays = {key: kept[key] for key in kept.files if _model_of(key) not in only}
+    for model in only or MODELS:
         for i, entry in enumerate(recorded):
             phones = PhoneSequence.from_dict(entry)
             track = animate(phones, model, FPS)
             arrays[f"{model}/{i}"] = track.values.astype(np.float32)
             arrays[f"channels/{model}"] = np.array(track.channels)
     np.savez_compressed(HERE / "tracks.npz", **arrays)
-    print(f"{len(recorded)} sentences x {len(MODELS)} models -> {HERE / 'tracks.npz'}", file=sys.stderr)
+    print(f"{len(recorded)} sentences x {len(only or MODELS)} models -> {HERE / 'tracks.npz'}", file=sys.stderr)
+
+
+def _model_of(key: str) -> str:
+    """The model an array of tracks.npz belongs to (``<model>/<sentence>`` or ``channels/<model>``)."""
+    return key.split("/", 1)[1] if key.startswith("channels/") else key.rsplit("/", 1)[0]
 
 
 if __name__ == "__main__":
