@@ -1,0 +1,148 @@
+"""Every limit the library enforces, in one place, and the checks that apply them.
+
+Each limit is checked before any work is done on an input (before a file is read, before a
+model runs), so an oversized or malformed input costs a ``stat`` or a scan, not gigabytes or
+minutes. A limit that is exceeded raises :class:`~vispeech.errors.VispeechError` with a
+one-line message naming the limit. docs/limits.md lists them with the reasons for each value.
+The server's own limits (connections, timeouts, work per message) live in ``vispeech.serve``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+
+MAX_DURATION_S = 600.0
+"""Seconds: the longest utterance (end of the last phone) a model is run on: 10 minutes."""
+
+MAX_PHONES = 20_000
+"""Phones: the most phones in one utterance (about 30 per second over :data:`MAX_DURATION_S`)."""
+
+MIN_FPS = 1.0
+"""Frames per second: the lowest frame rate of a track that is computed, read or resampled to."""
+
+MAX_FPS = 240.0
+"""Frames per second: the highest frame rate (the fastest Live Link / game capture rate)."""
+
+MAX_FRAMES = int(MAX_DURATION_S * MAX_FPS)
+"""Frames: the most frames in one track read from a file (:data:`MAX_DURATION_S` at :data:`MAX_FPS`)."""
+
+MAX_CHANNELS = 1_024
+"""Channels: the most curves in one track read from a file (ARKit has 52, Live Link 61)."""
+
+MAX_TEXT_CHARS = 10_000
+"""Characters: the longest text ``say`` and :func:`vispeech.pipeline.speak` synthesise at once."""
+
+MAX_FILE_BYTES = 64 * 1024 * 1024
+"""Bytes: the largest text input file (alignment, animation JSON, Live Link CSV, TalkingHead JSON)."""
+
+MAX_POSE_TABLE_BYTES = 4 * 1024 * 1024
+"""Bytes: the largest pose table JSON file."""
+
+MAX_GLB_BYTES = 512 * 1024 * 1024
+"""Bytes: the largest base model (.glb) ``convert --glb`` reads."""
+
+MAX_JSON_DEPTH = 32
+"""Levels: the deepest nesting of arrays and objects in any JSON input (the formats need 4)."""
+
+MAX_JSON_INT_DIGITS = 18
+"""Digits: the longest integer literal in JSON input (anything longer is no count or index)."""
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+def check_fps(fps: float, what: str = "fps") -> float:
+    """``fps`` as a float if it is a finite number within [:data:`MIN_FPS`, :data:`MAX_FPS`]."""
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise VispeechError(f"{what} must be a number, got {fps!r}") from None
+    if not (math.isfinite(value) and MIN_FPS <= value <= MAX_FPS):
+        raise VispeechError(f"{what} must be between {MIN_FPS:g} and {MAX_FPS:g} frames per second, got {fps!r}")
+    return value
+
+
+def check_utterance(duration: float, n_phones: int, where: str = "") -> None:
+    """Refuse an utterance longer than :data:`MAX_DURATION_S` or with more than :data:`MAX_PHONES` phones."""
+    prefix = f"{where}: " if where else ""
+    if not math.isfinite(duration) or duration > MAX_DURATION_S:
+        raise VispeechError(f"{prefix}the utterance lasts {duration:g} s; the limit is {MAX_DURATION_S:g} s")
+    if n_phones > MAX_PHONES:
+        raise VispeechError(f"{prefix}the utterance has {n_phones} phones; the limit is {MAX_PHONES}")
+
+
+def check_text(text: str) -> str:
+    """``text`` if it has at most :data:`MAX_TEXT_CHARS` characters."""
+    if len(text) > MAX_TEXT_CHARS:
+        raise VispeechError(f"the text has {len(text)} characters; the limit is {MAX_TEXT_CHARS}")
+    return text
+
+
+def check_track_size(n_frames: int, n_channels: int, where: str = "") -> None:
+    """Refuse a track with more than :data:`MAX_FRAMES` frames or :data:`MAX_CHANNELS` channels."""
+    prefix = f"{where}: " if where else ""
+    if n_frames > MAX_FRAMES:
+        raise VispeechError(f"{prefix}{n_frames} frames; the limit is {MAX_FRAMES}")
+    if n_channels > MAX_CHANNELS:
+        raise VispeechError(f"{prefix}{n_channels} channels; the limit is {MAX_CHANNELS}")
+
+
+def json_depth(text: str) -> tuple[int, int]:
+    """The deepest nesting of ``text`` (JSON) and the character offset where it is first reached.
+
+    Strings are skipped, so brackets inside them do not count. Linear time, no recursion.
+    """
+    stripped = _JSON_STRING.sub('""', text)
+    codes = np.frombuffer(stripped.encode("utf-8", "replace"), dtype=np.uint8)
+    if codes.size == 0:
+        return 0, 0
+    step = np.isin(codes, (91, 123)).astype(np.int32) - np.isin(codes, (93, 125)).astype(np.int32)
+    depth = np.cumsum(step)
+    deepest = int(np.argmax(depth))
+    return int(depth[deepest]), deepest
+
+
+def parse_json(text: str, where: str) -> object:
+    """Parse JSON input strictly: nesting at most :data:`MAX_JSON_DEPTH`, finite numbers only
+    (no ``NaN``, ``Infinity``, ``1e999``), integers of at most :data:`MAX_JSON_INT_DIGITS` digits.
+
+    Raises :class:`VispeechError` starting with ``where`` and saying what is wrong and where
+    (line and column).
+    """
+    depth, _ = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise VispeechError(f"{where}: JSON nested {depth} levels deep; the limit is {MAX_JSON_DEPTH}")
+    try:
+        return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float, parse_int=_bounded_int)
+    except json.JSONDecodeError as exc:
+        raise VispeechError(f"{where} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})") from None
+    except _BadNumber as exc:
+        raise VispeechError(f"{where}: {exc}") from None
+    except (RecursionError, ValueError, OverflowError) as exc:
+        raise VispeechError(f"{where}: cannot parse JSON ({type(exc).__name__}: {exc})") from None
+
+
+class _BadNumber(ValueError):
+    pass
+
+
+def _reject_constant(name: str):
+    raise _BadNumber(f"non-finite number {name} in JSON")
+
+
+def _finite_float(literal: str) -> float:
+    value = float(literal)
+    if not math.isfinite(value):
+        raise _BadNumber(f"number {literal[:40]} is out of range")
+    return value
+
+
+def _bounded_int(literal: str) -> int:
+    if len(literal.lstrip("-")) > MAX_JSON_INT_DIGITS:
+        raise _BadNumber(f"integer of {len(literal.lstrip('-'))} digits in JSON; the limit is {MAX_JSON_INT_DIGITS}")
+    return int(literal)
