@@ -19,11 +19,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from pathlib import Path
 
-from vispeech.alignment.phones import Phone, PhoneSequence, Word
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
+from vispeech.limits import MAX_DURATION_S, check_utterance, parse_json
 from vispeech.phonetics.inventory import guess_language, is_silence, is_vowel, parse_symbol
 
 JSON_FORMAT = "vispeech-phones"
@@ -54,7 +56,7 @@ def read_alignment(path: str | os.PathLike, language: str | None = None) -> Phon
     if suffix == ".json":
         return _from_json(text, path, language)
     if suffix == ".textgrid":
-        phones, words = _textgrid_spans(path)
+        phones, words = _textgrid_spans(path, text)
     else:
         phones, words = _table_spans(text, path, _UNITS_PER_SECOND[suffix]), []
     return _build(phones, words, path, language)
@@ -82,8 +84,8 @@ def write_alignment(phones: PhoneSequence, path: str | os.PathLike) -> None:
 def read_textgrid(path: str | os.PathLike, language: str | None = None) -> PhoneSequence:
     """Read an MFA-style TextGrid (see :func:`read_alignment`)."""
     path = Path(path)
-    read_text(path, "alignment file")
-    phones, words = _textgrid_spans(path)
+    text = read_text(path, "alignment file")
+    phones, words = _textgrid_spans(path, text)
     return _build(phones, words, path, language)
 
 
@@ -120,7 +122,7 @@ def read_word_alignment(path: str | os.PathLike) -> list[Word]:
     if suffix == ".json":
         return _from_json(text, path, None).words
     if suffix == ".textgrid":
-        spans = _textgrid_spans(path)[1]
+        spans = _textgrid_spans(path, text)[1]
     else:
         spans = _table_spans(text, path, _UNITS_PER_SECOND[suffix])
     return [Word(label, start, end) for start, end, label in spans if label.lower() not in _SILENT_WORDS]
@@ -135,28 +137,44 @@ def _suffix(path: Path) -> str:
 
 
 def _table_spans(text: str, path: Path, units: int) -> list[_Span]:
-    spans = []
+    """``start end label`` lines: integer times, non-negative, each span after the previous one."""
+    spans: list[_Span] = []
+    previous_end = 0
     for number, line in enumerate(text.splitlines(), 1):
         fields = line.split()
         if not fields:
             continue
-        try:
-            start, end = int(fields[0]) / units, int(fields[1]) / units
-            label = fields[2]
-        except (ValueError, IndexError):
-            raise VispeechError(f"{path}, line {number}: expected 'start end label', got {line.strip()!r}") from None
-        spans.append((start, end, label))
+        where = f"{path}, line {number}"
+        if len(fields) < 3 or not all(_INTEGER.fullmatch(f) for f in fields[:2]):
+            raise VispeechError(f"{where}: expected 'start end label' (integer times), got {_excerpt(line)}")
+        start, end = int(fields[0]), int(fields[1])
+        if start < 0 or end < 0:
+            raise VispeechError(f"{where}: negative time {min(start, end)}")
+        if end <= start:
+            raise VispeechError(f"{where}: the span ends at {end}, not after its start {start}")
+        if end / units > MAX_DURATION_S:
+            raise VispeechError(f"{where}: time {end / units:g} s is past the limit of {MAX_DURATION_S:g} s")
+        if start < previous_end:
+            raise VispeechError(f"{where}: the span starts at {start}, before the previous one ends ({previous_end})")
+        previous_end = end
+        spans.append((start / units, end / units, fields[2]))
     return spans
 
 
-def _textgrid_spans(path: Path) -> tuple[list[_Span], list[_Span]]:
+def _excerpt(line: str, width: int = 60) -> str:
+    line = line.strip()
+    return repr(line if len(line) <= width else line[:width] + "...")
+
+
+def _textgrid_spans(path: Path, text: str) -> tuple[list[_Span], list[_Span]]:
     from praatio import textgrid
 
+    _check_textgrid(text, path)
     try:
         grid = textgrid.openTextgrid(str(path), includeEmptyIntervals=True, reportingMode="silence")
     except Exception as exc:  # praatio raises assorted exception types on malformed input
         detail = " ".join(str(exc).split()) or type(exc).__name__
-        raise VispeechError(f"malformed TextGrid {path}: {detail}") from None
+        raise VispeechError(f"malformed TextGrid {path}: {detail[:200]}") from None
     names = list(grid.tierNames)
     phones_name = _find_tier(names, "phones") or (names[0] if len(names) == 1 else None)
     if phones_name is None:
@@ -169,6 +187,143 @@ def _textgrid_spans(path: Path) -> tuple[list[_Span], list[_Span]]:
     phones = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[0].entries]
     words = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[1].entries] if words_name else []
     return phones, words
+
+
+_INTEGER = re.compile(r"[0-9]{1,18}")
+_TEXTGRID_TOKEN = re.compile(r'"(?:[^"]|"")*"|<exists>|<absent>|\[[^\]\n]*\]|[^\s"=:\[\]]+')
+
+
+class _Tokens:
+    """The numbers, strings and flags of a Praat text file (long or short form), with line numbers.
+
+    Praat's long form is the short one with labels (``xmin =``, ``intervals [3]:``) that carry
+    no data; both read as the same stream here.
+    """
+
+    def __init__(self, text: str, path: Path):
+        self.path = path
+        self.items: list[tuple[str, object, int]] = []
+        line, last = 1, 0
+        for match in _TEXTGRID_TOKEN.finditer(text):
+            line += text.count("\n", last, match.start())
+            last = match.start()
+            token = match.group()
+            if token.startswith('"'):
+                self.items.append(("string", token[1:-1].replace('""', '"'), line))
+            elif token.startswith("<"):
+                self.items.append(("flag", token, line))
+            elif not token.startswith("["):
+                try:
+                    self.items.append(("number", float(token), line))
+                except ValueError:
+                    pass  # a label: xmin, size, intervals, ...
+        self.position = 0
+        self.end_line = line
+
+    def line(self) -> int:
+        return self.items[self.position][2] if self.position < len(self.items) else self.end_line
+
+    def peek(self) -> str | None:
+        return self.items[self.position][0] if self.position < len(self.items) else None
+
+    def take(self, kind: str, what: str):
+        if self.peek() != kind:
+            found = "the end of the file" if self.peek() is None else f"a {self.peek()}"
+            raise VispeechError(f"{self.path}, line {self.line()}: expected {what}, found {found}")
+        value = self.items[self.position][1]
+        self.position += 1
+        return value
+
+    def time(self, what: str) -> float:
+        line = self.line()
+        value = self.take("number", what)
+        if not math.isfinite(value):
+            raise VispeechError(f"{self.path}, line {line}: {what} is not a finite number ({value})")
+        if value < 0:
+            raise VispeechError(f"{self.path}, line {line}: {what} {value:g} is negative")
+        if value > MAX_DURATION_S:
+            raise VispeechError(f"{self.path}, line {line}: {what} {value:g} s is past the limit of {MAX_DURATION_S:g} s")
+        return value
+
+    def count(self, what: str) -> int:
+        line = self.line()
+        value = self.take("number", what)
+        if not (math.isfinite(value) and value >= 0 and value == int(value)):
+            raise VispeechError(f"{self.path}, line {line}: {what} must be a whole number, got {value:g}")
+        return int(value)
+
+
+def _check_textgrid(text: str, path: Path) -> None:
+    """Check a TextGrid's structure before praatio reads it (praatio is lenient).
+
+    Times finite and non-negative, every tier inside the grid's xmin..xmax, intervals inside
+    their tier, each after the previous one and not empty, points in order, and as many
+    tiers, intervals and points as declared. Raises :class:`VispeechError` naming the line.
+    """
+    tokens = _Tokens(text, path)
+    tokens.take("string", 'the file type ("ooTextFile")')
+    if tokens.take("string", 'the object class ("TextGrid")') != "TextGrid":
+        raise VispeechError(f"{path}: not a TextGrid (object class is not \"TextGrid\")")
+    grid_start = tokens.time("the grid's xmin")
+    line = tokens.line()
+    grid_end = tokens.time("the grid's xmax")
+    if grid_end < grid_start:
+        raise VispeechError(f"{path}, line {line}: the grid's xmax {grid_end:g} is before its xmin {grid_start:g}")
+    if tokens.take("flag", "<exists> or <absent>") == "<absent>":
+        n_tiers = 0
+    else:
+        n_tiers = tokens.count("the number of tiers")
+    for tier in range(1, n_tiers + 1):
+        if tokens.peek() is None:
+            raise VispeechError(f"{path}: declares {n_tiers} tiers but holds {tier - 1}")
+        line = tokens.line()
+        kind = tokens.take("string", f"the class of tier {tier}")
+        name = tokens.take("string", f"the name of tier {tier}")
+        label = f"tier {tier} ({name!r})"
+        start = tokens.time(f"the xmin of {label}")
+        line = tokens.line()
+        end = tokens.time(f"the xmax of {label}")
+        if end < start:
+            raise VispeechError(f"{path}, line {line}: {label} ends at {end:g}, before its start {start:g}")
+        if start < grid_start - TIME_TOLERANCE or end > grid_end + TIME_TOLERANCE:
+            raise VispeechError(f"{path}, line {line}: {label} ({start:g}..{end:g} s) is outside the grid "
+                                f"({grid_start:g}..{grid_end:g} s)")
+        if kind not in ("IntervalTier", "TextTier"):
+            raise VispeechError(f"{path}, line {line}: {label} has unknown class {kind!r}")
+        entries = "intervals" if kind == "IntervalTier" else "points"
+        declared = tokens.count(f"the number of {entries} of {label}")
+        previous = start
+        for index in range(1, declared + 1):
+            if tokens.peek() != "number":
+                raise VispeechError(f"{path}, line {tokens.line()}: {label} declares {declared} {entries} "
+                                    f"but holds {index - 1}")
+            line = tokens.line()
+            if kind == "IntervalTier":
+                low = tokens.time(f"xmin of interval {index} of {label}")
+                high = tokens.time(f"xmax of interval {index} of {label}")
+                tokens.take("string", f"the text of interval {index} of {label}")
+                if high <= low:
+                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
+                                        f"not after its start {low:g}")
+                if low < previous - TIME_TOLERANCE:
+                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} starts at {low:g}, "
+                                        f"before the previous one ends ({previous:g}): out of order or overlapping")
+                if high > end + TIME_TOLERANCE:
+                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
+                                        f"after the tier's xmax {end:g}")
+                previous = high
+            else:
+                time = tokens.time(f"time of point {index} of {label}")
+                tokens.take("string", f"the mark of point {index} of {label}")
+                if time < previous - TIME_TOLERANCE or time > end + TIME_TOLERANCE:
+                    raise VispeechError(f"{path}, line {line}: point {index} of {label} at {time:g} s is out of "
+                                        f"order or outside the tier")
+                previous = time
+        if tokens.peek() == "number":
+            raise VispeechError(f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} "
+                                "it declares")
+    if tokens.peek() is not None:
+        raise VispeechError(f"{path}, line {tokens.line()}: data after the {n_tiers} declared tiers")
 
 
 def _find_tier(names: list[str], kind: str) -> str | None:
@@ -205,12 +360,14 @@ def _word_at(time: float, words: list[Word]) -> int | None:
 
 
 def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise VispeechError(f"{path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    data = parse_json(text, str(path))
     if not isinstance(data, dict) or data.get("format", JSON_FORMAT) != JSON_FORMAT:
         raise VispeechError(f"{path} is not a {JSON_FORMAT} file")
+    if not isinstance(data.get("phones"), list):
+        raise VispeechError(f"{path}: 'phones' must be a list")
+    if not isinstance(data.get("words", []), list):
+        raise VispeechError(f"{path}: 'words' must be a list")
+    check_utterance(0.0, len(data["phones"]), str(path))
     if data.get("version", 1) != 1:
         raise VispeechError(f"{path}: unsupported {JSON_FORMAT} version {data.get('version')!r}")
     try:
@@ -230,10 +387,13 @@ def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
 
 
 def _validated(phones: PhoneSequence, path: Path) -> PhoneSequence:
+    check_utterance(phones.duration, len(phones), str(path))
     try:
         phones.validate()
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
+    if any(p.start < 0 for p in phones):
+        raise VispeechError(f"{path}: phone 0 starts at a negative time ({phones.phones[0].start:g} s)")
     if any(not (math.isfinite(w.start) and math.isfinite(w.end)) or w.end < w.start for w in phones.words):
         raise VispeechError(f"{path}: a word ends before it starts")
     return phones
