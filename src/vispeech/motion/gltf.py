@@ -10,7 +10,9 @@ times and weights are appended to it. pygltflib reads and writes the JSON.
 from __future__ import annotations
 
 import os
+import stat
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,7 @@ import pygltflib
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
+from vispeech.limits import MAX_GLB_BYTES, parse_json
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
 
@@ -48,10 +51,13 @@ def write_gltf_animation(
     gltf = _load(base_glb)
     if gltf.buffers and gltf.buffers[0].uri is not None:
         raise VispeechError(f"{base_glb}: its first buffer is an external file; use a .glb with its data embedded")
-    meshes = _animated_meshes(gltf)
+    try:
+        meshes = _animated_meshes(gltf)
+        nodes = [(i, node.mesh) for i, node in enumerate(gltf.nodes) if node.mesh in meshes]
+    except (AttributeError, TypeError, ValueError, KeyError, IndexError):
+        raise VispeechError(f"{base_glb}: malformed glTF meshes or nodes") from None
     if not meshes:
         raise VispeechError(f"{base_glb} has no mesh with ARKit-named morph targets (mesh.extras.targetNames)")
-    nodes = [(i, node.mesh) for i, node in enumerate(gltf.nodes) if node.mesh in meshes]
     if not nodes:
         raise VispeechError(f"{base_glb}: no node uses the meshes with ARKit-named morph targets")
 
@@ -83,19 +89,116 @@ def write_gltf_animation(
 
 def _load(path: str | os.PathLike) -> pygltflib.GLTF2:
     path = Path(path)
-    if not path.is_file():
-        raise VispeechError(f"base model not found: {path}")
+    data = _read_glb(path)
+    _check_glb(data, path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return pygltflib.GLTF2.load_from_bytes(data)
+    except Exception as exc:  # pygltflib raises assorted exception types on malformed files
+        detail = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise VispeechError(f"cannot load {path}: {detail}") from None
+
+
+def _read_glb(path: Path) -> bytes:
+    """The bytes of ``path``: a regular file of at most :data:`~vispeech.limits.MAX_GLB_BYTES`, checked first."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise VispeechError(f"base model not found: {path}") from None
+    except (OSError, ValueError) as exc:
+        raise VispeechError(f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise VispeechError(f"base model {path} is not a regular file")
+    if info.st_size > MAX_GLB_BYTES:
+        raise VispeechError(f"base model {path} has {info.st_size} bytes; the limit is {MAX_GLB_BYTES}")
     try:
         with path.open("rb") as f:
-            magic = f.read(4)
+            data = f.read(MAX_GLB_BYTES + 1)
     except OSError as exc:
         raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
-    if magic != b"glTF":
+    if len(data) > MAX_GLB_BYTES:
+        raise VispeechError(f"base model {path} has more than {MAX_GLB_BYTES} bytes (the limit)")
+    return data
+
+
+def _check_glb(data: bytes, path: Path) -> None:
+    """Check the GLB container against its size before anything parses it.
+
+    The 12-byte header (magic, version 2, total length equal to the file's), each chunk's
+    length within the file, a JSON chunk first and at most one BIN chunk after it, the JSON
+    within the depth limits, and every embedded buffer's ``byteLength`` and buffer view's
+    range within the bytes there are. Raises :class:`VispeechError` naming the byte offset.
+    """
+    if len(data) < 12 or data[:4] != b"glTF":
         raise VispeechError(f"{path} is not a binary glTF (.glb) file")
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise VispeechError(f"{path}: GLB version {version}, only version 2 is read")
+    if length != len(data):
+        raise VispeechError(f"{path}: the GLB header (byte 8) declares {length} bytes but the file has {len(data)}"
+                            + (" (cut short?)" if length > len(data) else ""))
+    chunks: list[tuple[bytes, int, int]] = []
+    offset = 12
+    while offset < length:
+        if length - offset < 8:
+            raise VispeechError(f"{path}, byte {offset}: {length - offset} bytes left, too few for a chunk header")
+        size, kind = struct.unpack_from("<I4s", data, offset)
+        if size > length - offset - 8:
+            raise VispeechError(f"{path}, byte {offset}: chunk {len(chunks)} declares {size} bytes, "
+                                f"only {length - offset - 8} remain")
+        chunks.append((kind, offset + 8, size))
+        offset += 8 + size
+    if not chunks or chunks[0][0] != b"JSON":
+        raise VispeechError(f"{path}, byte 12: the first chunk must be JSON")
+    if len(chunks) > 2 or (len(chunks) == 2 and chunks[1][0] != b"BIN\x00"):
+        raise VispeechError(f"{path}, byte {chunks[1][1] - 8}: after the JSON chunk only one BIN chunk may follow")
+    _, start, size = chunks[0]
     try:
-        return pygltflib.GLTF2().load_binary(str(path))
-    except Exception as exc:  # pygltflib raises assorted exception types on malformed files
-        raise VispeechError(f"cannot load {path}: {' '.join(str(exc).split()) or type(exc).__name__}") from None
+        text = data[start:start + size].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise VispeechError(f"{path}, byte {start + exc.start}: the JSON chunk is not UTF-8") from None
+    gltf = parse_json(text, f"{path} (JSON chunk)")
+    if not isinstance(gltf, dict):
+        raise VispeechError(f"{path}: the JSON chunk is not an object")
+    binary = chunks[1][2] if len(chunks) == 2 else 0
+    buffers = _list(gltf, "buffers", path)
+    sizes = []
+    for i, buffer in enumerate(buffers):
+        byte_length = _count(buffer, "byteLength", f"buffers[{i}]", path) if isinstance(buffer, dict) else None
+        if byte_length is None:
+            raise VispeechError(f"{path}: buffers[{i}] needs a byteLength")
+        if i == 0 and "uri" not in buffer and byte_length > binary:
+            raise VispeechError(f"{path}: buffers[0].byteLength is {byte_length} but the BIN chunk holds {binary} bytes")
+        sizes.append(byte_length)
+    for i, view in enumerate(_list(gltf, "bufferViews", path)):
+        where = f"bufferViews[{i}]"
+        if not isinstance(view, dict):
+            raise VispeechError(f"{path}: {where} is not an object")
+        buffer = _count(view, "buffer", where, path)
+        view_start = _count(view, "byteOffset", where, path) or 0
+        view_length = _count(view, "byteLength", where, path)
+        if buffer is None or view_length is None or buffer >= len(sizes):
+            raise VispeechError(f"{path}: {where} needs a buffer (of {len(sizes)}) and a byteLength")
+        if view_start + view_length > sizes[buffer]:
+            raise VispeechError(f"{path}: {where} runs to byte {view_start + view_length} of buffer {buffer}, "
+                                f"which has {sizes[buffer]}")
+
+
+def _list(gltf: dict, key: str, path: Path) -> list:
+    value = gltf.get(key, [])
+    if not isinstance(value, list):
+        raise VispeechError(f"{path}: '{key}' must be a list")
+    return value
+
+
+def _count(item: dict, key: str, where: str, path: Path) -> int | None:
+    value = item.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise VispeechError(f"{path}: {where}.{key} must be a non-negative integer, got {value!r}")
+    return value
 
 
 def _glb_bytes(gltf: pygltflib.GLTF2, blob: bytes) -> bytes:

@@ -25,6 +25,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
+from vispeech.limits import MAX_DURATION_S, check_fps, check_track_size, parse_json
 from vispeech.motion.track import Track
 
 ANIMATION_FORMAT = "vispeech-animation"
@@ -75,6 +76,19 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
             raise VispeechError(f"{path}: frame {i} does not have {len(channels)} values")
     if "n_frames" in data and data["n_frames"] != len(frames):
         raise VispeechError(f"{path}: n_frames is {data['n_frames']} but there are {len(frames)} frames")
+    check_track_size(len(frames), len(channels), str(path))
+    if isinstance(data["fps"], bool) or not isinstance(data["fps"], (int, float)):
+        raise VispeechError(f"{path}: 'fps' must be a number, got {data['fps']!r}")
+    check_fps(data["fps"], f"{path}: fps")
+    start_time = data.get("start_time", 0.0)
+    if isinstance(start_time, bool) or not isinstance(start_time, (int, float)):
+        raise VispeechError(f"{path}: 'start_time' must be a number, got {start_time!r}")
+    for i, row in enumerate(frames):
+        for j, value in enumerate(row):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise VispeechError(f"{path}: frame {i}, value {j} is not a number ({_excerpt(value)})")
+    if data.get("phones") is not None and not isinstance(data["phones"], dict):
+        raise VispeechError(f"{path}: 'phones' must be an object")
     try:
         track = Track.from_dict(data)
         phones = PhoneSequence.from_dict(data["phones"]).validate() if data.get("phones") is not None else None
@@ -106,21 +120,31 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
     dt, vs = data.get("dt"), data.get("vs")
     if not isinstance(dt, list) or not isinstance(vs, dict) or not dt or not vs:
         raise VispeechError(f"{path} is not a TalkingHead animation: it needs non-empty 'dt' and 'vs'")
-    try:
-        durations = np.asarray(dt, dtype=float)
-        curves = {str(name): np.asarray(values, dtype=float) for name, values in vs.items()}
-    except (TypeError, ValueError):
-        raise VispeechError(f"{path}: 'dt' and 'vs' must hold numbers") from None
+    check_track_size(len(dt), len(vs), str(path))
+    for name, values in (("dt", dt), *(("vs." + str(k), v) for k, v in vs.items())):
+        if not isinstance(values, list) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+            raise VispeechError(f"{path}: '{name}' must be a list of numbers")
+    if fps is not None:
+        check_fps(fps)
+    durations = np.asarray(dt, dtype=float)
+    curves = {str(name): np.asarray(values, dtype=float) for name, values in vs.items()}
     if durations.ndim != 1 or np.any(~np.isfinite(durations)) or np.any(durations <= 0):
         raise VispeechError(f"{path}: every 'dt' must be a positive number of milliseconds")
     for name, values in curves.items():
         if values.shape != durations.shape:
             raise VispeechError(f"{path}: 'vs.{name}' has {values.size} values for {durations.size} frames")
+    if len(curves) != len(vs):
+        raise VispeechError(f"{path}: two 'vs' curves have the same name")
     channels = tuple(curves)
     values = np.stack([curves[c] for c in channels], axis=1)
     uniform = np.allclose(durations, durations[0], rtol=1e-9, atol=0.0)
     rate = fps if fps is not None else 1000.0 / float(np.median(durations))
     rate = round(rate, 6) if abs(rate - round(rate, 6)) < 1e-9 else rate
+    check_fps(rate, f"{path}: the frame rate (1000 / dt)")
+    total = float(durations.sum()) / 1000.0
+    if not total <= MAX_DURATION_S:
+        raise VispeechError(f"{path}: the animation lasts {total:g} s; the limit is {MAX_DURATION_S:g} s")
     try:
         if uniform:
             return Track(values, channels, rate)
@@ -136,14 +160,15 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
 def load_json(path: str | os.PathLike) -> dict:
     """A JSON object from ``path``; :class:`VispeechError` if missing, empty or not an object."""
     path = Path(path)
-    text = read_text(path)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise VispeechError(f"{path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    data = parse_json(read_text(path, "JSON file"), str(path))
     if not isinstance(data, dict):
         raise VispeechError(f"{path}: expected a JSON object")
     return data
+
+
+def _excerpt(value: object, width: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= width else text[:width] + "..."
 
 
 def _write_json(data: dict, path: str | os.PathLike) -> None:

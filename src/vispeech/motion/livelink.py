@@ -24,6 +24,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
+from vispeech.limits import check_fps, check_track_size
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
 
@@ -44,7 +45,7 @@ DEFAULT_TIMECODE_RATE = 60
 """Timecode frame rate assumed when a take never crosses a second boundary and no fps is given."""
 
 _HEADER = ("Timecode", "BlendshapeCount")
-_TIMECODE = re.compile(r"^(\d+):(\d{1,2}):(\d{1,2})[:;](\d+)(?:\.(\d+))?$")
+_TIMECODE = re.compile(r"^(\d{1,6}):(\d{1,2}):(\d{1,2})[:;](\d{1,6})(?:\.(\d{1,6}))?$")
 _TIMECODE_RATES = (24, 25, 30, 48, 50, 60, 72, 90, 100, 120, 240)
 _NOMINAL_FPS = (24, 25, 30, 48, 50, 60, 72, 90, 100, 120, 240, 24000 / 1001, 30000 / 1001, 60000 / 1001)
 
@@ -94,12 +95,20 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
     Returns a :class:`Track` whose ``start_time`` is the first timecode in seconds.
     """
     path = Path(path)
+    if fps is not None:
+        check_fps(fps)
     lines = [line for line in read_text(path, "Live Link CSV").splitlines() if line.strip()]
     header = [name.strip() for name in lines[0].split(",")]
     if tuple(header[:2]) != _HEADER or len(header) < 3:
         raise VispeechError(f"{path} is not a Live Link Face CSV: the header must start with Timecode,BlendshapeCount")
+    if not all(header[2:]):
+        raise VispeechError(f"{path}, line 1: column {header.index('', 2) + 1} has no name")
+    if len(set(header)) != len(header):
+        twice = next(name for name in header if header.count(name) > 1)
+        raise VispeechError(f"{path}, line 1: column {twice!r} appears twice")
     if not lines[1:]:
         raise VispeechError(f"Live Link CSV has no frames: {path}")
+    check_track_size(len(lines) - 1, len(header) - 2, str(path))
     channels = [name[0].lower() + name[1:] for name in header[2:]]
     timecodes, rows = [], []
     for number, line in enumerate(lines[1:], 2):
@@ -108,12 +117,15 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
             raise VispeechError(f"{path}, line {number}: {len(fields)} fields, the header has {len(header)}")
         match = _TIMECODE.match(fields[0].strip())
         if match is None:
-            raise VispeechError(f"{path}, line {number}: bad timecode {fields[0]!r}")
+            raise VispeechError(f"{path}, line {number}: bad timecode {fields[0][:40]!r}")
         timecodes.append(match.groups())
         try:
-            rows.append([float(v) for v in fields[2:]])
+            row = [float(v) for v in fields[2:]]
         except ValueError:
             raise VispeechError(f"{path}, line {number}: a value is not a number") from None
+        if not all(math.isfinite(v) for v in row):
+            raise VispeechError(f"{path}, line {number}: a value is not a finite number")
+        rows.append(row)
     rate = _timecode_rate(timecodes, fps)
     times = np.array([_timecode_seconds(groups, rate) for groups in timecodes])
     if np.any(np.diff(times) <= 0):
@@ -121,6 +133,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
         raise VispeechError(f"{path}, line {bad}: timecode does not increase")
     if fps is None:
         fps = _nominal_fps((len(times) - 1) / (times[-1] - times[0])) if len(times) > 1 else float(rate)
+        check_fps(fps, f"{path}: the frame rate of the timecodes")
     try:
         return Track(np.array(rows), channels, float(fps), float(times[0]))
     except VispeechError as exc:

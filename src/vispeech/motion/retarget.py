@@ -23,7 +23,6 @@ A pose table is a readable JSON file of one of three kinds (see docs/formats.md)
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from importlib import resources
@@ -32,6 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.errors import VispeechError
+from vispeech.files import read_text
+from vispeech.limits import MAX_CHANNELS, MAX_POSE_TABLE_BYTES, parse_json
 from vispeech.motion.track import Track
 
 BUILTIN_TABLES: tuple[str, ...] = ("oculus_visemes", "rhubarb_shapes", "thesis_bone_rig")
@@ -65,16 +66,11 @@ class PoseTable:
     def load(cls, source: str | os.PathLike) -> PoseTable:
         """Load a pose table from a JSON file, or a built-in one by name (:data:`BUILTIN_TABLES`)."""
         path = Path(source)
-        if not path.exists() and str(source) in BUILTIN_TABLES:
+        if not os.path.lexists(path) and str(source) in BUILTIN_TABLES:
             path = Path(str(resources.files("vispeech.motion") / "data" / f"{source}.json"))
-        if not path.exists():
+        if not os.path.lexists(path):
             raise VispeechError(f"pose table not found: {source} (built-in tables: {', '.join(BUILTIN_TABLES)})")
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as exc:
-            raise VispeechError(f"cannot read pose table {path}: {exc}") from None
-        except json.JSONDecodeError as exc:
-            raise VispeechError(f"pose table {path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+        data = parse_json(read_text(path, "pose table", MAX_POSE_TABLE_BYTES), f"pose table {path}")
         try:
             return cls.from_dict(data, name=path.stem)
         except VispeechError as exc:
@@ -131,12 +127,20 @@ class PoseTable:
             raise VispeechError(f"ridge must be non-negative, got {ridge}")
         controls = tuple(poses)
         inputs = tuple(sorted({ch for pose in poses.values() for ch in _mapping(pose, "poses")}))
+        _check_size(len(controls), len(inputs))
         basis = np.array([[_number(poses[c].get(i, 0.0), f"poses.{c}.{i}") for i in inputs] for c in controls])
-        gram = basis @ basis.T
-        gram += ridge * np.mean(np.diag(gram)) * np.eye(len(controls))
-        if np.linalg.matrix_rank(gram) < len(controls):
-            raise VispeechError("the poses are linearly dependent; give a positive ridge")
-        weights = np.linalg.solve(gram, basis)
+        with np.errstate(over="ignore", invalid="ignore"):
+            gram = basis @ basis.T
+        with np.errstate(over="ignore", invalid="ignore"):
+            gram += ridge * np.mean(np.diag(gram)) * np.eye(len(controls))
+        if not np.all(np.isfinite(gram)):
+            raise VispeechError("the poses' values or the ridge are too large")
+        try:
+            if np.linalg.matrix_rank(gram) < len(controls):
+                raise VispeechError("the poses are linearly dependent; give a positive ridge")
+            weights = np.linalg.solve(gram, basis)
+        except np.linalg.LinAlgError as exc:
+            raise VispeechError(f"the poses cannot be decomposed ({exc})") from None
         bias = np.zeros(len(controls))
         if rest is not None:
             if rest in controls:
@@ -155,6 +159,7 @@ class PoseTable:
             raise VispeechError(f"bias for unknown control {unknown[0]!r}")
         controls = tuple(rows)
         inputs = tuple(sorted({ch for combo in rows.values() for ch in _mapping(combo, "controls")}))
+        _check_size(len(controls), len(inputs))
         weights = np.array([[_number(rows[c].get(i, 0.0), f"{c}.{i}") for i in inputs] for c in controls])
         offsets = np.array([_number(bias.get(c, 0.0), f"bias.{c}") for c in controls])
         return cls(kind, controls, inputs, weights.reshape(len(controls), len(inputs)), offsets, clip, name)
@@ -167,6 +172,12 @@ class PoseTable:
         if self.clip is not None:
             values = np.clip(values, *self.clip)
         return Track(values, self.controls, track.fps, track.start_time)
+
+
+def _check_size(n_controls: int, n_inputs: int) -> None:
+    if n_controls > MAX_CHANNELS or n_inputs > MAX_CHANNELS:
+        raise VispeechError(f"a pose table may have at most {MAX_CHANNELS} controls and inputs, "
+                            f"got {n_controls} and {n_inputs}")
 
 
 def _mapping(value, where: str) -> dict:
