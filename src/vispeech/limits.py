@@ -62,6 +62,8 @@ def check_fps(fps: float, what: str = "fps") -> float:
         value = float(fps)
     except (TypeError, ValueError):
         raise VispeechError(f"{what} must be a number, got {fps!r}") from None
+    if value <= 0:
+        raise VispeechError(f"{what} must be positive, got {fps!r}")
     if not (math.isfinite(value) and MIN_FPS <= value <= MAX_FPS):
         raise VispeechError(f"{what} must be between {MIN_FPS:g} and {MAX_FPS:g} frames per second, got {fps!r}")
     return value
