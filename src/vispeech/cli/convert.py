@@ -26,13 +26,13 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
     .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb).
     """
-    from vispeech.errors import VispeechError
+    from vispeech.limits import check_fps
     from vispeech.motion.io import read_track, track_format, write_track
     from vispeech.motion.jsonformat import read_animation_json
     from vispeech.motion.retarget import PoseTable
 
-    if fps is not None and not fps > 0:
-        raise VispeechError(f"--fps must be positive, got {fps}")
+    if fps is not None:
+        check_fps(fps, "--fps")
     fmt = fmt.lower() if fmt else None
     phones = audio = None
     if track_format(input_path, reading=True) == "json":

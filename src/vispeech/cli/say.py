@@ -8,6 +8,7 @@ import click
 
 from vispeech.cli import lang_option, main
 from vispeech.errors import VispeechError
+from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, speak, write_outputs
 
@@ -31,10 +32,12 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 
     Without TEXT a greeting in the chosen language is spoken.
     """
+    check_fps(fps, "--fps")
     if text is None:
         text = GREETINGS.get(lang)
         if text is None:
             raise VispeechError(f"unknown language {lang!r} (use sv or en)")
+    check_text(text)
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
     paths = write_outputs(utterance, out_dir)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
@@ -57,6 +60,7 @@ def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str,
     """
     from vispeech.alignment.formats import read_alignment
 
+    check_fps(fps, "--fps")
     phones = read_alignment(alignment, lang)
     track = animate(phones, model, fps, not no_postprocess)
     write_outputs(Utterance(phones=phones, track=track), out_dir)
