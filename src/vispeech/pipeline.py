@@ -12,6 +12,7 @@ from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
+from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.motion.io import write_track
@@ -42,7 +43,9 @@ def animate(
     preset the model recommends (:attr:`~vispeech.models.contract.Estimator.postprocessing`)
     or ``False`` for none.
     """
+    check_fps(fps)
     phones.validate()
+    check_utterance(phones.duration, len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
     track = estimator.predict(phones, fps)
     if postprocessing is False:
@@ -66,6 +69,8 @@ def speak(
     """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length."""
     from vispeech.frontends.espeak import synthesize
 
+    check_text(text)
+    check_fps(fps)
     speech = synthesize(text, language, rate=rate)
     track = animate(speech.phones, model, fps, postprocessing)
     return Utterance(text=text, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
