@@ -263,17 +263,18 @@ def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
 
 
 def test_utterance_cache_keys_and_eviction(tmp_path):
+    cache = UtteranceCache(tmp_path / "c.sqlite3", max_entries=2)
     key = CacheKey("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
-    assert len(key.id) == 32 and key.id == CacheKey("hi", "en", "en-us", 1, "baseline", "v1", 30).id
+    ident = cache.entry_id
+    assert len(ident(key)) == 32 and ident(key) == ident(CacheKey("hi", "en", "en-us", 1, "baseline", "v1", 30))
     fields = ("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
     changes = ("sv", "sv", 1.1, "ohman", "v2", 60.0)  # one field of the key after the text each
     variants = [CacheKey(*fields[:i + 1], change, *fields[i + 2:]) for i, change in enumerate(changes)]
-    assert len({key.id, *(v.id for v in variants)}) == 7
-    cache = UtteranceCache(tmp_path / "c.sqlite3", max_entries=2)
+    assert len({ident(key), *(ident(v) for v in variants)}) == 7
     for i, k in enumerate(variants[:3]):
         cache.put(k, b"wav%d" % i, "{}")
     assert len(cache) == 2 and cache.get(variants[0]) is None  # the least recently used went
-    assert cache.audio(variants[2].id) == b"wav2"
+    assert cache.audio(ident(variants[2])) == b"wav2"
     cache.close()
     (tmp_path / "bad.sqlite3").write_bytes(b"not a database at all" * 10)
     with pytest.raises(VispeechError, match="cannot open the cache"):

@@ -173,6 +173,10 @@ class PhoneStream:
         """Frames given so far."""
         self.closed = False
 
+    def check(self, phones: Iterable[Phone]) -> list[Phone]:
+        """Check ``phones`` as :meth:`push` would (raises :class:`VispeechError`), adding nothing."""
+        return self._checked(phones)
+
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         """Add phones; the frames that became ready."""
         new = self._checked(phones)

@@ -31,25 +31,55 @@ from vispeech.pipeline import DEFAULT_MODEL
               help="External chat service to relay /api/chat messages to (POST JSON) instead of the rule bot.")
 @click.option("--chat-reply-field", default="reply", show_default=True,
               help="Where the chat service's JSON answer holds the reply (dotted path: choices.0.message.content).")
+@click.option("--token", envvar="VISPEECH_TOKEN", show_envvar=True,
+              help="Require this bearer token for the API and the stream (pages and /api/config stay open; "
+              "open a page with ?token=... to let it in).")
+@click.option("--allow-host", multiple=True, metavar="NAME",
+              help="Host name the server answers to, beside localhost, 127.0.0.1, ::1 and --host "
+              "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).")
+@click.option("--allow-origin", multiple=True, metavar="ORIGIN",
+              help="Browser origin (https://app.example.com, or a host name) allowed to use the API and the "
+              "stream, beside the allowed hosts (repeatable; * for any). Others get 403.")
+@click.option("--workers", type=click.IntRange(min=1), help="Threads for the CPU-heavy work [default: cores - 1].")
+@click.option("--max-queue", default=64, show_default=True, type=click.IntRange(min=1),
+              help="Jobs that may wait for a worker; beyond that requests get 503 (busy).")
+@click.option("--max-streams", default=500, show_default=True, type=click.IntRange(min=1),
+              help="WebSocket connections open at once.")
+@click.option("--max-streams-per-ip", default=8, show_default=True, type=click.IntRange(min=1),
+              help="WebSocket connections open at once from one client address.")
+@click.option("--idle-timeout", default=30.0, show_default=True, type=click.FloatRange(min=0.1),
+              help="Seconds a WebSocket may stay silent (with nothing being computed) before it is closed.")
+@click.option("--stream-timeout", default=600.0, show_default=True, type=click.FloatRange(min=1),
+              help="Seconds a WebSocket connection may stay open in all.")
+@click.option("--cache-mb", default=512, show_default=True, type=click.IntRange(min=1),
+              help="Largest size of the utterance cache (MiB of audio and animation).")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
 def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, cache: Path | None,
           default_model: str, stream_model: str | None, rate_limit: float, burst: int, chat_url: str | None,
-          chat_reply_field: str, log_level: str) -> None:
+          chat_reply_field: str, token: str | None, allow_host: tuple[str, ...], allow_origin: tuple[str, ...],
+          workers: int | None, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
+          stream_timeout: float, cache_mb: int, log_level: str) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
 
-    API documentation is at /docs. Stop with Ctrl+C.
+    API documentation is at /docs; docs/serve.md lists the limits. Stop with Ctrl+C.
     """
     import uvicorn
 
     from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig, create_app
 
     bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
+    hosts = ("localhost", "127.0.0.1", "::1", *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)
+    extra = {} if workers is None else {"workers": workers}
     config = ServeConfig(avatar=avatar, avatar_credit=avatar_credit, cache=cache, bot=bot, default_model=default_model,
-                         stream_model=stream_model, rate_limit=rate_limit, burst=burst)
+                         stream_model=stream_model, rate_limit=rate_limit, burst=burst, token=token or None,
+                         allowed_hosts=tuple(dict.fromkeys(hosts)),
+                         allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))), max_queue=max_queue,
+                         max_streams=max_streams, max_streams_per_ip=max_streams_per_ip, idle_timeout=idle_timeout,
+                         stream_timeout=stream_timeout, cache_bytes=cache_mb * 1024 * 1024, **extra)
     app = create_app(config)
     service = app.state.service
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
-               f"stream model {service.stream_model})")
+               f"stream model {service.stream_model}{', token required' if token else ''})")
     uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=config.max_message_bytes,
                 timeout_graceful_shutdown=5)

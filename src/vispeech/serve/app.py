@@ -8,17 +8,22 @@ Routes (the browser contract is ``docs/web.md``; ``docs/serve.md`` describes the
   ``/static/face2d.js`` (the preview's 2D face), ``/avatar.glb``; OpenAPI at ``/docs``.
 
 Every bad request gets a 4xx JSON ``{"detail": "..."}``: 422 for a malformed body, 400 for
-input the library refuses, 413 for a body over the limit, 429 past the rate limit.
+input the library refuses (or a Host not allowed), 401 without the token (when one is
+configured), 403 from a foreign Origin, 413 for a body over the limit, 429 past the rate
+limit. The CPU-heavy work runs in a bounded :class:`~vispeech.serve.safety.WorkPool`: when
+its queue is full the answer is 503 with ``Retry-After`` (a stream error on the WebSocket).
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import hashlib
 import json
 import logging
 import os
 import re
+import threading
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,10 +48,35 @@ from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, speak
 from vispeech.serve.bot import ChatBot, ChatBotError, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
-from vispeech.serve.safety import BodySizeLimit, RateLimit, TokenBucket, client_key
+from vispeech.serve.safety import (
+    DEFAULT_ALLOWED_HOSTS,
+    BodySizeLimit,
+    Busy,
+    Cancelled,
+    ConnectionCounter,
+    HostOriginCheck,
+    RateLimited,
+    TokenAuth,
+    TokenBucket,
+    WorkPool,
+    client_key,
+)
 from vispeech.serve.schemas import (
-    MAX_TEXT_CHARS, ChatRequest, ChatResponse, ClientMessage, ConfigResponse, EndMessage, ErrorMessage,
-    ErrorResponse, FramesMessage, PhonesMessage, ServerMessage, SpeakRequest, SpeakResponse, StartMessage,
+    MAX_STREAM_SECONDS,
+    MAX_TEXT_CHARS,
+    ChatRequest,
+    ChatResponse,
+    ClientMessage,
+    ConfigResponse,
+    EndMessage,
+    ErrorMessage,
+    ErrorResponse,
+    FramesMessage,
+    PhonesMessage,
+    ServerMessage,
+    SpeakRequest,
+    SpeakResponse,
+    StartMessage,
     TextMessage,
 )
 from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages
@@ -61,7 +91,11 @@ LOW_LATENCY_MODEL = "grid-tdnn-lowlatency"
 
 _PAGES = {"/": "index.html", "/player": "player.html", "/viewer": "viewer.html"}
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
-_ERRORS = {code: {"model": ErrorResponse} for code in (400, 413, 422, 429)}
+_ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
+
+
+def _default_workers() -> int:
+    return max(1, (os.cpu_count() or 2) - 1)
 
 
 @dataclass
@@ -71,16 +105,30 @@ class ServeConfig:
     ``cache``: SQLite file of the utterance cache (``None``: the user cache folder,
     ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
     when a message names none; ``None`` picks the shipped ``grid-tdnn-lowlatency`` if it is there and
-    otherwise ``default_model``. ``rate_limit``: requests a second per client IP for speak,
-    chat and stream text messages (0 = no limit), with bursts of ``burst``. Sizes are bytes.
-    ``static_dir``: the built web app (default :data:`STATIC_DIR`). ``avatar_credit``: a
-    line the pages show under the head (its author and licence).
+    otherwise ``default_model``. ``rate_limit``: tokens a second per client IP (0 = no limit),
+    with bursts of ``burst``; a request or stream message costs a token per
+    ``chars_per_token`` characters of text (at least one) or per ``phone_seconds_per_token``
+    seconds of phones it adds (at least ``min_message_cost``); a spoken chat reply is charged
+    after the fact. Sizes are bytes. ``static_dir``: the built web app (default
+    :data:`STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
+    and licence).
+
+    Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
+    in pieces of ``piece_seconds``) with at most ``max_queue`` jobs waiting (503 / stream
+    error beyond). ``max_streams`` WebSocket connections at once, ``max_streams_per_ip`` of
+    them from one address; each closes after ``idle_timeout`` s without a message while
+    nothing is being computed, and after ``stream_timeout`` s in all. A phones message may add
+    at most ``max_message_seconds`` s of phones, a phone stream reach ``max_stream_seconds``.
+    ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.serve.safety.HostOriginCheck`;
+    ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
+    ``cache_bytes`` caps the cache's size.
     """
 
     avatar: Path | None = None
     avatar_credit: str | None = None
     cache: str | os.PathLike | None = None
     cache_entries: int = 10_000
+    cache_bytes: int = 512 * 1024 * 1024
     bot: ChatBot = field(default_factory=RuleBot)
     default_model: str = DEFAULT_MODEL
     stream_model: str | None = None
@@ -89,7 +137,21 @@ class ServeConfig:
     burst: int = 20
     max_body_bytes: int = 64 * 1024
     max_message_bytes: int = 64 * 1024
-    max_streams: int = 100
+    max_streams: int = 500
+    max_streams_per_ip: int = 8
+    idle_timeout: float = 30.0
+    stream_timeout: float = 600.0
+    max_message_seconds: float = 20.0
+    max_stream_seconds: float = MAX_STREAM_SECONDS
+    chars_per_token: float = 100.0
+    phone_seconds_per_token: float = 1.0
+    min_message_cost: float = 0.05
+    workers: int = field(default_factory=_default_workers)
+    max_queue: int = 64
+    piece_seconds: float = 1.0
+    allowed_hosts: tuple[str, ...] = DEFAULT_ALLOWED_HOSTS
+    allowed_origins: tuple[str, ...] | None = None
+    token: str | None = None
     static_dir: Path | None = None
 
 
@@ -105,9 +167,23 @@ class SpeechService:
         if config.default_model not in self.models:
             raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
         self.stream_model = self._choose_stream_model(config.stream_model)
-        self.cache = UtteranceCache(config.cache, config.cache_entries)
+        self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
-        self.active_streams = 0
+        self.pool = WorkPool(config.workers, config.max_queue)
+        self.connections = ConnectionCounter(config.max_streams, config.max_streams_per_ip)
+
+    @property
+    def active_streams(self) -> int:
+        return self.connections.total
+
+    def text_cost(self, text: str) -> float:
+        """Rate-limit tokens a text costs: one per ``chars_per_token`` characters, at least one."""
+        return max(1.0, len(text) / self.config.chars_per_token)
+
+    def pay(self, key: str, cost: float) -> None:
+        """Spend ``cost`` of client ``key``'s tokens; :class:`RateLimited` when it has too few."""
+        if not self.bucket.take(key, cost):
+            raise RateLimited(self.bucket)
 
     def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
         """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
@@ -149,10 +225,19 @@ class SpeechService:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
         return name, self.models[name]
 
+    def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
+        name, model = self.model(model_name)
+        return CacheKey(text, lang, VOICES[lang], float(rate), name, self.versions[name], self.config.fps), model
+
+    def lookup(self, text: str, lang: str, model_name: str | None, rate: float) -> dict | None:
+        """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
+        key, _ = self._key(text, lang, model_name, rate)
+        entry = self.cache.get(key)
+        return None if entry is None else self._answer(entry, text, cached=True)
+
     def speak(self, text: str, lang: str, model_name: str | None, rate: float) -> dict:
         """A :class:`SpeakResponse` as a dict, from the cache when the same request was answered before."""
-        name, model = self.model(model_name)
-        key = CacheKey(text, lang, VOICES[lang], float(rate), name, self.versions[name], self.config.fps)
+        key, model = self._key(text, lang, model_name, rate)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
@@ -160,15 +245,23 @@ class SpeechService:
             animation = {"format": ANIMATION_FORMAT, "version": 1, **utterance.track.to_dict(),
                          "phones": utterance.phones.to_dict()}
             entry = self.cache.put(key, utterance.wav_bytes(), json.dumps(animation, separators=(",", ":")))
+        return self._answer(entry, text, cached)
+
+    @staticmethod
+    def _answer(entry, text: str, cached: bool) -> dict:
         return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": json.loads(entry.animation),
                 "text": text, "cached": cached}
 
-    def chat(self, message: str, lang: str, say: bool, model_name: str | None) -> dict:
-        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say``."""
+    def reply(self, message: str, lang: str) -> str:
+        """The bot's reply to ``message``, stripped and cut to :data:`MAX_TEXT_CHARS`."""
         reply = self.config.bot.reply(message, lang)
         if not isinstance(reply, str) or not reply.strip():
             raise ChatBotError("the chat bot gave no reply")
-        reply = reply.strip()[:MAX_TEXT_CHARS]
+        return reply.strip()[:MAX_TEXT_CHARS]
+
+    def chat(self, message: str, lang: str, say: bool, model_name: str | None) -> dict:
+        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say``."""
+        reply = self.reply(message, lang)
         speech = self.speak(reply, lang, model_name, 1.0) if say else None
         return {"reply": reply, "lang": lang, "speech": speech}
 
@@ -207,13 +300,15 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         await run_in_threadpool(service.warm_up)
         yield
+        service.pool.close()
         service.cache.close()
 
     app = FastAPI(title="vispeech", version=vispeech.__version__, lifespan=lifespan,
                   description="Speech animation: text to audio and ARKit blend-shape animation.")
     app.state.service = service
     app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes)
-    app.add_middleware(RateLimit, bucket=service.bucket, paths=("/api/speak", "/api/chat"))
+    app.add_middleware(TokenAuth, token=config.token)
+    app.add_middleware(HostOriginCheck, allowed_hosts=config.allowed_hosts, allowed_origins=config.allowed_origins)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -227,13 +322,25 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     async def bot_failed(request: Request, exc: ChatBotError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=502)
 
+    @app.exception_handler(RateLimited)
+    async def rate_limited(request: Request, exc: RateLimited) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=429, headers={"Retry-After": str(exc.retry_after)})
+
+    @app.exception_handler(Busy)
+    async def busy(request: Request, exc: Busy) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=503, headers={"Retry-After": str(exc.retry_after)})
+
+    @app.exception_handler(Cancelled)
+    async def cancelled(request: Request, exc: Cancelled) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=503, headers={"Retry-After": "1"})
+
     @app.exception_handler(Exception)
     async def internal_error(request: Request, exc: Exception) -> JSONResponse:
         log.exception("internal error on %s", request.url.path)
         return JSONResponse({"detail": "internal server error"}, status_code=500)
 
     @app.get("/api/config", response_model=ConfigResponse)
-    def get_config() -> dict:
+    async def get_config() -> dict:
         """What the web app needs: avatar URL, languages, models, frame rate."""
         return {
             "avatar_url": "/avatar.glb" if config.avatar is not None else None,
@@ -244,12 +351,17 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
             "stream_model": service.stream_model,
             "fps": config.fps,
             "max_text": MAX_TEXT_CHARS,
+            "token_required": config.token is not None,
         }
 
     @app.post("/api/speak", response_model=SpeakResponse, responses=_ERRORS)
-    def post_speak(request: SpeakRequest) -> dict:
+    async def post_speak(request: SpeakRequest, http: Request) -> dict:
         """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
-        return service.speak(request.text, request.lang, request.model, request.rate)
+        ip = client_key(http.scope)
+        service.pay(ip, service.text_cost(request.text))
+        args = (request.text, request.lang, request.model, request.rate)
+        return (await run_in_threadpool(service.lookup, *args)
+                or await service.pool.run(ip, service.speak, *args))
 
     @app.get("/api/audio/{audio_id}.wav", response_class=Response,
              responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}})
@@ -261,9 +373,20 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         return Response(wav, media_type="audio/wav", headers={"Cache-Control": "public, max-age=86400"})
 
     @app.post("/api/chat", response_model=ChatResponse, responses={**_ERRORS, 502: {"model": ErrorResponse}})
-    def post_chat(request: ChatRequest) -> dict:
+    async def post_chat(request: ChatRequest, http: Request) -> dict:
         """The chat bot's reply to ``message``, spoken unless ``speak`` is false."""
-        return service.chat(request.message, request.lang, request.speak, request.model)
+        ip = client_key(http.scope)
+        service.pay(ip, service.text_cost(request.message))
+        if request.speak:
+            service.model(request.model)  # an unknown model is refused before the bot is asked
+        reply = await run_in_threadpool(service.reply, request.message, request.lang)  # may wait on a service
+        speech = None
+        if request.speak:
+            service.bucket.charge(ip, service.text_cost(reply))
+            args = (reply, request.lang, request.model, 1.0)
+            speech = (await run_in_threadpool(service.lookup, *args)
+                      or await service.pool.run(ip, service.speak, *args))
+        return {"reply": reply, "lang": request.lang, "speech": speech}
 
     @app.websocket("/api/stream")
     async def stream(websocket: WebSocket) -> None:
@@ -304,110 +427,201 @@ def _page(path: Path, not_built: dict):
     return page
 
 
-async def _send(websocket: WebSocket, message: BaseModel | dict) -> None:
-    """Send one server message (a model of :data:`ServerMessage`, or the engine's dict form of one)."""
+def _json(message: BaseModel | dict) -> str:
+    """One server message (a model of :data:`ServerMessage`, or the engine's dict form of one) as JSON."""
     typed = message if isinstance(message, BaseModel) else ServerMessage.validate_python(message)
-    await websocket.send_text(typed.model_dump_json())
+    return typed.model_dump_json()
+
+
+async def _send(websocket: WebSocket, message: BaseModel | dict) -> None:
+    await websocket.send_text(_json(message))
 
 
 async def _error(websocket: WebSocket, message: str) -> None:
     await _send(websocket, ErrorMessage(message=message))
 
 
+_GONE = (WebSocketDisconnect, WebSocketDisconnected, Cancelled)
+
+
 async def _serve_stream(websocket: WebSocket, service: SpeechService) -> None:
     """One ``/api/stream`` connection: messages in order, errors answered and the connection kept."""
     await websocket.accept()
-    limit = service.config.max_message_bytes
-    if service.active_streams >= service.config.max_streams:
-        await _error(websocket, "server busy: too many streams, try again later")
-        await websocket.close(1013)
+    ip = client_key(websocket.scope)
+    refusal = service.connections.open(ip)
+    if refusal is not None:
+        with contextlib.suppress(*_GONE, RuntimeError, OSError):
+            await _error(websocket, refusal)
+            await websocket.close(1013)
         return
-    service.active_streams += 1
-    phones: PhoneStream | None = None
     try:
+        await _StreamConnection(websocket, service, ip).serve()
+    finally:
+        service.connections.close(ip)
+
+
+class _StreamConnection:
+    """A connection's reader (client messages into a short queue, so a vanished client is seen at
+    once) and processor (one message at a time, the heavy parts in the service's pool, each piece
+    dropped unrun once the client has gone)."""
+
+    def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
+        self.ws = websocket
+        self.service = service
+        self.config = service.config
+        self.ip = ip
+        self.cancelled = threading.Event()
+        self.inbox: asyncio.Queue = asyncio.Queue(maxsize=4)
+        self.phones: PhoneStream | None = None
+
+    async def serve(self) -> None:
+        worker = asyncio.create_task(self._process())
+        reader = asyncio.create_task(self._read())
+        try:
+            done, _ = await asyncio.wait({worker, reader}, timeout=self.config.stream_timeout,
+                                         return_when=asyncio.FIRST_COMPLETED)
+            self.cancelled.set()
+            if worker not in done:
+                worker.cancel()
+                await asyncio.gather(worker, return_exceptions=True)
+                if not done:
+                    await self._close(1001, f"the connection was open {self.config.stream_timeout:g} s, the most "
+                                            "allowed: closing (open a new one to go on)")
+        finally:
+            self.cancelled.set()
+            reader.cancel()
+            worker.cancel()
+            await asyncio.gather(worker, reader, return_exceptions=True)
+            if self.phones is not None:
+                self.phones.close()
+
+    async def _read(self) -> None:
         while True:
-            event = await websocket.receive()
+            event = await self.ws.receive()
             if event["type"] == "websocket.disconnect":
                 return
-            raw = event.get("text")
-            if raw is None:
-                if len(event.get("bytes") or b"") > limit:
-                    await _error(websocket, f"message too large (limit {limit} bytes)")
-                    await websocket.close(1009)
-                    return
-                await _error(websocket, "send JSON text messages")
-                continue
-            if len(raw) > limit or len(raw.encode("utf-8", "replace")) > limit:
-                await _error(websocket, f"message too large (limit {limit} bytes)")
-                await websocket.close(1009)
-                return
-            try:
-                message = ClientMessage.validate_json(raw)
-            except ValidationError as exc:
-                await _error(websocket, describe_errors(exc.errors(), skip=1, what="message"))
-                continue
-            try:
-                if isinstance(message, TextMessage):
-                    if phones is not None:
-                        raise VispeechError('a phone stream is open: end it with "final": true first')
-                    if not service.bucket.take(client_key(websocket.scope)):
-                        raise VispeechError(service.bucket.message())
-                    await _stream_text(websocket, service, message)
-                else:
-                    if phones is None:
-                        phones = await _open_phone_stream(websocket, service, message)
-                    if await _stream_phones(websocket, phones, message):
-                        phones = None
-            except VispeechError as exc:
-                if phones is not None and phones.closed:
-                    phones = None
-                await _error(websocket, str(exc))
-    except (WebSocketDisconnect, WebSocketDisconnected):
-        pass
-    except Exception:
-        log.exception("internal error in a stream")
+            await self.inbox.put(event)
+
+    async def _close(self, code: int, message: str) -> None:
+        with contextlib.suppress(*_GONE, RuntimeError, OSError):
+            await _error(self.ws, message)
+            await self.ws.close(code)
+
+    async def _run(self, fn, *args):
+        return await self.service.pool.run(self.ip, fn, *args, cancelled=self.cancelled)
+
+    async def _process(self) -> None:
         try:
-            await _error(websocket, "internal server error")
-            await websocket.close(1011)
-        except (WebSocketDisconnect, WebSocketDisconnected, RuntimeError):
+            while True:
+                try:
+                    event = await asyncio.wait_for(self.inbox.get(), self.config.idle_timeout)
+                except TimeoutError:
+                    await self._close(1001, f"no message for {self.config.idle_timeout:g} s: closing")
+                    return
+                if not await self._handle(event):
+                    return
+        except _GONE:
             pass
-    finally:
-        service.active_streams -= 1
-        if phones is not None:
-            phones.close()
+        except Exception:
+            log.exception("internal error in a stream")
+            await self._close(1011, "internal server error")
+
+    async def _handle(self, event: dict) -> bool:
+        """Answer one client message; ``False`` once the connection is closed."""
+        limit = self.config.max_message_bytes
+        raw = event.get("text")
+        if raw is None:
+            if len(event.get("bytes") or b"") > limit:
+                await self._close(1009, f"message too large (limit {limit} bytes)")
+                return False
+            await _error(self.ws, "send JSON text messages")
+            return True
+        if len(raw) > limit or len(raw.encode("utf-8", "replace")) > limit:
+            await self._close(1009, f"message too large (limit {limit} bytes)")
+            return False
+        try:
+            message = ClientMessage.validate_json(raw)
+        except ValidationError as exc:
+            await _error(self.ws, describe_errors(exc.errors(), skip=1, what="message"))
+            return True
+        try:
+            if isinstance(message, TextMessage):
+                if self.phones is not None:
+                    raise VispeechError('a phone stream is open: end it with "final": true first')
+                self.service.pay(self.ip, self.service.text_cost(message.text))
+                await self._text(message)
+            else:
+                await self._phones(message)
+        except (VispeechError, RateLimited, Busy) as exc:
+            if self.phones is not None and self.phones.closed:
+                self.phones = None
+            await _error(self.ws, str(exc))
+        return True
+
+    async def _text(self, message: TextMessage) -> None:
+        _, model = self.service.model(message.model, stream=True)
+        messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate)
+
+        def next_clause() -> list[str] | None:
+            batch = next(messages, None)
+            return None if batch is None else [_json(item) for item in batch]
+
+        try:
+            while (batch := await self._run(next_clause)) is not None:
+                for text in batch:
+                    await self.ws.send_text(text)
+        finally:
+            with contextlib.suppress(ValueError):  # still running in its thread
+                messages.close()
+
+    async def _phones(self, message: PhonesMessage) -> None:
+        """Frames for ``message``'s phones, pushed in pieces; with ``final`` the rest and ``end``."""
+        config, stream = self.config, self.phones
+        if stream is not None and message.lang is not None and message.lang != stream.language:
+            raise VispeechError(f"this phone stream is in {stream.language}, not {message.lang}")
+        begin = stream.end if stream is not None else 0.0
+        last = max((p.end for p in message.phones), default=begin)
+        added = max(0.0, last - begin)
+        if added > config.max_message_seconds + 1e-9:
+            raise VispeechError(f"a phones message may add at most {config.max_message_seconds:g} s of phones "
+                                f"(this one adds {added:.1f} s): send them in smaller messages")
+        if last > config.max_stream_seconds + 1e-9:
+            raise VispeechError(f"a phone stream may last at most {config.max_stream_seconds:g} s "
+                                f"(this message ends at {last:.1f} s)")
+        self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
+        if stream is None:
+            name, model = self.service.model(message.model, stream=True)
+            stream = await self._run(open_phone_stream, model, message.lang or "en", config.fps)
+            self.phones = stream
+            await _send(self.ws, StartMessage(fps=stream.fps, channels=list(stream.channels), sample_rate=None,
+                                              model=name, lookahead=stream.lookahead))
+        phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
+        await self._run(stream.check, phones)  # refused whole before any piece is pushed
+        for piece in _pieces(phones, stream.end, config.piece_seconds):
+            if (text := await self._run(_frames_json, stream.push, piece)) is not None:
+                await self.ws.send_text(text)
+        if message.final:
+            if (text := await self._run(_frames_json, stream.finish)) is not None:
+                await self.ws.send_text(text)
+            self.phones = None
+            await _send(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
 
 
-async def _stream_text(websocket: WebSocket, service: SpeechService, message: TextMessage) -> None:
-    _, model = service.model(message.model, stream=True)
-    messages = speech_messages(message.text, message.lang, model, fps=service.config.fps, rate=message.rate)
-    try:
-        while (batch := await run_in_threadpool(next, messages, None)) is not None:
-            for item in batch:
-                await _send(websocket, item)
-    finally:
-        with contextlib.suppress(ValueError):  # still running in its thread when the task was cancelled
-            messages.close()
+def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phone]]:
+    """``phones`` in consecutive groups covering at most ``seconds`` each (a longer phone alone);
+    one empty group for no phones."""
+    pieces: list[list[Phone]] = [[]]
+    for phone in phones:
+        if pieces[-1] and phone.end - begin > seconds:
+            begin = pieces[-1][-1].end
+            pieces.append([])
+        pieces[-1].append(phone)
+    return pieces
 
 
-async def _open_phone_stream(websocket: WebSocket, service: SpeechService, message: PhonesMessage) -> PhoneStream:
-    name, model = service.model(message.model, stream=True)
-    stream = await run_in_threadpool(open_phone_stream, model, message.lang or "en", service.config.fps)
-    await _send(websocket, StartMessage(fps=stream.fps, channels=list(stream.channels), sample_rate=None,
-                                        model=name, lookahead=stream.lookahead))
-    return stream
-
-
-async def _stream_phones(websocket: WebSocket, stream: PhoneStream, message: PhonesMessage) -> bool:
-    """Send the frames ``message``'s phones make ready; with ``final`` end the stream and return ``True``."""
-    if message.lang is not None and message.lang != stream.language:
-        raise VispeechError(f"this phone stream is in {stream.language}, not {message.lang}")
-    phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
-    results = [await run_in_threadpool(stream.push, phones)]
-    if message.final:
-        results.append(await run_in_threadpool(stream.finish))
-    for start, rows in results:
-        if len(rows):
-            await _send(websocket, FramesMessage(start_frame=start, frames=rows.round(6).tolist()))
-    if message.final:
-        await _send(websocket, EndMessage(n_frames=stream.emitted, duration=stream.end))
-    return message.final
+def _frames_json(step, *args) -> str | None:
+    """Run a phone stream's ``push`` / ``finish``; its frames as a ``frames`` message (``None`` for none)."""
+    start, rows = step(*args)
+    if not len(rows):
+        return None
+    return FramesMessage(start_frame=start, frames=rows.round(6).tolist()).model_dump_json()

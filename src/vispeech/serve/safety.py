@@ -1,12 +1,18 @@
-"""Input limits of the server: request body size and a per-client rate limit (ASGI middleware)."""
+"""The server's defences: body size, a priced per-client rate limit, Host / Origin and token checks
+(ASGI middleware), per-IP connection counts, and the bounded pool that runs the CPU-heavy work."""
 
 from __future__ import annotations
 
+import asyncio
+import heapq
+import hmac
+import itertools
 import json
 import math
 import threading
 import time
 from collections.abc import Callable, Iterable
+from urllib.parse import parse_qs, urlsplit
 
 from starlette.exceptions import HTTPException
 
@@ -14,9 +20,12 @@ from starlette.exceptions import HTTPException
 class TokenBucket:
     """Per-client token buckets: ``rate`` tokens a second, at most ``burst`` saved up.
 
-    :meth:`take` spends one token of a client (by key, e.g. its IP address) and tells
-    whether there was one. ``rate`` 0 turns the limit off. At most ``max_clients`` buckets
-    are kept; beyond that, full (idle) buckets are forgotten.
+    :meth:`take` spends ``cost`` tokens of a client (by key, e.g. its IP address) and tells
+    whether it had them (a cost above ``burst`` is taken as ``burst``: a full bucket pays for
+    anything); :meth:`charge` spends tokens without refusing (the bucket may go into debt,
+    down to ``-burst``), for work whose price is known only once it is done. ``rate`` 0 turns
+    the limit off. At most ``max_clients`` buckets are kept; beyond that, full (idle) buckets
+    are forgotten.
     """
 
     def __init__(self, rate: float, burst: int, max_clients: int = 10_000,
@@ -34,27 +43,41 @@ class TokenBucket:
     def enabled(self) -> bool:
         return self.rate > 0
 
-    def take(self, key: str) -> bool:
-        """Spend one of ``key``'s tokens; ``False`` when it has none left."""
+    def take(self, key: str, cost: float = 1.0) -> bool:
+        """Spend ``cost`` of ``key``'s tokens; ``False`` (nothing spent) when it has fewer."""
         if not self.enabled:
             return True
+        cost = min(float(self.burst), max(0.0, float(cost)))
         with self._lock:
-            now = self.clock()
-            tokens, then = self._buckets.get(key, (float(self.burst), now))
-            tokens = min(float(self.burst), tokens + (now - then) * self.rate)
-            if len(self._buckets) >= self.max_clients and key not in self._buckets:
-                self._forget_idle(now)
-            allowed = tokens >= 1.0
-            self._buckets[key] = (tokens - 1.0 if allowed else tokens, now)
+            tokens, now = self._tokens(key)
+            allowed = tokens >= cost - 1e-9
+            self._buckets[key] = (tokens - cost if allowed else tokens, now)
             return allowed
+
+    def charge(self, key: str, cost: float) -> None:
+        """Spend ``cost`` of ``key``'s tokens even when it has fewer (debt down to ``-burst``)."""
+        if not self.enabled:
+            return
+        with self._lock:
+            tokens, now = self._tokens(key)
+            self._buckets[key] = (max(-float(self.burst), tokens - max(0.0, float(cost))), now)
+
+    def _tokens(self, key: str) -> tuple[float, float]:
+        now = self.clock()
+        tokens, then = self._buckets.get(key, (float(self.burst), now))
+        tokens = min(float(self.burst), tokens + (now - then) * self.rate)
+        if len(self._buckets) >= self.max_clients and key not in self._buckets:
+            self._forget_idle(now)
+        return tokens, now
 
     def retry_after(self) -> float:
         """Seconds until an empty bucket holds a token again."""
         return 1.0 / self.rate if self.enabled else 0.0
 
     def message(self) -> str:
-        return (f"rate limit exceeded: at most {self.rate:g} requests a second per client "
-                f"(bursts of {self.burst}); retry in {self.retry_after():.1f} s")
+        return (f"rate limit exceeded: at most {self.rate:g} tokens a second per client "
+                f"(bursts of {self.burst}; a request costs a token per 100 characters of text or "
+                f"second of phones); retry in {self.retry_after():.1f} s")
 
     def _forget_idle(self, now: float) -> None:
         full = [k for k, (tokens, then) in self._buckets.items() if tokens + (now - then) * self.rate >= self.burst]
@@ -156,3 +179,334 @@ def client_key(scope) -> str:
     """The client's IP address from an ASGI scope (``"unknown"`` without one)."""
     client = scope.get("client")
     return str(client[0]) if client else "unknown"
+
+
+class RateLimited(Exception):
+    """A client ran out of rate-limit tokens (429 with ``Retry-After``, or a stream error)."""
+
+    def __init__(self, bucket: TokenBucket) -> None:
+        super().__init__(bucket.message())
+        self.retry_after = max(1, math.ceil(bucket.retry_after()))
+
+
+# -- Host, Origin and token -------------------------------------------------------------------------
+
+DEFAULT_ALLOWED_HOSTS = ("localhost", "127.0.0.1", "::1", "testserver")
+"""Host names the server answers to by default: loopback (and ``testserver``, Starlette's
+TestClient, which no DNS name can be)."""
+
+TOKEN_COOKIE = "vispeech_token"
+"""Cookie set by a page opened with ``?token=...``: the pages' own requests carry it."""
+
+PAGE_PATHS = frozenset({"/", "/player", "/viewer"})
+OPEN_API_PATHS = frozenset({"/api/config"})
+
+
+def _hostname(value: str) -> str | None:
+    """The host name of a ``Host`` header value or an origin (lower case, no port, no brackets)."""
+    value = value.strip()
+    if not value:
+        return None
+    try:
+        parts = urlsplit(value if "//" in value else "//" + value)
+        host = parts.hostname
+        parts.port  # noqa: B018 (raises on a bad port)
+    except ValueError:
+        return None
+    return host.lower().rstrip(".") if host else None
+
+
+def _headers(scope) -> dict[bytes, bytes]:
+    return {name.lower(): value for name, value in scope.get("headers", [])}
+
+
+async def _refuse(scope, receive, send, status: int, detail: str, headers: Iterable[tuple[bytes, bytes]] = ()) -> None:
+    """Refuse an HTTP request (JSON error) or a WebSocket handshake (HTTP ``status`` where the server
+    can send a denial response, else close 1008 before accepting)."""
+    if scope["type"] == "http":
+        await send_json_error(send, status, detail, headers)
+        return
+    event = await receive()  # websocket.connect
+    if event.get("type") != "websocket.connect":
+        return
+    if "websocket.http.response" in scope.get("extensions", {}):
+        body = json.dumps({"detail": detail}).encode()
+        await send({"type": "websocket.http.response.start", "status": status,
+                    "headers": [(b"content-type", b"application/json"),
+                                (b"content-length", str(len(body)).encode()), *headers]})
+        await send({"type": "websocket.http.response.body", "body": body})
+    else:
+        await send({"type": "websocket.close", "code": 1008, "reason": detail[:120]})
+
+
+class HostOriginCheck:
+    """ASGI middleware against DNS rebinding and cross-site use.
+
+    Every request's ``Host`` must name one of ``allowed_hosts`` (any port; ``"*"`` allows any):
+    400 otherwise. A WebSocket handshake, and any HTTP request other than GET / HEAD /
+    OPTIONS, that carries an ``Origin`` must come from one of ``allowed_origins`` (host names
+    or full origins such as ``https://app.example.com``; ``None``: the allowed hosts): 403
+    otherwise. Requests without an ``Origin`` (not from a browser) pass.
+    """
+
+    def __init__(self, app, allowed_hosts: Iterable[str], allowed_origins: Iterable[str] | None = None) -> None:
+        self.app = app
+        self.hosts = frozenset(h.lower().strip("[]") for h in allowed_hosts)
+        origins = list(allowed_origins) if allowed_origins is not None else list(self.hosts)
+        self.any_origin = "*" in origins
+        self.origins = frozenset(o.lower().rstrip("/") for o in origins if "//" in o)
+        self.origin_hosts = frozenset(o.lower().strip("[]") for o in origins if "//" not in o)
+
+    def host_allowed(self, host: str | None) -> bool:
+        return "*" in self.hosts or (host is not None and host in self.hosts)
+
+    def origin_allowed(self, origin: str) -> bool:
+        if self.any_origin:
+            return True
+        origin = origin.strip().lower().rstrip("/")
+        return origin in self.origins or (_hostname(origin) or "\0") in self.origin_hosts
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        headers = _headers(scope)
+        raw_host = headers.get(b"host", b"").decode("latin-1")
+        if not self.host_allowed(_hostname(raw_host)):
+            shown = raw_host[:100] or "(none)"
+            await _refuse(scope, receive, send, 400, f"Host {shown!r} is not allowed (the server's --allow-host list)")
+            return
+        origin = headers.get(b"origin")
+        checks_origin = scope["type"] == "websocket" or scope.get("method", "GET") not in ("GET", "HEAD", "OPTIONS")
+        if origin is not None and checks_origin and not self.origin_allowed(origin.decode("latin-1")):
+            shown = origin.decode("latin-1")[:100]
+            await _refuse(scope, receive, send, 403, f"Origin {shown!r} is not allowed (the server's --allow-origin list)")
+            return
+        await self.app(scope, receive, send)
+
+
+class TokenAuth:
+    """ASGI middleware: with a ``token``, the API wants it (401 otherwise).
+
+    Open without it: the pages, ``/static/...``, ``/avatar.glb``, ``/api/config``, ``/docs``
+    and ``/openapi.json``. Every other ``/api/...`` route (speak, chat, audio, the stream)
+    wants ``Authorization: Bearer <token>``, or the ``vispeech_token`` cookie, or (the
+    WebSocket and ``GET /api/audio``, which a browser cannot give headers) a ``token`` query
+    parameter. A page opened with the right ``?token=`` sets the cookie (HttpOnly,
+    SameSite=Strict), so the web app's own requests carry it.
+    """
+
+    def __init__(self, app, token: str | None) -> None:
+        self.app = app
+        self.token = token.encode() if token else None
+
+    def _matches(self, given: str | bytes | None) -> bool:
+        if given is None or self.token is None:
+            return False
+        given = given.encode("utf-8", "replace") if isinstance(given, str) else given
+        return hmac.compare_digest(given, self.token)
+
+    def _query_token(self, scope) -> str | None:
+        try:
+            values = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token")
+        except ValueError:
+            return None
+        return values[0] if values else None
+
+    def authorised(self, scope) -> bool:
+        headers = _headers(scope)
+        auth = headers.get(b"authorization", b"")
+        if auth[:7].lower() == b"bearer " and self._matches(auth[7:].strip()):
+            return True
+        for part in headers.get(b"cookie", b"").split(b";"):
+            name, _, value = part.strip().partition(b"=")
+            if name == TOKEN_COOKIE.encode() and self._matches(value):
+                return True
+        query_allowed = scope["type"] == "websocket" or scope["path"].startswith("/api/audio/")
+        return query_allowed and self._matches(self._query_token(scope))
+
+    async def __call__(self, scope, receive, send) -> None:
+        if self.token is None or scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        path = scope["path"]
+        if scope["type"] == "http" and path in PAGE_PATHS and self._matches(self._query_token(scope)):
+            cookie = f"{TOKEN_COOKIE}={self.token.decode()}; Path=/; HttpOnly; SameSite=Strict".encode()
+
+            async def send_with_cookie(event):
+                if event["type"] == "http.response.start":
+                    event = {**event, "headers": [*event.get("headers", []), (b"set-cookie", cookie)]}
+                await send(event)
+
+            await self.app(scope, receive, send_with_cookie)
+            return
+        if path.startswith("/api/") and path not in OPEN_API_PATHS and not self.authorised(scope):
+            await _refuse(scope, receive, send, 401, "a token is required: send Authorization: Bearer <token>",
+                          [(b"www-authenticate", b'Bearer realm="vispeech"')])
+            return
+        await self.app(scope, receive, send)
+
+
+# -- connections and the work pool -------------------------------------------------------------------
+
+class ConnectionCounter:
+    """Open WebSocket connections, server-wide and per client IP, against their caps."""
+
+    def __init__(self, max_total: int, max_per_ip: int) -> None:
+        self.max_total = max_total
+        self.max_per_ip = max_per_ip
+        self.total = 0
+        self.per_ip: dict[str, int] = {}
+
+    def open(self, ip: str) -> str | None:
+        """Count a new connection of ``ip``; the reason it is refused (then nothing is counted)."""
+        if self.total >= self.max_total:
+            return f"server busy: {self.max_total} streams open, try again later"
+        if self.per_ip.get(ip, 0) >= self.max_per_ip:
+            return f"too many streams from your address (at most {self.max_per_ip} at once)"
+        self.total += 1
+        self.per_ip[ip] = self.per_ip.get(ip, 0) + 1
+        return None
+
+    def close(self, ip: str) -> None:
+        self.total -= 1
+        left = self.per_ip.get(ip, 1) - 1
+        if left > 0:
+            self.per_ip[ip] = left
+        else:
+            self.per_ip.pop(ip, None)
+
+
+class Busy(Exception):
+    """The work queue is full (HTTP 503 with ``Retry-After``, or a stream error)."""
+
+    retry_after = 1
+
+
+class Cancelled(Exception):
+    """The job's client went away before it started: it never ran."""
+
+
+class _Job:
+    __slots__ = ("abandoned", "args", "cancelled", "fn", "future", "key", "loop")
+
+    def __init__(self, fn, args, key, future, loop, cancelled) -> None:
+        self.fn, self.args, self.key = fn, args, key
+        self.future, self.loop, self.cancelled = future, loop, cancelled
+        self.abandoned = False
+
+
+def _settle(future: asyncio.Future, result, error: BaseException | None) -> None:
+    if future.done():
+        return
+    if error is not None:
+        future.set_exception(error)
+    else:
+        future.set_result(result)
+
+
+class WorkPool:
+    """A bounded pool of worker threads for the CPU-heavy work, with a bounded, fair queue.
+
+    ``await pool.run(key, fn, *args)`` runs ``fn(*args)`` on one of ``workers`` threads and
+    returns its result; with ``max_queue`` jobs already waiting it raises :class:`Busy` at
+    once instead of queueing. Waiting jobs are taken in order of how much worker time their
+    client (``key``, the IP address) has used lately (decaying with a ``half_life`` in
+    seconds), so a new or light client is served before a heavy one's next piece. A job whose
+    ``cancelled`` event is set, or whose caller stopped waiting, is dropped unrun.
+    """
+
+    def __init__(self, workers: int, max_queue: int, half_life: float = 10.0) -> None:
+        if workers < 1 or max_queue < 1:
+            raise ValueError("workers and max_queue must be at least 1")
+        self.workers = workers
+        self.max_queue = max_queue
+        self.half_life = half_life
+        self._heap: list = []
+        self._seq = itertools.count()
+        self._cond = threading.Condition()
+        self._usage: dict[str, tuple[float, float]] = {}  # key -> (seconds, time)
+        self._threads: list[threading.Thread] = []
+        self._closed = False
+        self.running = 0
+
+    @property
+    def queued(self) -> int:
+        return len(self._heap)
+
+    def _usage_of(self, key: str, now: float) -> float:
+        used, then = self._usage.get(key, (0.0, now))
+        return used * 0.5 ** ((now - then) / self.half_life)
+
+    def _start(self) -> None:
+        while len(self._threads) < self.workers:
+            thread = threading.Thread(target=self._work, name=f"vispeech-work-{len(self._threads)}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None):
+        """``fn(*args)`` on a worker thread; :class:`Busy` when the queue is full, :class:`Cancelled`
+        when ``cancelled`` was set before it started."""
+        loop = asyncio.get_running_loop()
+        future = loop.create_future()
+        job = _Job(fn, args, key, future, loop, cancelled)
+        with self._cond:
+            if self._closed:
+                raise Busy("the server is shutting down")
+            if len(self._heap) >= self.max_queue:
+                raise Busy(f"server busy: {self.max_queue} jobs waiting, try again later")
+            self._start()
+            now = time.monotonic()
+            heapq.heappush(self._heap, (self._usage_of(key, now), next(self._seq), job))
+            self._cond.notify()
+        try:
+            return await future
+        except asyncio.CancelledError:
+            job.abandoned = True
+            raise
+
+    def close(self) -> None:
+        """Stop the workers once the jobs running now end; waiting jobs are dropped."""
+        with self._cond:
+            self._closed = True
+            dropped, self._heap = self._heap, []
+            self._cond.notify_all()
+        for _, _, job in dropped:
+            self._resolve(job, None, Cancelled("the server is shutting down"))
+
+    def _resolve(self, job: _Job, result, error: BaseException | None) -> None:
+        try:
+            job.loop.call_soon_threadsafe(_settle, job.future, result, error)
+        except RuntimeError:  # the loop is closed: nobody waits any more
+            pass
+
+    def _work(self) -> None:
+        while True:
+            with self._cond:
+                while not self._heap and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                _, _, job = heapq.heappop(self._heap)
+                if job.abandoned or (job.cancelled is not None and job.cancelled.is_set()):
+                    skip = True
+                else:
+                    skip = False
+                    self.running += 1
+            if skip:
+                self._resolve(job, None, Cancelled("the client went away"))
+                continue
+            started = time.perf_counter()
+            result = error = None
+            try:
+                result = job.fn(*job.args)
+            except Exception as exc:  # noqa: BLE001 (handed to the waiting coroutine)
+                error = exc
+            spent = time.perf_counter() - started
+            with self._cond:
+                self.running -= 1
+                now = time.monotonic()
+                self._usage[job.key] = (self._usage_of(job.key, now) + spent, now)
+                if len(self._usage) > 10_000:
+                    self._usage = {k: v for k, v in self._usage.items() if self._usage_of(k, now) > 1e-3}
+            self._resolve(job, result, error)

@@ -119,6 +119,7 @@ class ConfigResponse(BaseModel):
     stream_model: str
     fps: float
     max_text: int
+    token_required: bool = False
 
 
 class ErrorResponse(BaseModel):
