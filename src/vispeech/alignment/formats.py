@@ -189,7 +189,7 @@ def _textgrid_spans(path: Path, text: str) -> tuple[list[_Span], list[_Span]]:
     return phones, words
 
 
-_INTEGER = re.compile(r"[0-9]{1,18}")
+_INTEGER = re.compile(r"[-+]?[0-9]{1,18}")
 _TEXTGRID_TOKEN = re.compile(r'"(?:[^"]|"")*"|<exists>|<absent>|\[[^\]\n]*\]|[^\s"=:\[\]]+')
 
 
@@ -387,7 +387,7 @@ def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
 
 
 def _validated(phones: PhoneSequence, path: Path) -> PhoneSequence:
-    check_utterance(phones.duration, len(phones), str(path))
+    check_utterance(max((p.end for p in phones), default=0.0), len(phones), str(path))
     try:
         phones.validate()
     except VispeechError as exc:
