@@ -2,16 +2,24 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import stat
+import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from vispeech import limits
 from vispeech.errors import VispeechError
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock, so no clean-up of killed runs' leftovers
+    fcntl = None
 
 
 def read_text(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> str:
@@ -71,42 +79,314 @@ def _umask() -> int:
     return mask
 
 
-@contextmanager
-def atomic_output_dir(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a fresh staging folder; on success move its files into ``path``.
+# -- whole-folder replacement ------------------------------------------------------------------
+#
+# Everything a run leaves beside its target while it works is named ``.vispeech-<key>.<role>``
+# in the target's parent folder: ``<key>.lock`` (a small file naming the target, flock-ed by the
+# live run), ``<key>.tmp/`` (the folder being written), ``<key>.new/`` (the same folder once
+# complete: every file and the folder fsync-ed), ``<key>.old/`` (the replaced folder, where the
+# exchange is unavailable), and ``<key>.part`` (a file being written by atomic_output_file,
+# flock-ed while live). Runs take an flock on the parent folder itself while they clean up and
+# create their entries, so a cleaner never sees another run's entries before they are locked.
 
-    Files are staged beside ``path`` and renamed into it only when the block ends without an
-    error, so an interrupted job leaves ``path`` as it was. Raises :class:`VispeechError`
-    when ``path`` cannot be created or written.
+_PREFIX = ".vispeech-"
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+_SYS_RENAMEAT2 = {"x86_64": 316, "amd64": 316, "aarch64": 276, "arm64": 276}
+_swap_function: Any = None
+_cleaned: set[str] = set()
+
+
+def _exchange_function() -> Any:
+    """The C function that swaps two paths in one step, or ``False`` where there is none."""
+    global _swap_function
+    if _swap_function is None:
+        _swap_function = False
+        try:
+            import ctypes
+            import platform
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            if hasattr(libc, "renameat2"):  # Linux, glibc 2.28+
+                func = libc.renameat2
+                func.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+                _swap_function = lambda a, b: func(_AT_FDCWD, a, _AT_FDCWD, b, _RENAME_EXCHANGE)  # noqa: E731
+            elif hasattr(libc, "renamex_np"):  # macOS
+                func = libc.renamex_np
+                func.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint]
+                _swap_function = lambda a, b: func(a, b, 2)  # noqa: E731  (RENAME_SWAP)
+            elif sys.platform.startswith("linux") and platform.machine().lower() in _SYS_RENAMEAT2:
+                number = _SYS_RENAMEAT2[platform.machine().lower()]
+                func = libc.syscall
+                func.restype = ctypes.c_long
+                _swap_function = lambda a, b: func(ctypes.c_long(number), ctypes.c_int(_AT_FDCWD), a,  # noqa: E731
+                                                   ctypes.c_int(_AT_FDCWD), b, ctypes.c_uint(_RENAME_EXCHANGE))
+        except (OSError, AttributeError):
+            _swap_function = False
+    return _swap_function
+
+
+def _exchange(a: str, b: str) -> bool:
+    """Swap the two existing paths ``a`` and ``b`` in one step (``renameat2(RENAME_EXCHANGE)``).
+
+    Returns False where the system or file system cannot (then nothing changed); raises
+    :class:`OSError` for any other failure.
     """
-    target = Path(path)
+    import ctypes
+    import errno
+
+    func = _exchange_function()
+    if not func:
+        return False
+    if func(os.fsencode(a), os.fsencode(b)) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EPERM):
+        return False
+    raise OSError(code, os.strerror(code), a)
+
+
+def _try_lock(fd: int, block: bool = False) -> bool | None:
+    """flock ``fd``: True if taken, False if another process holds it, None if locks do not work here."""
+    if fcntl is None:
+        return None
     try:
-        target.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".vispeech-", dir=target))
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if block else fcntl.LOCK_NB))
+        return True
+    except BlockingIOError:
+        return False
+    except OSError:
+        return None
+
+
+@contextmanager
+def _parent_lock(parent: Path) -> Iterator[bool]:
+    """Hold an flock on folder ``parent`` (yields whether it works here)."""
+    try:
+        fd = os.open(parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        yield False
+        return
+    try:
+        yield bool(_try_lock(fd, block=True))
+    finally:
+        os.close(fd)  # closing drops the lock
+
+
+def _fsync(path: str | os.PathLike, directory: bool = False) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(folder: Path) -> None:
+    """fsync every file and folder under ``folder``, then ``folder`` itself."""
+    for root, dirs, files in os.walk(folder):
+        for name in files:
+            _fsync(os.path.join(root, name))
+        for name in dirs:
+            _fsync(os.path.join(root, name), directory=True)
+    _fsync(folder, directory=True)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def _clean_stale(parent: Path) -> None:
+    """Remove what crashed runs left in ``parent`` (call with the parent's flock held).
+
+    Only entries named ``.vispeech-*.lock`` / ``.vispeech-*.part`` that no live process holds
+    are touched, with the ``.tmp``, ``.new`` and ``.old`` folders of the same key. Where a
+    lock names a target that is missing (a run was killed between its two renames, or before
+    its first), the complete new folder, else the old one, is renamed back onto it first.
+    """
+    try:
+        names = sorted(n for n in os.listdir(parent) if n.startswith(_PREFIX))
+    except OSError:
+        return
+    for name in names:
+        if not (name.endswith(".lock") or name.endswith(".part")):
+            continue
+        entry = parent / name
+        try:
+            fd = os.open(entry, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            continue
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode) or _try_lock(fd) is not True:
+                continue
+            if name.endswith(".part"):
+                entry.unlink()
+                continue
+            key = name[: -len(".lock")]
+            try:
+                target = json.loads(os.read(fd, 4096).decode("utf-8"))["target"]
+            except (OSError, ValueError, KeyError, TypeError):
+                target = None
+            if isinstance(target, str) and target and "/" not in target and target not in (".", ".."):
+                goal = parent / target
+                if not os.path.lexists(goal):
+                    for role in (".new", ".old"):
+                        candidate = parent / f"{key}{role}"
+                        if candidate.is_dir() and not candidate.is_symlink():
+                            os.rename(candidate, goal)
+                            _fsync(parent, directory=True)
+                            break
+            for role in (".tmp", ".new", ".old"):
+                _remove(parent / f"{key}{role}")
+            entry.unlink()
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+
+
+def _foreign_entries(target: Path, allowed: set[str]) -> list[str]:
+    """Names in folder ``target`` that are neither in ``allowed`` nor vispeech's own leftovers."""
+    return sorted(n for n in os.listdir(target) if n not in allowed and not n.startswith(_PREFIX))
+
+
+@contextmanager
+def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) -> Iterator[Path]:
+    """Yield a fresh folder to write into; when the block succeeds it replaces ``path`` as a whole.
+
+    The folder is made beside ``path`` (same parent, so renames are atomic). When the block
+    ends without an error every file in it and the folder are fsync-ed, and it is swapped with
+    ``path`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``, macOS ``renamex_np``); the old
+    folder is then removed. A kill at any moment leaves ``path`` as the old complete folder or
+    the new complete one, never a mix, and never files of two runs side by side. Where no
+    exchange exists the old folder is renamed aside and the new one into place; a kill between
+    the two renames leaves ``path`` missing until the next run into the same parent folder,
+    which puts the complete new (else old) folder back. Every run first removes what killed
+    runs left in the parent (only ``.vispeech-<key>.*`` entries whose lock no live process
+    holds; see ``_clean_stale``). A block that raises leaves ``path`` untouched.
+
+    An existing folder is replaced only when everything in it is named like an entry of the
+    new folder or one of ``replaces`` (the names this kind of folder holds), or is a
+    ``.vispeech-`` leftover: a folder holding other files (a user's) is never destroyed; the
+    run stops with :class:`VispeechError` instead. Symlinks in ``path`` are followed: the
+    folder they lead to is replaced. Raises :class:`VispeechError` when ``path`` exists and is
+    not a folder, is read-only, is the current folder or one above it, or its parent cannot
+    be written.
+    """
+    target = Path(os.path.realpath(path))
+    parent = target.parent
+    shown = Path(path)
+    if target == parent:
+        raise VispeechError(f"cannot replace output folder {shown}: it is the root folder")
+    if os.path.lexists(target) and not target.is_dir():
+        raise VispeechError(f"output path {shown} exists and is not a folder")
+    if target.is_dir() and not os.access(target, os.W_OK):
+        raise VispeechError(f"cannot write to output folder {shown}: Permission denied")
+    cwd = Path(os.path.realpath(os.getcwd()))
+    if cwd == target or target in cwd.parents:
+        raise VispeechError(f"output folder {shown} holds the current folder: give another folder")
+    lock_fd = None
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        with _parent_lock(parent) as locked:
+            if locked:
+                _clean_stale(parent)
+            lock_fd, lock_name = tempfile.mkstemp(prefix=_PREFIX, suffix=".lock", dir=parent)
+            _try_lock(lock_fd)
+            os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))
+            key = lock_name[: -len(".lock")]
+            staging, complete = Path(f"{key}.tmp"), Path(f"{key}.new")
+            os.mkdir(staging)
     except OSError as exc:
-        raise VispeechError(f"cannot write to output folder {target}: {exc.strerror or exc}") from None
+        if lock_fd is not None:
+            os.close(lock_fd)
+            _remove(Path(lock_name))
+        raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
+    old: Path | None = None
     try:
         yield staging
-        for item in sorted(staging.iterdir()):
-            os.replace(item, target / item.name)
+        try:
+            _fsync_tree(staging)
+            os.rename(staging, complete)
+            _fsync(parent, directory=True)
+            if target.is_dir():
+                allowed = set(os.listdir(complete)) | set(replaces)
+                foreign = _foreign_entries(target, allowed)
+                if foreign:
+                    more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+                    raise VispeechError(f"output folder {shown} holds files vispeech did not write "
+                                        f"({', '.join(foreign[:3])}{more}): empty it or choose another folder")
+                os.chmod(complete, stat.S_IMODE(target.stat().st_mode))
+                if _exchange(str(complete), str(target)):
+                    old = complete  # the old folder now lies where the new one was
+                else:
+                    aside = Path(f"{key}.old")
+                    os.rename(target, aside)
+                    try:
+                        os.rename(complete, target)
+                    except OSError:
+                        os.rename(aside, target)  # put the old folder back
+                        raise
+                    old = aside
+            else:
+                os.chmod(complete, 0o777 & ~_umask())
+                os.rename(complete, target)
+            _fsync(parent, directory=True)
+        except OSError as exc:
+            raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        for leftover in (staging, complete, Path(f"{key}.old")):
+            if leftover.exists() and leftover != target:
+                shutil.rmtree(leftover, ignore_errors=True)
+        _remove(Path(lock_name))
+        os.close(lock_fd)
 
 
 @contextmanager
 def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds.
+
+    The temporary file (``.vispeech-*.part`` in the same folder) is fsync-ed before the
+    rename, so ``path`` is always the old complete file or the new complete one; a block that
+    raises removes it, and what a killed run left is removed by the next write into that
+    folder (once per process and folder; only files no live process holds).
+    """
     target = Path(path)
+    parent = target.parent
+    fd = None
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-        os.close(fd)
+        parent.mkdir(parents=True, exist_ok=True)
+        with _parent_lock(parent) as locked:
+            key = str(parent.resolve())
+            if locked and key not in _cleaned:
+                _cleaned.add(key)
+                _clean_stale(parent)
+            fd, tmp = tempfile.mkstemp(prefix=_PREFIX, suffix=".part", dir=parent)
+            _try_lock(fd)
         os.chmod(tmp, 0o666 & ~_umask())
     except OSError as exc:
+        if fd is not None:
+            os.close(fd)
+            _remove(Path(tmp))
         raise VispeechError(f"cannot write {target}: {exc.strerror or exc}") from None
     try:
         yield Path(tmp)
+        _fsync(tmp)
         os.replace(tmp, target)
+        _fsync(parent, directory=True)
     finally:
+        os.close(fd)
         if os.path.exists(tmp):
             os.unlink(tmp)

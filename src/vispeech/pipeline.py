@@ -77,10 +77,15 @@ def speak(
 
 
 def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None) -> list[Path]:
-    """Write an utterance's files into ``out_dir`` atomically and return their paths.
+    """Write an utterance's files as the folder ``out_dir`` and return their paths.
 
     Always ``animation.csv`` (Live Link Face) and ``animation.json``; with audio also
-    ``speech.wav``, ``phones.TextGrid`` and ``preview.html``.
+    ``speech.wav``, ``phones.TextGrid`` and ``preview.html``. The folder is written whole
+    beside ``out_dir`` and swapped in with one rename (:func:`vispeech.files.atomic_output_dir`),
+    so it never holds files of two runs: phones written into a folder ``say`` made leave no
+    old wav, TextGrid or preview behind. An existing ``out_dir`` is replaced only when it holds
+    nothing but those five files; any other file in it (a folder of the user's) stops the run
+    with :class:`VispeechError`, and so does a path that is not a folder.
     """
     from vispeech.preview import render_preview
 
@@ -88,7 +93,8 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
     if out_dir.exists() and not out_dir.is_dir():
         raise VispeechError(f"output path {out_dir} exists and is not a folder")
     names: list[str] = []
-    with atomic_output_dir(out_dir) as staging:
+    outputs = ("speech.wav", "phones.TextGrid", "animation.csv", "animation.json", "preview.html")
+    with atomic_output_dir(out_dir, replaces=outputs) as staging:
         wav = utterance.wav_bytes()
         if wav is not None:
             (staging / "speech.wav").write_bytes(wav)

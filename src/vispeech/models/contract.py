@@ -50,6 +50,10 @@ FORMAT_VERSION = 2
 """Version of the saved-model folder format; loading refuses others."""
 CONFIG = "config.json"
 WEIGHTS = "weights.safetensors"
+FOLDER_NAMES = (CONFIG, WEIGHTS, "training_state.json", "training_state.safetensors", "loss_curve.png", "checkpoint")
+"""What a model folder may hold (beside the model: a network's training state, and ``vispeech
+train``'s loss curve and checkpoint sub-folder); :meth:`Estimator.save` replaces a folder
+holding only these."""
 INPUT_KINDS = ("phones", "audio")
 
 _Self = TypeVar("_Self", bound="Estimator")
@@ -149,7 +153,12 @@ class Estimator(ABC):
                                 "or load a trained one")
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the model into folder ``path`` (created if needed) atomically; returns the folder."""
+        """Write the model into folder ``path`` as a whole; returns the folder.
+
+        The new folder replaces ``path`` in one step (:func:`vispeech.files.atomic_output_dir`):
+        an existing folder is replaced only when it holds nothing but :data:`FOLDER_NAMES`,
+        otherwise :class:`VispeechError`.
+        """
         from safetensors.numpy import save as to_safetensors
 
         learned = self._learned_state()
@@ -167,7 +176,7 @@ class Estimator(ABC):
             "arrays": sorted(arrays),
             "postprocessing": self.postprocessing,
         }
-        with atomic_output_dir(path) as staging:
+        with atomic_output_dir(path, replaces=FOLDER_NAMES) as staging:
             (staging / CONFIG).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
             if arrays:
                 tensors = {key: np.ascontiguousarray(value) for key, value in arrays.items()}
