@@ -426,6 +426,7 @@ class WorkPool:
         self._seq = itertools.count()
         self._cond = threading.Condition()
         self._usage: dict[str, tuple[float, float]] = {}  # key -> (seconds, time)
+        self._waiting: dict[str, tuple[int, float]] = {}  # key -> (jobs queued, highest priority)
         self._threads: list[threading.Thread] = []
         self._closed = False
         self.running = 0
@@ -456,8 +457,11 @@ class WorkPool:
             if len(self._heap) >= self.max_queue:
                 raise Busy(f"server busy: {self.max_queue} jobs waiting, try again later")
             self._start()
-            now = time.monotonic()
-            heapq.heappush(self._heap, (self._usage_of(key, now), next(self._seq), job))
+            priority = self._usage_of(key, time.monotonic())
+            waiting, last = self._waiting.get(key, (0, priority))
+            priority = max(priority, last)  # a client's own jobs stay in order
+            self._waiting[key] = (waiting + 1, priority)
+            heapq.heappush(self._heap, (priority, next(self._seq), job))
             self._cond.notify()
         try:
             return await future
@@ -470,6 +474,7 @@ class WorkPool:
         with self._cond:
             self._closed = True
             dropped, self._heap = self._heap, []
+            self._waiting.clear()
             self._cond.notify_all()
         for _, _, job in dropped:
             self._resolve(job, None, Cancelled("the server is shutting down"))
@@ -488,6 +493,9 @@ class WorkPool:
                 if self._closed:
                     return
                 _, _, job = heapq.heappop(self._heap)
+                waiting, last = self._waiting.pop(job.key, (1, 0.0))
+                if waiting > 1:
+                    self._waiting[job.key] = (waiting - 1, last)
                 if job.abandoned or (job.cancelled is not None and job.cancelled.is_set()):
                     skip = True
                 else:
