@@ -135,13 +135,13 @@ def mutate(data: bytes, rng: random.Random, kind: str) -> bytes:
 def _structural(data: bytes, rng: random.Random, kind: str) -> bytes:
     """A format-aware edit: declared counts, swapped lines, negative or huge times, deep nesting, lying lengths."""
     if kind == "textgrid":
-        text = data.decode()
+        text = data.decode("latin-1")
         edits = [("intervals: size = 6", f"intervals: size = {rng.choice([0, 1, 5, 7, 8, 10**6])}"),
                  ("size = 2", f"size = {rng.choice([0, 1, 3, 99])}"), ("xmin = 0.2", "xmin = -0.2"),
                  ("xmax = 0.45", "xmax = 0.25"), ("xmax = 1", "xmax = 1e6"), ('"IntervalTier"', '"TextTier"'),
                  ("<exists>", "<absent>"), ('"phones"', '"words"')]
         old, new = rng.choice(edits)
-        return text.replace(old, new, 1).encode()
+        return text.replace(old, new, 1).encode("latin-1")
     if kind in ("lab", "align", "livelink"):
         lines = data.split(b"\n")
         if len(lines) > 3:
@@ -194,8 +194,8 @@ def special_files(folder: Path, rng: random.Random, count: int) -> list[tuple[st
         elif what == 6:
             path.write_bytes(b"" if rng.random() < 0.5 else b" \n\t\n")
         else:
-            with open(path, "wb") as f:  # sparse: 100 MB over the 64 MB limit
-                f.truncate(100 * 1024 * 1024)
+            with open(path, "wb") as f:  # sparse: 200 MB, over the 128 MiB limit
+                f.truncate(200 * 1024 * 1024)
         cases.append(("special", path))
     return cases
 

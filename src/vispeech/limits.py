@@ -38,8 +38,9 @@ MAX_CHANNELS = 1_024
 MAX_TEXT_CHARS = 10_000
 """Characters: the longest text ``say`` and :func:`vispeech.pipeline.speak` synthesise at once."""
 
-MAX_FILE_BYTES = 64 * 1024 * 1024
-"""Bytes: the largest text input file (alignment, animation JSON, Live Link CSV, TalkingHead JSON)."""
+MAX_FILE_BYTES = 128 * 1024 * 1024
+"""Bytes: the largest text input file (alignment, animation JSON, Live Link CSV, TalkingHead JSON):
+room for the Live Link CSV vispeech writes of a :data:`MAX_DURATION_S` take at :data:`MAX_FPS`."""
 
 MAX_POSE_TABLE_BYTES = 4 * 1024 * 1024
 """Bytes: the largest pose table JSON file."""
