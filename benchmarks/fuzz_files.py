@@ -128,7 +128,10 @@ def mutate(data: bytes, rng: random.Random, kind: str) -> bytes:
                 m = rng.choice(numbers)
                 data = data[:m.start()] + rng.choice(HOSTILE).encode() + data[m.end():]
         else:
-            data = _structural(data, rng, kind)
+            try:
+                data = _structural(data, rng, kind)
+            except (ValueError, RecursionError):  # an earlier mutation left no structure to edit
+                pass
     return data
 
 
@@ -155,10 +158,7 @@ def _structural(data: bytes, rng: random.Random, kind: str) -> bytes:
             if field + 4 <= len(buf):
                 struct.pack_into("<I", buf, field, rng.choice([0, 1, 2 ** 31, 2 ** 32 - 1, len(buf) * 2]))
         return bytes(buf)
-    try:
-        obj = json.loads(data)
-    except ValueError:
-        return data
+    obj = json.loads(data)
     depth = rng.choice([50, 1000, 100_000])
     nest = "[" * depth + "]" * depth
     key = rng.choice(list(obj)) if isinstance(obj, dict) and obj else "x"
