@@ -13,7 +13,13 @@ Without ``--url`` it starts `vispeech serve` on 127.0.0.1 on a free port in a su
   traversal (``/static/../../etc/passwd``, ``%2e%2e``, ``%252e``, backslashes, NUL), odd
   methods and headers, a broken Content-Length;
 - WebSocket ``/api/stream`` messages: not JSON, binary, wrong types, bad phones (out of
-  order, NaN, unknown symbols), oversize, and a WebSocket handshake on a plain route.
+  order, NaN, unknown symbols, too many seconds), oversize, and a WebSocket handshake on a
+  plain route;
+- odd ``Host``, ``Origin`` and ``Authorization`` headers (foreign, missing, malformed ports,
+  IPv6 brackets), on HTTP and on the WebSocket handshake (refused with 400 / 401 / 403).
+
+With ``--token`` the server wants a token: most requests carry it, some a wrong, empty or
+malformed one.
 
 It fails (exit 1) on any 5xx, any ``internal server error`` stream message or 1011 close,
 any traversal answer that leaks a file, a server log with a traceback, or a server that
@@ -57,6 +63,10 @@ TRAVERSALS = [
 CONTENT_TYPES = ["application/json", "text/plain", "application/x-www-form-urlencoded",
                  "multipart/form-data; boundary=x", "application/json; charset=latin-1"]
 METHODS = ["GET", "HEAD", "POST", "PUT", "DELETE", "OPTIONS", "PATCH", "TRACE", "FOO", "G\x00T"]
+ODD_HEADERS = [{"host": "evil.example"}, {"host": "127.0.0.1:99999"}, {"host": "[::1]:8000"}, {"host": ""},
+               {"origin": "https://evil.example"}, {"origin": "null"}, {"origin": "http://localhost:1"},
+               {"authorization": "Bearer"}, {"authorization": "Bearer " + "x" * 5000}, {"authorization": "Basic Zm9v"},
+               {"cookie": "vispeech_token=wrong; x=y"}, {"cookie": ";;;=="}]
 SECRET_MARKERS = (b"root:", b"[boot loader]", b"import ", b"def ")
 
 
@@ -131,12 +141,14 @@ def ws_message(rng: random.Random) -> str | bytes:
 
 
 class Fuzzer:
-    def __init__(self, url: str, seed: int) -> None:
+    def __init__(self, url: str, seed: int, token: str | None = None) -> None:
         self.url = url.rstrip("/")
         parts = urlsplit(self.url)
         self.host, self.port = parts.hostname, parts.port or 80
         self.ws_url = self.url.replace("http://", "ws://") + "/api/stream"
         self.rng = random.Random(seed)
+        self.token = token
+        self.headers = {"authorization": f"Bearer {token}"} if token else {}
         self.statuses: Counter = Counter()
         self.failures: list[str] = []
         self.sent = 0
@@ -157,6 +169,8 @@ class Fuzzer:
                                            ("/api/chat", {"message": "hej", "lang": "sv", "speak": True})])
                 body = fuzz_json(rng, fields)
                 headers = {"content-type": rng.choice(CONTENT_TYPES)}
+                if rng.random() < 0.15:
+                    headers.update(rng.choice(ODD_HEADERS))
                 self.record(f"POST {path} {body[:80]!r}", client.post(path, content=body, headers=headers).status_code)
             elif kind == 5:
                 size = rng.choice([65 * 1024, 200 * 1024, 2 * 1024 * 1024])
@@ -169,7 +183,7 @@ class Fuzzer:
                 path = rng.choice(TRAVERSALS)
                 method = rng.choice(METHODS[:3])
                 status, body = raw_request(self.host, self.port,
-                                           f"{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n".encode(
+                                           f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n".encode(
                                                "utf-8", "surrogatepass"))
                 self.record(f"{method} {path}", status)
                 if status == 200 and "etc" in path and any(marker in body for marker in SECRET_MARKERS):
@@ -183,15 +197,30 @@ class Fuzzer:
 
     def raw_odd(self, rng: random.Random) -> None:
         request = rng.choice([
-            b"POST /api/speak HTTP/1.1\r\nHost: x\r\nContent-Length: abc\r\nConnection: close\r\n\r\n{}",
-            b"POST /api/speak HTTP/1.1\r\nHost: x\r\nContent-Length: 99999999999\r\nConnection: close\r\n\r\n{}",
-            b"POST /api/speak HTTP/1.1\r\nHost: x\r\nContent-Length: -1\r\nConnection: close\r\n\r\n",
-            b"POST /api/speak HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\nzz\r\n",
-            b"G\x00T / HTTP/1.1\r\nHost: x\r\n\r\n",
-            b"GET / HTTP/9.9\r\nHost: x\r\nConnection: close\r\n\r\n",
-            b"GET / HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 70000 + b"\r\nConnection: close\r\n\r\n",
+            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: abc\r\nConnection: close\r\n\r\n{}",
+            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 99999999999\r\nConnection: close\r\n\r\n{}",
+            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: -1\r\nConnection: close\r\n\r\n",
+            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\nzz\r\n",
+            b"G\x00T / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+            b"GET / HTTP/9.9\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+            b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + b"a" * 70000 + b"\r\nConnection: close\r\n\r\n",
             b"\r\n\r\n\r\n",
-            b"GET /api/config HTTP/1.1\r\nHost: x\r\nContent-Type: \xff\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: \xff\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: 127.0.0.1:abc\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: [::1\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: \xff\xfe\r\nConnection: close\r\n\r\n",
+            b"GET /api/config HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n",
+            b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: null\r\nContent-Length: 2\r\n"
+            b"Connection: close\r\n\r\n{}",
+            b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: http://[\r\nContent-Length: 2\r\n"
+            b"Connection: close\r\n\r\n{}",
+            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer \xff\r\nContent-Length: 2\r\n"
+            b"Connection: close\r\n\r\n{}",
+            b"GET /api/stream?token=%ff%fe&token=x HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: Upgrade\r\n"
+            b"Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+            b"Origin: https://evil.example\r\n\r\n",
         ])
         status, _ = raw_request(self.host, self.port, request)
         self.record(f"raw {request[:60]!r}", status)
@@ -201,6 +230,16 @@ class Fuzzer:
         done = 0
         while done < n:
             if rng.random() < 0.05:
+                origin = rng.choice(["https://evil.example", "null", "http://127.0.0.1.evil.example", "http://["])
+                try:
+                    with connect(self.ws_url, open_timeout=10, additional_headers={**self.headers, "Origin": origin}):
+                        self.record(f"ws from Origin {origin}", 101)
+                        self.failures.append(f"a WebSocket from Origin {origin} was accepted")
+                except InvalidStatus as exc:
+                    self.record(f"ws from Origin {origin}", exc.response.status_code)
+                done += 1
+                continue
+            if rng.random() < 0.05:
                 try:
                     with connect(self.url.replace("http://", "ws://") + "/api/speak", open_timeout=10):
                         self.record("ws handshake on /api/speak", 101)
@@ -208,7 +247,7 @@ class Fuzzer:
                     self.record("ws handshake on /api/speak", exc.response.status_code)
                 done += 1
                 continue
-            with connect(self.ws_url, open_timeout=10, max_size=None) as ws:
+            with connect(self.ws_url, open_timeout=10, max_size=None, additional_headers=self.headers) as ws:
                 for _ in range(min(20, n - done)):
                     message = ws_message(rng)
                     done += 1
@@ -235,12 +274,13 @@ def main() -> int:
     parser.add_argument("--requests", type=int, default=1000, help="requests in all (HTTP and WebSocket messages)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--url", help="fuzz this running server instead of starting one (loopback only!)")
+    parser.add_argument("--token", help="start the server with this token (requests mostly carry it)")
     args = parser.parse_args()
     n = min(max(args.requests, 10), 10_000)
 
     def fuzz(url: str) -> tuple[Fuzzer, int]:
-        fuzzer = Fuzzer(url, args.seed)
-        with httpx.Client(base_url=url, timeout=30) as client:
+        fuzzer = Fuzzer(url, args.seed, args.token)
+        with httpx.Client(base_url=url, timeout=30, headers=fuzzer.headers) as client:
             fuzzer.http(client, n * 4 // 5)
             fuzzer.websocket(n - n * 4 // 5)
             return fuzzer, client.get("/api/config").status_code
@@ -250,7 +290,7 @@ def main() -> int:
     if args.url:
         fuzzer, config_status = fuzz(args.url)
     else:
-        with running_server("--rate-limit", "0") as server:
+        with running_server("--rate-limit", "0", *(["--token", args.token] if args.token else [])) as server:
             fuzzer, config_status = fuzz(server.url)
             log = server.log.read_text(errors="replace")
     if config_status != 200:
