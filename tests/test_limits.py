@@ -311,6 +311,9 @@ def bad_files(tmp_path_factory) -> Path:
     (folder / "good.TextGrid").write_text(textgrid_text())
     write_animation_json(Track(np.full((3, 1), 0.5), ("jawOpen",), 30.0), folder / "good.json")
     tiny_glb(folder / "half.glb", cut=200)
+    (folder / "folder.json").mkdir()
+    (folder / "folder.glb").mkdir()
+    os.mkfifo(folder / "fifo.TextGrid")
     return folder
 
 
@@ -331,6 +334,9 @@ def bad_files(tmp_path_factory) -> Path:
     (["convert", "{d}/good.json", "{d}/x.csv", "--fps", "nan"], "--fps"),
     (["convert", "{d}/good.json", "{d}/x.glb", "--glb", "{d}/half.glb"], "cut short"),
     (["convert", "{d}/good.json", "{d}/x.csv", "--pose-table", "{d}/deep.json"], "nested"),
+    (["convert", "{d}/folder.json", "{d}/x.csv"], "is a folder"),
+    (["convert", "{d}/good.json", "{d}/x.glb", "--glb", "{d}/folder.glb"], "not a regular file"),
+    (["animate-phones", "{d}/fifo.TextGrid", "-o", "{d}/out"], "not a regular file"),
 ])
 def test_cli_bad_input_one_error_line(bad_files, args, needle):
     result = run_cli(*(a.format(d=bad_files) for a in args))

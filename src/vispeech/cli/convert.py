@@ -9,7 +9,7 @@ import click
 from vispeech.cli import main
 
 @main.command("convert")
-@click.argument("input_path", metavar="INPUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
               help="Output format: livelink, json, talkinghead, oculus, rhubarb or gltf "
@@ -17,7 +17,7 @@ from vispeech.cli import main
 @click.option("--fps", type=float, help="Resample to this many frames per second.")
 @click.option("--pose-table", help="Pose table (JSON file or built-in name): retargets the track, or for "
               "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
-@click.option("--glb", "base_glb", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--glb", "base_glb", type=click.Path(path_type=Path),
               help="Base model with ARKit-named morph targets (needed for gltf).")
 def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float | None,
                     pose_table: str | None, base_glb: Path | None) -> None:
