@@ -295,3 +295,12 @@ def test_a_killed_cli_run_leaves_a_complete_folder(tmp_path):
         assert _snapshot(out) in (old, new), f"killed after {whole * (0.55 + 0.06 * k):.3f} s"
         _recover(out.parent)
         assert os.listdir(out.parent) == ["out"]
+
+
+def test_the_current_folder_is_not_replaced(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(files.VispeechError, match="current folder"):
+        write_outputs(_utterance(tmp_path, "M", audio=False), ".")
+    with pytest.raises(files.VispeechError, match="current folder"):
+        write_outputs(_utterance(tmp_path, "M", audio=False), tmp_path.parent)
+    assert sorted(os.listdir(tmp_path)) == ["M.TextGrid"]

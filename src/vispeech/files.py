@@ -121,7 +121,7 @@ def _exchange_function() -> Any:
                 func.restype = ctypes.c_long
                 _swap_function = lambda a, b: func(ctypes.c_long(number), ctypes.c_int(_AT_FDCWD), a,  # noqa: E731
                                                    ctypes.c_int(_AT_FDCWD), b, ctypes.c_uint(_RENAME_EXCHANGE))
-        except (OSError, AttributeError):
+        except (OSError, AttributeError, TypeError):
             _swap_function = False
     return _swap_function
 
@@ -280,8 +280,8 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     ``.vispeech-`` leftover: a folder holding other files (a user's) is never destroyed; the
     run stops with :class:`VispeechError` instead. Symlinks in ``path`` are followed: the
     folder they lead to is replaced. Raises :class:`VispeechError` when ``path`` exists and is
-    not a folder, is read-only, is the current folder or one above it, or its parent cannot
-    be written.
+    not a folder, is read-only, is a mount point, is the current folder or one above it, or
+    its parent cannot be written (the new folder is made there).
     """
     target = Path(os.path.realpath(path))
     parent = target.parent
@@ -295,6 +295,9 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     cwd = Path(os.path.realpath(os.getcwd()))
     if cwd == target or target in cwd.parents:
         raise VispeechError(f"output folder {shown} holds the current folder: give another folder")
+    if os.path.ismount(target):
+        raise VispeechError(f"output folder {shown} is a mount point and cannot be replaced as a whole: "
+                            "give a folder inside it")
     lock_fd = None
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -304,6 +307,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
             lock_fd, lock_name = tempfile.mkstemp(prefix=_PREFIX, suffix=".lock", dir=parent)
             _try_lock(lock_fd)
             os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))
+            os.fsync(lock_fd)  # the next run restores the target by this name
             key = lock_name[: -len(".lock")]
             staging, complete = Path(f"{key}.tmp"), Path(f"{key}.new")
             os.mkdir(staging)
@@ -347,8 +351,14 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:
-        for leftover in (staging, complete, Path(f"{key}.old")):
-            if leftover.exists() and leftover != target:
+        aside = Path(f"{key}.old")
+        if aside.is_dir() and not os.path.lexists(target):
+            try:
+                os.rename(aside, target)  # never lose the old folder
+            except OSError:
+                pass
+        for leftover in (staging, complete, aside):
+            if leftover.exists() and leftover != target and (leftover != aside or os.path.lexists(target)):
                 shutil.rmtree(leftover, ignore_errors=True)
         _remove(Path(lock_name))
         os.close(lock_fd)
