@@ -8,6 +8,7 @@ import heapq
 import hmac
 import itertools
 import json
+import logging
 import math
 import threading
 import time
@@ -15,6 +16,8 @@ from collections.abc import Callable, Iterable
 from urllib.parse import parse_qs, urlsplit
 
 from starlette.exceptions import HTTPException
+
+log = logging.getLogger("vispeech.serve")
 
 
 class TokenBucket:
@@ -92,12 +95,16 @@ class TokenBucket:
 async def send_json_error(send, status: int, detail: str, headers: Iterable[tuple[bytes, bytes]] = ()) -> None:
     """Send a complete ``{"detail": ...}`` JSON response through an ASGI ``send``."""
     body = json.dumps({"detail": detail}).encode()
-    await send({
-        "type": "http.response.start",
-        "status": status,
-        "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()), *headers],
-    })
-    await send({"type": "http.response.body", "body": body})
+    try:
+        await send({
+            "type": "http.response.start",
+            "status": status,
+            "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                        *headers],
+        })
+        await send({"type": "http.response.body", "body": body})
+    except Exception:  # noqa: BLE001 (the connection broke first, e.g. the server refused a malformed body)
+        log.debug("could not send the %d answer: the connection is gone", status)
 
 
 class _BodyTooLarge(HTTPException):
