@@ -98,16 +98,22 @@ def check_track_size(n_frames: int, n_channels: int, where: str = "") -> None:
 def json_depth(text: str) -> tuple[int, int]:
     """The deepest nesting of ``text`` (JSON) and the character offset where it is first reached.
 
-    Strings are skipped, so brackets inside them do not count. Linear time, no recursion.
+    Strings are skipped, so brackets inside them do not count. Linear time, no recursion, and
+    memory bounded by the chunk size beyond the text itself.
     """
     stripped = _JSON_STRING.sub('""', text)
     codes = np.frombuffer(stripped.encode("utf-8", "replace"), dtype=np.uint8)
-    if codes.size == 0:
-        return 0, 0
-    step = np.isin(codes, (91, 123)).astype(np.int32) - np.isin(codes, (93, 125)).astype(np.int32)
-    depth = np.cumsum(step)
-    deepest = int(np.argmax(depth))
-    return int(depth[deepest]), deepest
+    depth = deepest = where = 0
+    chunk = 1 << 22
+    for start in range(0, codes.size, chunk):
+        part = codes[start:start + chunk]
+        step = (part == 91).astype(np.int64) + (part == 123) - (part == 93) - (part == 125)
+        running = np.cumsum(step) + depth
+        i = int(np.argmax(running))
+        if running[i] > deepest:
+            deepest, where = int(running[i]), start + i
+        depth = int(running[-1])
+    return deepest, where
 
 
 def parse_json(text: str, where: str) -> object:
