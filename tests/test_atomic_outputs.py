@@ -213,9 +213,8 @@ def test_an_empty_folder_is_replaced_and_a_file_is_an_error(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(files.VispeechError, match="not a folder"):
         write_outputs(utterance, tmp_path / "file")
-    with pytest.raises(files.VispeechError, match="not a folder"):
-        with files.atomic_output_dir(tmp_path / "file"):
-            pass
+    with pytest.raises(files.VispeechError, match="not a folder"), files.atomic_output_dir(tmp_path / "file"):
+        pass
     assert (tmp_path / "file").read_text() == "x"
 
 
@@ -241,12 +240,9 @@ def test_only_stale_leftovers_of_vispeech_are_removed(tmp_path):
     live = parent / ".vispeech-live.lock"
     live.write_text('{"target": "busy"}')
     (parent / ".vispeech-live.tmp").mkdir()
-    handle = open(live, "r+")
-    fcntl.flock(handle, fcntl.LOCK_EX)  # a run in progress
-    try:
+    with open(live, "r+") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)  # a run in progress
         write_outputs(_utterance(tmp_path, "M", audio=False), parent / "out")
-    finally:
-        handle.close()
     assert sorted(os.listdir(parent)) == [".vispeech-live.lock", ".vispeech-live.tmp", ".vispeech-notours",
                                           "out", "user.txt"]
     write_outputs(_utterance(tmp_path, "M", audio=False), parent / "out")  # the live run has gone now
@@ -304,3 +300,18 @@ def test_the_current_folder_is_not_replaced(tmp_path, monkeypatch):
     with pytest.raises(files.VispeechError, match="current folder"):
         write_outputs(_utterance(tmp_path, "M", audio=False), tmp_path.parent)
     assert sorted(os.listdir(tmp_path)) == ["M.TextGrid"]
+
+
+def test_concurrent_runs_into_one_folder_leave_one_complete_folder(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    utterances = [_utterance(tmp_path, "P", audio=True), _utterance(tmp_path, "M", audio=False)]
+    reference = []
+    for k, utterance in enumerate(utterances):
+        write_outputs(utterance, tmp_path / f"ref{k}")
+        reference.append(_snapshot(tmp_path / f"ref{k}"))
+    out = tmp_path / "work" / "out"
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(lambda k: write_outputs(utterances[k % 2], out), range(16)))
+    assert _snapshot(out) in reference
+    assert os.listdir(out.parent) == ["out"]

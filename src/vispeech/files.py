@@ -110,16 +110,16 @@ def _exchange_function() -> Any:
             if hasattr(libc, "renameat2"):  # Linux, glibc 2.28+
                 func = libc.renameat2
                 func.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-                _swap_function = lambda a, b: func(_AT_FDCWD, a, _AT_FDCWD, b, _RENAME_EXCHANGE)  # noqa: E731
+                _swap_function = lambda a, b: func(_AT_FDCWD, a, _AT_FDCWD, b, _RENAME_EXCHANGE)
             elif hasattr(libc, "renamex_np"):  # macOS
                 func = libc.renamex_np
                 func.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint]
-                _swap_function = lambda a, b: func(a, b, 2)  # noqa: E731  (RENAME_SWAP)
+                _swap_function = lambda a, b: func(a, b, 2)  # RENAME_SWAP
             elif sys.platform.startswith("linux") and platform.machine().lower() in _SYS_RENAMEAT2:
                 number = _SYS_RENAMEAT2[platform.machine().lower()]
                 func = libc.syscall
                 func.restype = ctypes.c_long
-                _swap_function = lambda a, b: func(ctypes.c_long(number), ctypes.c_int(_AT_FDCWD), a,  # noqa: E731
+                _swap_function = lambda a, b: func(ctypes.c_long(number), ctypes.c_int(_AT_FDCWD), a,
                                                    ctypes.c_int(_AT_FDCWD), b, ctypes.c_uint(_RENAME_EXCHANGE))
         except (OSError, AttributeError, TypeError):
             _swap_function = False
@@ -219,7 +219,7 @@ def _clean_stale(parent: Path) -> None:
     except OSError:
         return
     for name in names:
-        if not (name.endswith(".lock") or name.endswith(".part")):
+        if not name.endswith((".lock", ".part")):
             continue
         entry = parent / name
         try:
