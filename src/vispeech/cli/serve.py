@@ -53,13 +53,15 @@ from vispeech.pipeline import DEFAULT_MODEL
               help="Seconds a WebSocket connection may stay open in all.")
 @click.option("--cache-mb", default=512, show_default=True, type=click.IntRange(min=1),
               help="Largest size of the utterance cache (MiB of audio and animation).")
+@click.option("--ws-deflate/--no-ws-deflate", default=False, show_default=True,
+              help="Compress WebSocket messages (permessage-deflate): less traffic, more CPU per message.")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
 def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, cache: Path | None,
           default_model: str, stream_model: str | None, rate_limit: float, burst: int, chat_url: str | None,
           chat_reply_field: str, token: str | None, allow_host: tuple[str, ...], allow_origin: tuple[str, ...],
           workers: int | None, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
-          stream_timeout: float, cache_mb: int, log_level: str) -> None:
+          stream_timeout: float, cache_mb: int, ws_deflate: bool, log_level: str) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
 
     API documentation is at /docs; docs/serve.md lists the limits. Stop with Ctrl+C.
@@ -82,4 +84,5 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
                f"stream model {service.stream_model}{', token required' if token else ''})")
     uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=config.max_message_bytes,
+                ws_per_message_deflate=ws_deflate,
                 timeout_graceful_shutdown=5)

@@ -23,6 +23,7 @@ import json
 import logging
 import os
 import re
+import sys
 import threading
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
@@ -79,7 +80,12 @@ from vispeech.serve.schemas import (
     StartMessage,
     TextMessage,
 )
-from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages
+from vispeech.streaming import (
+    PhoneStream,
+    open_phone_stream,
+    speech_messages,
+    split_clauses,
+)
 
 log = logging.getLogger("vispeech.serve")
 
@@ -91,6 +97,10 @@ LOW_LATENCY_MODEL = "grid-tdnn-lowlatency"
 
 _PAGES = {"/": "index.html", "/player": "player.html", "/viewer": "viewer.html"}
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
+TEXT_WORK_PER_CHAR = 4e-4
+"""Estimated worker seconds per character of text spoken (the work pool's weight of a job)."""
+PHONE_WORK_PER_SECOND = 0.03
+"""Estimated worker seconds per second of phones pushed."""
 _ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
 
 
@@ -149,6 +159,7 @@ class ServeConfig:
     workers: int = field(default_factory=_default_workers)
     max_queue: int = 64
     piece_seconds: float = 1.0
+    switch_interval: float | None = 0.0005
     allowed_hosts: tuple[str, ...] = DEFAULT_ALLOWED_HOSTS
     allowed_origins: tuple[str, ...] | None = None
     token: str | None = None
@@ -298,6 +309,10 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        if config.switch_interval:
+            # the event loop releases the GIL for every socket call and must win it back from a worker in
+            # pure Python: the default 5 ms a time would slow the loop to a crawl under load
+            sys.setswitchinterval(config.switch_interval)
         await run_in_threadpool(service.warm_up)
         yield
         service.pool.close()
@@ -361,7 +376,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         service.pay(ip, service.text_cost(request.text))
         args = (request.text, request.lang, request.model, request.rate)
         return (await run_in_threadpool(service.lookup, *args)
-                or await service.pool.run(ip, service.speak, *args))
+                or await service.pool.run(ip, service.speak, *args, weight=len(request.text) * TEXT_WORK_PER_CHAR))
 
     @app.get("/api/audio/{audio_id}.wav", response_class=Response,
              responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}})
@@ -385,7 +400,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
             service.bucket.charge(ip, service.text_cost(reply))
             args = (reply, request.lang, request.model, 1.0)
             speech = (await run_in_threadpool(service.lookup, *args)
-                      or await service.pool.run(ip, service.speak, *args))
+                      or await service.pool.run(ip, service.speak, *args, weight=len(reply) * TEXT_WORK_PER_CHAR))
         return {"reply": reply, "lang": request.lang, "speech": speech}
 
     @app.websocket("/api/stream")
@@ -507,8 +522,8 @@ class _StreamConnection:
             await _error(self.ws, message)
             await self.ws.close(code)
 
-    async def _run(self, fn, *args):
-        return await self.service.pool.run(self.ip, fn, *args, cancelled=self.cancelled)
+    async def _run(self, fn, *args, weight: float = 0.0):
+        return await self.service.pool.run(self.ip, fn, *args, cancelled=self.cancelled, weight=weight)
 
     async def _process(self) -> None:
         try:
@@ -566,8 +581,9 @@ class _StreamConnection:
             batch = next(messages, None)
             return None if batch is None else [_json(item) for item in batch]
 
+        weights = [len(clause) * TEXT_WORK_PER_CHAR for clause in split_clauses(message.text)]
         try:
-            while (batch := await self._run(next_clause)) is not None:
+            while (batch := await self._run(next_clause, weight=weights.pop(0) if weights else 0.0)) is not None:
                 for text in batch:
                     await self.ws.send_text(text)
         finally:
@@ -597,8 +613,11 @@ class _StreamConnection:
                                               model=name, lookahead=stream.lookahead))
         phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
         await self._run(stream.check, phones)  # refused whole before any piece is pushed
-        for piece in _pieces(phones, stream.end, config.piece_seconds):
-            if (text := await self._run(_frames_json, stream.push, piece)) is not None:
+        begin = stream.end
+        for piece in _pieces(phones, begin, config.piece_seconds):
+            weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
+            begin = piece[-1].end if piece else begin
+            if (text := await self._run(_frames_json, stream.push, piece, weight=weight)) is not None:
                 await self.ws.send_text(text)
         if message.final:
             if (text := await self._run(_frames_json, stream.finish)) is not None:

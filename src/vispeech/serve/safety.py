@@ -419,8 +419,9 @@ class WorkPool:
     returns its result; with ``max_queue`` jobs already waiting it raises :class:`Busy` at
     once instead of queueing. Waiting jobs are taken in order of how much worker time their
     client (``key``, the IP address) has used lately (decaying with a ``half_life`` in
-    seconds), so a new or light client is served before a heavy one's next piece. A job whose
-    ``cancelled`` event is set, or whose caller stopped waiting, is dropped unrun.
+    seconds) plus the job's own estimated ``weight`` (seconds), a client's own jobs in order:
+    a new or light client, or a short job, is served before a heavy client's next piece. A
+    job whose ``cancelled`` event is set, or whose caller stopped waiting, is dropped unrun.
     """
 
     def __init__(self, workers: int, max_queue: int, half_life: float = 10.0) -> None:
@@ -452,7 +453,8 @@ class WorkPool:
             thread.start()
             self._threads.append(thread)
 
-    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None):
+    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None,
+                  weight: float = 0.0):
         """``fn(*args)`` on a worker thread; :class:`Busy` when the queue is full, :class:`Cancelled`
         when ``cancelled`` was set before it started."""
         loop = asyncio.get_running_loop()
@@ -464,7 +466,7 @@ class WorkPool:
             if len(self._heap) >= self.max_queue:
                 raise Busy(f"server busy: {self.max_queue} jobs waiting, try again later")
             self._start()
-            priority = self._usage_of(key, time.monotonic())
+            priority = self._usage_of(key, time.monotonic()) + max(0.0, weight)
             waiting, last = self._waiting.get(key, (0, priority))
             priority = max(priority, last)  # a client's own jobs stay in order
             self._waiting[key] = (waiting + 1, priority)
