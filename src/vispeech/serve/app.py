@@ -131,7 +131,9 @@ class ServeConfig:
     at most ``max_message_seconds`` s of phones, a phone stream reach ``max_stream_seconds``.
     ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.serve.safety.HostOriginCheck`;
     ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
-    ``cache_bytes`` caps the cache's size.
+    ``cache_bytes`` caps the cache's size. ``switch_interval``: the GIL switch interval the
+    server sets when it starts (seconds; ``None`` leaves Python's 5 ms), so the event loop wins
+    the GIL back quickly from a busy worker after each socket call.
     """
 
     avatar: Path | None = None
