@@ -358,3 +358,59 @@ def test_a_cache_file_of_the_old_layout_is_emptied(tmp_path):
     cache.put(key, b"wav", json.dumps({}))
     assert cache.get(key) is not None
     cache.close()
+
+
+# -- property-based: whatever arrives, no 5xx and no internal error ----------------------------------
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=30),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=10), inner, max_size=4),
+    max_leaves=12,
+)
+FIELD_VALUES = st.one_of(JSON, st.sampled_from(["en", "sv", "fr", "baseline", "nope", "", "Hello.", "x" * 1001]))
+PHONE = st.fixed_dictionaries(
+    {"symbol": st.sampled_from(["AA1", "M", "sil", "a", "xyz", "", "P"]),
+     "start": st.floats(-1, 700) | st.just(float("nan")), "end": st.floats(-1, 700) | st.just(float("nan"))},
+    optional={"stress": st.integers(-2, 4)})
+STREAM_MESSAGE = st.one_of(
+    JSON,
+    st.fixed_dictionaries({"type": st.sampled_from(["text", "phones", "start", ""])},
+                          optional={"text": FIELD_VALUES, "lang": FIELD_VALUES, "model": FIELD_VALUES,
+                                    "rate": FIELD_VALUES, "final": st.booleans(),
+                                    "phones": st.lists(PHONE, max_size=8)}),
+)
+PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("abuse") / "c.sqlite3"
+    settings_ = ServeConfig(cache=cache, rate_limit=0, default_model="baseline", stream_model="baseline")
+    with TestClient(create_app(settings_)) as client:
+        yield client
+
+
+@PROPERTY
+@given(path=st.sampled_from(["/api/speak", "/api/chat"]),
+       body=st.dictionaries(st.sampled_from(["text", "message", "lang", "model", "rate", "speak"]), FIELD_VALUES,
+                            max_size=5) | JSON)
+def test_any_json_body_gets_no_5xx(served, path, body):
+    response = served.post(path, content=json.dumps(body, allow_nan=True), headers={"content-type": "application/json"})
+    assert response.status_code < 500, response.text
+
+
+@PROPERTY
+@given(message=STREAM_MESSAGE)
+def test_any_stream_message_gets_an_answer_and_the_stream_goes_on(served, message):
+    with served.websocket_connect("/api/stream") as ws:
+        ws.send_text(json.dumps(message, allow_nan=True))
+        ws.send_text('{"type": "sentinel"}')  # always refused: marks the end of the answers
+        while True:
+            reply = ws.receive_json()
+            assert not (reply["type"] == "error" and "internal" in reply["message"]), (message, reply)
+            if reply["type"] == "error" and "sentinel" in reply["message"]:
+                break
