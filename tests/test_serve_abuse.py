@@ -58,6 +58,9 @@ def test_host_header_must_be_allowed(tmp_path):
         refused = client.get("/api/config", headers={"host": "rebind.attacker.example:8000"})
         assert refused.status_code == 400 and "not allowed" in refused.json()["detail"]
         assert client.post("/api/speak", json={"text": "hi"}, headers={"host": "evil.example"}).status_code == 400
+        assert client.get("/api/config", headers={"host": "192.168.1.5:8000"}).status_code == 200  # an address
+        assert client.get("/api/config", headers={"host": "[fe80::1]"}).status_code == 200
+        assert client.get("/api/config", headers={"host": "192.168.1.5.evil.example"}).status_code == 400
     with TestClient(create_app(config(tmp_path, allowed_hosts=("*",)))) as anything:
         assert anything.get("/api/config", headers={"host": "whatever.example"}).status_code == 200
 
@@ -77,6 +80,11 @@ def test_a_foreign_origin_is_refused_on_the_websocket_and_on_posts(tmp_path):
                            headers={"origin": "http://127.0.0.1:8000"})
         assert same.status_code == 200
         assert client.get("/api/config", headers={"origin": "https://evil.example"}).status_code == 200  # reads pass
+        lan = {"host": "192.168.1.5:8000"}  # the server's own origin, reached by its address
+        assert client.post("/api/chat", json={"message": "hi", "speak": False},
+                           headers={**lan, "origin": "http://192.168.1.5:8000"}).status_code == 200
+        assert client.post("/api/chat", json={"message": "hi", "speak": False},
+                           headers={**lan, "origin": "http://192.168.1.6:8000"}).status_code == 403
     allowed = config(tmp_path, allowed_origins=("https://app.example.com",))
     with TestClient(create_app(allowed)) as client, client.websocket_connect(
             "/api/stream", headers={"origin": "https://app.example.com"}) as ws:

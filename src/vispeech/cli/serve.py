@@ -35,11 +35,11 @@ from vispeech.pipeline import DEFAULT_MODEL
               help="Require this bearer token for the API and the stream (pages and /api/config stay open; "
               "open a page with ?token=... to let it in).")
 @click.option("--allow-host", multiple=True, metavar="NAME",
-              help="Host name the server answers to, beside localhost, 127.0.0.1, ::1 and --host "
+              help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
               "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).")
 @click.option("--allow-origin", multiple=True, metavar="ORIGIN",
               help="Browser origin (https://app.example.com, or a host name) allowed to use the API and the "
-              "stream, beside the allowed hosts (repeatable; * for any). Others get 403.")
+              "stream, beside the server's own and the allowed hosts (repeatable; * for any). Others get 403.")
 @click.option("--workers", type=click.IntRange(min=1), help="Threads for the CPU-heavy work [default: cores - 1].")
 @click.option("--max-queue", default=64, show_default=True, type=click.IntRange(min=1),
               help="Jobs that may wait for a worker; beyond that requests get 503 (busy).")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import heapq
 import hmac
+import ipaddress
 import itertools
 import json
 import logging
@@ -249,11 +250,13 @@ async def _refuse(scope, receive, send, status: int, detail: str, headers: Itera
 class HostOriginCheck:
     """ASGI middleware against DNS rebinding and cross-site use.
 
-    Every request's ``Host`` must name one of ``allowed_hosts`` (any port; ``"*"`` allows any):
-    400 otherwise. A WebSocket handshake, and any HTTP request other than GET / HEAD /
-    OPTIONS, that carries an ``Origin`` must come from one of ``allowed_origins`` (host names
-    or full origins such as ``https://app.example.com``; ``None``: the allowed hosts): 403
-    otherwise. Requests without an ``Origin`` (not from a browser) pass.
+    Every request's ``Host`` must name one of ``allowed_hosts`` (any port; ``"*"`` allows any)
+    or be an IP address (a rebinding attack needs a name the attacker controls): 400
+    otherwise. A WebSocket handshake, and any HTTP request other than GET / HEAD / OPTIONS,
+    that carries an ``Origin`` must come from the server's own origin (the ``Origin``'s host
+    and port those of ``Host``) or one of ``allowed_origins`` (host names or full origins such
+    as ``https://app.example.com``; ``None``: the allowed hosts): 403 otherwise. Requests
+    without an ``Origin`` (not from a browser) pass.
     """
 
     def __init__(self, app, allowed_hosts: Iterable[str], allowed_origins: Iterable[str] | None = None) -> None:
@@ -265,13 +268,27 @@ class HostOriginCheck:
         self.origin_hosts = frozenset(o.lower().strip("[]") for o in origins if "//" not in o)
 
     def host_allowed(self, host: str | None) -> bool:
-        return "*" in self.hosts or (host is not None and host in self.hosts)
+        if host is None:
+            return False
+        if "*" in self.hosts or host in self.hosts:
+            return True
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            return False
+        return True
 
-    def origin_allowed(self, origin: str) -> bool:
+    def origin_allowed(self, origin: str, host: str = "") -> bool:
         if self.any_origin:
             return True
         origin = origin.strip().lower().rstrip("/")
-        return origin in self.origins or (_hostname(origin) or "\0") in self.origin_hosts
+        if origin in self.origins or (_hostname(origin) or "\0") in self.origin_hosts:
+            return True
+        try:
+            parts = urlsplit(origin)
+            return bool(parts.netloc) and parts.scheme in ("http", "https") and parts.netloc == host.strip().lower()
+        except ValueError:
+            return False
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] not in ("http", "websocket"):
@@ -285,7 +302,7 @@ class HostOriginCheck:
             return
         origin = headers.get(b"origin")
         checks_origin = scope["type"] == "websocket" or scope.get("method", "GET") not in ("GET", "HEAD", "OPTIONS")
-        if origin is not None and checks_origin and not self.origin_allowed(origin.decode("latin-1")):
+        if origin is not None and checks_origin and not self.origin_allowed(origin.decode("latin-1"), raw_host):
             shown = origin.decode("latin-1")[:100]
             await _refuse(scope, receive, send, 403, f"Origin {shown!r} is not allowed (the server's --allow-origin list)")
             return
