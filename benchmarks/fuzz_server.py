@@ -212,15 +212,15 @@ class Fuzzer:
             b"GET /api/config HTTP/1.1\r\nHost: [::1\r\nConnection: close\r\n\r\n",
             b"GET /api/config HTTP/1.1\r\nHost: \xff\xfe\r\nConnection: close\r\n\r\n",
             b"GET /api/config HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n",
-            b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: null\r\nContent-Length: 2\r\n"
-            b"Connection: close\r\n\r\n{}",
-            b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: http://[\r\nContent-Length: 2\r\n"
-            b"Connection: close\r\n\r\n{}",
-            b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer \xff\r\nContent-Length: 2\r\n"
-            b"Connection: close\r\n\r\n{}",
-            b"GET /api/stream?token=%ff%fe&token=x HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: Upgrade\r\n"
-            b"Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
-            b"Origin: https://evil.example\r\n\r\n",
+            (b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: null\r\nContent-Length: 2\r\n"
+             b"Connection: close\r\n\r\n{}"),
+            (b"POST /api/chat HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: http://[\r\nContent-Length: 2\r\n"
+             b"Connection: close\r\n\r\n{}"),
+            (b"POST /api/speak HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer \xff\r\nContent-Length: 2\r\n"
+             b"Connection: close\r\n\r\n{}"),
+            (b"GET /api/stream?token=%ff%fe&token=x HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: Upgrade\r\n"
+             b"Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+             b"Origin: https://evil.example\r\n\r\n"),
         ])
         status, _ = raw_request(self.host, self.port, request)
         self.record(f"raw {request[:60]!r}", status)
