@@ -159,6 +159,13 @@ class Estimator(ABC):
         an existing folder is replaced only when it holds nothing but :data:`FOLDER_NAMES`,
         otherwise :class:`VispeechError`.
         """
+        with atomic_output_dir(path, replaces=FOLDER_NAMES) as staging:
+            self._write_files(staging)
+        return Path(path)
+
+    def _write_files(self, folder: Path) -> None:
+        """Write ``config.json`` (and ``weights.safetensors``) into ``folder``, which exists: the
+        staging folder of :meth:`save` or of a checkpoint that adds files of its own."""
         from safetensors.numpy import save as to_safetensors
 
         learned = self._learned_state()
@@ -176,12 +183,10 @@ class Estimator(ABC):
             "arrays": sorted(arrays),
             "postprocessing": self.postprocessing,
         }
-        with atomic_output_dir(path, replaces=FOLDER_NAMES) as staging:
-            (staging / CONFIG).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
-            if arrays:
-                tensors = {key: np.ascontiguousarray(value) for key, value in arrays.items()}
-                (staging / WEIGHTS).write_bytes(to_safetensors(tensors))
-        return Path(path)
+        (folder / CONFIG).write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
+        if arrays:
+            tensors = {key: np.ascontiguousarray(value) for key, value in arrays.items()}
+            (folder / WEIGHTS).write_bytes(to_safetensors(tensors))
 
     @classmethod
     def load(cls: type[_Self], path: str | os.PathLike) -> _Self:

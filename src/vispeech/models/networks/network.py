@@ -35,7 +35,8 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import Estimator, ModelStream, WindowStream, show_progress, training_split
+from vispeech.files import atomic_output_dir
+from vispeech.models.contract import FOLDER_NAMES, Estimator, ModelStream, WindowStream, show_progress, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.motion.arkit import ARKIT_NAMES, ARTICULATORY_CHANNELS, MOUTH_CHANNELS
@@ -221,11 +222,12 @@ class Network(Estimator):
         self._kernel = None
 
     def _write_checkpoint(self, folder: Path, module, state) -> None:
-        """Save the model so far into ``folder`` with the training state beside it."""
+        """Save the model so far with the training state beside it, replacing ``folder`` as a whole."""
         from vispeech.models.networks.training import save_state
 
-        self.save(folder)
-        save_state(state, module, folder)
+        with atomic_output_dir(folder, replaces=FOLDER_NAMES) as staging:
+            self._write_files(staging)
+            save_state(state, module, staging)
 
     def _resumable(self, folder: Path) -> Network:
         """The saved run in ``folder``, if it is one of this network with the same parameters."""
