@@ -335,7 +335,7 @@ def bad_files(tmp_path_factory) -> Path:
     (["convert", "{d}/good.json", "{d}/x.glb", "--glb", "{d}/half.glb"], "cut short"),
     (["convert", "{d}/good.json", "{d}/x.csv", "--pose-table", "{d}/deep.json"], "nested"),
     (["convert", "{d}/folder.json", "{d}/x.csv"], "is a folder"),
-    (["convert", "{d}/good.json", "{d}/x.glb", "--glb", "{d}/folder.glb"], "not a regular file"),
+    (["convert", "{d}/good.json", "{d}/x.glb", "--glb", "{d}/folder.glb"], "is a folder"),
     (["animate-phones", "{d}/fifo.TextGrid", "-o", "{d}/out"], "not a regular file"),
 ])
 def test_cli_bad_input_one_error_line(bad_files, args, needle):

@@ -22,16 +22,10 @@ except ImportError:  # Windows: no flock, so no clean-up of killed runs' leftove
     fcntl = None
 
 
-def read_text(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> str:
-    """The text of ``path`` (UTF-8 with or without BOM, UTF-16 with BOM, else Latin-1).
-
-    The path is checked before anything is read: it must be a regular file (not a folder,
-    FIFO or device, also through a symlink) of at most ``limit`` bytes
-    (:data:`vispeech.limits.MAX_FILE_BYTES` by default), and at most ``limit + 1`` bytes are
-    ever read. Raises :class:`VispeechError` naming ``what`` when the file is missing,
-    unreadable, too large, not text (a NUL byte, UTF-16 with an odd byte count or bad
-    surrogates) or blank.
-    """
+def read_bytes(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> bytes:
+    """The bytes of ``path``, a regular file (not a folder, FIFO or device, also through a
+    symlink) of at most ``limit`` bytes: checked with one ``stat`` before it is opened, and at
+    most ``limit + 1`` bytes are ever read. Raises :class:`VispeechError` naming ``what``."""
     path = Path(path)
     try:
         info = path.stat()
@@ -51,6 +45,21 @@ def read_text(path: str | os.PathLike, what: str = "file", limit: int = limits.M
         raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
     if len(data) > limit:
         raise VispeechError(f"{what} {path} has more than {limit} bytes (the limit)")
+    return data
+
+
+def read_text(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> str:
+    """The text of ``path`` (UTF-8 with or without BOM, UTF-16 with BOM, else Latin-1).
+
+    The path is checked before anything is read: it must be a regular file (not a folder,
+    FIFO or device, also through a symlink) of at most ``limit`` bytes
+    (:data:`vispeech.limits.MAX_FILE_BYTES` by default), and at most ``limit + 1`` bytes are
+    ever read. Raises :class:`VispeechError` naming ``what`` when the file is missing,
+    unreadable, too large, not text (a NUL byte, UTF-16 with an odd byte count or bad
+    surrogates) or blank.
+    """
+    path = Path(path)
+    data = read_bytes(path, what, limit)
     if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
         if len(data) % 2:
             raise VispeechError(f"{what} {path} starts as UTF-16 but has an odd number of bytes ({len(data)})")

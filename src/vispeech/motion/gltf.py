@@ -10,7 +10,6 @@ times and weights are appended to it. pygltflib reads and writes the JSON.
 from __future__ import annotations
 
 import os
-import stat
 import struct
 import warnings
 from pathlib import Path
@@ -19,7 +18,7 @@ import numpy as np
 import pygltflib
 
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, read_bytes
 from vispeech.limits import MAX_GLB_BYTES, parse_json
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
@@ -89,7 +88,7 @@ def write_gltf_animation(
 
 def _load(path: str | os.PathLike) -> pygltflib.GLTF2:
     path = Path(path)
-    data = _read_glb(path)
+    data = read_bytes(path, "base model", MAX_GLB_BYTES)
     _check_glb(data, path)
     try:
         with warnings.catch_warnings():
@@ -98,28 +97,6 @@ def _load(path: str | os.PathLike) -> pygltflib.GLTF2:
     except Exception as exc:  # pygltflib raises assorted exception types on malformed files
         detail = " ".join(str(exc).split())[:200] or type(exc).__name__
         raise VispeechError(f"cannot load {path}: {detail}") from None
-
-
-def _read_glb(path: Path) -> bytes:
-    """The bytes of ``path``: a regular file of at most :data:`~vispeech.limits.MAX_GLB_BYTES`, checked first."""
-    try:
-        info = path.stat()
-    except FileNotFoundError:
-        raise VispeechError(f"base model not found: {path}") from None
-    except (OSError, ValueError) as exc:
-        raise VispeechError(f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None
-    if not stat.S_ISREG(info.st_mode):
-        raise VispeechError(f"base model {path} is not a regular file")
-    if info.st_size > MAX_GLB_BYTES:
-        raise VispeechError(f"base model {path} has {info.st_size} bytes; the limit is {MAX_GLB_BYTES}")
-    try:
-        with path.open("rb") as f:
-            data = f.read(MAX_GLB_BYTES + 1)
-    except OSError as exc:
-        raise VispeechError(f"cannot read {path}: {exc.strerror or exc}") from None
-    if len(data) > MAX_GLB_BYTES:
-        raise VispeechError(f"base model {path} has more than {MAX_GLB_BYTES} bytes (the limit)")
-    return data
 
 
 def _check_glb(data: bytes, path: Path) -> None:
