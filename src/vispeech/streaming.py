@@ -183,14 +183,14 @@ class PhoneStream:
         if new:
             self._phones += new
             self.end = new[-1].end
-        self._take(*self._inner.push(new))
+        self._raw.extend(self._inner.push(new)[1])
         return self._emit(final=False)
 
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed, up to the last phone's end."""
         if self.closed:
             raise VispeechError("this phone stream has ended")
-        self._take(*self._inner.finish())
+        self._raw.extend(self._inner.finish()[1])
         out = self._emit(final=True)
         self.close()
         return out
@@ -199,9 +199,6 @@ class PhoneStream:
         """Drop the stream (a client went away); safe to call more than once."""
         self.closed = True
         self._inner.close()
-
-    def _take(self, start: int, rows: np.ndarray) -> None:
-        self._raw.extend(rows)
 
     def _emit(self, final: bool) -> tuple[int, np.ndarray]:
         available = self._raw_start + len(self._raw)

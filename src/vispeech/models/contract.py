@@ -32,8 +32,8 @@ import json
 import math
 import os
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
@@ -385,8 +385,8 @@ class WindowStream(ModelStream):
         self._recent: list[Phone] = []
         self._grid = 1  # windows start on multiples of this many stream frames, a whole number of model frames
         if model.frame_rate is not None:
-            ratio = Fraction(model.frame_rate / self.fps).limit_denominator(1000)
-            if abs(float(ratio) - model.frame_rate / self.fps) < 1e-9:
+            ratio = rate_ratio(model.frame_rate, self.fps)
+            if ratio is not None:
                 self._grid = ratio.denominator
             self.lookahead = math.ceil((model.lookahead + 1) * self.fps / model.frame_rate)
 
@@ -424,3 +424,8 @@ class WindowStream(ModelStream):
         return start, rows
 
 
+def rate_ratio(model_fps: float, fps: float) -> Fraction | None:
+    """``model_fps / fps`` as a simple fraction (denominator at most 1000), or ``None`` when it is none:
+    every ``denominator`` frames at ``fps`` are a whole number (``numerator``) of model frames."""
+    ratio = Fraction(model_fps / fps).limit_denominator(1000)
+    return ratio if abs(float(ratio) - model_fps / fps) < 1e-9 else None

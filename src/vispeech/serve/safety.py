@@ -163,26 +163,6 @@ class BodySizeLimit:
                 await send_json_error(send, 413, message, [(b"connection", b"close")])
 
 
-class RateLimit:
-    """ASGI middleware: 429 with a ``Retry-After`` when a client runs out of tokens.
-
-    Only HTTP requests whose path is in ``paths`` spend tokens; the client is the peer's IP
-    address (a proxy in front should do its own limiting).
-    """
-
-    def __init__(self, app, bucket: TokenBucket, paths: Iterable[str]) -> None:
-        self.app = app
-        self.bucket = bucket
-        self.paths = frozenset(paths)
-
-    async def __call__(self, scope, receive, send) -> None:
-        if scope["type"] == "http" and scope["path"] in self.paths and not self.bucket.take(client_key(scope)):
-            retry = str(max(1, math.ceil(self.bucket.retry_after()))).encode()
-            await send_json_error(send, 429, self.bucket.message(), [(b"retry-after", retry)])
-            return
-        await self.app(scope, receive, send)
-
-
 def client_key(scope) -> str:
     """The client's IP address from an ASGI scope (``"unknown"`` without one)."""
     client = scope.get("client")

@@ -40,7 +40,7 @@ class RecurrentKernel:
 
     def __init__(self, weights: Mapping[str, np.ndarray], columns: Sequence[Sequence[int]], back: int, ahead: int,
                  events: Sequence[int] = ()):
-        self.back, self.ahead = back, ahead
+        self.back = back
         self.window = back + ahead + 1
         self.order = np.argsort([c for group in columns for c in group])
         self.nets = []
@@ -64,7 +64,6 @@ class RecurrentKernel:
                 "out_weight": np.asarray(weights[f"nets.{i}.output.weight"], dtype=np.float64).T,
                 "out_bias": np.asarray(weights[f"nets.{i}.output.bias"], dtype=np.float64),
             })
-        self.n_inputs = n_inputs
         self.hidden = sum(net["hidden"] for net in self.nets)
         # C[f, m, :] = Σ_{k<m} W_k[f, :] over every network's hidden units, as inputs × (window+1)·hidden
         self._cumulative = np.concatenate(cumulative, axis=2).transpose(1, 0, 2).reshape(n_inputs, -1)

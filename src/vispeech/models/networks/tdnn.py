@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from fractions import Fraction
 
 import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, first_frame, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ModelStream
+from vispeech.models.contract import ModelStream, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, Network
 
@@ -237,7 +236,6 @@ def stream_lookahead(ahead: int, model_fps: float, fps: float) -> int:
     ``k``'s time, where ``q`` is the denominator of ``model_fps / fps`` (0 at the model's own rate or
     a whole multiple of it; nearly 1 for a ratio that is no simple fraction).
     """
-    ratio = model_fps / fps
-    simple = Fraction(ratio).limit_denominator(1000)
-    slack = 1.0 - 1.0 / simple.denominator if abs(float(simple) - ratio) < 1e-9 else 1.0
-    return max(0, math.ceil((ahead + slack) / ratio - 1e-9))
+    simple = rate_ratio(model_fps, fps)
+    slack = 1.0 - 1.0 / simple.denominator if simple is not None else 1.0
+    return max(0, math.ceil((ahead + slack) * fps / model_fps - 1e-9))
