@@ -1,13 +1,92 @@
-"""Reading speech audio files (WAV, FLAC and the other formats libsndfile knows)."""
+"""Speech audio: reading files (WAV, FLAC, MP3, OGG and the other formats libsndfile knows),
+the checked mono clip every audio path takes, and conversions to 16-bit PCM."""
 
 from __future__ import annotations
 
+import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from vispeech.alignment.phones import n_frames_for
 from vispeech.errors import VispeechError
+from vispeech.limits import MAX_DURATION_S
+
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 4_000, 384_000
+"""Sample rates (Hz) an audio input may have."""
+
+
+@dataclass(frozen=True)
+class AudioClip:
+    """Mono speech audio: float32 ``samples`` in [-1, 1] at ``sample_rate`` Hz.
+
+    Build it with :meth:`from_array` or :meth:`read`, which check the input: at least one
+    sample, finite values, a sample rate within [:data:`MIN_SAMPLE_RATE`,
+    :data:`MAX_SAMPLE_RATE`] and at most :data:`~vispeech.limits.MAX_DURATION_S` seconds.
+    """
+
+    samples: np.ndarray
+    sample_rate: int
+
+    @classmethod
+    def from_array(cls, samples: np.ndarray, sample_rate: int, where: str = "audio") -> AudioClip:
+        """A checked clip of ``samples`` (floats in [-1, 1] or 16-bit integers; 1-D or
+        ``(samples, channels)``, channels averaged) at ``sample_rate`` Hz; values beyond
+        [-1, 1] are clipped."""
+        array = np.asarray(samples)
+        if array.ndim == 2 and array.shape[1] > 0:
+            array = array.mean(axis=1)
+        if array.ndim != 1:
+            raise VispeechError(f"{where} must be 1-D or (samples, channels), got shape {np.shape(samples)}")
+        if array.size == 0:
+            raise VispeechError(f"{where} is empty")
+        if not (isinstance(sample_rate, int | np.integer) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
+            raise VispeechError(f"{where}: sample rate must be a whole number of Hz within "
+                                f"{MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE}, got {sample_rate!r}")
+        duration = array.size / sample_rate
+        if duration > MAX_DURATION_S:
+            raise VispeechError(f"{where} lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
+        if np.issubdtype(array.dtype, np.integer):
+            array = array.astype(np.float32) / 32768.0
+        array = array.astype(np.float32)
+        if not np.all(np.isfinite(array)):
+            raise VispeechError(f"{where} has non-finite samples")
+        return cls(np.clip(array, -1.0, 1.0), int(sample_rate))
+
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> AudioClip:
+        """The checked clip of an audio file (see :func:`read_audio`)."""
+        duration = audio_duration(path)
+        if duration > MAX_DURATION_S:
+            raise VispeechError(f"audio {path} lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
+        samples, sample_rate = read_audio(path)
+        return cls.from_array(samples, sample_rate, where=f"audio {path}")
+
+    @property
+    def duration(self) -> float:
+        """Length in seconds."""
+        return self.samples.size / self.sample_rate
+
+    def n_frames(self, fps: float) -> int:
+        """Frames at ``fps`` that cover the clip (as a track of it has)."""
+        return n_frames_for(self.duration, fps)
+
+    def resampled(self, sample_rate: int) -> AudioClip:
+        """The clip at ``sample_rate`` Hz (band-limited resampling by soxr, through librosa)."""
+        if sample_rate == self.sample_rate:
+            return self
+        import librosa
+
+        samples = librosa.resample(self.samples, orig_sr=self.sample_rate, target_sr=sample_rate, res_type="soxr_hq")
+        expected = math.ceil(self.samples.size * sample_rate / self.sample_rate)
+        return AudioClip(np.clip(librosa.util.fix_length(samples, size=expected), -1.0, 1.0).astype(np.float32),
+                         int(sample_rate))
+
+    def wav_bytes(self) -> bytes:
+        """The clip as a mono 16-bit PCM WAV file in memory."""
+        return wav_bytes(self.samples, self.sample_rate)
 
 
 def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, int]:

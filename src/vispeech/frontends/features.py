@@ -1,0 +1,179 @@
+"""Audio features for the audio models and the aligners, with librosa: power spectra, log-mel
+and MFCC at 100 frames per second, vocal-tract-length warping, and running normalisation.
+
+Units and framing: audio at :data:`SAMPLE_RATE` Hz (other rates are resampled first); frame j
+is centred at ``j * 10 ms`` (a 25 ms Hann window in a 512-point FFT, the signal padded with
+zeros by half an FFT at both ends), so a clip of ``n`` samples has ``n // 160 + 1`` frames.
+Log-mel values are natural logs of mel-band power (floor :data:`LOG_FLOOR`); MFCCs are the
+DCT-II of log-mel in dB, as :func:`librosa.feature.mfcc` computes them.
+
+:class:`SpectrumStream` gives the same frames as :func:`power_spectrogram` for audio that
+arrives in chunks: frame j once the samples up to ``j * 10 ms + 16 ms`` are in.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
+
+SAMPLE_RATE = 16_000
+"""Hz: the rate every feature is computed at."""
+HOP = 160
+"""Samples between frames (10 ms)."""
+N_FFT = 512
+WINDOW = 400
+"""Samples in the analysis window (25 ms)."""
+FRAME_RATE = SAMPLE_RATE / HOP
+"""Feature frames per second (100)."""
+LOG_FLOOR = 1e-6
+"""Mel-band power below which log-mel is flat."""
+FEATURE_KINDS = ("log-mel", "mfcc")
+
+
+def power_spectrogram(samples: np.ndarray) -> np.ndarray:
+    """``(frames, N_FFT // 2 + 1)`` power spectra of float samples at :data:`SAMPLE_RATE` Hz."""
+    padded = np.pad(np.asarray(samples, dtype=np.float32), N_FFT // 2)
+    return _frames_power(padded)
+
+
+def _frames_power(padded: np.ndarray) -> np.ndarray:
+    """Power spectra of every whole frame of an already padded signal."""
+    import librosa
+
+    if len(padded) < N_FFT:
+        return np.zeros((0, N_FFT // 2 + 1), dtype=np.float32)
+    spectrum = librosa.stft(padded, n_fft=N_FFT, hop_length=HOP, win_length=WINDOW, window="hann", center=False)
+    return (np.abs(spectrum) ** 2).T.astype(np.float32)
+
+
+def warp_frequencies(power: np.ndarray, alpha: float, boundary: float = 4_800.0) -> np.ndarray:
+    """Vocal-tract-length perturbation (Jaitly & Hinton 2013) of power spectra: frequency f
+    moves to ``alpha * f`` up to ``boundary * min(alpha, 1) / alpha`` Hz, then linearly so
+    that the Nyquist frequency stays put. ``alpha`` > 1 sounds like a shorter vocal tract."""
+    if alpha == 1.0:
+        return power
+    if not 0.5 <= alpha <= 2.0:
+        raise VispeechError(f"warp factor must lie in [0.5, 2], got {alpha}")
+    nyquist = SAMPLE_RATE / 2
+    freqs = np.linspace(0.0, nyquist, power.shape[1])
+    knee = boundary * min(alpha, 1.0) / alpha
+    warped = np.where(freqs <= knee, alpha * freqs,
+                      nyquist - (nyquist - alpha * knee) / (nyquist - knee) * (nyquist - freqs))
+    # the warped spectrum at f is the original one at warped⁻¹(f)
+    source = np.interp(freqs, warped, freqs)
+    position = source / nyquist * (power.shape[1] - 1)
+    low = np.clip(np.floor(position).astype(int), 0, power.shape[1] - 2)
+    frac = (position - low).astype(np.float32)
+    return power[:, low] * (1 - frac) + power[:, low + 1] * frac
+
+
+@functools.cache
+def mel_filters(n_mels: int) -> np.ndarray:
+    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filter bank from 20 Hz to 8 kHz (librosa)."""
+    import librosa
+
+    return librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=n_mels, fmin=20.0, fmax=SAMPLE_RATE / 2)
+
+
+def log_mel(power: np.ndarray, n_mels: int = 80) -> np.ndarray:
+    """``(frames, n_mels)`` natural-log mel-band power of power spectra."""
+    return np.log(np.maximum(power @ mel_filters(n_mels).T, LOG_FLOOR)).astype(np.float32)
+
+
+def mfcc(log_mel_frames: np.ndarray, n_mfcc: int = 13) -> np.ndarray:
+    """``(frames, n_mfcc)`` MFCCs of log-mel frames (DCT-II of the log-mel in dB, librosa)."""
+    import librosa
+
+    decibels = log_mel_frames.T * (10.0 / np.log(10.0))
+    return librosa.feature.mfcc(S=decibels, n_mfcc=n_mfcc).T.astype(np.float32)
+
+
+def spectral_features(power: np.ndarray, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13) -> np.ndarray:
+    """Features of ``kind`` (:data:`FEATURE_KINDS`) from power spectra, one row per frame."""
+    if kind not in FEATURE_KINDS:
+        raise VispeechError(f"unknown audio feature {kind!r} (use {', '.join(FEATURE_KINDS)})")
+    frames = log_mel(power, n_mels)
+    return frames if kind == "log-mel" else mfcc(frames, n_mfcc)
+
+
+def audio_features(clip: AudioClip, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13,
+                   warp: float = 1.0) -> np.ndarray:
+    """Features of ``kind`` for a clip (resampled to :data:`SAMPLE_RATE`), ``(frames, dims)`` at
+    :data:`FRAME_RATE`; ``warp`` is a vocal-tract-length factor (:func:`warp_frequencies`)."""
+    power = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
+    return spectral_features(warp_frequencies(power, warp), kind, n_mels, n_mfcc)
+
+
+def running_normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray, prior_frames: float,
+                      state: tuple[float, np.ndarray, np.ndarray] | None = None,
+                      ) -> tuple[np.ndarray, tuple[float, np.ndarray, np.ndarray]]:
+    """Causal per-dimension normalisation (speaker and channel normalisation that streams).
+
+    Frame t is standardised by the mean and variance of the frames up to t, pooled with a prior
+    (``mean``, ``std``: the training data's) worth ``prior_frames`` frames, so early frames lean
+    on the prior and later ones on the voice heard so far. ``state`` (count, sum, sum of
+    squares) continues an earlier call; the new state is returned with the frames.
+    """
+    x = np.asarray(features, dtype=np.float64)
+    if state is None:
+        state = (float(prior_frames), prior_frames * np.asarray(mean, dtype=np.float64),
+                 prior_frames * (np.asarray(std, dtype=np.float64) ** 2 + np.asarray(mean, dtype=np.float64) ** 2))
+    count, total, squares = state
+    counts = count + np.arange(1, len(x) + 1)[:, None]
+    sums = total + np.cumsum(x, axis=0)
+    sum_squares = squares + np.cumsum(x ** 2, axis=0)
+    mu = sums / counts
+    sigma = np.sqrt(np.maximum(sum_squares / counts - mu ** 2, 1e-4))
+    out = ((x - mu) / sigma).astype(np.float32)
+    if len(x):
+        state = (float(counts[-1, 0]), sums[-1], sum_squares[-1])
+    return out, state
+
+
+class SpectrumStream:
+    """Power spectra of audio arriving in chunks, equal to :func:`power_spectrogram` of it all.
+
+    :meth:`push` takes float samples at :data:`SAMPLE_RATE` Hz and returns the frames that
+    became complete; :meth:`finish` pads the end as the offline call does and returns the rest.
+    """
+
+    def __init__(self) -> None:
+        self._buffer = np.zeros(N_FFT // 2, dtype=np.float32)  # the leading pad
+        self._consumed = 0  # samples of the padded signal dropped from the buffer's front
+        self.frames = 0
+        """Frames given so far."""
+        self.samples = 0
+        """Samples pushed so far."""
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
+        self.samples += len(chunk)
+        self._buffer = np.concatenate([self._buffer, chunk])
+        return self._take(self._complete_frames())
+
+    def finish(self) -> np.ndarray:
+        total = self.samples // HOP + 1
+        needed = (total - 1) * HOP + N_FFT - self._consumed
+        self._buffer = np.pad(self._buffer, (0, max(0, needed - len(self._buffer))))
+        return self._take(total)
+
+    def _complete_frames(self) -> int:
+        """Frames whose window lies inside the samples pushed so far (never more than the offline count)."""
+        padded = self._consumed + len(self._buffer)
+        return min(max(0, (padded - N_FFT) // HOP + 1), self.samples // HOP + 1)
+
+    def _take(self, upto: int) -> np.ndarray:
+        if upto <= self.frames:
+            return np.zeros((0, N_FFT // 2 + 1), dtype=np.float32)
+        start = self.frames * HOP - self._consumed
+        stop = (upto - 1) * HOP + N_FFT - self._consumed
+        power = _frames_power(self._buffer[start:stop])
+        self.frames = upto
+        drop = self.frames * HOP - self._consumed
+        self._buffer = self._buffer[drop:]
+        self._consumed += drop
+        return power

@@ -1,0 +1,92 @@
+"""Audio clips and features: checks, resampling, framing, warping, streaming equals offline."""
+
+import numpy as np
+import pytest
+
+from vispeech import VispeechError
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.features import (
+    FRAME_RATE, SpectrumStream, audio_features, log_mel, mfcc, power_spectrogram, running_normalize,
+    warp_frequencies,
+)
+
+
+def tone(freq: float, seconds: float, rate: int = 16000) -> np.ndarray:
+    t = np.arange(int(seconds * rate)) / rate
+    return (0.5 * np.sin(2 * np.pi * freq * t)).astype(np.float32)
+
+
+def test_clip_checks_and_downmixes():
+    stereo = np.column_stack([tone(440, 0.5), -tone(440, 0.5)])
+    assert np.allclose(AudioClip.from_array(stereo, 16000).samples, 0.0, atol=1e-6)
+    clip = AudioClip.from_array((tone(440, 0.5) * 32767).astype(np.int16), 16000)
+    assert clip.samples.dtype == np.float32 and abs(clip.samples).max() == pytest.approx(0.5, abs=1e-3)
+    assert AudioClip.from_array(np.full(100, 3.0), 16000).samples.max() == 1.0  # clipped
+    for bad, match in [(np.zeros(0), "empty"), (np.array([0.0, np.nan]), "non-finite"),
+                       (np.zeros((2, 2, 2)), "1-D")]:
+        with pytest.raises(VispeechError, match=match):
+            AudioClip.from_array(bad, 16000)
+    with pytest.raises(VispeechError, match="sample rate"):
+        AudioClip.from_array(np.zeros(10), 100)
+    with pytest.raises(VispeechError, match="limit"):
+        AudioClip.from_array(np.zeros(601 * 4000, dtype=np.float32), 4000)
+
+
+@pytest.mark.parametrize("rate", [8000, 22050, 48000])
+def test_resampling_keeps_length_and_pitch(rate):
+    clip = AudioClip.from_array(tone(500, 1.0, rate), rate).resampled(16000)
+    assert clip.sample_rate == 16000 and len(clip.samples) == 16000
+    spectrum = np.abs(np.fft.rfft(clip.samples))
+    assert np.argmax(spectrum) == pytest.approx(500, abs=2)  # 1 Hz bins
+
+
+def test_frames_are_centred_every_10_ms():
+    samples = np.zeros(16000, dtype=np.float32)
+    samples[8000] = 1.0  # a click at 0.5 s
+    power = power_spectrogram(samples)
+    assert power.shape == (101, 257) and FRAME_RATE == 100
+    assert np.argmax(power.sum(axis=1)) == 50
+
+
+def test_mel_and_mfcc_see_the_tone_band():
+    low, high = log_mel(power_spectrogram(tone(300, 1.0))), log_mel(power_spectrogram(tone(3000, 1.0)))
+    assert low.shape == (101, 80)
+    assert np.argmax(low[50]) < np.argmax(high[50])
+    assert mfcc(low).shape == (101, 13)
+
+
+def test_warping_moves_formants_and_keeps_identity():
+    power = power_spectrogram(tone(1000, 0.5))
+    assert warp_frequencies(power, 1.0) is power
+    peak = lambda p: np.argmax(p[25]) * 8000 / 256  # noqa: E731
+    assert peak(warp_frequencies(power, 1.1)) == pytest.approx(1100, abs=40)
+    assert peak(warp_frequencies(power, 0.9)) == pytest.approx(900, abs=40)
+
+
+def test_spectrum_stream_equals_offline():
+    rng = np.random.default_rng(1)
+    samples = rng.normal(0, 0.1, 32123).astype(np.float32)
+    stream, parts, i = SpectrumStream(), [], 0
+    while i < len(samples):
+        n = int(rng.integers(1, 2000))
+        parts.append(stream.push(samples[i:i + n]))
+        i += n
+    parts.append(stream.finish())
+    np.testing.assert_allclose(np.concatenate(parts), power_spectrogram(samples), rtol=1e-5, atol=1e-7)
+
+
+def test_running_normalisation_continues_and_adapts():
+    rng = np.random.default_rng(2)
+    features = rng.normal(5.0, 2.0, (400, 3))
+    whole, _ = running_normalize(features, np.zeros(3), np.ones(3), 100)
+    first, state = running_normalize(features[:150], np.zeros(3), np.ones(3), 100)
+    rest, _ = running_normalize(features[150:], np.zeros(3), np.ones(3), 100, state)
+    np.testing.assert_allclose(np.concatenate([first, rest]), whole, atol=1e-6)
+    assert whole[:20].mean() > 2.0  # the prior rules the first frames
+    assert abs(whole[-100:].mean()) < whole[:20].mean() / 4  # then the voice heard so far
+
+
+def test_audio_features_of_a_file(grid_s1):
+    clip = AudioClip.read(grid_s1 / "utterances" / "bbaf2n.flac")
+    features = audio_features(clip)
+    assert features.shape == (len(clip.samples) // 160 + 1, 80) and np.isfinite(features).all()
