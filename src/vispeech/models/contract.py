@@ -424,6 +424,45 @@ class WindowStream(ModelStream):
         return start, rows
 
 
+class ResampledFrames:
+    """Model frames (at ``model_fps``) as they are computed, given out at a stream's ``fps``
+    interpolated as :meth:`vispeech.motion.track.Track.resample` does, so a stream's frames equal
+    the offline prediction's; model frames no later stream frame needs are dropped."""
+
+    def __init__(self, model_fps: float, fps: float) -> None:
+        self.model_fps, self.fps = float(model_fps), float(fps)
+        self.first = 0
+        """Model frame index of the oldest frame kept."""
+        self._frames: list[np.ndarray] = []
+
+    def add(self, row: np.ndarray) -> None:
+        """Append the next model frame."""
+        self._frames.append(row)
+
+    @property
+    def computed(self) -> int:
+        """Model frames computed so far."""
+        return self.first + len(self._frames)
+
+    def ready(self) -> int:
+        """Stream frames whose interpolation the computed model frames cover."""
+        if not self.computed:
+            return 0
+        return first_frame((self.computed - 1) / self.model_fps, self.fps, after=False) + 1
+
+    def give(self, emitted: int, upto: int) -> np.ndarray:
+        """Stream frames ``emitted .. upto - 1`` (frames past the last model frame hold its values);
+        needs at least one model frame."""
+        times = np.arange(emitted, upto) / self.fps
+        source = (self.first + np.arange(len(self._frames))) / self.model_fps
+        values = np.stack(self._frames)
+        rows = np.column_stack([np.interp(times, source, values[:, j]) for j in range(values.shape[1])])
+        drop = min(max(0, int(np.floor(upto * self.model_fps / self.fps)) - 1 - self.first), len(self._frames) - 1)
+        del self._frames[:drop]
+        self.first += drop
+        return rows
+
+
 def rate_ratio(model_fps: float, fps: float) -> Fraction | None:
     """``model_fps / fps`` as a simple fraction (denominator at most 1000), or ``None`` when it is none:
     every ``denominator`` frames at ``fps`` are a whole number (``numerator``) of model frames."""

@@ -20,6 +20,8 @@ from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator, read_config
 
 FAMILIES: dict[str, str] = {
+    "audio-cnn": "vispeech.models.networks.audio:AudioCNNNetwork",
+    "audio-encdec": "vispeech.models.networks.audio:EncoderDecoderNetwork",
     "baseline": "vispeech.models.rules.baseline:Baseline",
     "beskow-rules": "vispeech.models.rules.beskow_rules:BeskowRules",
     "cohen-massaro": "vispeech.models.rules.cohen_massaro:CohenMassaro",

@@ -67,15 +67,22 @@ class PostprocessConfig:
             raise VispeechError("postprocess needs 0 <= jaw_shift < 1, fade_in >= 0 and 0 <= upper_lip <= 1")
 
 
-def postprocess(track: Track, phones: PhoneSequence, config: PostprocessConfig | None = None) -> Track:
+def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessConfig | None = None) -> Track:
     """The post-processed copy of ``track``, a track for ``phones`` at its own fps.
+
+    ``phones`` may be ``None`` (audio animated without a transcript) when ``config`` has no
+    step keyed on phones (the ``audio`` preset).
 
     The result keeps the track's channels and adds those the overlays set; all values lie
     in [0, 1]. With overlays on, every /p b m/ reaches lip closure
     (:func:`vispeech.motion.arkit.lip_aperture` ≤ ``LIP_CLOSED``) on its anchor frame.
     """
     config = config or PostprocessConfig()
-    phones.validate()
+    if phones is None:
+        if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels:
+            raise VispeechError("post-processing with overlays, upper-lip lift or jaw confinement needs phones")
+    else:
+        phones.validate()
     out = track.copy()
     if config.jaw_shift > 0 and "jawOpen" in out.channels:
         out.values[:, out.index("jawOpen")] = shift_range(out["jawOpen"], config.jaw_shift)

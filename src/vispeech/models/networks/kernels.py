@@ -210,3 +210,91 @@ class WindowKernel:
         for k in range(ky):  # window w predicts frames w - ky + 1 .. w
             total[k:k + len(out)] += out[:, k]
         return total[ky - 1:ky - 1 + n] / ky
+
+
+class ConvStackKernel:
+    """The NumPy forward pass of ``ConvStack`` (1-D convolutions, ReLU, per-frame layer norm)
+    with weights under ``prefix``; ``pads[i]`` = frames (behind, ahead) of layer i."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], prefix: str, pads: Sequence[tuple[int, int]]):
+        self.layers = []
+        for i, pad in enumerate(pads):
+            conv = np.asarray(weights[f"{prefix}.convs.{i}.weight"], dtype=np.float32)  # out, in, kernel
+            if conv.shape[2] != pad[0] + pad[1] + 1:
+                raise ValueError(f"layer {i} has a kernel of {conv.shape[2]} frames, expected {sum(pad) + 1}")
+            self.layers.append({
+                "pad": pad,
+                "weight": np.ascontiguousarray(conv.transpose(2, 1, 0)),  # kernel, in, out
+                "bias": np.asarray(weights[f"{prefix}.convs.{i}.bias"], dtype=np.float32),
+                "gain": np.asarray(weights[f"{prefix}.norms.{i}.norm.weight"], dtype=np.float32),
+                "shift": np.asarray(weights[f"{prefix}.norms.{i}.norm.bias"], dtype=np.float32),
+            })
+        self.behind = sum(layer["pad"][0] for layer in self.layers)
+        """Frames of input before frame t that frame t's output depends on."""
+        self.ahead = sum(layer["pad"][1] for layer in self.layers)
+        """Frames of input after frame t that frame t's output depends on."""
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        """``(frames, inputs)`` to ``(frames, channels)``, zero-padded at both ends as in training."""
+        h = np.asarray(inputs, dtype=np.float32)
+        for layer in self.layers:
+            behind, ahead = layer["pad"]
+            padded = np.pad(h, ((behind, ahead), (0, 0)))
+            out = np.broadcast_to(layer["bias"], (len(h), len(layer["bias"]))).copy()
+            for k, weight in enumerate(layer["weight"]):
+                out += padded[k:k + len(h)] @ weight
+            np.maximum(out, 0.0, out=out)
+            mean = out.mean(axis=1, keepdims=True)
+            var = out.var(axis=1, keepdims=True)
+            h = (out - mean) / np.sqrt(var + 1e-5) * layer["gain"] + layer["shift"]
+        return h
+
+
+class AudioCNNKernel:
+    """The NumPy forward pass of ``AudioCNN`` (the CTC head is a training aid and not run)."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]]):
+        self.encoder = ConvStackKernel(weights, "encoder", pads)
+        self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
+        self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        return (self.encoder.forward(inputs) @ self.out_weight + self.out_bias).astype(np.float64)
+
+
+class EncoderDecoderKernel:
+    """The NumPy forward pass of ``AudioEncoderDecoder``: conv encoder, bidirectional GRU
+    layers (torch's gate order r, z, n), linear output."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int):
+        self.encoder = ConvStackKernel(weights, "encoder", pads)
+        self.gru = []
+        for layer in range(layers):
+            directions = []
+            for suffix in ("", "_reverse"):
+                w = lambda name: np.asarray(weights[f"decoder.{name}_l{layer}{suffix}"], dtype=np.float32)  # noqa: E731
+                directions.append((w("weight_ih").T.copy(), w("bias_ih"), w("weight_hh").T.copy(), w("bias_hh")))
+            self.gru.append(directions)
+        self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
+        self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        h = self.encoder.forward(inputs)
+        for forward, backward in self.gru:
+            h = np.concatenate([_gru(h, *forward), _gru(h[::-1], *backward)[::-1]], axis=1)
+        return (h @ self.out_weight + self.out_bias).astype(np.float64)
+
+
+def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_hh: np.ndarray) -> np.ndarray:
+    """One GRU direction over ``x`` (frames × inputs) from a zero state, as torch computes it."""
+    hidden = w_hh.shape[0]
+    drive = x @ w_ih + b_ih  # the input terms of every frame at once
+    h = np.zeros(hidden, dtype=np.float32)
+    out = np.empty((len(x), hidden), dtype=np.float32)
+    for t in range(len(x)):
+        recurrent = h @ w_hh + b_hh
+        rz = 1.0 / (1.0 + np.exp(-(drive[t, :2 * hidden] + recurrent[:2 * hidden])))
+        n = np.tanh(drive[t, 2 * hidden:] + rz[:hidden] * recurrent[2 * hidden:])
+        h = (1.0 - rz[hidden:]) * n + rz[hidden:] * h
+        out[t] = h
+    return out

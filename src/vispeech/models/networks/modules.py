@@ -102,3 +102,72 @@ class GroupedNetworks(nn.Module):
 
     def forward(self, padded: torch.Tensor) -> torch.Tensor:
         return torch.cat([net(padded) for net in self.nets], dim=-1)[..., self.order]
+
+
+class FrameNorm(nn.Module):
+    """Layer normalisation over the channels of each frame of ``(batch, channels, frames)``:
+    a frame never depends on its neighbours' statistics, so streaming equals offline."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.norm = nn.LayerNorm(channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.norm(x.transpose(1, 2)).transpose(1, 2)
+
+
+class ConvStack(nn.Module):
+    """1-D convolutions over time, each followed by ReLU and :class:`FrameNorm`; layer i sees
+    ``right[i]`` frames ahead and ``kernels[i] - 1 - right[i]`` behind (zero padding)."""
+
+    def __init__(self, n_inputs: int, channels: list[int], kernels: list[int], right: list[int], dropout: float):
+        super().__init__()
+        self.pads = [(k - 1 - r, r) for k, r in zip(kernels, right)]
+        sizes = [n_inputs, *channels]
+        self.convs = nn.ModuleList(nn.Conv1d(a, b, k) for a, b, k in zip(sizes, sizes[1:], kernels))
+        self.norms = nn.ModuleList(FrameNorm(c) for c in channels)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(batch, frames, inputs)`` to ``(batch, frames, channels[-1])``."""
+        h = x.transpose(1, 2)
+        for conv, norm, pad in zip(self.convs, self.norms, self.pads):
+            h = self.dropout(norm(torch.relu(conv(nn.functional.pad(h, pad)))))
+        return h.transpose(1, 2)
+
+
+class AudioCNN(nn.Module):
+    """PhISANet's streaming decoder: a :class:`ConvStack`, a linear output and an optional CTC head."""
+
+    def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], right: list[int],
+                 dropout: float, n_phones: int):
+        super().__init__()
+        self.encoder = ConvStack(n_inputs, channels, kernels, right, dropout)
+        self.output = nn.Linear(channels[-1], n_outputs)
+        self.ctc = nn.Linear(channels[-1], n_phones + 1) if n_phones else None
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Outputs ``(batch, frames, outputs)`` and CTC logits ``(batch, frames, phones + 1)`` or ``None``."""
+        h = self.encoder(x)
+        return self.output(h), None if self.ctc is None else self.ctc(h)
+
+
+class AudioEncoderDecoder(nn.Module):
+    """An offline encoder-decoder: a centred :class:`ConvStack` encoder, a bidirectional GRU
+    decoder over whole utterances, a linear output and an optional CTC head on the decoder."""
+
+    def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], hidden: int,
+                 layers: int, dropout: float, n_phones: int):
+        super().__init__()
+        self.encoder = ConvStack(n_inputs, channels, kernels, [(k - 1) // 2 for k in kernels], dropout)
+        self.decoder = nn.GRU(channels[-1], hidden, num_layers=layers, batch_first=True, bidirectional=True,
+                              dropout=dropout if layers > 1 else 0.0)
+        self.output = nn.Linear(2 * hidden, n_outputs)
+        self.ctc = nn.Linear(2 * hidden, n_phones + 1) if n_phones else None
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        h = self.encoder(x)
+        packed = nn.utils.rnn.pack_padded_sequence(h, lengths.cpu(), batch_first=True, enforce_sorted=False)
+        q, _ = self.decoder(packed)
+        q, _ = nn.utils.rnn.pad_packed_sequence(q, batch_first=True, total_length=x.shape[1])
+        return self.output(q), None if self.ctc is None else self.ctc(q)

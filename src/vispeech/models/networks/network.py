@@ -54,11 +54,15 @@ THESIS_CHANNELS: tuple[str, ...] = (
 )
 """The thesis's 18 output channels, in its order (Left kept of each pair)."""
 
-COMMON_PARAMS: dict[str, Any] = {
+PHONE_INPUT_PARAMS: dict[str, Any] = {
     "inputs": "phones",
     "language": None,
     "linguistic": False,
     "position": False,
+}
+"""How a phone network encodes its phones (:class:`~vispeech.models.networks.encoding.InputEncoding`)."""
+
+TRAINING_PARAMS: dict[str, Any] = {
     "targets": "mouth",
     "mirror": True,
     "fps": None,
@@ -76,7 +80,10 @@ COMMON_PARAMS: dict[str, Any] = {
     "num_threads": None,
     "checkpoint_dir": None,
 }
-"""Hyper-parameters every network has (see the module docstring and ``docs/networks.md``)."""
+"""Targets, optimiser and training budget: hyper-parameters every network has."""
+
+COMMON_PARAMS: dict[str, Any] = {**PHONE_INPUT_PARAMS, **TRAINING_PARAMS}
+"""Hyper-parameters every phone network has (see the module docstring and ``docs/networks.md``)."""
 
 _RUN_PARAMS = frozenset({"epochs", "patience", "num_threads", "checkpoint_dir"})
 """Hyper-parameters a resumed run may change."""
@@ -87,13 +94,33 @@ class Network(Estimator):
 
     def _check_params(self) -> None:
         p = self._params
-        InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], p["position"])
+        self._check_inputs()
         if p["optimizer"] not in ("adam", "sgd"):
             raise VispeechError(f"unknown optimizer {p['optimizer']!r} (use adam or sgd)")
         if not (isinstance(p["targets"], list | tuple) or p["targets"] in ("mouth", "all", "articulatory")):
             raise VispeechError(f"targets must be mouth, all, articulatory or a list of channels, got {p['targets']!r}")
         self._check_architecture()
         self._kernel = None
+
+    # -- inputs (phones here; audio networks override these) -------------------------------
+
+    def _check_inputs(self) -> None:
+        """Raise :class:`VispeechError` on bad input-encoding parameters."""
+        p = self._params
+        InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], p["position"])
+
+    def _make_encoding(self, train_set: list, corpus) -> InputEncoding:
+        """The input encoding fitted to the training data."""
+        p = self._params
+        language = p["language"] or getattr(corpus, "language", None) or train_set[0].phones.language
+        return InputEncoding(p["inputs"], language, p["linguistic"], p["position"])
+
+    def _encoding_from_dict(self, data: dict) -> InputEncoding:
+        return InputEncoding.from_dict(data)
+
+    def _encode_example(self, utterance, n_frames: int):
+        """The inputs of one training utterance over ``n_frames`` frames at ``fps_``."""
+        return self.encoding_.encode(utterance.phones, self.fps_, n_frames=n_frames)
 
     # -- what families define --------------------------------------------------------------
 
@@ -163,7 +190,7 @@ class Network(Estimator):
         if resume:
             self._set_learned_state(*self._resumable(checkpoint)._learned_state())
         else:
-            self._prepare(train_set[0], corpus)
+            self._prepare(train_set, corpus)
         examples = [self._example(u) for u in train_set]
         if not resume:
             self.stats_ = self._stats(examples)
@@ -240,15 +267,14 @@ class Network(Estimator):
             raise VispeechError(f"cannot resume from {folder}: parameters differ ({', '.join(changed)})")
         return saved
 
-    def _prepare(self, first, corpus) -> None:
-        """Fix language, encoding, frame rate and output channels from the training data
+    def _prepare(self, train_set: list, corpus) -> None:
+        """Fix frame rate, output channels and input encoding from the training data
         (forgetting what an earlier fit learned)."""
         for name in ("weights_", "stats_", "history_"):
             self.__dict__.pop(name, None)
         self._kernel = None
         p = self._params
-        language = p["language"] or getattr(corpus, "language", None) or first.phones.language
-        self.encoding_ = InputEncoding(p["inputs"], language, p["linguistic"], p["position"])
+        first = train_set[0]
         self.fps_ = float(p["fps"] or first.track.fps)
         available = tuple(first.track.channels)
         self.outputs_ = self._requested(available)
@@ -257,6 +283,7 @@ class Network(Estimator):
             raise VispeechError(f"the corpus tracks lack target channels {', '.join(missing)}")
         if not self.outputs_:
             raise VispeechError("the corpus tracks have none of the mouth channels")
+        self.encoding_ = self._make_encoding(train_set, corpus)
 
     def _example(self, utterance) -> tuple[np.ndarray, np.ndarray]:
         """``(inputs, raw targets)`` of one utterance at the model's frame rate."""
@@ -267,8 +294,7 @@ class Network(Estimator):
         track = track.select(self.outputs_)
         if track.fps != self.fps_:
             track = track.resample(self.fps_)
-        inputs = self.encoding_.encode(utterance.phones, self.fps_, n_frames=track.n_frames)
-        return inputs, track.values
+        return self._encode_example(utterance, track.n_frames), track.values
 
     def _stats(self, examples: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
         n = len(self.outputs_)
@@ -354,7 +380,7 @@ class Network(Estimator):
         return state, arrays
 
     def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
-        self.encoding_ = InputEncoding.from_dict(state["encoding"])
+        self.encoding_ = self._encoding_from_dict(state["encoding"])
         self.outputs_ = tuple(state["outputs"])
         self.fps_ = float(state["fps"])
         self.history_ = TrainingHistory.from_dict(state["history"])

@@ -32,9 +32,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, first_frame, n_frames_for
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ModelStream, rate_ratio
+from vispeech.models.contract import ModelStream, ResampledFrames, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, Network
 
@@ -167,8 +167,7 @@ class RecurrentStream(ModelStream):
         self._state = self._kernel.initial_state()
         self._rows: list[np.ndarray] = []  # encoded input frames so far
         self._recent: list[Phone] = []  # the phones still needed to encode the next frames
-        self._frames: list[np.ndarray] = []  # model outputs from model frame _first on (denormalised)
-        self._first = 0
+        self._frames = ResampledFrames(model.fps_, self.fps)  # model outputs, denormalised
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         if self.closed:
@@ -189,9 +188,7 @@ class RecurrentStream(ModelStream):
                 keep = np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right")
                 self._recent = self._recent[max(keep - 1, 0):]
         self._advance(len(self._rows) - model.lookahead)
-        computed = self._first + len(self._frames)
-        upto = first_frame((computed - 1) / model.fps_, self.fps, after=False) + 1 if computed else 0
-        return self._give(min(upto, n_frames_for(self.end, self.fps)))
+        return self._give(min(self._frames.ready(), n_frames_for(self.end, self.fps)))
 
     def finish(self) -> tuple[int, np.ndarray]:
         if self.closed:
@@ -205,27 +202,18 @@ class RecurrentStream(ModelStream):
         """Compute model frames up to (not including) ``upto``."""
         back, ahead = self.model.get_params()["look_back"], self.model.lookahead
         n = len(self._rows)
-        while self._first + len(self._frames) < upto:
-            t = self._first + len(self._frames)
+        while self._frames.computed < upto:
+            t = self._frames.computed
             index = np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)
             out, self._state = self._kernel.step(np.stack([self._rows[i] for i in index]), self._state)
-            self._frames.append(self.model._denormalise(out))
+            self._frames.add(self.model._denormalise(out))
 
     def _give(self, upto: int) -> tuple[int, np.ndarray]:
-        """Stream frames ``emitted .. upto - 1``, interpolated from the model frames as
-        :meth:`vispeech.motion.track.Track.resample` does; model frames no later frame needs are dropped."""
-        if upto <= self.emitted or not self._frames:
+        """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.contract.ResampledFrames`)."""
+        if upto <= self.emitted or not self._frames.computed:
             return self._empty()
-        model_fps = self.model.fps_
-        times = np.arange(self.emitted, upto) / self.fps
-        source = (self._first + np.arange(len(self._frames))) / model_fps
-        values = np.stack(self._frames)
-        rows = np.column_stack([np.interp(times, source, values[:, j]) for j in range(values.shape[1])])
         start, self.emitted = self.emitted, upto
-        drop = max(0, int(np.floor(self.emitted * model_fps / self.fps)) - 1 - self._first)
-        del self._frames[:drop]
-        self._first += drop
-        return start, rows
+        return start, self._frames.give(start, upto)
 
 
 def stream_lookahead(ahead: int, model_fps: float, fps: float) -> int:

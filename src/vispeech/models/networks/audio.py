@@ -1,0 +1,434 @@
+"""Audio networks: speech audio in, face channels out (PhISANet-style, with an optional CTC head).
+
+Two families read :class:`~vispeech.models.networks.audio_encoding.AudioEncoding` frames
+(log-mel or MFCC at ``fps`` = 50 by default, normalised per speaker as audio arrives):
+
+- ``audio-cnn``: PhISANet's streaming decoder, three 1-D convolutions (kernels [15, 7, 3],
+  ReLU, per-frame layer norm) whose right contexts add up to ``look_ahead`` frames (8 = 160 ms
+  at 50 fps), and a linear output. Frame t depends on inputs ``t - behind .. t + look_ahead``
+  only, so :class:`AudioStream` gives exactly the offline frames.
+- ``audio-encdec``: an offline encoder-decoder, a centred convolution encoder and a
+  bidirectional GRU decoder over the whole utterance. Streamed, it re-decodes a recent window
+  and waits ``stream_lookahead`` frames, an approximation of its offline output.
+
+Training (torch) minimises the MSE of standardised targets plus ``velocity_weight`` and
+``acceleration_weight`` times the MSE of their first and second differences (PhISANet's
+L_vel, L_accel), plus ``ctc_weight`` (λ_CTC) times a CTC loss of a phone head on the last
+hidden layer against the utterance's phone sequence (silences left to the blank); the head
+is a training aid and prediction ignores it. Robustness to voices the corpus lacks comes from
+the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
+``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
+(``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones). Prediction runs
+on NumPy (:mod:`vispeech.models.networks.kernels`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, SpectrumStream, power_spectrogram, warp_frequencies
+from vispeech.models.contract import ModelStream, ResampledFrames
+from vispeech.models.networks.audio_encoding import AudioEncoding
+from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
+from vispeech.models.networks.network import TRAINING_PARAMS, Network
+from vispeech.motion.track import Track
+from vispeech.phonetics.inventory import get_inventory, is_silence
+
+AUDIO_PARAMS: dict = {
+    **{k: v for k, v in TRAINING_PARAMS.items() if k != "motion_weight"},
+    "fps": 50.0,
+    "standardize": True,
+    "epochs": 60,
+    "patience": 8,
+    "features": "log-mel",
+    "n_mels": 80,
+    "n_mfcc": 13,
+    "normalize": "running",
+    "prior_seconds": 2.0,
+    "warp": 0.1,
+    "pitch_shift": 2.0,
+    "pitch_copies": 1,
+    "ctc_weight": 0.0,
+    "velocity_weight": 0.0,
+    "acceleration_weight": 0.0,
+    "dropout": 0.1,
+    "batch_size": 16,
+}
+"""Hyper-parameters every audio network has (see the module docstring)."""
+
+
+@dataclass
+class _Example:
+    """A training utterance: power spectra of its audio (original first, then pitch-shifted
+    copies), its network frame count and its phone labels for CTC (1-based, 0 is the blank)."""
+
+    powers: list[np.ndarray]
+    n_frames: int
+    labels: np.ndarray
+
+
+class AudioNetwork(Network):
+    """Base of the audio networks: audio inputs, augmentation, the loss, prediction and streaming."""
+
+    input_kind = "audio"
+    defaults = AUDIO_PARAMS
+
+    # -- inputs ----------------------------------------------------------------------------
+
+    def _check_inputs(self) -> None:
+        p = self._params
+        AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], float(p["fps"]), p["normalize"], p["prior_seconds"])
+        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight"):
+            if not (isinstance(p[key], int | float) and p[key] >= 0):
+                raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
+        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
+            raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
+        if not (isinstance(p["pitch_copies"], int) and 0 <= p["pitch_copies"] <= 8):
+            raise VispeechError(f"pitch_copies must be a whole number within 0..8, got {p['pitch_copies']!r}")
+
+    def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
+        p = self._params
+        encoding = AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], self.fps_, p["normalize"], p["prior_seconds"])
+        self._powers = {id(u): self._utterance_powers(u) for u in train_set}
+        self.phones_ = self._phone_vocabulary(train_set)
+        return encoding.with_statistics([encoding.features(powers[0]) for powers in self._powers.values()])
+
+    def _utterance_powers(self, utterance, copies: bool = True) -> list[np.ndarray]:
+        """Power spectra of the utterance's audio and (``copies``) of its pitch-shifted copies (seeded by its id)."""
+        import zlib
+
+        import librosa
+
+        clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {getattr(utterance, 'id', '?')}")
+        samples = clip.resampled(SAMPLE_RATE).samples
+        powers = [power_spectrogram(samples)]
+        p = self._params
+        if copies and p["pitch_shift"] and p["pitch_copies"]:
+            rng = np.random.default_rng([p["seed"], zlib.crc32(str(getattr(utterance, "id", "")).encode())])
+            for _ in range(p["pitch_copies"]):
+                steps = float(rng.uniform(-p["pitch_shift"], p["pitch_shift"]))
+                shifted = librosa.effects.pitch_shift(samples, sr=SAMPLE_RATE, n_steps=steps, res_type="soxr_hq")
+                powers.append(power_spectrogram(shifted))
+        return powers
+
+    def _phone_vocabulary(self, train_set: list) -> tuple[str, ...]:
+        """The phone labels of the CTC head: the language's inventory without silence (none without CTC)."""
+        if not self._params["ctc_weight"]:
+            return ()
+        language = train_set[0].phones.language
+        return tuple(s for s in get_inventory(language).symbols if not is_silence(s))
+
+    def _encode_example(self, utterance, n_frames: int) -> _Example:
+        powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
+        labels = []
+        if self.phones_:
+            index = {s: i + 1 for i, s in enumerate(self.phones_)}
+            labels = [index[p.symbol] for p in utterance.phones if p.symbol in index]
+        return _Example(powers, n_frames, np.asarray(labels, dtype=np.int64))
+
+    def _encoding_from_dict(self, data: dict) -> AudioEncoding:
+        return AudioEncoding.from_dict(data)
+
+    def fit(self, corpus, *, progress: bool | None = None) -> AudioNetwork:
+        """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
+
+        Learns ``encoding_`` (with the training features' statistics), ``phones_`` (the CTC
+        head's labels), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
+        """
+        try:
+            return super().fit(corpus, progress=progress)
+        finally:
+            self.__dict__.pop("_powers", None)
+
+    # -- training --------------------------------------------------------------------------
+
+    def _batches(self, examples, rng):
+        import torch
+
+        order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
+        size = self._params["batch_size"]
+        warp = self._params["warp"]
+        batches = []
+        for start in range(0, len(order), size):
+            chosen = [examples[i] for i in order[start:start + size]]
+            inputs = []
+            for example, _ in chosen:
+                power = example.powers[0 if rng is None else int(rng.integers(len(example.powers)))]
+                if rng is not None and warp:
+                    power = warp_frequencies(power, float(rng.uniform(1 - warp, 1 + warp)))
+                inputs.append(self.encoding_.encode(power, example.n_frames))
+            longest = max(len(x) for x in inputs)
+            lengths = np.array([len(x) for x in inputs])
+            x = np.stack([np.pad(v, ((0, longest - len(v)), (0, 0))) for v in inputs])
+            y = np.stack([np.pad(t, ((0, longest - len(t)), (0, 0))) for _, t in chosen])
+            labels = [example.labels for example, _ in chosen]
+            batches.append((torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(lengths),
+                            torch.from_numpy(np.concatenate(labels)) if labels else None,
+                            torch.tensor([len(v) for v in labels])))
+        return batches
+
+    def _data_loss(self, module, batch):
+        import torch
+
+        x, y, lengths, labels, label_lengths = batch
+        pred, logits = module(x, lengths)
+        mask = (torch.arange(x.shape[1])[None, :] < lengths[:, None]).unsqueeze(-1).to(pred.dtype)
+        per_value = mask.sum() * pred.shape[-1]
+        loss = (((pred - y) ** 2) * mask).sum() / per_value
+        p = self._params
+        for weight, order in ((p["velocity_weight"], 1), (p["acceleration_weight"], 2)):
+            if weight and x.shape[1] > order:
+                both = mask[:, order:] * mask[:, :-order]
+                diff = (pred.diff(n=order, dim=1) - y.diff(n=order, dim=1)) ** 2
+                loss = loss + weight * (diff * both).sum() / (both.sum() * pred.shape[-1]).clamp(min=1)
+        if p["ctc_weight"] and logits is not None:
+            log_probs = torch.log_softmax(logits, dim=-1).transpose(0, 1)
+            ctc = torch.nn.functional.ctc_loss(log_probs, labels, lengths, label_lengths, blank=0,
+                                               reduction="mean", zero_infinity=True)
+            loss = loss + p["ctc_weight"] * ctc
+        return loss, float(lengths.sum())
+
+    # -- prediction ------------------------------------------------------------------------
+
+    @property
+    def lookahead(self) -> int:
+        """Network frames after frame t whose inputs frame t needs (beside the feature framing)."""
+        return self.kernel_ahead
+
+    @property
+    def kernel_ahead(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def delay(self) -> float:
+        """Seconds of audio after a frame's time that a stream needs before giving it: the
+        look-ahead, the stacked feature frames and half the analysis window."""
+        stack = round(FRAME_RATE / self.fps_) if hasattr(self, "fps_") else round(FRAME_RATE / self._params["fps"])
+        fps = getattr(self, "fps_", self._params["fps"])
+        return self.lookahead / fps + (stack - 1) / FRAME_RATE + 256 / SAMPLE_RATE
+
+    def predict(self, clip: AudioClip, fps: float) -> Track:
+        """A track of ``clip.n_frames(fps)`` frames for the audio: predicted at the model's rate, resampled."""
+        kernel = self.kernel
+        if not isinstance(clip, AudioClip):
+            raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
+        n_model = clip.n_frames(self.fps_)
+        inputs = self.encoding_.encode(power_spectrogram(clip.resampled(SAMPLE_RATE).samples), n_model)
+        track = Track(self._denormalise(kernel.forward(inputs)), self.channels, self.fps_)
+        n = clip.n_frames(fps)
+        if fps != self.fps_ or track.n_frames != n:
+            track = track.resample(fps, n_frames=n)
+        return track
+
+    def stream(self, language: str | None = None, fps: float = 30.0) -> AudioStream:
+        """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
+        (audio networks are language-independent)."""
+        self.check_fitted()
+        return AudioStream(self, fps)
+
+    @property
+    def postprocessing(self) -> str:
+        return "audio"
+
+    def _learned_state(self):
+        learned = super()._learned_state()
+        if learned is None:
+            return None
+        state, arrays = learned
+        return {**state, "phones": list(self.phones_)}, arrays
+
+    def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
+        self.phones_ = tuple(state["phones"])
+        super()._set_learned_state(state, arrays)
+
+
+def _right_contexts(kernels: list[int], ahead: int) -> list[int]:
+    """Split ``ahead`` frames of look-ahead over the layers, earliest first, each at most half its kernel."""
+    right = []
+    for k in kernels:
+        r = min(ahead, (k - 1) // 2)
+        right.append(r)
+        ahead -= r
+    if ahead:
+        raise VispeechError(f"look_ahead exceeds what kernels {kernels} can see ahead ({sum(right)} frames)")
+    return right
+
+
+class AudioCNNNetwork(AudioNetwork):
+    """PhISANet's streaming CNN: ``kernels`` (15, 7, 3), ``channels`` per layer, ``look_ahead`` frames."""
+
+    family = "audio-cnn"
+    defaults = {**AUDIO_PARAMS, "kernels": [15, 7, 3], "channels": [256, 256, 256], "look_ahead": 8}
+
+    def _check_architecture(self) -> None:
+        p = self._params
+        if not (len(p["kernels"]) == len(p["channels"]) >= 1 and all(k >= 1 and k % 2 for k in p["kernels"])):
+            raise VispeechError("kernels must be odd sizes, one per entry of channels")
+        if not (isinstance(p["look_ahead"], int) and p["look_ahead"] >= 0):
+            raise VispeechError(f"look_ahead must be a whole number of frames >= 0, got {p['look_ahead']!r}")
+        _right_contexts(p["kernels"], p["look_ahead"])
+
+    def _pads(self) -> list[tuple[int, int]]:
+        kernels = self._params["kernels"]
+        return [(k - 1 - r, r) for k, r in zip(kernels, _right_contexts(kernels, self._params["look_ahead"]))]
+
+    @property
+    def kernel_ahead(self) -> int:
+        return self._params["look_ahead"]
+
+    @property
+    def context(self) -> int:
+        """Network frames before frame t that frame t depends on."""
+        return sum(behind for behind, _ in self._pads())
+
+    def _build_module(self, n_inputs: int, n_outputs: int):
+        from vispeech.models.networks.modules import AudioCNN
+
+        p = self._params
+        right = [r for _, r in self._pads()]
+        return AudioCNN(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), right, p["dropout"],
+                        len(self.phones_))
+
+    def _make_kernel(self) -> AudioCNNKernel:
+        return AudioCNNKernel(self.weights_, self._pads())
+
+
+class EncoderDecoderNetwork(AudioNetwork):
+    """The offline encoder-decoder: conv ``kernels``/``channels`` encoder, a ``layers``-layer
+    bidirectional GRU of ``hidden`` units per direction; streamed by re-decoding ``stream_context``
+    frames before and waiting ``stream_lookahead`` frames after each new frame."""
+
+    family = "audio-encdec"
+    defaults = {**AUDIO_PARAMS, "kernels": [5, 5], "channels": [256, 256], "hidden": 128, "layers": 2,
+                "stream_lookahead": 15, "stream_context": 50}
+
+    def _check_architecture(self) -> None:
+        p = self._params
+        if not (len(p["kernels"]) == len(p["channels"]) and all(k >= 1 and k % 2 for k in p["kernels"])):
+            raise VispeechError("kernels must be odd sizes, one per entry of channels")
+        if not (isinstance(p["hidden"], int) and p["hidden"] >= 1 and isinstance(p["layers"], int) and p["layers"] >= 1):
+            raise VispeechError("hidden and layers must be whole numbers >= 1")
+
+    def _pads(self) -> list[tuple[int, int]]:
+        return [((k - 1) // 2, (k - 1) // 2) for k in self._params["kernels"]]
+
+    @property
+    def kernel_ahead(self) -> int:
+        return self._params["stream_lookahead"]
+
+    @property
+    def context(self) -> int:
+        """Network frames before the first frame not yet given that a stream re-decodes."""
+        return self._params["stream_context"]
+
+    def _build_module(self, n_inputs: int, n_outputs: int):
+        from vispeech.models.networks.modules import AudioEncoderDecoder
+
+        p = self._params
+        return AudioEncoderDecoder(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), p["hidden"],
+                                   p["layers"], p["dropout"], len(self.phones_))
+
+    def _make_kernel(self) -> EncoderDecoderKernel:
+        return EncoderDecoderKernel(self.weights_, self._pads(), self._params["layers"])
+
+
+class AudioStream(ModelStream):
+    """An audio network driven by audio chunks as they arrive (a microphone, a voice service).
+
+    :meth:`push` takes float samples at :data:`~vispeech.frontends.features.SAMPLE_RATE` Hz
+    (mono, in [-1, 1]) and returns ``(start_frame, frames)`` at the stream's ``fps``; network
+    frame t is computed once the inputs up to ``t + lookahead`` are in, by running the
+    network on the last ``context + lookahead`` frames. For ``audio-cnn`` that is its whole
+    receptive field, so the frames equal :meth:`AudioNetwork.predict`'s on the whole audio;
+    :meth:`finish` pads the end as the offline prediction does. :attr:`delay` is the audio
+    (seconds) after a frame's time that the stream waits for.
+    """
+
+    def __init__(self, model: AudioNetwork, fps: float) -> None:
+        super().__init__(model, "", fps)
+        self.delay = model.delay
+        self.lookahead = math.ceil(self.delay * self.fps)
+        self._spectra = SpectrumStream()
+        self._norm_state = None
+        self._normalised: list[np.ndarray] = []  # feature frames not yet stacked into network inputs
+        self._inputs: list[np.ndarray] = []  # network input rows from row _first_input on
+        self._first_input = 0
+        self._frames = ResampledFrames(model.fps_, self.fps)
+
+    @property
+    def sample_rate(self) -> int:
+        """The rate :meth:`push` takes (Hz)."""
+        return SAMPLE_RATE
+
+    def push(self, samples: np.ndarray) -> tuple[int, np.ndarray]:
+        if self.closed:
+            raise VispeechError("this audio stream has ended")
+        chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
+        if not np.all(np.isfinite(chunk)):
+            raise VispeechError("audio chunk has non-finite samples")
+        self._add_features(self._spectra.push(np.clip(chunk, -1.0, 1.0)))
+        self.end = self._spectra.samples / SAMPLE_RATE
+        self._advance(self._first_input + len(self._inputs) - self.model.kernel_ahead, final=False)
+        n_total = math.ceil(self.end * self.fps - 1e-9)
+        return self._give(min(self._frames.ready(), n_total))
+
+    def finish(self) -> tuple[int, np.ndarray]:
+        if self.closed:
+            raise VispeechError("this audio stream has ended")
+        self._add_features(self._spectra.finish(), final=True)
+        self.close()
+        if self._spectra.samples == 0:
+            return self._empty()
+        self._advance(self._n_model_frames(), final=True)
+        return self._give(max(1, math.ceil(self.end * self.fps - 1e-9)))
+
+    def _n_model_frames(self) -> int:
+        return max(1, math.ceil(self.end * self.model.fps_ - 1e-9))
+
+    def _add_features(self, power: np.ndarray, final: bool = False) -> None:
+        encoding = self.model.encoding_
+        if len(power):
+            normalised, self._norm_state = encoding.normalise(encoding.features(power), self._norm_state)
+            self._normalised.extend(normalised)
+        stack = encoding.stack
+        while len(self._normalised) >= stack:
+            self._inputs.append(np.concatenate(self._normalised[:stack]))
+            del self._normalised[:stack]
+        if final:
+            # as offline: the last feature frame repeated to fill the network frames the audio covers
+            n = self._n_model_frames() if self._spectra.samples else 0
+            tail = self._normalised or ([self._inputs[-1][-encoding.dims:]] if self._inputs else [])
+            while self._first_input + len(self._inputs) < n and tail:
+                rows = (tail + [tail[-1]] * stack)[:stack]
+                self._inputs.append(np.concatenate(rows))
+                tail = [tail[-1]]
+
+    def _advance(self, upto: int, final: bool) -> None:
+        """Compute network frames up to (not including) ``upto``."""
+        model = self.model
+        if not final:
+            upto = min(upto, self._n_model_frames())
+        start = self._frames.computed
+        if upto <= start:
+            return
+        window_start = max(self._first_input, start - model.context)
+        rows = np.stack(self._inputs[window_start - self._first_input:])
+        if final:
+            rows = rows[: upto - window_start]
+        out = model._denormalise(model.kernel.forward(rows))
+        for row in out[start - window_start: upto - window_start]:
+            self._frames.add(row)
+        keep_from = max(self._first_input, self._frames.computed - model.context)
+        del self._inputs[: keep_from - self._first_input]
+        self._first_input = keep_from
+
+    def _give(self, upto: int) -> tuple[int, np.ndarray]:
+        if upto <= self.emitted or not self._frames.computed:
+            return self._empty()
+        start, self.emitted = self.emitted, upto
+        return start, self._frames.give(start, upto)
