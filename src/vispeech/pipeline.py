@@ -1,6 +1,6 @@
-"""One utterance end to end: text or phones → control model → post-processing → output files.
+"""One utterance end to end: text, phones or audio → control model → post-processing → output files.
 
-The CLI (``say``, ``animate-phones``) and the server are thin layers over these calls.
+The CLI (``say``, ``animate``, ``animate-phones``) and the server are thin layers over these calls.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
+from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
@@ -23,6 +24,8 @@ from vispeech.utterance import Utterance
 DEFAULT_FPS = 30.0
 DEFAULT_MODEL = "grid-tdnn"
 """The shipped network trained on GRID (``vispeech/models/pretrained``), for every language."""
+DEFAULT_AUDIO_MODEL = "grid-audio"
+"""The shipped audio network trained on GRID: what animates audio that comes without a transcript."""
 GREETINGS = {
     "sv": "Hej! Hur kan jag hjälpa dig idag?",
     "en": "Hello, how can I help you today?",
@@ -54,6 +57,37 @@ def animate(
         config = postprocessing
     else:
         config = PostprocessConfig.from_preset(estimator.postprocessing)
+    return postprocess(track, phones, config)
+
+
+def animate_audio(
+    clip: AudioClip,
+    model: str | Estimator = DEFAULT_AUDIO_MODEL,
+    fps: float = DEFAULT_FPS,
+    postprocessing: PostprocessConfig | bool = True,
+    phones: PhoneSequence | None = None,
+) -> Track:
+    """Animation of speech audio at ``fps``, ``clip.n_frames(fps)`` frames from time 0.
+
+    An audio model (``input_kind == "audio"``) animates the audio itself; a phone model
+    animates ``phones``, which must then be given (the audio's alignment). Post-processing
+    as in :func:`animate`; an audio model's recommended preset (``audio``) needs no phones,
+    and with ``phones`` given its output gets the ``learned-jaw`` preset's closures too.
+    """
+    check_fps(fps)
+    check_utterance(clip.duration, 0 if phones is None else len(phones))
+    estimator = model if isinstance(model, Estimator) else load_model(model)
+    if estimator.input_kind != "audio":
+        if phones is None:
+            raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
+        return animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
+    track = estimator.predict(clip, fps)
+    if postprocessing is False:
+        return track
+    if isinstance(postprocessing, PostprocessConfig):
+        config = postprocessing
+    else:
+        config = PostprocessConfig.from_preset(estimator.postprocessing if phones is None else "learned-jaw")
     return postprocess(track, phones, config)
 
 

@@ -19,6 +19,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE
 from vispeech.corpus.articulation import articulatory_parameters
 from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
 from vispeech.evaluation.closures import (
     BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, TRACKED_CLOSED, ClosureCounts, count_closures,
     lip_opening, model_closed, tracked_closed,
@@ -204,18 +205,24 @@ def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
 
 
 def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bool = True) -> Track:
-    """The model's animation of the utterance's phones on the frames of its recorded track.
+    """The model's animation of the utterance on the frames of its recorded track: of its
+    phones for a phone model, of its audio alone for an audio model.
 
     The model predicts at the track's frame rate from time 0 (post-processed when
     ``postprocessing`` and the output has ``jawOpen``); the result is sampled at the track's
     frame times, held at its first/last value beyond its ends.
     """
-    from vispeech.pipeline import animate
+    from vispeech.pipeline import animate, animate_audio
 
-    if utterance.phones is None:
-        raise VispeechError(f"utterance {utterance.id} has no phones: align the corpus first")
     fps = utterance.track.fps
-    predicted = animate(utterance.phones, model, fps, postprocessing and "jawOpen" in model.channels)
+    postprocess = postprocessing and "jawOpen" in model.channels
+    if model.input_kind == "audio":
+        clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {utterance.id}")
+        predicted = animate_audio(clip, model, fps, postprocess)
+    elif utterance.phones is None:
+        raise VispeechError(f"utterance {utterance.id} has no phones: align the corpus first")
+    else:
+        predicted = animate(utterance.phones, model, fps, postprocess)
     times = utterance.track.times
     if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < TIME_TOLERANCE:
         return predicted
