@@ -24,8 +24,10 @@ from vispeech.utterance import Utterance
 DEFAULT_FPS = 30.0
 DEFAULT_MODEL = "grid-tdnn"
 """The shipped network trained on GRID (``vispeech/models/pretrained``), for every language."""
-DEFAULT_AUDIO_MODEL = "grid-audio"
-"""The shipped audio network trained on GRID: what animates audio that comes without a transcript."""
+DEFAULT_AUDIO_MODEL = "grid-audio-cnn"
+"""The shipped audio network trained on GRID that animates audio coming without a transcript."""
+DEFAULT_AUDIO_STREAM_MODEL = "grid-audio-cnn"
+"""The shipped audio network for live audio: its stream equals its offline output, 186 ms behind."""
 GREETINGS = {
     "sv": "Hej! Hur kan jag hjälpa dig idag?",
     "en": "Hello, how can I help you today?",
