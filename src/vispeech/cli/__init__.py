@@ -24,7 +24,7 @@ _MODULES = {"animate-phones": "say"}
 """Commands that do not live in a module of their own name: command → module of this package."""
 
 EXTRAS = {
-    "torch": "train", "pocketsphinx": "train", "matplotlib": "train", "tqdm": "train",
+    "torch": "train", "matplotlib": "train", "tqdm": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
 }
 """Optional top-level modules → the extra that installs them."""
