@@ -33,6 +33,8 @@ GREETINGS = {
     "en": "Hello, how can I help you today?",
 }
 """What ``vispeech say`` speaks when given no text."""
+MAX_OUTPUT_SAMPLE_RATE = 48_000
+"""The highest sample rate (Hz) of the audio :func:`listen` keeps; faster input is resampled to it."""
 
 
 def animate(
@@ -112,14 +114,45 @@ def speak(
     return Utterance(text=text, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
 
 
+def listen(
+    clip: AudioClip,
+    text: str | None = None,
+    language: str = "en",
+    *,
+    model: str | Estimator | None = None,
+    fps: float = DEFAULT_FPS,
+    postprocessing: PostprocessConfig | bool = True,
+) -> Utterance:
+    """Animate recorded speech: audio, text, phones (``None`` without ``text``) and a track of
+    ``clip.n_frames(fps)`` frames from time 0.
+
+    Without ``text`` an audio model animates the audio (default :data:`DEFAULT_AUDIO_MODEL`).
+    With ``text`` the transcript is aligned with the audio in ``language``
+    (:func:`vispeech.frontends.align.align`) and a model of either kind animates it with
+    those phones (default :data:`DEFAULT_MODEL`). The utterance keeps the clip's audio at its
+    own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster.
+    """
+    check_fps(fps)
+    phones = None
+    if text is not None:
+        from vispeech.frontends.align import align
+
+        check_text(text)
+        phones = align(clip.samples, clip.sample_rate, text, language)
+    default = DEFAULT_AUDIO_MODEL if phones is None else DEFAULT_MODEL
+    track = animate_audio(clip, default if model is None else model, fps, postprocessing, phones=phones)
+    audio = clip.resampled(min(clip.sample_rate, MAX_OUTPUT_SAMPLE_RATE))
+    return Utterance(text=text or "", phones=phones, track=track, audio=audio.samples, sample_rate=audio.sample_rate)
+
+
 def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None) -> list[Path]:
     """Write an utterance's files as the folder ``out_dir`` and return their paths.
 
     Always ``animation.csv`` (Live Link Face) and ``animation.json``; with audio also
-    ``speech.wav``, ``phones.TextGrid`` and ``preview.html``. The folder is written whole
-    beside ``out_dir`` and swapped in with one rename (:func:`vispeech.files.atomic_output_dir`),
-    so it never holds files of two runs: phones written into a folder ``say`` made leave no
-    old wav, TextGrid or preview behind. An existing ``out_dir`` is replaced only when it holds
+    ``speech.wav`` and ``preview.html``, and ``phones.TextGrid`` when it has phones too. The
+    folder is written whole beside ``out_dir`` and swapped in with one rename
+    (:func:`vispeech.files.atomic_output_dir`), so it never holds files of two runs: phones
+    written into a folder ``say`` made leave no old wav, TextGrid or preview behind. An existing ``out_dir`` is replaced only when it holds
     nothing but those five files; any other file in it (a folder of the user's) stops the run
     with :class:`VispeechError`, and so does a path that is not a folder.
     """
@@ -135,8 +168,9 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
         if wav is not None:
             (staging / "speech.wav").write_bytes(wav)
             names.append("speech.wav")
-            write_textgrid(utterance.phones, staging / "phones.TextGrid")
-            names.append("phones.TextGrid")
+            if utterance.phones is not None:
+                write_textgrid(utterance.phones, staging / "phones.TextGrid")
+                names.append("phones.TextGrid")
         write_track(utterance.track, staging / "animation.csv", "livelink")
         write_track(utterance.track, staging / "animation.json", "json", phones=utterance.phones)
         names += ["animation.csv", "animation.json"]

@@ -1,0 +1,41 @@
+"""``vispeech animate AUDIO``: recorded speech to animation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vispeech.cli import lang_option, main
+from vispeech.frontends.audio import AudioClip
+from vispeech.limits import check_fps
+from vispeech.models.registry import RUNNABLE
+from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, listen, write_outputs
+
+
+@main.command()
+@click.argument("audio", type=click.Path(path_type=Path))
+@click.option("--text", "-t", default=None,
+              help="The transcript, aligned with the audio: its phones drive the model.")
+@lang_option("Language of the transcript: sv or en.")
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
+@click.option("--model", "-m", default=None,
+              help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
+                   f"[default: {DEFAULT_AUDIO_MODEL}; {DEFAULT_MODEL} with --text].")
+@click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
+@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str | None, fps: float,
+            no_postprocess: bool) -> None:
+    """Animate the speech in AUDIO (WAV, FLAC, MP3, OGG; at most 10 minutes).
+
+    Writes speech.wav, animation.csv/.json, preview.html and, with --text, phones.TextGrid.
+    Without --text an audio model animates the sound; with it the transcript is aligned with
+    the audio and the model animates its phones.
+    """
+    check_fps(fps, "--fps")
+    clip = AudioClip.read(audio)
+    utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
+    paths = write_outputs(utterance, out_dir, title=text or audio.name)
+    click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
+    for path in paths:
+        click.echo(f"  {path.name}")
