@@ -1,0 +1,204 @@
+"""The audio networks: learning, NumPy inference against torch, streaming, save/load, CTC, errors."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+import torch  # noqa: E402
+
+from vispeech import VispeechError  # noqa: E402
+from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
+from vispeech.frontends.audio import AudioClip  # noqa: E402
+from vispeech.models.contract import Splits  # noqa: E402
+from vispeech.models.networks.audio import AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
+from vispeech.models.registry import create_model, load_model  # noqa: E402
+from vispeech.motion.track import Track  # noqa: E402
+from vispeech.utterance import Utterance  # noqa: E402
+
+RATE = 16000
+SYMBOLS = ["AA", "IY", "M", "S", "T", "AE"]
+
+
+def synthetic_utterance(rng: np.random.Generator, index: int) -> Utterance:
+    """A buzz whose loudness follows the 'jaw': vowels loud and open, consonants quiet and closed."""
+    phones, t = [Phone("sil", 0.0, 0.3)], 0.3
+    for symbol in rng.choice(SYMBOLS, 6):
+        d = float(rng.uniform(0.08, 0.2))
+        phones.append(Phone(str(symbol), t, t + d))
+        t += d
+    phones.append(Phone("sil", t, t + 0.3))
+    sequence = PhoneSequence(phones, "en").validate()
+    n = int(sequence.duration * RATE)
+    times = np.arange(n) / RATE
+    open_ = np.zeros(n)
+    for p in phones:
+        if p.symbol in ("AA", "IY", "AE"):
+            open_[(times >= p.start) & (times < p.end)] = 1.0 if p.symbol == "AA" else 0.6
+    smooth = np.convolve(open_, np.hanning(800) / np.hanning(800).sum(), mode="same")
+    f0 = 110 + 10 * index % 30
+    buzz = sum(np.sin(2 * np.pi * f0 * k * times) / k for k in range(1, 20))
+    audio = (0.3 * smooth * buzz / 3 + 0.002 * rng.normal(size=n)).astype(np.float32)
+    frames = sequence.n_frames(25)
+    jaw = np.interp(np.arange(frames) / 25, times, smooth)
+    track = Track(np.column_stack([jaw, 0.2 * jaw]), ("jawOpen", "mouthFunnel"), 25.0)
+    return Utterance(id=f"u{index}", phones=sequence, track=track, audio=audio, sample_rate=RATE)
+
+
+@pytest.fixture(scope="module")
+def corpus() -> Splits:
+    rng = np.random.default_rng(0)
+    return Splits([synthetic_utterance(rng, i) for i in range(10)], [synthetic_utterance(rng, 50 + i) for i in range(2)])
+
+
+@pytest.fixture(scope="module")
+def held_out() -> list:
+    rng = np.random.default_rng(1)
+    return [synthetic_utterance(rng, 100 + i) for i in range(3)]
+
+
+TINY = {"targets": ["jawOpen", "mouthFunnel"], "n_mels": 24, "pitch_copies": 0, "epochs": 25, "patience": 25,
+        "learning_rate": 3e-3, "batch_size": 4, "seed": 0}
+
+
+@pytest.fixture(scope="module")
+def cnn(corpus) -> AudioCNNNetwork:
+    return AudioCNNNetwork(**TINY, channels=[16, 16, 16], velocity_weight=0.5, acceleration_weight=0.5).fit(
+        corpus, progress=False)
+
+
+@pytest.fixture(scope="module")
+def encdec(corpus) -> EncoderDecoderNetwork:
+    return EncoderDecoderNetwork(**{**TINY, "epochs": 12}, channels=[16, 16], hidden=8, ctc_weight=0.01).fit(
+        corpus, progress=False)
+
+
+def clip_of(utterance: Utterance) -> AudioClip:
+    return AudioClip.from_array(utterance.audio, utterance.sample_rate)
+
+
+def jaw_error_ratio(model, corpus, held_out) -> float:
+    mean = np.mean(np.concatenate([u.track["jawOpen"] for u in corpus.train]))
+    errors, baseline = [], []
+    for u in held_out:
+        predicted = model.predict(clip_of(u), 25)["jawOpen"]
+        errors.append(np.mean((predicted - u.track["jawOpen"]) ** 2))
+        baseline.append(np.mean((mean - u.track["jawOpen"]) ** 2))
+    return float(np.mean(errors) / np.mean(baseline))
+
+
+@pytest.mark.parametrize("fixture", ["cnn", "encdec"])
+def test_audio_networks_learn_the_jaw_from_loudness(fixture, request, corpus, held_out):
+    model = request.getfixturevalue(fixture)
+    assert model.input_kind == "audio" and model.postprocessing == "audio"
+    assert jaw_error_ratio(model, corpus, held_out) < 0.5
+    track = model.predict(clip_of(held_out[0]), 30)
+    assert track.n_frames == clip_of(held_out[0]).n_frames(30) and track.channels == ("jawOpen", "mouthFunnel")
+    assert np.all((track.values >= 0) & (track.values <= 1))
+
+
+@pytest.mark.parametrize("fixture", ["cnn", "encdec"])
+def test_numpy_inference_equals_torch(fixture, request):
+    model = request.getfixturevalue(fixture)
+    module = model._build_module(model.encoding_.size, len(model.outputs_))
+    module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
+    module.eval()
+    x = np.random.default_rng(3).normal(size=(1, 57, model.encoding_.size)).astype(np.float32)
+    with torch.no_grad():
+        expected = module(torch.from_numpy(x), torch.tensor([57]))[0][0].numpy()
+    np.testing.assert_allclose(model.kernel.forward(x[0]), expected, atol=2e-5)
+
+
+@pytest.mark.parametrize("fps", [25.0, 30.0, 50.0, 60.0])
+def test_cnn_stream_equals_offline_prediction(cnn, held_out, fps):
+    clip = clip_of(held_out[1])
+    offline = cnn.predict(clip, fps).values
+    stream = cnn.stream("en", fps)
+    rng = np.random.default_rng(int(fps))
+    parts, i, expected_start = [], 0, 0
+    while i < len(clip.samples):
+        n = int(rng.integers(1, 1500))
+        start, frames = stream.push(clip.samples[i:i + n])
+        i += n
+        assert start == expected_start
+        expected_start += len(frames)
+        # a frame is given only once the audio reaches its time plus the stream's delay
+        assert expected_start <= max(0, np.ceil((i / RATE - stream.delay) * fps + 1e-9)) + 1
+        parts.append(frames)
+    parts.append(stream.finish()[1])
+    np.testing.assert_allclose(np.concatenate(parts), offline, atol=1e-5)
+
+
+def test_cnn_delay_is_its_look_ahead_plus_framing(cnn):
+    assert cnn.lookahead == 8 and cnn.delay == pytest.approx(8 / 50 + 0.010 + 0.016)
+    short = AudioCNNNetwork(look_ahead=3)
+    assert [r for _, r in short._pads()] == [3, 0, 0]
+    with pytest.raises(VispeechError, match="look_ahead"):
+        AudioCNNNetwork(look_ahead=12)  # 7 + 3 + 1 frames is the most [15, 7, 3] can see ahead
+
+
+def test_encoder_decoder_stream_follows_its_offline_output(encdec, held_out):
+    clip = clip_of(held_out[2])
+    offline = encdec.predict(clip, 25).values
+    stream = encdec.stream(None, 25)
+    parts = [stream.push(clip.samples[i:i + 640])[1] for i in range(0, len(clip.samples), 640)]
+    parts.append(stream.finish()[1])
+    streamed = np.concatenate(parts)
+    assert streamed.shape == offline.shape
+    assert np.abs(streamed - offline).max() < 0.1
+    assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.95
+
+
+@pytest.mark.parametrize("fixture", ["cnn", "encdec"])
+def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_path):
+    model = request.getfixturevalue(fixture)
+    loaded = load_model(model.save(tmp_path / "model"))
+    assert type(loaded) is type(model) and loaded.get_params() == model.get_params()
+    assert loaded.phones_ == model.phones_ and loaded.encoding_ == model.encoding_
+    clip = clip_of(held_out[0])
+    np.testing.assert_array_equal(loaded.predict(clip, 25).values, model.predict(clip, 25).values)
+
+
+def test_ctc_head_learns_the_phone_labels(encdec, cnn):
+    assert cnn.phones_ == ()  # no CTC: no head
+    assert "sil" not in encdec.phones_ and {"AA", "M", "S"} <= set(encdec.phones_)
+    assert encdec.weights_["ctc.weight"].shape[0] == len(encdec.phones_) + 1  # the blank
+
+
+def test_augmentation_varies_the_inputs(corpus):
+    model = create_model("audio-cnn", **{**TINY, "pitch_copies": 2, "epochs": 1}, channels=[8, 8, 8])
+    model._prepare(list(corpus.train), corpus)
+    example = model._encode_example(corpus.train[0], 10)
+    assert len(example.powers) == 3  # the original and two pitch-shifted copies
+    first, second = model._batches([(example, np.zeros((10, 2), np.float32))], np.random.default_rng(0)), \
+        model._batches([(example, np.zeros((10, 2), np.float32))], np.random.default_rng(1))
+    assert not np.allclose(first[0][0], second[0][0])
+    fixed = model._batches([(example, np.zeros((10, 2), np.float32))], None)
+    np.testing.assert_array_equal(fixed[0][0][0].numpy(), model.encoding_.encode(example.powers[0], 10))
+
+
+def test_audio_networks_refuse_bad_input(cnn):
+    with pytest.raises(VispeechError, match="animates audio"):
+        cnn.predict(PhoneSequence([Phone("sil", 0.0, 1.0)], "en"), 25)
+    with pytest.raises(VispeechError, match="not trained"):
+        AudioCNNNetwork().predict(AudioClip.from_array(np.zeros(1600), RATE), 25)
+    with pytest.raises(VispeechError, match="divide"):
+        AudioCNNNetwork(fps=30.0)
+    with pytest.raises(VispeechError, match="audio feature"):
+        EncoderDecoderNetwork(features="spectrogram")
+    stream = cnn.stream(None, 25)
+    with pytest.raises(VispeechError, match="non-finite"):
+        stream.push(np.array([0.0, np.inf], dtype=np.float32))
+    stream.finish()
+    with pytest.raises(VispeechError, match="ended"):
+        stream.push(np.zeros(10, dtype=np.float32))
+
+
+def test_short_and_silent_audio(cnn):
+    for n in (1, 100, 320, 321):
+        clip = AudioClip.from_array(np.zeros(n, dtype=np.float32), RATE)
+        track = cnn.predict(clip, 25)
+        assert track.n_frames == clip.n_frames(25) and np.isfinite(track.values).all()
+        stream = cnn.stream(None, 25)
+        frames = [stream.push(clip.samples)[1], stream.finish()[1]]
+        np.testing.assert_allclose(np.concatenate(frames), track.values, atol=1e-5)
