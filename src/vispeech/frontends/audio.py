@@ -118,6 +118,8 @@ def audio_duration(path: str | os.PathLike) -> float:
 
 
 def _check_exists(path: str | os.PathLike) -> None:
+    if Path(path).is_dir():
+        raise VispeechError(f"audio path {path} is a folder, not a file")
     if not Path(path).is_file():
         raise VispeechError(f"audio file not found: {path}")
 
