@@ -50,6 +50,11 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     "grid-tdnn-lowlatency": ("tdnn-lowlatency", _SETTINGS),
     "grid-cohen-massaro": ("cohen-massaro", {}),
     "grid-ohman": ("ohman", {}),
+    # audio → face (issue 9): PhISANet's loss terms and CTC weights, VTLP and pitch-shift augmentation
+    "grid-audio-cnn": ("audio-cnn", {"ctc_weight": 0.004, "velocity_weight": 0.3, "acceleration_weight": 0.3,
+                                     "epochs": 50, "patience": 6}),
+    "grid-audio-encdec": ("audio-encdec", {"ctc_weight": 0.008, "velocity_weight": 0.3,
+                                           "acceleration_weight": 0.3, "epochs": 30, "patience": 6}),
 }
 """Family and hyper-parameters (over the family's defaults) of each shipped model."""
 
