@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.pipeline import DEFAULT_MODEL
+from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_MODEL
 
 
 @main.command()
@@ -23,6 +23,9 @@ from vispeech.pipeline import DEFAULT_MODEL
               help="Default model of /api/speak and /api/chat.")
 @click.option("--stream-model", help="Model name or saved model folder for /api/stream "
               "[default: the shipped grid-tdnn-lowlatency].")
+@click.option("--audio-model", default=DEFAULT_AUDIO_STREAM_MODEL, show_default=True,
+              help="Audio model name or saved folder for /api/listen and /api/animate without a transcript "
+              "(none when the default is not installed).")
 @click.option("--rate-limit", default=2.0, show_default=True, type=click.FloatRange(min=0),
               help="Requests a second per client IP for speak, chat and stream texts (0: no limit).")
 @click.option("--burst", default=20, show_default=True, type=click.IntRange(min=1),
@@ -58,8 +61,9 @@ from vispeech.pipeline import DEFAULT_MODEL
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
 def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, cache: Path | None,
-          default_model: str, stream_model: str | None, rate_limit: float, burst: int, chat_url: str | None,
-          chat_reply_field: str, token: str | None, allow_host: tuple[str, ...], allow_origin: tuple[str, ...],
+          default_model: str, stream_model: str | None, audio_model: str, rate_limit: float, burst: int,
+          chat_url: str | None, chat_reply_field: str, token: str | None, allow_host: tuple[str, ...],
+          allow_origin: tuple[str, ...],
           workers: int | None, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
           stream_timeout: float, cache_mb: int, ws_deflate: bool, log_level: str) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
@@ -74,15 +78,16 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
     hosts = ("localhost", "127.0.0.1", "::1", *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)
     extra = {} if workers is None else {"workers": workers}
     config = ServeConfig(avatar=avatar, avatar_credit=avatar_credit, cache=cache, bot=bot, default_model=default_model,
-                         stream_model=stream_model, rate_limit=rate_limit, burst=burst, token=token or None,
-                         allowed_hosts=tuple(dict.fromkeys(hosts)),
+                         stream_model=stream_model, audio_model=audio_model, rate_limit=rate_limit, burst=burst,
+                         token=token or None, allowed_hosts=tuple(dict.fromkeys(hosts)),
                          allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))), max_queue=max_queue,
                          max_streams=max_streams, max_streams_per_ip=max_streams_per_ip, idle_timeout=idle_timeout,
                          stream_timeout=stream_timeout, cache_bytes=cache_mb * 1024 * 1024, **extra)
     app = create_app(config)
     service = app.state.service
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
-               f"stream model {service.stream_model}{', token required' if token else ''})")
+               f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
+               f"{', token required' if token else ''})")
     uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=config.max_message_bytes,
                 ws_per_message_deflate=ws_deflate,
                 timeout_graceful_shutdown=5)

@@ -2,16 +2,19 @@
 
 Routes (the browser contract is ``docs/web.md``; ``docs/serve.md`` describes the server):
 
-- ``GET /api/config``; ``POST /api/speak``; ``GET /api/audio/<id>.wav``; ``POST /api/chat``;
+- ``GET /api/config``; ``POST /api/speak``; ``POST /api/animate`` (an uploaded recording);
+  ``GET /api/audio/<id>.wav``; ``POST /api/chat``;
 - ``WebSocket /api/stream`` (text spoken clause by clause, or timed phones to frames);
+- ``WebSocket /api/listen`` (live audio in, frames out);
 - ``/``, ``/player``, ``/viewer`` and ``/static/...`` (the built web app),
   ``/static/face2d.js`` (the preview's 2D face), ``/avatar.glb``; OpenAPI at ``/docs``.
 
 Every bad request gets a 4xx JSON ``{"detail": "..."}``: 422 for a malformed body, 400 for
 input the library refuses (or a Host not allowed), 401 without the token (when one is
-configured), 403 from a foreign Origin, 413 for a body over the limit, 429 past the rate
-limit. The CPU-heavy work runs in a bounded :class:`~vispeech.serve.safety.WorkPool`: when
-its queue is full the answer is 503 with ``Retry-After`` (a stream error on the WebSocket).
+configured), 403 from a foreign Origin, 413 for a body over the limit, 415 for a form where an
+audio file was wanted, 429 past the rate limit. The CPU-heavy work runs in a bounded
+:class:`~vispeech.serve.safety.WorkPool`: when its queue is full the answer is 503 with
+``Retry-After`` (a stream error on the WebSocket).
 """
 
 from __future__ import annotations
@@ -19,17 +22,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
+import io
 import json
 import logging
 import os
 import re
 import sys
 import threading
+import time
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
-from fastapi import FastAPI, Request, WebSocket
+from fastapi import FastAPI, Query, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -41,12 +47,14 @@ import vispeech
 import vispeech.preview
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import VOICES
+from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, speak
+from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, listen, speak
 from vispeech.serve.bot import ChatBot, ChatBotError, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
 from vispeech.serve.safety import (
@@ -65,6 +73,8 @@ from vispeech.serve.safety import (
 from vispeech.serve.schemas import (
     MAX_STREAM_SECONDS,
     MAX_TEXT_CHARS,
+    AnimateQuery,
+    AudioStartMessage,
     ChatRequest,
     ChatResponse,
     ClientMessage,
@@ -73,19 +83,23 @@ from vispeech.serve.schemas import (
     ErrorMessage,
     ErrorResponse,
     FramesMessage,
+    ListenClientMessage,
     PhonesMessage,
     ServerMessage,
     SpeakRequest,
     SpeakResponse,
     StartMessage,
     TextMessage,
+    WarningMessage,
 )
 from vispeech.streaming import (
+    LiveAudioStream,
     PhoneStream,
     open_phone_stream,
     speech_messages,
     split_clauses,
 )
+from vispeech.utterance import Utterance
 
 log = logging.getLogger("vispeech.serve")
 
@@ -101,6 +115,15 @@ TEXT_WORK_PER_CHAR = 4e-4
 """Estimated worker seconds per character of text spoken (the work pool's weight of a job)."""
 PHONE_WORK_PER_SECOND = 0.03
 """Estimated worker seconds per second of phones pushed."""
+AUDIO_WORK_PER_SECOND = 0.03
+"""Estimated worker seconds per second of audio animated (an upload) or pushed (live audio)."""
+MIN_CHUNK_SECONDS = 0.01
+"""A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
+FAST_GRACE_SECONDS = 1.0
+"""Audio (seconds) a live client may send beyond ``max_audio_speed`` times real time before it is warned."""
+AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "application/octet-stream")
+"""Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
+_FORM_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "application/json")
 _ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
 
 
@@ -115,11 +138,16 @@ class ServeConfig:
     ``cache``: SQLite file of the utterance cache (``None``: the user cache folder,
     ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
     when a message names none; ``None`` picks the shipped ``grid-tdnn-lowlatency`` if it is there and
-    otherwise ``default_model``. ``rate_limit``: tokens a second per client IP (0 = no limit),
-    with bursts of ``burst``; a request or stream message costs a token per
-    ``chars_per_token`` characters of text (at least one) or per ``phone_seconds_per_token``
-    seconds of phones it adds (at least ``min_message_cost``); a spoken chat reply is charged
-    after the fact. Sizes are bytes. ``static_dir``: the built web app (default
+    otherwise ``default_model``. ``audio_model``: model name or saved folder of the audio model
+    that animates uploads without a transcript (``/api/animate``) and live audio (``/api/listen``)
+    when a request names none; the shipped ``grid-audio-cnn`` by default, and when that is not
+    installed (or ``None``) there is none and those requests must name one. ``rate_limit``:
+    tokens a second per client IP (0 = no limit), with bursts of ``burst``; a request or stream
+    message costs a token per ``chars_per_token`` characters of text (at least one), per
+    ``phone_seconds_per_token`` seconds of phones it adds (at least ``min_message_cost``) or per
+    ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
+    least :data:`MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
+    bytes. ``static_dir``: the built web app (default
     :data:`STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
     and licence).
 
@@ -128,7 +156,12 @@ class ServeConfig:
     error beyond). ``max_streams`` WebSocket connections at once, ``max_streams_per_ip`` of
     them from one address; each closes after ``idle_timeout`` s without a message while
     nothing is being computed, and after ``stream_timeout`` s in all. A phones message may add
-    at most ``max_message_seconds`` s of phones, a phone stream reach ``max_stream_seconds``.
+    at most ``max_message_seconds`` s of phones, a phone or audio stream reach ``max_stream_seconds``.
+    Audio: an upload's body may have ``max_audio_bytes``, a live chunk ``max_chunk_bytes``; a live
+    client that sends audio faster than ``max_audio_speed`` times real time is warned
+    (``too_fast``), and so is one whose frames leave more than ``max_audio_lag`` s after their
+    audio arrived (``behind``); the server reads no more of a connection's audio while
+    ``max_audio_backlog`` s of it wait (TCP then slows the client).
     ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.serve.safety.HostOriginCheck`;
     ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
     ``cache_bytes`` caps the cache's size. ``switch_interval``: the GIL switch interval the
@@ -144,11 +177,14 @@ class ServeConfig:
     bot: ChatBot = field(default_factory=RuleBot)
     default_model: str = DEFAULT_MODEL
     stream_model: str | None = None
+    audio_model: str | None = DEFAULT_AUDIO_STREAM_MODEL
     fps: float = DEFAULT_FPS
     rate_limit: float = 2.0
     burst: int = 20
     max_body_bytes: int = 64 * 1024
     max_message_bytes: int = 64 * 1024
+    max_audio_bytes: int = 32 * 1024 * 1024
+    max_chunk_bytes: int = 32 * 1024
     max_streams: int = 500
     max_streams_per_ip: int = 8
     idle_timeout: float = 30.0
@@ -158,6 +194,10 @@ class ServeConfig:
     chars_per_token: float = 100.0
     phone_seconds_per_token: float = 1.0
     min_message_cost: float = 0.05
+    audio_seconds_per_token: float = 4.0
+    max_audio_speed: float = 4.0
+    max_audio_lag: float = 0.5
+    max_audio_backlog: float = 2.0
     workers: int = field(default_factory=_default_workers)
     max_queue: int = 64
     piece_seconds: float = 1.0
@@ -180,6 +220,7 @@ class SpeechService:
         if config.default_model not in self.models:
             raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
         self.stream_model = self._choose_stream_model(config.stream_model)
+        self.audio_model = self._choose_audio_model(config.audio_model)
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue)
@@ -192,6 +233,10 @@ class SpeechService:
     def text_cost(self, text: str) -> float:
         """Rate-limit tokens a text costs: one per ``chars_per_token`` characters, at least one."""
         return max(1.0, len(text) / self.config.chars_per_token)
+
+    def audio_cost(self, seconds: float) -> float:
+        """Rate-limit tokens an uploaded recording costs: one per ``audio_seconds_per_token`` seconds, at least one."""
+        return max(1.0, seconds / self.config.audio_seconds_per_token)
 
     def pay(self, key: str, cost: float) -> None:
         """Spend ``cost`` of client ``key``'s tokens; :class:`RateLimited` when it has too few."""
@@ -215,6 +260,21 @@ class SpeechService:
                 return LOW_LATENCY_MODEL
             log.info("%s is not trained: streaming uses %s", LOW_LATENCY_MODEL, self.config.default_model)
             return self.config.default_model
+        return self._offer(spec)
+
+    def _choose_audio_model(self, spec: str | None) -> str | None:
+        if spec is None:
+            return None
+        if spec == DEFAULT_AUDIO_STREAM_MODEL and spec not in self.models:
+            log.info("%s is not installed: no audio model (start the server with --audio-model)", spec)
+            return None
+        name = self._offer(spec)
+        if self.models[name].input_kind != "audio":
+            raise VispeechError(f"the audio model must animate audio: {name} animates phones")
+        return name
+
+    def _offer(self, spec: str) -> str:
+        """The name of model ``spec``: one offered already, or a trained model's folder, loaded and offered."""
         if spec in self.models:
             return spec
         model = load_model(spec)
@@ -225,14 +285,25 @@ class SpeechService:
         return name
 
     def warm_up(self) -> None:
-        """Load espeak-ng's voices and run the default and stream models once, so a first request is no slower."""
+        """Load espeak-ng's voices and run the default, stream and audio models once, so a first request is
+        no slower."""
         for language, text in GREETINGS.items():
             utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
+        if self.audio_model is not None:
+            stream = LiveAudioStream(self.models[self.audio_model], 48_000, self.config.fps)
+            stream.push(bytes(48_000))
+            stream.finish()
 
-    def model(self, name: str | None, stream: bool = False) -> tuple[str, Estimator]:
-        """The model called ``name`` (``None``: the default, or the stream model when ``stream``)."""
+    def model(self, name: str | None, stream: bool = False, audio: bool = False) -> tuple[str, Estimator]:
+        """The model called ``name`` (``None``: the default; the stream model when ``stream``, the audio
+        model when ``audio``)."""
+        if name is None and audio:
+            if self.audio_model is None:
+                raise VispeechError("this server has no audio model: name one (model), or start the server "
+                                    "with --audio-model NAME|FOLDER")
+            name = self.audio_model
         name = name or (self.stream_model if stream else self.config.default_model)
         if name not in self.models:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
@@ -255,10 +326,31 @@ class SpeechService:
         cached = entry is not None
         if entry is None:
             utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps)
-            animation = {"format": ANIMATION_FORMAT, "version": 1, **utterance.track.to_dict(),
-                         "phones": utterance.phones.to_dict()}
-            entry = self.cache.put(key, utterance.wav_bytes(), json.dumps(animation, separators=(",", ":")))
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance))
         return self._answer(entry, text, cached)
+
+    def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
+        """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
+        name, model = self.model(query.model, audio=query.text is None)
+        fps = query.fps or self.config.fps
+        return CacheKey(query.text or "", query.lang, f"upload:{digest}", 1.0, name, self.versions[name], fps), model
+
+    def lookup_upload(self, digest: str, query: AnimateQuery) -> dict | None:
+        """The cached :class:`SpeakResponse` for this upload as a dict, or ``None`` (nothing computed)."""
+        key, _ = self._upload_key(digest, query)
+        entry = self.cache.get(key)
+        return None if entry is None else self._answer(entry, query.text or "", cached=True)
+
+    def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> dict:
+        """A :class:`SpeakResponse` as a dict for an uploaded recording (``data``, the file's bytes):
+        :func:`vispeech.pipeline.listen`, from the cache when the same file came with the same options."""
+        key, model = self._upload_key(digest, query)
+        entry = self.cache.get(key)
+        cached = entry is not None
+        if entry is None:
+            utterance = listen(read_upload(data), query.text, query.lang, model=model, fps=key.fps)
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance))
+        return self._answer(entry, query.text or "", cached)
 
     @staticmethod
     def _answer(entry, text: str, cached: bool) -> dict:
@@ -279,23 +371,69 @@ class SpeechService:
         return {"reply": reply, "lang": lang, "speech": speech}
 
 
-def describe_errors(errors, skip: int = 0, what: str = "body") -> str:
+MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
+"""Most samples (all channels together) an uploaded file may decode to: 600 s of stereo at 48 kHz."""
+
+
+def probe_upload(data: bytes) -> tuple[str, float]:
+    """The SHA-256 (hex) and length in seconds of an uploaded audio file, read from its header;
+    :class:`VispeechError` when it is empty, not audio, too long or too large decoded."""
+    import soundfile
+
+    if not data:
+        raise VispeechError("the request body is empty: send an audio file (WAV, FLAC, MP3 or OGG) as the body")
+    try:
+        info = soundfile.info(io.BytesIO(data))
+    except (RuntimeError, OSError, EOFError) as exc:
+        raise VispeechError("the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
+                            f"{getattr(exc, 'error_string', exc)}") from None
+    if info.frames <= 0 or info.samplerate <= 0:
+        raise VispeechError("the uploaded audio is empty")
+    duration = info.frames / info.samplerate
+    if duration > MAX_DURATION_S:
+        raise VispeechError(f"the uploaded audio lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
+    if info.frames * info.channels > MAX_UPLOAD_SAMPLES:
+        raise VispeechError(f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
+                            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)")
+    return hashlib.sha256(data).hexdigest(), duration
+
+
+def read_upload(data: bytes) -> AudioClip:
+    """The checked clip of an uploaded audio file (see :func:`probe_upload`), channels averaged."""
+    import soundfile
+
+    try:
+        samples, sample_rate = soundfile.read(io.BytesIO(data), dtype="float32", always_2d=True)
+    except (RuntimeError, OSError, EOFError) as exc:
+        raise VispeechError(f"cannot read the uploaded audio: {getattr(exc, 'error_string', exc)}") from None
+    return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
+
+
+def _animation_json(utterance: Utterance) -> str:
+    """An utterance's track (and phones, when it has them) as compact vispeech animation JSON."""
+    phones = None if utterance.phones is None else utterance.phones.to_dict()
+    animation = {"format": ANIMATION_FORMAT, "version": 1, **utterance.track.to_dict(), "phones": phones}
+    return json.dumps(animation, separators=(",", ":"))
+
+
+def describe_errors(errors, skip: int = 0, what: str = "body", kinds: tuple[str, ...] = ("text", "phones")) -> str:
     """Pydantic errors as one readable line: ``"text: String should have at most 1000 characters"``.
 
     ``skip`` leading parts of each error's location are left out; an error of the whole
-    input is named ``what``.
+    input is named ``what``; ``kinds`` are the message types a ``"type"`` may name.
     """
+    choices = " or ".join(f'"{kind}"' for kind in kinds)
     parts = []
     for error in errors[:5]:
-        loc = [str(x) for x in error.get("loc", ())[skip:] if x != "body"]
+        loc = [str(x) for x in error.get("loc", ())[skip:] if x not in ("body", "query")]
         if error.get("type") == "json_invalid":
             parts.append(f"the {what} is not valid JSON")
         elif not loc and error.get("type") in ("missing", "model_attributes_type", "dict_type", "model_type"):
             parts.append(f"the {what} must be a JSON object")
         elif error.get("type") == "union_tag_not_found":
-            parts.append('"type" is missing: use "text" or "phones"')
+            parts.append(f'"type" is missing: use {choices}')
         elif error.get("type") == "union_tag_invalid":
-            parts.append(f'"type" must be "text" or "phones", not {json.dumps(error.get("ctx", {}).get("tag"))[:50]}')
+            parts.append(f'"type" must be {choices}, not {json.dumps(error.get("ctx", {}).get("tag"))[:50]}')
         else:
             parts.append(f"{'.'.join(loc) or what}: {error.get('msg', 'invalid')}")
     return "; ".join(dict.fromkeys(parts))[:500] or "invalid request"
@@ -323,7 +461,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     app = FastAPI(title="vispeech", version=vispeech.__version__, lifespan=lifespan,
                   description="Speech animation: text to audio and ARKit blend-shape animation.")
     app.state.service = service
-    app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes)
+    app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes, paths={"/api/animate": config.max_audio_bytes})
     app.add_middleware(TokenAuth, token=config.token)
     app.add_middleware(HostOriginCheck, allowed_hosts=config.allowed_hosts, allowed_origins=config.allowed_origins)
 
@@ -366,6 +504,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
             "models": list(service.models),
             "default_model": config.default_model,
             "stream_model": service.stream_model,
+            "audio_model": service.audio_model,
             "fps": config.fps,
             "max_text": MAX_TEXT_CHARS,
             "token_required": config.token is not None,
@@ -379,6 +518,26 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         args = (request.text, request.lang, request.model, request.rate)
         return (await run_in_threadpool(service.lookup, *args)
                 or await service.pool.run(ip, service.speak, *args, weight=len(request.text) * TEXT_WORK_PER_CHAR))
+
+    @app.post("/api/animate", response_model=SpeakResponse, responses={**_ERRORS, 415: {"model": ErrorResponse}},
+              openapi_extra={"requestBody": {"required": True, "content": {
+                  kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}})
+    async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request) -> dict:
+        """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
+        content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
+        the audio URL serving the recording as WAV (from the cache when the same file came before)."""
+        if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
+            return JSONResponse({"detail": "send the audio file itself as the request body (Content-Type "
+                                           "audio/wav, audio/flac, audio/mpeg, audio/ogg or application/octet-stream), "
+                                           "not a form or JSON"}, status_code=415)
+        ip = client_key(http.scope)
+        service.pay(ip, 1.0)
+        data = await http.body()
+        digest, duration = await run_in_threadpool(probe_upload, data)
+        service.bucket.charge(ip, service.audio_cost(duration) - 1.0)
+        return (await run_in_threadpool(service.lookup_upload, digest, query)
+                or await service.pool.run(ip, service.animate_upload, data, digest, query,
+                                          weight=duration * AUDIO_WORK_PER_SECOND))
 
     @app.get("/api/audio/{audio_id}.wav", response_class=Response,
              responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}})
@@ -408,7 +567,12 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     @app.websocket("/api/stream")
     async def stream(websocket: WebSocket) -> None:
         """Speech animation as it is computed (see :mod:`vispeech.streaming`)."""
-        await _serve_stream(websocket, service)
+        await _serve(websocket, service, _StreamConnection)
+
+    @app.websocket("/api/listen")
+    async def listen_stream(websocket: WebSocket) -> None:
+        """Live audio in (16-bit PCM chunks), frames out as soon as they are computed."""
+        await _serve(websocket, service, _ListenConnection)
 
     @app.get("/avatar.glb", include_in_schema=False)
     def avatar() -> Response:
@@ -461,8 +625,8 @@ async def _error(websocket: WebSocket, message: str) -> None:
 _GONE = (WebSocketDisconnect, WebSocketDisconnected, Cancelled)
 
 
-async def _serve_stream(websocket: WebSocket, service: SpeechService) -> None:
-    """One ``/api/stream`` connection: messages in order, errors answered and the connection kept."""
+async def _serve(websocket: WebSocket, service: SpeechService, kind: type[_Connection]) -> None:
+    """One WebSocket connection of ``kind``: counted against the caps, served, then freed."""
     await websocket.accept()
     ip = client_key(websocket.scope)
     refusal = service.connections.open(ip)
@@ -472,15 +636,18 @@ async def _serve_stream(websocket: WebSocket, service: SpeechService) -> None:
             await websocket.close(1013)
         return
     try:
-        await _StreamConnection(websocket, service, ip).serve()
+        await kind(websocket, service, ip).serve()
     finally:
         service.connections.close(ip)
 
 
-class _StreamConnection:
-    """A connection's reader (client messages into a short queue, so a vanished client is seen at
+class _Connection:
+    """A connection's reader (client messages into a queue, so a vanished client is seen at
     once) and processor (one message at a time, the heavy parts in the service's pool, each piece
-    dropped unrun once the client has gone)."""
+    dropped unrun once the client has gone). Subclasses answer the messages (:meth:`_handle`)."""
+
+    inbox_size = 4
+    """Client messages read ahead of the one being answered (then TCP slows the client)."""
 
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         self.ws = websocket
@@ -488,8 +655,7 @@ class _StreamConnection:
         self.config = service.config
         self.ip = ip
         self.cancelled = threading.Event()
-        self.inbox: asyncio.Queue = asyncio.Queue(maxsize=4)
-        self.phones: PhoneStream | None = None
+        self.inbox: asyncio.Queue = asyncio.Queue(maxsize=self.inbox_size)
 
     async def serve(self) -> None:
         worker = asyncio.create_task(self._process())
@@ -509,15 +675,24 @@ class _StreamConnection:
             reader.cancel()
             worker.cancel()
             await asyncio.gather(worker, reader, return_exceptions=True)
-            if self.phones is not None:
-                self.phones.close()
+            self._release()
+
+    def _release(self) -> None:
+        """Drop what the connection holds (it has ended)."""
 
     async def _read(self) -> None:
         while True:
             event = await self.ws.receive()
             if event["type"] == "websocket.disconnect":
                 return
-            await self.inbox.put(event)
+            await self._enqueue(event)
+
+    async def _enqueue(self, event: dict) -> None:
+        await self.inbox.put(event)
+
+    async def _next(self) -> dict:
+        """The next client message to answer."""
+        return await self.inbox.get()
 
     async def _close(self, code: int, message: str) -> None:
         with contextlib.suppress(*_GONE, RuntimeError, OSError):
@@ -531,7 +706,7 @@ class _StreamConnection:
         try:
             while True:
                 try:
-                    event = await asyncio.wait_for(self.inbox.get(), self.config.idle_timeout)
+                    event = await asyncio.wait_for(self._next(), self.config.idle_timeout)
                 except TimeoutError:
                     await self._close(1001, f"no message for {self.config.idle_timeout:g} s: closing")
                     return
@@ -545,17 +720,40 @@ class _StreamConnection:
 
     async def _handle(self, event: dict) -> bool:
         """Answer one client message; ``False`` once the connection is closed."""
+        raise NotImplementedError
+
+    async def _oversize(self, event: dict) -> bool:
+        """Close the connection (1009) when ``event`` is over the message size limit; whether it was."""
         limit = self.config.max_message_bytes
         raw = event.get("text")
         if raw is None:
-            if len(event.get("bytes") or b"") > limit:
-                await self._close(1009, f"message too large (limit {limit} bytes)")
-                return False
+            size = len(event.get("bytes") or b"")
+        else:
+            size = len(raw) if len(raw) > limit else len(raw.encode("utf-8", "replace"))
+        if size <= limit:
+            return False
+        await self._close(1009, f"message too large (limit {limit} bytes)")
+        return True
+
+
+class _StreamConnection(_Connection):
+    """An ``/api/stream`` connection: texts spoken clause by clause, phone streams."""
+
+    def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
+        super().__init__(websocket, service, ip)
+        self.phones: PhoneStream | None = None
+
+    def _release(self) -> None:
+        if self.phones is not None:
+            self.phones.close()
+
+    async def _handle(self, event: dict) -> bool:
+        if await self._oversize(event):
+            return False
+        raw = event.get("text")
+        if raw is None:
             await _error(self.ws, "send JSON text messages")
             return True
-        if len(raw) > limit or len(raw.encode("utf-8", "replace")) > limit:
-            await self._close(1009, f"message too large (limit {limit} bytes)")
-            return False
         try:
             message = ClientMessage.validate_json(raw)
         except ValidationError as exc:
@@ -626,6 +824,166 @@ class _StreamConnection:
                 await self.ws.send_text(text)
             self.phones = None
             await _send(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
+
+
+class _ListenConnection(_Connection):
+    """An ``/api/listen`` connection: live audio streams, one at a time.
+
+    The reader takes audio chunks as they come (up to ``max_audio_backlog`` seconds waiting, so
+    a lag is seen, not hidden in TCP buffers); the processor pushes all the chunks waiting at
+    once in one pool job, so a session that fell behind catches up in larger steps. Any refused
+    chunk ends the audio stream (its frames would no longer line up with the client's audio);
+    further chunks are dropped until the next text message.
+    """
+
+    inbox_size = 512
+
+    def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
+        super().__init__(websocket, service, ip)
+        self.audio: LiveAudioStream | None = None
+        self.started = 0.0
+        """``time.monotonic()`` of the stream's start message."""
+        self.refusing = False
+        """Chunks are dropped unanswered (their error has been sent) until the next text message."""
+        self.warned_fast = False
+        self.behind = False
+        self.waiting_bytes = 0
+        self.room = asyncio.Event()
+        self.held: dict | None = None
+
+    def _release(self) -> None:
+        if self.audio is not None:
+            self.audio.close()
+
+    def _backlog_bytes(self) -> int:
+        rate = self.audio.sample_rate if self.audio is not None else 16_000
+        return max(self.config.max_chunk_bytes, round(self.config.max_audio_backlog * rate * 2))
+
+    async def _enqueue(self, event: dict) -> None:
+        size = len(event.get("bytes") or event.get("text") or "")
+        while self.waiting_bytes and self.waiting_bytes + size > self._backlog_bytes():
+            self.room.clear()
+            await self.room.wait()
+        event["arrived"] = time.monotonic()
+        self.waiting_bytes += size
+        await self.inbox.put(event)
+
+    def _taken(self, event: dict) -> dict:
+        self.waiting_bytes -= len(event.get("bytes") or event.get("text") or "")
+        self.room.set()
+        return event
+
+    async def _next(self) -> dict:
+        """The next text message, or all the audio chunks waiting as one ``{"chunks": [...]}``."""
+        event = self.held or self._taken(await self.inbox.get())
+        self.held = None
+        if event.get("bytes") is None:
+            return event
+        chunks = [event]
+        while not self.inbox.empty():
+            event = self._taken(self.inbox.get_nowait())
+            if event.get("bytes") is None:
+                self.held = event
+                break
+            chunks.append(event)
+        return {"chunks": chunks}
+
+    async def _handle(self, event: dict) -> bool:
+        if "chunks" in event:
+            for chunk in event["chunks"]:
+                if await self._oversize(chunk):
+                    return False
+            await self._audio(event["chunks"])
+            return True
+        if await self._oversize(event):
+            return False
+        self.refusing = False
+        try:
+            message = ListenClientMessage.validate_json(event["text"])
+        except ValidationError as exc:
+            await _error(self.ws, describe_errors(exc.errors(), skip=1, what="message", kinds=("start", "stop")))
+            return True
+        try:
+            if isinstance(message, AudioStartMessage):
+                await self._start(message)
+            else:
+                await self._stop()
+        except (VispeechError, RateLimited, Busy) as exc:
+            await _error(self.ws, str(exc))
+        return True
+
+    async def _start(self, message: AudioStartMessage) -> None:
+        if self.audio is not None:
+            raise VispeechError('an audio stream is open: end it with {"type": "stop"} first')
+        self.service.pay(self.ip, self.config.min_message_cost)
+        name, model = self.service.model(message.model, audio=True)
+        stream = await self._run(LiveAudioStream, model, message.sample_rate, message.fps or self.config.fps)
+        self.audio, self.started, self.warned_fast, self.behind = stream, time.monotonic(), False, False
+        await _send(self.ws, StartMessage(fps=stream.fps, channels=list(stream.channels),
+                                          sample_rate=stream.sample_rate, model=name, lookahead=stream.lookahead,
+                                          delay=round(stream.delay, 6)))
+
+    async def _stop(self) -> None:
+        stream = self.audio
+        if stream is None:
+            raise VispeechError('no audio stream is open: send {"type": "start", "sample_rate": ...} first')
+        self.audio = None
+        text = await self._run(_frames_json, stream.finish)
+        if text is not None:
+            await self.ws.send_text(text)
+        await _send(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.duration))
+
+    async def _audio(self, chunks: list[dict]) -> None:
+        """Check the chunks, push them in one job, send their frames; warn of a client too fast or a lag."""
+        stream, config = self.audio, self.config
+        if stream is None:
+            if not self.refusing:
+                self.refusing = True
+                await _error(self.ws, 'send {"type": "start", "sample_rate": ...} before audio')
+            return
+        pcm = []
+        seconds = stream.duration
+        try:
+            for chunk in chunks:
+                data = chunk["bytes"]
+                if len(data) > config.max_chunk_bytes:
+                    raise VispeechError(f"an audio chunk may have at most {config.max_chunk_bytes} bytes "
+                                        f"(this one has {len(data)}): send smaller chunks")
+                if len(data) % 2:
+                    raise VispeechError(f"16-bit PCM has 2 bytes a sample: a chunk of {len(data)} bytes is cut short")
+                added = len(data) / 2 / stream.sample_rate
+                if seconds + added > config.max_stream_seconds + 1e-9:
+                    raise VispeechError(f"an audio stream may last at most {config.max_stream_seconds:g} s")
+                self.service.pay(self.ip, max(added, MIN_CHUNK_SECONDS) / config.audio_seconds_per_token)
+                pcm.append(data)
+                seconds += added
+            text = await self._run(_frames_json, stream.push, b"".join(pcm),
+                                   weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND)
+        except (VispeechError, RateLimited, Busy) as exc:
+            stream.close()
+            self.audio, self.refusing = None, True
+            await _error(self.ws, f"{exc}; the audio stream has ended (send a start message to begin another)")
+            return
+        if text is not None:
+            await self.ws.send_text(text)
+        now = time.monotonic()
+        lead = stream.duration - (now - self.started)
+        allowed = FAST_GRACE_SECONDS + config.max_audio_speed * (now - self.started)
+        if not self.warned_fast and stream.duration > allowed:
+            self.warned_fast = True
+            await _send(self.ws, WarningMessage(
+                code="too_fast", seconds=round(lead, 3),
+                message=f"audio is arriving faster than {config.max_audio_speed:g} times real time ({lead:.1f} s "
+                        "ahead): frames come as fast as they are computed, not as live audio's would"))
+        lag = now - chunks[0]["arrived"]
+        if lag > config.max_audio_lag and not self.behind:
+            self.behind = True
+            await _send(self.ws, WarningMessage(
+                code="behind", seconds=round(lag, 3),
+                message=f"the server is {lag:.2f} s behind the audio (more than {config.max_audio_lag:g} s): "
+                        "frames are late"))
+        elif lag < config.max_audio_lag / 2:
+            self.behind = False
 
 
 def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phone]]:

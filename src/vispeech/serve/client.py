@@ -1,11 +1,17 @@
-"""A client of ``/api/stream`` that times what it receives (``vispeech stream``, the load benchmark)."""
+"""Clients of ``/api/stream`` and ``/api/listen`` that time what they receive (``vispeech stream``,
+the load benchmarks)."""
 
 from __future__ import annotations
 
 import base64
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vispeech.frontends.audio import to_pcm16
+from vispeech.motion.track import Track
 
 
 @dataclass
@@ -91,3 +97,122 @@ async def time_stream(url: str, text: str, lang: str = "en", model: str | None =
         frames_late=late, audio_late=sum(1 for arrival, start in audio if arrival > playback + start),
         n_audio=len(audio), model=str(start_message.get("model", "")),
     )
+
+
+@dataclass
+class ListenResult:
+    """What one live audio stream gave: the server's start message, the frames and their delays.
+
+    ``delays[k]`` is the wall-clock time (seconds) from sending the audio chunk that holds the
+    sample at frame k's time (``k / fps``) until frame k arrived: the stream's look-ahead, the
+    features, inference and transport.
+    """
+
+    start: dict
+    frames: np.ndarray
+    delays: np.ndarray
+    audio_seconds: float
+    chunks: int
+    chunk_seconds: float
+    realtime: bool
+    total: float
+    """Seconds from the first chunk sent to the end message."""
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def fps(self) -> float:
+        return float(self.start["fps"])
+
+    def track(self) -> Track:
+        """The frames as a track over the start message's channels."""
+        return Track(self.frames, tuple(self.start["channels"]), self.fps)
+
+    def summary(self) -> str:
+        ms = 1000.0
+        pace = "in real time" if self.realtime else "as fast as taken"
+        lines = [
+            f"model          {self.start.get('model', '')}",
+            f"audio          {self.audio_seconds:.2f} s at {self.start.get('sample_rate')} Hz, {self.chunks} chunks "
+            f"of {self.chunk_seconds * ms:.0f} ms sent {pace}",
+            f"frames         {len(self.frames)} at {self.fps:g} fps (the stream waits "
+            f"{float(self.start.get('delay') or 0) * ms:.0f} ms of audio ahead)",
+        ]
+        if len(self.delays):
+            p50, p95 = np.percentile(self.delays, [50, 95]) * ms
+            lines.append(f"frame delay    p50 {p50:.1f} ms, p95 {p95:.1f} ms, max {self.delays.max() * ms:.1f} ms "
+                         "(audio sent to frame received)")
+        lines.append(f"total          {self.total * ms:.1f} ms")
+        lines += [f"warning        {message}" for message in self.warnings]
+        return "\n".join(lines)
+
+
+async def stream_audio(url: str, samples: np.ndarray, sample_rate: int, *, fps: float | None = None,
+                       model: str | None = None, chunk_seconds: float = 0.02, realtime: bool = True,
+                       timeout: float = 60.0) -> ListenResult:
+    """Send ``samples`` (mono floats in [-1, 1] or 16-bit integers at ``sample_rate`` Hz) to
+    ``url`` (``ws://host:port/api/listen``) as live audio in chunks of ``chunk_seconds``, paced
+    in real time when ``realtime`` (else as fast as the server takes them), and time the frames.
+
+    ``timeout`` is seconds to wait beyond the audio's own length (when paced). Raises
+    :class:`RuntimeError` when the server answers with an error or the stream breaks off.
+    """
+    import asyncio
+
+    import websockets
+
+    pcm = samples if np.issubdtype(np.asarray(samples).dtype, np.integer) else to_pcm16(samples)
+    pcm = np.asarray(pcm, dtype="<i2")
+    step = max(1, round(chunk_seconds * sample_rate))
+    sent: list[tuple[float, int]] = []  # (time the chunk was sent, its end sample)
+    arrivals: list[tuple[float, int, list]] = []
+    warnings: list[str] = []
+    seconds = len(pcm) / sample_rate
+    async with websockets.connect(url, max_size=None, open_timeout=timeout, close_timeout=2) as ws:
+        await ws.send(json.dumps({"type": "start", "sample_rate": sample_rate, "encoding": "pcm16",
+                                  "fps": fps, "model": model}))
+        async with asyncio.timeout(timeout):
+            start = json.loads(await ws.recv())
+        if start.get("type") != "start":
+            raise RuntimeError(f"server error: {start.get('message', start)}")
+
+        async def send() -> None:
+            began = time.perf_counter()
+            for i, a in enumerate(range(0, len(pcm), step)):
+                if realtime:
+                    await asyncio.sleep(max(0.0, began + i * chunk_seconds - time.perf_counter()))
+                sent.append((time.perf_counter(), min(a + step, len(pcm))))
+                await ws.send(pcm[a:a + step].tobytes())
+            await ws.send(json.dumps({"type": "stop"}))
+
+        sender = asyncio.create_task(send())
+        try:
+            async with asyncio.timeout(timeout + (seconds if realtime else 0.0)):
+                async for raw in ws:
+                    now = time.perf_counter()
+                    message = json.loads(raw)
+                    kind = message.get("type")
+                    if kind == "frames":
+                        arrivals.append((now, message["start_frame"], message["frames"]))
+                    elif kind == "warning":
+                        warnings.append(message["message"])
+                    elif kind == "end":
+                        total = now - sent[0][0] if sent else 0.0
+                        break
+                    elif kind == "error":
+                        raise RuntimeError(f"server error: {message.get('message')}")
+                else:
+                    raise RuntimeError("the stream closed before its end")
+            await sender
+        finally:
+            sender.cancel()
+            await asyncio.gather(sender, return_exceptions=True)
+    frames = np.array([row for _, _, rows in arrivals for row in rows], dtype=float)
+    when, ends = np.array(sent).reshape(-1, 2).T
+    delays = []
+    for arrival, first, rows in arrivals:
+        for k in range(first, first + len(rows)):
+            sample = min(int(k / float(start["fps"]) * sample_rate), len(pcm) - 1)
+            delays.append(arrival - when[min(int(np.searchsorted(ends, sample, side="right")), len(when) - 1)])
+    return ListenResult(start=start, frames=frames.reshape(-1, len(start["channels"])), delays=np.array(delays),
+                        audio_seconds=seconds, chunks=len(sent), chunk_seconds=step / sample_rate, realtime=realtime,
+                        total=total, warnings=warnings)

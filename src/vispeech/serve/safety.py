@@ -13,7 +13,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from urllib.parse import parse_qs, urlsplit
 
 from starlette.exceptions import HTTPException
@@ -80,8 +80,8 @@ class TokenBucket:
 
     def message(self) -> str:
         return (f"rate limit exceeded: at most {self.rate:g} tokens a second per client "
-                f"(bursts of {self.burst}; a request costs a token per 100 characters of text or "
-                f"second of phones); retry in {self.retry_after():.1f} s")
+                f"(bursts of {self.burst}; a request costs a token per 100 characters of text, "
+                f"second of phones or 4 s of audio); retry in {self.retry_after():.1f} s")
 
     def _forget_idle(self, now: float) -> None:
         full = [k for k, (tokens, then) in self._buckets.items() if tokens + (now - then) * self.rate >= self.burst]
@@ -113,21 +113,24 @@ class _BodyTooLarge(HTTPException):
 
 
 class BodySizeLimit:
-    """ASGI middleware: 413 for an HTTP request whose body exceeds ``max_bytes``.
+    """ASGI middleware: 413 for an HTTP request whose body exceeds ``max_bytes``, or the limit
+    ``paths`` gives its path (an audio upload's, say).
 
     A ``Content-Length`` above the limit is refused before anything is read; a body sent
     without one (chunked) is counted as it arrives and refused once it passes the limit.
     """
 
-    def __init__(self, app, max_bytes: int) -> None:
+    def __init__(self, app, max_bytes: int, paths: Mapping[str, int] | None = None) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.paths = dict(paths or {})
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        message = f"request body too large (limit {self.max_bytes} bytes)"
+        limit = self.paths.get(scope["path"], self.max_bytes)
+        message = f"request body too large (limit {limit} bytes)"
         for name, value in scope.get("headers", []):
             if name == b"content-length":
                 try:
@@ -135,7 +138,7 @@ class BodySizeLimit:
                 except ValueError:
                     await send_json_error(send, 400, "invalid Content-Length header")
                     return
-                if declared > self.max_bytes:
+                if declared > limit:
                     await send_json_error(send, 413, message, [(b"connection", b"close")])
                     return
         received = 0
@@ -146,7 +149,7 @@ class BodySizeLimit:
             event = await receive()
             if event["type"] == "http.request":
                 received += len(event.get("body", b""))
-                if received > self.max_bytes:
+                if received > limit:
                     raise _BodyTooLarge(413, message)
             return event
 

@@ -1,7 +1,8 @@
-"""Request and response bodies of the HTTP API and the messages of the ``/api/stream`` WebSocket.
+"""Request and response bodies of the HTTP API and the messages of the ``/api/stream`` and
+``/api/listen`` WebSockets.
 
 The field names are the browser contract of ``docs/web.md``; the bounds here are the
-server's input limits (text length, phones per message, stream length).
+server's input limits (text length, phones per message, stream length, frame and sample rates).
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, Field, StringConstraints, TypeAdapter
 
+from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
+from vispeech.limits import MAX_FPS, MIN_FPS
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 
 MAX_TEXT_CHARS = 1000
@@ -38,6 +41,8 @@ Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max
 Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
 Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=False)]
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
+Fps = Annotated[float, Field(ge=MIN_FPS, le=MAX_FPS, allow_inf_nan=False)]
+SampleRate = Annotated[int, Field(ge=MIN_SAMPLE_RATE, le=MAX_SAMPLE_RATE)]
 
 
 class SpeakRequest(BaseModel):
@@ -47,6 +52,20 @@ class SpeakRequest(BaseModel):
     lang: Language = "en"
     model: ModelName | None = None
     rate: Rate = 1.0
+
+
+class AnimateQuery(BaseModel):
+    """Query parameters of ``POST /api/animate`` (the body is the audio file itself).
+
+    Without ``text`` the audio model animates the audio; with it the transcript is aligned
+    with the audio in ``lang`` and ``model`` (default: the server's default model) animates the
+    phones, as :func:`vispeech.pipeline.listen` does. ``fps`` ``null`` means the server's frame rate.
+    """
+
+    text: Text | None = None
+    lang: Language = "en"
+    fps: Fps | None = None
+    model: ModelName | None = None
 
 
 class WordJSON(BaseModel):
@@ -117,6 +136,7 @@ class ConfigResponse(BaseModel):
     models: list[str]
     default_model: str
     stream_model: str
+    audio_model: str | None = None
     fps: float
     max_text: int
     token_required: bool = False
@@ -162,12 +182,36 @@ ClientMessage = TypeAdapter(Annotated[TextMessage | PhonesMessage, Field(discrim
 """Parses one stream client message (JSON text) into :class:`TextMessage` or :class:`PhonesMessage`."""
 
 
+class AudioStartMessage(BaseModel):
+    """Listen client message: open an audio stream; binary messages of audio follow, each a chunk
+    of ``encoding`` (``pcm16``: 16-bit little-endian mono PCM) at ``sample_rate`` Hz.
+
+    ``fps`` ``null`` means the server's frame rate, ``model`` ``null`` its audio model.
+    """
+
+    type: Literal["start"]
+    sample_rate: SampleRate
+    encoding: Literal["pcm16"] = "pcm16"
+    fps: Fps | None = None
+    model: ModelName | None = None
+
+
+class AudioStopMessage(BaseModel):
+    """Listen client message: the audio has ended; the server sends the last frames and ``end``."""
+
+    type: Literal["stop"]
+
+
+ListenClientMessage = TypeAdapter(Annotated[AudioStartMessage | AudioStopMessage, Field(discriminator="type")])
+"""Parses one ``/api/listen`` client text message into :class:`AudioStartMessage` or :class:`AudioStopMessage`."""
+
+
 class StartMessage(BaseModel):
     """Stream server message, first of a stream: the frame rate and channels of the frames to come.
 
     ``sample_rate`` is the audio's (``None`` for a phone stream, which has no audio);
-    ``lookahead`` (phone streams) is how many frames after frame t the phones must cover
-    before frame t comes.
+    ``lookahead`` (phone and audio streams) is how many frames after frame t the phones or
+    audio must cover before frame t comes; ``delay`` (audio streams) is the same in seconds.
     """
 
     type: Literal["start"] = "start"
@@ -176,6 +220,7 @@ class StartMessage(BaseModel):
     sample_rate: int | None
     model: str
     lookahead: int | None = None
+    delay: float | None = None
 
 
 class FramesMessage(BaseModel):
@@ -205,6 +250,21 @@ class EndMessage(BaseModel):
     duration: float
 
 
+class WarningMessage(BaseModel):
+    """Listen server message: the audio stream goes on, but its frames are (or may be) late.
+
+    ``too_fast``: the client sends audio faster than real time by a large factor, so the frames
+    come as fast as the server computes them, not as live audio would; ``seconds`` is how far
+    the audio received leads real time. ``behind``: the server gave frames ``seconds`` after
+    the audio they needed arrived.
+    """
+
+    type: Literal["warning"] = "warning"
+    code: Literal["too_fast", "behind"]
+    message: str
+    seconds: float
+
+
 class ErrorMessage(BaseModel):
     """Stream server message: what was wrong with the last client message (the connection stays open
     unless a close follows)."""
@@ -214,6 +274,8 @@ class ErrorMessage(BaseModel):
 
 
 ServerMessage = TypeAdapter(
-    Annotated[StartMessage | FramesMessage | AudioMessage | EndMessage | ErrorMessage, Field(discriminator="type")]
+    Annotated[StartMessage | FramesMessage | AudioMessage | EndMessage | WarningMessage | ErrorMessage,
+              Field(discriminator="type")]
 )
-"""Every message the server sends on ``/api/stream``; validates one (a dict or JSON) into its model."""
+"""Every message the server sends on ``/api/stream`` and ``/api/listen``; validates one (a dict or
+JSON) into its model."""

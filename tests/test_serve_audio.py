@@ -1,0 +1,358 @@
+"""Audio in, face out: the live audio engine, ``POST /api/animate``, the ``/api/listen`` WebSocket
+and ``vispeech stream --audio``, with a tiny audio network trained on GRID (``tiny_audio_model``)."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+
+import numpy as np
+import pytest
+from conftest import SHARED, require, require_module
+
+require_module("fastapi", "fastapi (the serve extra)")
+require_module("httpx", "httpx (the test extra)")
+import soundfile  # noqa: E402
+from fastapi.testclient import TestClient  # noqa: E402
+
+from vispeech.errors import VispeechError  # noqa: E402
+from vispeech.frontends.audio import AudioClip, to_pcm16  # noqa: E402
+from vispeech.models.registry import create_model, load_model  # noqa: E402
+from vispeech.pipeline import animate_audio  # noqa: E402
+from vispeech.serve import ServeConfig, create_app  # noqa: E402
+from vispeech.serve.safety import TokenBucket  # noqa: E402
+from vispeech.streaming import LiveAudioStream  # noqa: E402
+
+CLIP = "bbaf2n"
+"""A GRID speaker-1 utterance: "bin blue at f two now", 2.978 s at 16 kHz."""
+CHUNK_BYTES = 8192
+"""The test server's ``max_chunk_bytes``."""
+
+
+@pytest.fixture(scope="module")
+def model(tiny_audio_model):
+    return load_model(tiny_audio_model)
+
+
+@pytest.fixture(scope="module")
+def pcm() -> np.ndarray:
+    """:data:`CLIP` as 16-bit samples at 16 kHz."""
+    path = SHARED / "data" / "grid_s1" / "utterances" / f"{CLIP}.flac"
+    require(path.is_file(), f"GRID speaker 1 ({path})")
+    samples, rate = soundfile.read(path, dtype="int16")
+    assert rate == 16000
+    return samples
+
+
+@pytest.fixture(scope="module")
+def clip(pcm) -> AudioClip:
+    return AudioClip.from_array(pcm, 16000)
+
+
+def encoded(pcm: np.ndarray, fmt: str, rate: int = 16000) -> bytes:
+    buffer = io.BytesIO()
+    soundfile.write(buffer, pcm, rate, format=fmt)
+    return buffer.getvalue()
+
+
+@pytest.fixture(scope="module")
+def client(tiny_audio_model, tmp_path_factory):
+    config = ServeConfig(cache=tmp_path_factory.mktemp("audio") / "cache.sqlite3", rate_limit=0,
+                         audio_model=str(tiny_audio_model), max_audio_bytes=2 * 1024 * 1024,
+                         max_chunk_bytes=CHUNK_BYTES, max_stream_seconds=5.0)
+    with TestClient(create_app(config)) as client:
+        yield client
+
+
+def receive_until_end(ws) -> list[dict]:
+    messages = []
+    while True:
+        messages.append(ws.receive_json())
+        if messages[-1]["type"] in ("end", "error"):
+            return messages
+
+
+def frames_of(messages: list[dict]) -> np.ndarray:
+    rows, expected = [], 0
+    for m in messages:
+        if m["type"] == "frames":
+            assert m["start_frame"] == expected
+            rows += m["frames"]
+            expected += len(m["frames"])
+    return np.array(rows)
+
+
+def random_chunks(data: bytes, rng: np.random.Generator, largest: int = CHUNK_BYTES) -> list[bytes]:
+    """``data`` cut into chunks of random even sizes, 2 bytes to ``largest``."""
+    chunks, a = [], 0
+    while a < len(data):
+        n = 2 * int(rng.integers(1, largest // 2 + 1))
+        chunks.append(data[a:a + n])
+        a += n
+    return chunks
+
+
+# -- the engine ---------------------------------------------------------------------------------
+
+def test_live_audio_stream_equals_the_offline_animation(model, pcm, clip):
+    reference = animate_audio(clip, model, 30.0).values  # model.predict with the audio preset
+    stream = LiveAudioStream(model, 16000, 30.0)
+    assert (stream.delay, stream.lookahead, stream.channels) == (model.delay, 6, model.channels)
+    parts = []
+    for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(0)):
+        start, rows = stream.push(chunk)
+        assert start == sum(len(p) for p in parts)
+        # each frame comes once the audio covers its time plus the delay, and not before
+        assert (stream.emitted - 1) / 30 + stream.delay <= stream.duration + 1e-6
+        assert stream.emitted >= (stream.duration - stream.delay) * 30 - 2
+        parts.append(rows)
+    parts.append(stream.finish()[1])
+    np.testing.assert_allclose(np.concatenate(parts), reference, atol=1e-4)
+    jaw = model.channels.index("jawOpen")  # the raw frame, clipped (the preset clamps mouthClose to it)
+    np.testing.assert_allclose(np.clip(model.predict(clip, 30.0).values[:, jaw], 0, 1), reference[:, jaw], atol=1e-4)
+    with pytest.raises(VispeechError, match="ended"):
+        stream.push(b"\x00\x00")
+
+
+def test_live_audio_stream_refuses_what_it_cannot_take(model):
+    with pytest.raises(VispeechError, match="animates phones"):
+        LiveAudioStream(create_model("baseline"), 16000)
+    with pytest.raises(VispeechError, match="sample rate"):
+        LiveAudioStream(model, 100)
+    with pytest.raises(VispeechError, match="fps"):
+        LiveAudioStream(model, 16000, 0.0)
+    with pytest.raises(VispeechError, match="cut short"):
+        LiveAudioStream(model, 16000).push(b"\x00\x00\x00")
+
+
+# -- POST /api/animate --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt", ["WAV", "FLAC", "OGG", "MP3"])
+def test_animate_an_uploaded_file(client, pcm, clip, model, fmt):
+    data = encoded(pcm, fmt)
+    answer = client.post("/api/animate", content=data, headers={"Content-Type": f"audio/{fmt.lower()}"})
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    animation = body["animation"]
+    assert animation["n_frames"] == len(animation["frames"]) == clip.n_frames(30.0) == 90
+    assert animation["fps"] == 30.0 and animation["phones"] is None and body["text"] == "" and not body["cached"]
+    if fmt in ("WAV", "FLAC"):  # lossless: the offline animation of the same samples
+        np.testing.assert_allclose(animation["frames"], animate_audio(clip, model, 30.0).values, atol=1e-5)
+    audio = client.get(body["audio_url"])
+    assert audio.status_code == 200 and audio.headers["content-type"] == "audio/wav"
+    assert soundfile.info(io.BytesIO(audio.content)).frames == len(pcm)
+    again = client.post("/api/animate", content=data)
+    assert again.json()["cached"] and again.json()["audio_url"] == body["audio_url"]
+
+
+def test_animate_with_a_transcript_and_another_frame_rate(client, pcm):
+    data = encoded(pcm, "FLAC")
+    answer = client.post("/api/animate", params={"text": "bin blue at f two now", "fps": 25}, content=data)
+    assert answer.status_code == 200, answer.text
+    animation = answer.json()["animation"]
+    assert animation["fps"] == 25.0 and animation["n_frames"] == 75  # ceil(2.978 * 25)
+    words = [w["text"] for w in animation["phones"]["words"]]
+    assert words == "bin blue at f two now".split() and answer.json()["text"] == "bin blue at f two now"
+
+
+def test_bad_uploads_get_a_clear_4xx(client, pcm):
+    good = encoded(pcm, "FLAC")
+    long_silence = encoded(np.zeros(601 * 8000, dtype=np.int16), "FLAC", rate=8000)
+    for params, body, headers, status, words in [
+        ({}, b"", {}, 400, "empty"),
+        ({}, b"RIFF this is no audio at all", {"Content-Type": "audio/wav"}, 400, "not an audio file"),
+        ({}, long_silence, {}, 400, "the limit is 600 s"),
+        ({"fps": 0}, good, {}, 422, "fps"),
+        ({"fps": 1000}, good, {}, 422, "fps"),
+        ({"fps": "fast"}, good, {}, 422, "fps"),
+        ({"model": "nope"}, good, {}, 400, "unknown model"),
+        ({"model": "grid-tdnn"}, good, {}, 400, "transcript"),
+        ({"text": "bin blue zqxjv"}, good, {}, 400, "not in the pronouncing dictionary"),
+        ({"text": ""}, good, {}, 422, "text"),
+        ({}, good, {"Content-Type": "multipart/form-data; boundary=x"}, 415, "request body"),
+        ({}, bytes(2 * 1024 * 1024 + 2), {}, 413, "too large"),
+    ]:
+        answer = client.post("/api/animate", params=params, content=body, headers=headers)
+        assert answer.status_code == status and words in answer.json()["detail"], (params, answer.text)
+    assert client.get("/api/config").status_code == 200
+
+
+def test_uploads_and_live_audio_need_an_audio_model(tmp_path, pcm):
+    config = ServeConfig(cache=":memory:", rate_limit=0, audio_model=None)
+    with TestClient(create_app(config)) as bare:
+        assert bare.get("/api/config").json()["audio_model"] is None
+        answer = bare.post("/api/animate", content=encoded(pcm, "FLAC"))
+        assert answer.status_code == 400 and "no audio model" in answer.json()["detail"]
+        with bare.websocket_connect("/api/listen") as ws:
+            ws.send_json({"type": "start", "sample_rate": 16000})
+            assert "no audio model" in ws.receive_json()["message"]
+    with pytest.raises(VispeechError, match="animates phones"):
+        create_app(ServeConfig(cache=":memory:", audio_model="grid-tdnn"))
+
+
+# -- WS /api/listen -----------------------------------------------------------------------------
+
+def test_live_audio_in_random_chunks_gives_the_offline_frames(client, pcm, clip, model):
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000, "encoding": "pcm16"})
+        start = ws.receive_json()
+        assert start == {"type": "start", "fps": 30.0, "channels": list(model.channels), "sample_rate": 16000,
+                         "model": client.get("/api/config").json()["audio_model"], "lookahead": 6,
+                         "delay": pytest.approx(model.delay)}
+        for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(1)):
+            ws.send_bytes(chunk)
+        ws.send_json({"type": "stop"})
+        messages = receive_until_end(ws)
+    assert messages[-1] == {"type": "end", "n_frames": 90, "duration": pytest.approx(len(pcm) / 16000)}
+    assert "too_fast" in [m["code"] for m in messages if m["type"] == "warning"]  # all of it at once
+    np.testing.assert_allclose(frames_of(messages), animate_audio(clip, model, 30.0).values, atol=1e-4)
+
+
+def test_live_audio_at_48_khz_and_25_fps(client, clip, model):
+    samples = to_pcm16(clip.resampled(48000).samples)
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 48000, "fps": 25})
+        start = ws.receive_json()
+        assert (start["sample_rate"], start["fps"]) == (48000, 25.0) and start["delay"] > model.delay
+        data = samples.tobytes()
+        for a in range(0, len(data), 1920):  # 20 ms chunks
+            ws.send_bytes(data[a:a + 1920])
+        ws.send_json({"type": "stop"})
+        messages = receive_until_end(ws)
+    frames = frames_of(messages)
+    assert len(frames) == messages[-1]["n_frames"] == clip.n_frames(25.0) == 75
+    assert np.abs(frames - animate_audio(clip, model, 25.0).values).mean() < 0.01
+
+
+def test_bad_listen_messages_get_errors_and_the_connection_goes_on(client, pcm):
+    with client.websocket_connect("/api/listen") as ws:
+        for bad, words in [
+            ("not json", "not valid JSON"),
+            ('{"type": "text", "text": "hi"}', '"type" must be "start" or "stop"'),
+            ('{"sample_rate": 16000}', '"type" is missing: use "start" or "stop"'),
+            ('{"type": "start"}', "sample_rate"),
+            ('{"type": "start", "sample_rate": 100}', "sample_rate"),
+            ('{"type": "start", "sample_rate": 16000, "encoding": "opus"}', "encoding"),
+            ('{"type": "start", "sample_rate": 16000, "fps": 0}', "fps"),
+            ('{"type": "start", "sample_rate": 16000, "model": "nope"}', "unknown model"),
+            ('{"type": "start", "sample_rate": 16000, "model": "baseline"}', "animates phones"),
+            ('{"type": "stop"}', "no audio stream is open"),
+        ]:
+            ws.send_text(bad)
+            reply = ws.receive_json()
+            assert reply["type"] == "error" and words in reply["message"], (bad, reply)
+        # audio before a start: one error, then the chunks are dropped until the next text message
+        ws.send_bytes(pcm[:320].tobytes())
+        ws.send_bytes(pcm[320:640].tobytes())
+        assert "before audio" in ws.receive_json()["message"]
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert "an audio stream is open" in ws.receive_json()["message"]
+        # a chunk over the limit ends the stream; what follows is dropped until a text message
+        ws.send_bytes(bytes(CHUNK_BYTES + 2))
+        ws.send_bytes(bytes(320))
+        reply = ws.receive_json()
+        assert f"at most {CHUNK_BYTES} bytes" in reply["message"] and "has ended" in reply["message"]
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        ws.send_bytes(bytes(321))
+        assert "cut short" in ws.receive_json()["message"]
+        # past the stream limit (5 s here)
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        second = bytes(32000)
+        for _ in range(6):
+            ws.send_bytes(second[:CHUNK_BYTES])
+            ws.send_bytes(second[CHUNK_BYTES:2 * CHUNK_BYTES])
+            ws.send_bytes(second[2 * CHUNK_BYTES:3 * CHUNK_BYTES])
+            ws.send_bytes(second[3 * CHUNK_BYTES:])
+        messages = receive_until_end(ws)
+        assert "at most 5 s" in messages[-1]["message"] and "has ended" in messages[-1]["message"]
+        assert len(frames_of(messages)) <= 150
+        ws.send_text("x" * 70_000)
+        assert "too large" in ws.receive_json()["message"]
+
+
+def test_rate_limit_and_a_lagging_server_are_told(client, pcm, monkeypatch):
+    service = client.app.state.service
+    monkeypatch.setattr(service.config, "max_audio_lag", 0.0)  # every batch is "late"
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        ws.send_bytes(pcm[:1600].tobytes())
+        warning = ws.receive_json()  # 0.1 s of audio: no frames yet
+        assert warning["type"] == "warning" and warning["code"] == "behind" and warning["seconds"] >= 0
+    monkeypatch.setattr(service, "bucket", TokenBucket(0.001, 1))
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        for _ in range(50):  # 5 s of audio: 1.25 tokens, more than the burst
+            ws.send_bytes(bytes(3200))
+        messages = receive_until_end(ws)
+        assert "rate limit" in messages[-1]["message"] and "has ended" in messages[-1]["message"]
+
+
+def test_a_client_that_goes_away_frees_its_session(client, pcm):
+    service = client.app.state.service
+    assert service.active_streams == 0
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+        for a in range(0, 16000, 320):
+            ws.send_bytes(pcm[a:a + 320].tobytes())
+        assert service.active_streams == 1
+    deadline = time.monotonic() + 5
+    while (service.active_streams or service.pool.queued or service.pool.running) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert service.active_streams == 0 and service.pool.queued == 0 and service.pool.running == 0
+    with client.websocket_connect("/api/listen") as ws:  # the server carries on
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        assert ws.receive_json()["type"] == "start"
+
+
+# -- vispeech stream --audio --------------------------------------------------------------------
+
+def test_stream_command_replays_audio_to_a_real_server(tiny_audio_model, pcm, tmp_path):
+    """`vispeech stream --audio` against uvicorn on a loopback port (the real WebSocket stack)."""
+    import socket
+    import threading
+
+    import uvicorn
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    app = create_app(ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, audio_model=str(tiny_audio_model)))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error", ws_max_size=65536))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    wav = tmp_path / "one_second.wav"
+    soundfile.write(wav, pcm[8000:24000], 16000)  # 1 s from the middle of the utterance
+    flac = tmp_path / "utterance.flac"
+    soundfile.write(flac, pcm, 16000)
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.02)
+        url = f"ws://127.0.0.1:{port}/api/listen"
+        out = tmp_path / "frames.json"
+        fast = CliRunner().invoke(main, ["stream", "--audio", str(flac), "--fast", "--url", url, "--out", str(out)])
+        assert fast.exit_code == 0, fast.output
+        assert "90 at 30 fps" in fast.output and "frame delay" in fast.output and "faster than" in fast.output
+        written = json.loads(out.read_text())
+        assert written["n_frames"] == 90 and len(written["frames"]) == 90
+        paced = CliRunner().invoke(main, ["stream", "--audio", str(wav), "--url", url, "--fps", "25"])
+        assert paced.exit_code == 0, paced.output
+        assert "25 at 25 fps" in paced.output and "in real time" in paced.output and "frame delay" in paced.output
+        refused = CliRunner().invoke(main, ["stream", "--audio", str(wav), "--url", url, "--model", "baseline"])
+        assert refused.exit_code == 2 and "animates phones" in refused.output
+        both = CliRunner().invoke(main, ["stream", "hello", "--audio", str(wav), "--url", url])
+        assert both.exit_code == 2 and "not both" in both.output
+    finally:
+        server.should_exit = True
+        thread.join(10)
