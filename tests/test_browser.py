@@ -2,10 +2,12 @@
 
 The real server (``create_app`` under uvicorn, on a free loopback port) serves the viewer
 with the ICT head; headless Chromium renders it with SwiftShader and plays the audio for
-real (no virtual time). Skipped when ``/usr/bin/chromium``, the ``playwright`` package or
-the shared ICT head is missing, and failed then under ``CI=true``; ``.ci/run`` installs the
-first two. Set
-``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots there as well.
+real (no virtual time). The chat page's Talk button is driven by Chromium's fake microphone,
+which plays a GRID recording, against a server with the tiny audio model of ``conftest``.
+Skipped when ``/usr/bin/chromium``, the ``playwright`` package or the shared ICT head is
+missing (the Talk test also without torch), and failed then under ``CI=true``; ``.ci/run``
+installs the first two. Set ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots
+there as well.
 
 Clock sync is measured at each draw of the page's performer (``Performer.tick``, wrapped by
 the test): the pose's time (``clock()``) and frame (``frameIndex()``) it just computed are
@@ -18,11 +20,13 @@ on screen, not how often the screen is painted.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -50,46 +54,69 @@ OPEN_APERTURE = 0.1
 learned GRID's MediaPipe-tracked jaw, which opens less than iPhone ARKit capture (jawOpen about 0.25)."""
 
 
-@pytest.fixture(scope="module")
-def server_url(tmp_path_factory) -> str:
-    """The vispeech server with the ICT head, in a thread on a free 127.0.0.1 port."""
+def _require_browser() -> None:
     require(CHROMIUM.is_file(), f"Chromium ({CHROMIUM}: apt-get install chromium)")
     require_module("playwright.sync_api", "Playwright (the test extra)")
-    uvicorn = require_module("uvicorn", "uvicorn (the serve extra)")
     require(ICT_HEAD.is_file(), f"the ICT head ({ICT_HEAD}, in the shared data folder)")
+
+
+@contextlib.contextmanager
+def _serving(cache: Path, **settings) -> Iterator[str]:
+    """The vispeech server with the ICT head (and ``settings``), in a thread on a free 127.0.0.1 port."""
+    uvicorn = require_module("uvicorn", "uvicorn (the serve extra)")
     from vispeech.serve import ServeConfig, create_app
 
     config = ServeConfig(avatar=ICT_HEAD, avatar_credit="3D head: ICT-FaceKit (USC ICT), MIT licence",
-                         cache=tmp_path_factory.mktemp("browser") / "cache.sqlite3", rate_limit=0)
+                         cache=cache, rate_limit=0, **settings)
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     server = uvicorn.Server(uvicorn.Config(create_app(config), log_level="warning"))
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{sock.getsockname()[1]}"
-    server.should_exit = True
-    thread.join(10)
-    sock.close()
+    try:
+        deadline = time.monotonic() + 30
+        while not server.started:
+            assert thread.is_alive() and time.monotonic() < deadline, "the server did not start"
+            time.sleep(0.05)
+        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        sock.close()
+
+
+@contextlib.contextmanager
+def _browser_page(url: str, flags: tuple[str, ...] = ()) -> Iterator:
+    """``url`` in headless Chromium, ready, with the page's errors in ``page.errors``."""
+    from playwright import sync_api
+
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True,
+                                             args=[*CHROMIUM_FLAGS, *flags])
+        try:
+            page = browser.new_page(viewport={"width": 480, "height": 480})
+            page.errors = []
+            page.on("pageerror", lambda error: page.errors.append(str(error)))
+            page.goto(url)
+            page.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+            yield page
+        finally:
+            browser.close()
+
+
+@pytest.fixture(scope="module")
+def server_url(tmp_path_factory) -> Iterator[str]:
+    """The vispeech server with the ICT head, in a thread on a free 127.0.0.1 port."""
+    _require_browser()
+    with _serving(tmp_path_factory.mktemp("browser") / "cache.sqlite3") as url:
+        yield url
 
 
 @pytest.fixture(scope="module")
 def page(server_url):
     """The viewer (idle motion off) in headless Chromium, ready, with the page's errors in ``page.errors``."""
-    from playwright import sync_api
-
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
-        page = browser.new_page(viewport={"width": 480, "height": 480})
-        page.errors = []
-        page.on("pageerror", lambda error: page.errors.append(str(error)))
-        page.goto(f"{server_url}/viewer?idle=0")
-        page.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+    with _browser_page(f"{server_url}/viewer?idle=0") as page:
         yield page
-        browser.close()
 
 
 @pytest.fixture(scope="module")
@@ -256,3 +283,64 @@ def test_animation_clock_follows_the_audio_within_one_frame(page, speech):
         assert abs(d["shown"] - d["audioTime"]) <= 1 / fps, d
         assert abs(d["shown"] - d["audio"]) <= 1 / fps, d
         assert abs(start_time + d["frame"] / fps - d["audio"]) <= 1 / fps, d
+
+
+LIVE_SECONDS = 4.0
+"""How long the fake microphone is listened to (its file, 3 s, loops)."""
+
+
+def test_talk_button_animates_the_microphone_live(tmp_path, tiny_audio_model):
+    """Chromium's fake microphone plays a GRID recording; the chat page's Talk button streams it to
+    ``/api/listen``, frames come back while it plays, and the head's jawOpen shows them."""
+    _require_browser()
+    import soundfile
+
+    source = SHARED / "data" / "grid_s1" / "utterances" / "bbaf2n.flac"
+    require(source.is_file(), f"GRID speaker 1 ({source})")
+    samples, rate = soundfile.read(source, dtype="int16")
+    wav = tmp_path / "microphone.wav"
+    soundfile.write(wav, samples, rate, subtype="PCM_16")
+    flags = ("--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+             f"--use-file-for-fake-audio-capture={wav}")
+    with _serving(tmp_path / "cache.sqlite3", audio_model=str(tiny_audio_model)) as url, \
+            _browser_page(f"{url}/?idle=0", flags) as page:
+        assert page.is_visible("#mic")
+        page.click("#mic")
+        page.wait_for_function("document.querySelector('#mic').textContent === 'Stop'", timeout=10_000)
+        trace = page.evaluate(
+            """async ([seconds]) => {
+              // at every draw: frames received, the pose's time, the head's jawOpen and the frames' value there
+              const v = window.vispeech, performer = v.performer, draws = [];
+              const tick = performer.tick;
+              performer.tick = function (...args) {
+                tick.apply(this, args);
+                const anim = this.animation, jaw = anim.channels.indexOf('jawOpen');
+                draws.push({frames: anim.length, state: this.state, shown: v.clock(), jaw: v.influences('jawOpen'),
+                            expected: anim.length ? anim.sample(v.clock())[jaw] : null});
+              };
+              try {
+                await new Promise((done) => setTimeout(done, seconds * 1000));
+              } finally {
+                performer.tick = tick;
+              }
+              const anim = performer.animation, jaw = anim.channels.indexOf('jawOpen');
+              return {draws, framesJaw: anim.frames.map((row) => row[jaw])};
+            }""",
+            [LIVE_SECONDS],
+        )
+        page.click("#mic")
+        page.wait_for_function("document.querySelector('#mic').textContent === 'Talk'", timeout=10_000)
+        status = page.text_content("#status")
+        received = page.evaluate("window.vispeech.performer.animation.length")
+        assert page.errors == []
+    assert not status or "behind the audio" in status, status  # no error (a loaded machine may lag)
+    assert received >= 30 * (LIVE_SECONDS - 1.0), received  # frames arrive while the audio plays
+    draws = trace["draws"]
+    assert draws[-1]["frames"] > draws[0]["frames"]
+    jaw = np.array(trace["framesJaw"])
+    assert jaw.max() - jaw.min() > 0.05, jaw  # the live frames open and close the jaw
+    shown = [d for d in draws if d["state"] == "playing" and d["frames"] and d["shown"] >= 0]
+    assert len(shown) >= 3, draws[-5:]
+    for d in shown:  # the head shows the frames received, at the clock's time
+        assert abs(d["jaw"] - min(max(d["expected"], 0.0), 1.0)) < 1e-3, d
+    assert len({round(d["jaw"], 3) for d in shown}) >= 2  # and so the jawOpen morph moves

@@ -3,7 +3,7 @@
 import { Animation, animationFromJson, parseAnimation } from './animation.js';
 import { createAvatar } from './avatar.js';
 import { Performer } from './performer.js';
-import { fetchConfig, requestSpeech } from './server.js';
+import { fetchConfig, listenLive, requestSpeech } from './server.js';
 
 const FACE2D_SRC = 'static/face2d.js';
 
@@ -121,6 +121,11 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
       await app.playSpeech(speech);
       return speech;
     },
+    /**
+     * Animate the microphone live (the server's audio model unless `model` names one); resolves to
+     * a handle with `stop()` and `done` once the stream is open (see server.js `listenLive`).
+     */
+    listen: (model = null, onwarning = undefined) => listenLive(performer, { model, onwarning }),
     /** Stop the sound and hold the pose at `t` seconds. */
     seek: (t) => performer.seek(t),
     play: (from = null) => performer.play(from),

@@ -1,5 +1,6 @@
 // Chat page: messages go to api/chat and the avatar speaks the reply, either from a whole
-// utterance (api/chat's speech) or streamed over the api/stream WebSocket.
+// utterance (api/chat's speech) or streamed over the api/stream WebSocket; the Talk button
+// animates the microphone live over the api/listen WebSocket.
 import { startApp } from './app.js';
 import { requestChat, streamSpeech } from './server.js';
 
@@ -40,6 +41,37 @@ async function setup(app) {
 
   const busy = (on) => {
     for (const id of ['send', 'say']) $(id).disabled = on;
+  };
+
+  // Talk: the microphone drives the avatar until the button is pressed again.
+  let listening = null;
+  const mic = $('mic');
+  mic.hidden = !config.audio_model;
+  mic.onclick = async () => {
+    if (listening) {
+      mic.disabled = true;
+      listening.stop();
+      return;
+    }
+    show('');
+    busy(true);
+    mic.disabled = true;
+    try {
+      await app.performer.unlock();
+      listening = await app.listen(null, show);
+      mic.textContent = 'Stop';
+      mic.classList.add('live');
+      mic.disabled = false;
+      await listening.done;
+    } catch (err) {
+      show(err.message);
+    } finally {
+      listening = null;
+      mic.textContent = 'Talk';
+      mic.classList.remove('live');
+      mic.disabled = false;
+      busy(false);
+    }
   };
 
   const submit = async (chat) => {

@@ -8,6 +8,7 @@ import { IdleMotion } from './idle.js';
 const LEAD = 0.08; // seconds between scheduling and the first sample sounding
 const STREAM_BUFFER = 0.25; // seconds of streamed audio buffered before playback starts
 const FADE = 0.2; // seconds to ease into and out of an animation's first and last frame
+const LIVE_SLACK = 0.02; // seconds added when a live frame came late, beyond its lateness
 
 /** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
 export function decodePcm16(base64) {
@@ -36,6 +37,7 @@ export class Performer {
     this.sources = [];
     this.t0 = null;
     this.pausedAt = null;
+    this.live = null; // live audio: {lag} (seconds from capturing audio to showing its frame)
     this.idleClock = 0;
     this.lastTick = null;
     this.weights = new Float32Array(ARKIT_NAMES.length);
@@ -72,6 +74,7 @@ export class Performer {
   /** Replace what is loaded by `animation` and optional `audioBuffer`, paused at 0. */
   load(animation, audioBuffer = null) {
     this.stopSources();
+    this.live = null;
     this.setAnimation(animation);
     this.segments = audioBuffer ? [{ start: 0, buffer: audioBuffer }] : [];
     this.t0 = null;
@@ -116,12 +119,35 @@ export class Performer {
     this.segments = [];
     this.t0 = null;
     this.pausedAt = null;
+    this.live = null;
+    this.updateState();
+  }
+
+  /**
+   * Start animating live audio (the microphone's; nothing is played): frames of `channels` at
+   * `fps` arrive as the server computes them, each shown `lag` seconds after its audio was
+   * captured. The clock starts with `liveOrigin`; a frame that arrives after its time pushes it back.
+   */
+  beginLive({ fps, channels, lag }) {
+    this.beginStream({ fps, channels });
+    this.live = { lag };
+  }
+
+  /** The context time (s) at which the live audio's first sample was captured. */
+  liveOrigin(contextTime) {
+    if (!this.live || this.t0 !== null) return;
+    this.t0 = contextTime + this.live.lag;
     this.updateState();
   }
 
   /** Add streamed frames from frame `startFrame` on. */
   streamFrames(startFrame, frames) {
     this.animation.append(startFrame, frames);
+    if (this.live) {
+      const late = this.t0 === null ? 0 : this.time() - (this.animation.endTime - 1 / this.animation.fps);
+      if (late > 0) this.t0 += late + LIVE_SLACK;
+      return;
+    }
     this.startStreamClock();
   }
 

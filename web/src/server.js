@@ -1,6 +1,9 @@
 // Calls to the vispeech server (see docs/web.md for the contract). URLs are relative to the
 // page, so the app also works when the server is mounted under a path prefix.
+import { openMicrophone } from './microphone.js';
 import { decodePcm16 } from './performer.js';
+
+const LIVE_MARGIN = 0.1; // seconds a live frame may take beyond the stream's delay before it is late
 
 const DEFAULT_CONFIG = { avatar_url: null, languages: ['sv', 'en'], models: [], default_model: null, fps: 30 };
 
@@ -41,8 +44,7 @@ export function requestChat({ message, lang, speak = true }) {
  * `performer` as they arrive. Resolves when the server sends `end`.
  */
 export function streamSpeech(performer, { text, lang, model = null }) {
-  const url = new URL('api/stream', window.location.href);
-  url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
+  const url = socketUrl('api/stream');
   return new Promise((resolve, reject) => {
     const socket = new WebSocket(url);
     let sampleRate = 22050;
@@ -79,4 +81,77 @@ export function streamSpeech(performer, { text, lang, model = null }) {
       }
     };
   });
+}
+
+/**
+ * Animate the microphone live through the api/listen WebSocket: 20 ms chunks of 16-bit PCM go
+ * to the server as they are captured and the frames coming back drive `performer`. Resolves,
+ * once the server has opened the stream, to a handle: `stop()` ends the audio and resolves when
+ * the server has sent the last frames; `done` settles when the stream ends (rejects on an error or
+ * a lost connection). `onwarning(message)` hears the server's warnings (frames late).
+ */
+export async function listenLive(performer, { model = null, onwarning = () => {} } = {}) {
+  const microphone = await openMicrophone(performer.context);
+  const socket = new WebSocket(socketUrl('api/listen'));
+  socket.binaryType = 'arraybuffer';
+  let settle;
+  const done = new Promise((resolve, reject) => {
+    settle = (err) => (err ? reject(err) : resolve());
+  });
+  let finished = false;
+  const finish = (err) => {
+    if (finished) return;
+    finished = true;
+    microphone.stop();
+    socket.close();
+    settle(err);
+  };
+  const handle = {
+    done,
+    stop() {
+      microphone.stop();
+      if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ type: 'stop' }));
+      else finish();
+      return done;
+    },
+  };
+  return new Promise((resolve, reject) => {
+    done.catch(reject); // an error before the stream opened
+    socket.onopen = () => socket.send(JSON.stringify({
+      type: 'start', sample_rate: microphone.sampleRate, encoding: 'pcm16', model,
+    }));
+    socket.onerror = () => finish(new Error('listen connection failed'));
+    socket.onclose = () => finish(new Error('listen stream closed before its end'));
+    socket.onmessage = (event) => {
+      try {
+        const msg = JSON.parse(event.data);
+        if (msg.type === 'start') {
+          performer.beginLive({ fps: msg.fps, channels: msg.channels, lag: msg.delay + LIVE_MARGIN });
+          microphone.start((pcm, time) => {
+            performer.liveOrigin(time);
+            if (socket.readyState === WebSocket.OPEN) socket.send(pcm);
+          });
+          resolve(handle);
+        } else if (msg.type === 'frames') {
+          performer.streamFrames(msg.start_frame, msg.frames);
+        } else if (msg.type === 'warning') {
+          onwarning(msg.message);
+        } else if (msg.type === 'end') {
+          performer.endStream();
+          finish();
+        } else if (msg.type === 'error') {
+          finish(new Error(msg.message || 'listen error'));
+        }
+      } catch (err) {
+        finish(err);
+      }
+    };
+  });
+}
+
+/** The WebSocket URL of `path`, relative to the page. */
+function socketUrl(path) {
+  const url = new URL(path, window.location.href);
+  url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
+  return url;
 }
