@@ -496,12 +496,14 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
     @app.get("/api/config", response_model=ConfigResponse)
     async def get_config() -> dict:
-        """What the web app needs: avatar URL, languages, models, frame rate."""
+        """What the web app needs: avatar URL, languages, the models that speak text and those that
+        animate audio, frame rate."""
         return {
             "avatar_url": "/avatar.glb" if config.avatar is not None else None,
             "avatar_credit": config.avatar_credit,
             "languages": list(LANGUAGES),
-            "models": list(service.models),
+            "models": [name for name, model in service.models.items() if model.input_kind == "phones"],
+            "audio_models": [name for name, model in service.models.items() if model.input_kind == "audio"],
             "default_model": config.default_model,
             "stream_model": service.stream_model,
             "audio_model": service.audio_model,

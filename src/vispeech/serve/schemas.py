@@ -134,6 +134,9 @@ class ConfigResponse(BaseModel):
     avatar_credit: str | None = None
     languages: list[str]
     models: list[str]
+    """Models that animate text and phones (``/api/speak``, ``/api/chat``, ``/api/stream``)."""
+    audio_models: list[str] = []
+    """Models that animate audio alone (``/api/animate`` and ``/api/listen`` without a transcript)."""
     default_model: str
     stream_model: str
     audio_model: str | None = None
