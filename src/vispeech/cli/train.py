@@ -22,7 +22,8 @@ LOSS_CURVE = "loss_curve.png"
 @main.command("train")
 @corpus_option
 @click.option("--model", "-m", "model_name", required=True,
-              help="Model family to fit (tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, cohen-massaro, ohman).")
+              help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
+                   "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
 @click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
 @click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
