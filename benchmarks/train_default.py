@@ -9,8 +9,9 @@ early stopping on the validation split, saves it under its shipped name to ``--o
 (default: its folder in src/vispeech/models/pretrained, i.e. it replaces the shipped model,
 with the ``card.json`` that ``vispeech models`` shows) and prints the training time and, on
 the validation and test splits, jawOpen Pearson r and RMSE and the lip-closure figures,
-with and without post-processing (the ``learned-jaw`` preset every fitted model recommends). Scores are taken at the corpus's 25 fps over the
-speech span (first word − 0.1 s to last word + 0.1 s) as ``vispeech evaluate`` does.
+with and without post-processing (the preset each model recommends: ``learned-jaw`` for the
+fitted phone models, ``audio`` for the audio networks, which animate the audio alone). Scores
+are taken at the corpus's 25 fps over the speech span (first word − 0.1 s to last word + 0.1 s) as ``vispeech evaluate`` does.
 
 The architectures and settings were chosen on the validation split only (docs/default-model.md);
 the test figures are for reporting. A fit is repeatable on one machine and thread count.
@@ -51,8 +52,9 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     "grid-cohen-massaro": ("cohen-massaro", {}),
     "grid-ohman": ("ohman", {}),
     # audio → face (issue 9): PhISANet's loss terms and CTC weights, VTLP and pitch-shift augmentation
-    "grid-audio-cnn": ("audio-cnn", {"ctc_weight": 0.004, "velocity_weight": 0.3, "acceleration_weight": 0.3,
-                                     "epochs": 50, "patience": 6}),
+    # the streaming model: 5 frames (100 ms) of look-ahead, so a live frame comes about 130 ms after its audio
+    "grid-audio-cnn": ("audio-cnn", {"look_ahead": 5, "learning_rate": 0.002, "ctc_weight": 0.004,
+                                     "velocity_weight": 0.3, "acceleration_weight": 0.3, "epochs": 40, "patience": 6}),
     "grid-audio-encdec": ("audio-encdec", {"ctc_weight": 0.008, "velocity_weight": 0.3,
                                            "acceleration_weight": 0.3, "epochs": 30, "patience": 6}),
 }
@@ -65,6 +67,8 @@ def main() -> None:
     parser.add_argument("--corpus", type=Path, default=ROOT.parent / "shared" / "data" / "grid_s1")
     parser.add_argument("--output", type=Path, default=None, help="model folder [default: the shipped one]")
     parser.add_argument("--threads", type=int, default=2, help="torch threads while training")
+    parser.add_argument("--checkpoint", type=Path, default=None,
+                        help="a network's checkpoint folder: written after every epoch, resumed from when it holds one")
     args = parser.parse_args()
     output = args.output or ROOT / "src" / "vispeech" / "models" / "pretrained" / PRETRAINED[args.model]
 
@@ -78,11 +82,13 @@ def main() -> None:
 
     architecture, params = ARCHITECTURES[args.model]
     if "num_threads" in family_class(architecture).defaults:
-        params = {**params, "num_threads": args.threads}
+        params = {**params, "num_threads": args.threads, "checkpoint_dir": args.checkpoint}
     model = create_model(architecture, **params)
     start = time.perf_counter()
     model.fit(corpus, progress=True)
     seconds = time.perf_counter() - start
+    if args.checkpoint is not None:
+        model = model.without_checkpoint()
     model.name = args.model
     model.save(output)
     history = model.history_

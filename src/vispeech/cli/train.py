@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -30,6 +31,10 @@ LOSS_CURVE = "loss_curve.png"
               help="Phone one-hot vectors or articulatory feature vectors [default: the model's].")
 @click.option("--targets", type=click.Choice(list(_TARGETS)), default=None,
               help="ARKit mouth channels or articulatory parameters measured on landmarks [default: the model's].")
+@click.option("--param", "-p", "params", multiple=True, metavar="KEY=VALUE",
+              help="Set any hyper-parameter of the model (docs/networks.md), e.g. --param features=encoder "
+                   "--param encoder=/models/wavlm-base-plus; VALUE is read as JSON (numbers, lists, true, null) "
+                   "or else taken as text. Repeatable.")
 @click.option("--resume", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Go on from a saved model or an interrupted run's output folder.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -38,8 +43,8 @@ LOSS_CURVE = "loss_curve.png"
 @cache_option
 @quiet_option
 def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: int | None, inputs: str | None,
-                  targets: str | None, resume: Path | None, out_dir: Path, language: str, cache: Path | None,
-                  quiet: bool) -> None:
+                  targets: str | None, params: tuple[str, ...], resume: Path | None, out_dir: Path, language: str,
+                  cache: Path | None, quiet: bool) -> None:
     """Fit a model on the train split of a corpus (validation split for early stopping) and save it.
 
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
@@ -62,6 +67,12 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
             continue
         if key not in cls.defaults:
             raise VispeechError(f"model {model_name} takes no {flag}")
+        options[key] = value
+    for key, value in map(_parameter, params):
+        if key not in cls.defaults or key == "checkpoint_dir":
+            raise VispeechError(f"model {model_name} takes no parameter {key!r}")
+        if key in options:
+            raise VispeechError(f"{key} is given twice")
         options[key] = value
     neural = issubclass(cls, Network)
     if resume is not None and not neural:
@@ -91,7 +102,7 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
 
     model.fit(corpus, progress=not quiet)
     if neural:
-        model = _without_checkpoint(model)
+        model = model.without_checkpoint()  # the checkpoint folder goes once the model is saved
     model.name = out_dir.name
     model.save(out_dir)
     if neural:
@@ -103,12 +114,15 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
     _summary(model, corpus, out_dir)
 
 
-def _without_checkpoint(model):
-    """The fitted network with ``checkpoint_dir`` unset, to be saved: the checkpoint folder goes once
-    the model is saved, and a loaded model that kept its path would checkpoint (and resume) there when fitted."""
-    clean = type(model)(**{**model.get_params(), "checkpoint_dir": None})
-    clean._set_learned_state(*model._learned_state())
-    return clean
+def _parameter(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` as the key and the value read as JSON (else the text itself)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise VispeechError(f"--param takes KEY=VALUE, got {text!r}")
+    try:
+        return key.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return key.strip(), value
 
 
 def _summary(model, corpus, out_dir: Path) -> None:

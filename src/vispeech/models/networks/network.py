@@ -243,6 +243,14 @@ class Network(Estimator):
         self._take_weights(module.state_dict(), state.history)
         return self
 
+    def without_checkpoint(self) -> Network:
+        """This fitted network with ``checkpoint_dir`` unset, to be saved: a loaded model that kept
+        the path would checkpoint (and resume) there when fitted again."""
+        clean = type(self)(**{**self.get_params(), "checkpoint_dir": None})
+        clean._set_learned_state(*self._learned_state())
+        clean.name = self.name
+        return clean
+
     def _take_weights(self, weights: dict, history: TrainingHistory) -> None:
         self.weights_ = {k: v.detach().numpy().copy() for k, v in weights.items()}
         self.history_ = copy.deepcopy(history)
