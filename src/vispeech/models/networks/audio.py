@@ -20,17 +20,34 @@ the running normalisation, vocal-tract-length perturbation (a warp factor drawn 
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones). Prediction runs
 on NumPy (:mod:`vispeech.models.networks.kernels`).
+
+With ``features="encoder"`` and ``encoder`` the path of a local wav2vec 2.0 / WavLM / HuBERT
+folder (:mod:`vispeech.frontends.encoder`, the ``encoder`` extra), the networks read all of
+that encoder's hidden states at 50 fps (``fps`` must be 50), standardised globally, through a
+learned softmax-weighted sum of the layers (``LayerFusion``, PhISANet's All-Enc) in front of
+the convolutions. Each training utterance is encoded once (kept as float16 while fitting:
+about 1 MB per second of audio for a base model). ``normalize``, ``prior_seconds``, ``warp``,
+``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
+waveform, and re-encoding pitch-shifted copies would multiply the encoding time and memory for
+an encoder already trained on thousands of voices. Prediction encodes the clip (torch) and runs
+the rest on NumPy. A stream re-encodes the audio from :data:`ENCODER_CONTEXT` seconds before
+the first frame it has not computed up to the newest sample every :data:`ENCODER_STEP`
+seconds, and takes a frame's hidden states once :data:`ENCODER_AHEAD` seconds of audio follow
+it: frames come up to ``ENCODER_AHEAD + ENCODER_STEP`` (0.4 s) later than with log-mel, and
+differ a little from the offline ones (the encoder attends to a window, not the whole clip).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
+from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, SpectrumStream, power_spectrogram, warp_frequencies
 from vispeech.models.contract import ModelStream, ResampledFrames
 from vispeech.models.networks.audio_encoding import AudioEncoding
@@ -46,6 +63,7 @@ AUDIO_PARAMS: dict = {
     "epochs": 60,
     "patience": 8,
     "features": "log-mel",
+    "encoder": None,
     "n_mels": 80,
     "n_mfcc": 13,
     "normalize": "running",
@@ -60,16 +78,24 @@ AUDIO_PARAMS: dict = {
     "batch_size": 16,
 }
 """Hyper-parameters every audio network has (see the module docstring)."""
+ENCODER_CONTEXT = 1.0
+"""Seconds of audio before the first new frame that an encoder stream re-encodes."""
+ENCODER_AHEAD = 0.2
+"""Seconds of audio after a frame that an encoder stream waits for before taking its hidden states."""
+ENCODER_STEP = 0.2
+"""Seconds of new frames an encoder stream gathers before re-encoding."""
 
 
 @dataclass
 class _Example:
     """A training utterance: power spectra of its audio (original first, then pitch-shifted
-    copies), its network frame count and its phone labels for CTC (1-based, 0 is the blank)."""
+    copies), its network frame count, its phone labels for CTC (1-based, 0 is the blank) and,
+    with ``features="encoder"``, the encoder's hidden states instead of spectra (float16)."""
 
     powers: list[np.ndarray]
     n_frames: int
     labels: np.ndarray
+    hidden: np.ndarray | None = None
 
 
 class AudioNetwork(Network):
@@ -82,7 +108,7 @@ class AudioNetwork(Network):
 
     def _check_inputs(self) -> None:
         p = self._params
-        AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], float(p["fps"]), p["normalize"], p["prior_seconds"])
+        self._unfitted_encoding(float(p["fps"]))
         for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight"):
             if not (isinstance(p[key], int | float) and p[key] >= 0):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
@@ -91,12 +117,33 @@ class AudioNetwork(Network):
         if not (isinstance(p["pitch_copies"], int) and 0 <= p["pitch_copies"] <= 8):
             raise VispeechError(f"pitch_copies must be a whole number within 0..8, got {p['pitch_copies']!r}")
 
-    def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
+    def _unfitted_encoding(self, fps: float) -> AudioEncoding:
+        """The audio encoding the parameters ask for at ``fps``, without training statistics."""
         p = self._params
-        encoding = AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], self.fps_, p["normalize"], p["prior_seconds"])
-        self._powers = {id(u): self._utterance_powers(u) for u in train_set}
+        if p["features"] == "encoder" and fps != ENCODER_RATE:
+            raise VispeechError(f"an audio network on a speech encoder runs at its {ENCODER_RATE:g} fps, got fps {fps:g}")
+        normalize = "global" if p["features"] == "encoder" else p["normalize"]
+        return AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], fps, normalize, p["prior_seconds"],
+                             encoder=p["encoder"])
+
+    def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
+        encoding = self._unfitted_encoding(self.fps_)
         self.phones_ = self._phone_vocabulary(train_set)
-        return encoding.with_statistics([encoding.features(powers[0]) for powers in self._powers.values()])
+        if encoding.kind == "encoder":
+            encoder = SpeechEncoder.load(encoding.encoder)
+            encoding = replace(encoding, layers=encoder.layers, width=encoder.width)
+            self._hidden = {id(u): self._utterance_hidden(u, encoder) for u in train_set}
+            return encoding.with_statistics(encoding.features(hidden) for hidden in self._hidden.values())
+        self._powers = {id(u): self._utterance_powers(u) for u in train_set}
+        return encoding.with_statistics(encoding.features(powers[0]) for powers in self._powers.values())
+
+    @staticmethod
+    def _clip(utterance) -> AudioClip:
+        return AudioClip.from_array(*utterance.load_audio(), where=f"audio of {getattr(utterance, 'id', '?')}")
+
+    def _utterance_hidden(self, utterance, encoder: SpeechEncoder) -> np.ndarray:
+        """The encoder's hidden states of the utterance's audio, float16 (half the memory while fitting)."""
+        return encoder.hidden_states(self._clip(utterance)).astype(np.float16)
 
     def _utterance_powers(self, utterance, copies: bool = True) -> list[np.ndarray]:
         """Power spectra of the utterance's audio and (``copies``) of its pitch-shifted copies (seeded by its id)."""
@@ -104,8 +151,7 @@ class AudioNetwork(Network):
 
         import librosa
 
-        clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {getattr(utterance, 'id', '?')}")
-        samples = clip.resampled(SAMPLE_RATE).samples
+        samples = self._clip(utterance).resampled(SAMPLE_RATE).samples
         powers = [power_spectrogram(samples)]
         p = self._params
         if copies and p["pitch_shift"] and p["pitch_copies"]:
@@ -124,12 +170,18 @@ class AudioNetwork(Network):
         return tuple(s for s in get_inventory(language).symbols if not is_silence(s))
 
     def _encode_example(self, utterance, n_frames: int) -> _Example:
-        powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
         labels = []
         if self.phones_:
             index = {s: i + 1 for i, s in enumerate(self.phones_)}
             labels = [index[p.symbol] for p in utterance.phones if p.symbol in index]
-        return _Example(powers, n_frames, np.asarray(labels, dtype=np.int64))
+        labels = np.asarray(labels, dtype=np.int64)
+        if self.encoding_.kind == "encoder":
+            hidden = getattr(self, "_hidden", {}).get(id(utterance))
+            if hidden is None:
+                hidden = self._utterance_hidden(utterance, SpeechEncoder.load(self.encoding_.encoder))
+            return _Example([], n_frames, labels, hidden)
+        powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
+        return _Example(powers, n_frames, labels)
 
     def _encoding_from_dict(self, data: dict) -> AudioEncoding:
         return AudioEncoding.from_dict(data)
@@ -144,6 +196,7 @@ class AudioNetwork(Network):
             return super().fit(corpus, progress=progress)
         finally:
             self.__dict__.pop("_powers", None)
+            self.__dict__.pop("_hidden", None)
 
     # -- training --------------------------------------------------------------------------
 
@@ -158,6 +211,9 @@ class AudioNetwork(Network):
             chosen = [examples[i] for i in order[start:start + size]]
             inputs = []
             for example, _ in chosen:
+                if example.hidden is not None:
+                    inputs.append(self.encoding_.encode(example.hidden, example.n_frames))
+                    continue
                 power = example.powers[0 if rng is None else int(rng.integers(len(example.powers)))]
                 if rng is not None and warp:
                     power = warp_frequencies(power, float(rng.uniform(1 - warp, 1 + warp)))
@@ -207,9 +263,12 @@ class AudioNetwork(Network):
     @property
     def delay(self) -> float:
         """Seconds of audio after a frame's time that a stream needs before giving it: the
-        look-ahead, the stacked feature frames and half the analysis window."""
-        stack = round(FRAME_RATE / self.fps_) if hasattr(self, "fps_") else round(FRAME_RATE / self._params["fps"])
+        look-ahead, the stacked feature frames and half the analysis window (with encoder
+        features: the look-ahead, :data:`ENCODER_AHEAD` and at most :data:`ENCODER_STEP`)."""
         fps = getattr(self, "fps_", self._params["fps"])
+        if self._params["features"] == "encoder":
+            return self.lookahead / fps + ENCODER_AHEAD + ENCODER_STEP
+        stack = round(FRAME_RATE / fps)
         return self.lookahead / fps + (stack - 1) / FRAME_RATE + 256 / SAMPLE_RATE
 
     def predict(self, clip: AudioClip, fps: float) -> Track:
@@ -218,7 +277,11 @@ class AudioNetwork(Network):
         if not isinstance(clip, AudioClip):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
         n_model = clip.n_frames(self.fps_)
-        inputs = self.encoding_.encode(power_spectrogram(clip.resampled(SAMPLE_RATE).samples), n_model)
+        if self.encoding_.kind == "encoder":
+            source = SpeechEncoder.load(self.encoding_.encoder).hidden_states(clip)
+        else:
+            source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
+        inputs = self.encoding_.encode(source, n_model)
         track = Track(self._denormalise(kernel.forward(inputs)), self.channels, self.fps_)
         n = clip.n_frames(fps)
         if fps != self.fps_ or track.n_frames != n:
@@ -292,10 +355,10 @@ class AudioCNNNetwork(AudioNetwork):
         p = self._params
         right = [r for _, r in self._pads()]
         return AudioCNN(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), right, p["dropout"],
-                        len(self.phones_))
+                        len(self.phones_), self.encoding_.layers)
 
     def _make_kernel(self) -> AudioCNNKernel:
-        return AudioCNNKernel(self.weights_, self._pads())
+        return AudioCNNKernel(self.weights_, self._pads(), self.encoding_.layers)
 
 
 class EncoderDecoderNetwork(AudioNetwork):
@@ -331,10 +394,10 @@ class EncoderDecoderNetwork(AudioNetwork):
 
         p = self._params
         return AudioEncoderDecoder(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), p["hidden"],
-                                   p["layers"], p["dropout"], len(self.phones_))
+                                   p["layers"], p["dropout"], len(self.phones_), self.encoding_.layers)
 
     def _make_kernel(self) -> EncoderDecoderKernel:
-        return EncoderDecoderKernel(self.weights_, self._pads(), self._params["layers"])
+        return EncoderDecoderKernel(self.weights_, self._pads(), self._params["layers"], self.encoding_.layers)
 
 
 class AudioStream(ModelStream):
@@ -346,14 +409,23 @@ class AudioStream(ModelStream):
     network on the last ``context + lookahead`` frames. For ``audio-cnn`` that is its whole
     receptive field, so the frames equal :meth:`AudioNetwork.predict`'s on the whole audio;
     :meth:`finish` pads the end as the offline prediction does. :attr:`delay` is the audio
-    (seconds) after a frame's time that the stream waits for.
+    (seconds) after a frame's time that the stream waits for. With encoder features the input
+    rows come from re-encoded recent audio instead (see the module docstring), which makes the
+    frames an approximation of the offline ones.
     """
 
     def __init__(self, model: AudioNetwork, fps: float) -> None:
         super().__init__(model, "", fps)
         self.delay = model.delay
         self.lookahead = math.ceil(self.delay * self.fps)
-        self._spectra = SpectrumStream()
+        self._samples = 0  # pushed so far
+        if model.encoding_.kind == "encoder":
+            self._encoder = SpeechEncoder.load(model.encoding_.encoder)
+            self._audio = np.zeros(0, dtype=np.float32)  # the samples from network frame _audio_start on
+            self._audio_start = 0
+        else:
+            self._encoder = None
+            self._spectra = SpectrumStream()
         self._norm_state = None
         self._normalised: list[np.ndarray] = []  # feature frames not yet stacked into network inputs
         self._inputs: list[np.ndarray] = []  # network input rows from row _first_input on
@@ -371,8 +443,13 @@ class AudioStream(ModelStream):
         chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
         if not np.all(np.isfinite(chunk)):
             raise VispeechError("audio chunk has non-finite samples")
-        self._add_features(self._spectra.push(np.clip(chunk, -1.0, 1.0)))
-        self.end = self._spectra.samples / SAMPLE_RATE
+        chunk = np.clip(chunk, -1.0, 1.0)
+        self._samples += len(chunk)
+        self.end = self._samples / SAMPLE_RATE
+        if self._encoder is None:
+            self._add_features(self._spectra.push(chunk))
+        else:
+            self._add_hidden(chunk, final=False)
         self._advance(self._first_input + len(self._inputs) - self.model.kernel_ahead, final=False)
         n_total = math.ceil(self.end * self.fps - 1e-9)
         return self._give(min(self._frames.ready(), n_total))
@@ -380,9 +457,12 @@ class AudioStream(ModelStream):
     def finish(self) -> tuple[int, np.ndarray]:
         if self.closed:
             raise VispeechError("this audio stream has ended")
-        self._add_features(self._spectra.finish(), final=True)
+        if self._encoder is None:
+            self._add_features(self._spectra.finish(), final=True)
+        else:
+            self._add_hidden(np.zeros(0, dtype=np.float32), final=True)
         self.close()
-        if self._spectra.samples == 0:
+        if self._samples == 0:
             return self._empty()
         self._advance(self._n_model_frames(), final=True)
         return self._give(max(1, math.ceil(self.end * self.fps - 1e-9)))
@@ -401,12 +481,31 @@ class AudioStream(ModelStream):
             del self._normalised[:stack]
         if final:
             # as offline: the last feature frame repeated to fill the network frames the audio covers
-            n = self._n_model_frames() if self._spectra.samples else 0
+            n = self._n_model_frames() if self._samples else 0
             tail = self._normalised or ([self._inputs[-1][-encoding.dims:]] if self._inputs else [])
             while self._first_input + len(self._inputs) < n and tail:
                 rows = (tail + [tail[-1]] * stack)[:stack]
                 self._inputs.append(np.concatenate(rows))
                 tail = [tail[-1]]
+
+    def _add_hidden(self, chunk: np.ndarray, final: bool) -> None:
+        """Add encoder input rows: every :data:`ENCODER_STEP` seconds (and at the end) those of the
+        frames :data:`ENCODER_AHEAD` seconds of audio follow, from a re-encoding of the audio
+        since :data:`ENCODER_CONTEXT` seconds before the first of them."""
+        self._audio = np.concatenate([self._audio, chunk])
+        hop = round(SAMPLE_RATE / self.model.fps_)
+        rows = self._first_input + len(self._inputs)
+        n = self._n_model_frames() if self._samples else 0
+        upto = n if final else min(n, max(0, (self._samples - round(ENCODER_AHEAD * SAMPLE_RATE)) // hop + 1))
+        if upto <= rows or (not final and upto - rows < round(ENCODER_STEP * self.model.fps_)):
+            return
+        start = max(self._audio_start, rows - round(ENCODER_CONTEXT * self.model.fps_))
+        window = AudioClip.from_array(self._audio[(start - self._audio_start) * hop:], SAMPLE_RATE)
+        encoding = self.model.encoding_
+        self._inputs.extend(encoding.encode(self._encoder.hidden_states(window), upto - start)[rows - start:])
+        keep = max(self._audio_start, upto - round(ENCODER_CONTEXT * self.model.fps_))
+        self._audio = self._audio[(keep - self._audio_start) * hop:]
+        self._audio_start = keep
 
     def _advance(self, upto: int, final: bool) -> None:
         """Compute network frames up to (not including) ``upto``."""

@@ -10,11 +10,24 @@ stacking, features are normalised per dimension:
   with the training data's (:func:`~vispeech.frontends.features.running_normalize`), which
   removes much of a new voice's and microphone's spectral colour and streams exactly;
 - ``"global"``: by the training data's mean and variance only.
+
+``kind="encoder"`` reads a pretrained speech encoder's hidden states instead
+(:mod:`vispeech.frontends.encoder`, from the folder ``encoder``): ``layers`` hidden states
+of ``width`` values per frame, side by side (layer-major) in one input vector of
+``layers · width`` values, which the network fuses (a learned softmax-weighted sum of the
+layers, PhISANet's All-Enc); one hidden-state frame is one network frame (the network checks
+that ``fps`` is the encoders' 50). They are always standardised per dimension by the
+training data's statistics (``normalize`` is ``"global"``): the self-supervised encoders
+were trained across thousands of voices and read a per-clip normalised waveform, a running
+normalisation of thousands of dimensions would be noisy, and global statistics keep a
+streamed frame independent of the audio before it; standardising also puts every layer on
+one scale, so the fusion weights compare layers rather than their magnitudes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -22,6 +35,8 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.features import FEATURE_KINDS, FRAME_RATE, running_normalize, spectral_features
 
 NORMALIZATIONS = ("running", "global")
+KINDS = (*FEATURE_KINDS, "encoder")
+"""The audio features a network can read."""
 
 
 @dataclass
@@ -29,7 +44,9 @@ class AudioEncoding:
     """Audio → one input vector per network frame (see the module docstring).
 
     ``mean``/``std`` are the training features' statistics (per dimension); ``prior_seconds``
-    is how much audio the running normalisation's prior is worth.
+    is how much audio the running normalisation's prior is worth. ``encoder`` (the folder, as
+    given), ``layers`` and ``width`` describe a speech encoder's hidden states (``kind="encoder"``;
+    ``layers`` and ``width`` are 0 until the encoder is loaded at fit).
     """
 
     kind: str = "log-mel"
@@ -40,10 +57,21 @@ class AudioEncoding:
     prior_seconds: float = 2.0
     mean: list[float] = field(default_factory=list)
     std: list[float] = field(default_factory=list)
+    encoder: str | None = None
+    layers: int = 0
+    width: int = 0
 
     def __post_init__(self) -> None:
-        if self.kind not in FEATURE_KINDS:
-            raise VispeechError(f"unknown audio feature {self.kind!r} (use {', '.join(FEATURE_KINDS)})")
+        if self.kind not in KINDS:
+            raise VispeechError(f"unknown audio feature {self.kind!r} (use {', '.join(KINDS)})")
+        if (self.kind == "encoder") != (self.encoder is not None):
+            raise VispeechError("features=encoder needs encoder=FOLDER (a local wav2vec 2.0 / WavLM / HuBERT "
+                                "model folder), and encoder= needs features=encoder")
+        if self.kind == "encoder":
+            if not (isinstance(self.encoder, str) and self.encoder):
+                raise VispeechError(f"encoder must be the path of a model folder, got {self.encoder!r}")
+            if self.normalize != "global":
+                raise VispeechError(f"speech encoder features are normalised globally, got normalize {self.normalize!r}")
         if self.normalize not in NORMALIZATIONS:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
         stack = FRAME_RATE / self.fps
@@ -56,11 +84,13 @@ class AudioEncoding:
     @property
     def stack(self) -> int:
         """Feature frames per network frame."""
-        return round(FRAME_RATE / self.fps)
+        return round(self.frame_rate / self.fps)
 
     @property
     def dims(self) -> int:
         """Feature dimensions per feature frame."""
+        if self.kind == "encoder":
+            return self.layers * self.width
         return self.n_mels if self.kind == "log-mel" else self.n_mfcc
 
     @property
@@ -68,15 +98,31 @@ class AudioEncoding:
         """Values per network input frame."""
         return self.dims * self.stack
 
-    def features(self, power: np.ndarray) -> np.ndarray:
-        """Un-normalised features of power spectra (``(frames, dims)`` at 100 fps)."""
-        return spectral_features(power, self.kind, self.n_mels, self.n_mfcc)
+    @property
+    def frame_rate(self) -> float:
+        """Feature frames per second (an encoder's hidden states come at the network's rate)."""
+        return self.fps if self.kind == "encoder" else FRAME_RATE
 
-    def with_statistics(self, features: list[np.ndarray]) -> AudioEncoding:
-        """A copy holding the mean and standard deviation of ``features`` (the training set's)."""
-        stacked = np.concatenate(features)
-        return AudioEncoding(self.kind, self.n_mels, self.n_mfcc, self.fps, self.normalize, self.prior_seconds,
-                             stacked.mean(axis=0).tolist(), np.maximum(stacked.std(axis=0), 1e-3).tolist())
+    def features(self, source: np.ndarray) -> np.ndarray:
+        """Un-normalised ``(frames, dims)`` float32 features at :attr:`frame_rate`: of power
+        spectra, or (``kind="encoder"``) of hidden states ``(layers, frames, width)``, flattened per frame."""
+        if self.kind == "encoder":
+            if source.shape[0] != self.layers or source.shape[2] != self.width:
+                raise VispeechError(f"the speech encoder gives {source.shape[0]} hidden states of {source.shape[2]} "
+                                    f"values; the model was trained on {self.layers} of {self.width}")
+            return np.ascontiguousarray(source.transpose(1, 0, 2), dtype=np.float32).reshape(source.shape[1], -1)
+        return spectral_features(source, self.kind, self.n_mels, self.n_mfcc)
+
+    def with_statistics(self, features: Iterable[np.ndarray]) -> AudioEncoding:
+        """A copy holding the per-dimension mean and standard deviation of ``features`` (the
+        training set's ``(frames, dims)`` arrays, taken one at a time)."""
+        count, total, squares = 0, 0.0, 0.0
+        for frames in features:
+            x = np.asarray(frames, dtype=np.float64)
+            count, total, squares = count + len(x), total + x.sum(axis=0), squares + (x ** 2).sum(axis=0)
+        mean = total / count
+        std = np.sqrt(np.maximum(squares / count - mean ** 2, 0.0))
+        return replace(self, mean=mean.tolist(), std=np.maximum(std, 1e-3).tolist())
 
     def normalise(self, features: np.ndarray, state=None) -> tuple[np.ndarray, object]:
         """Normalised features and the running state to continue from (``None`` for global)."""
@@ -84,27 +130,33 @@ class AudioEncoding:
         if len(mean) != self.dims:
             raise VispeechError("the audio encoding has no training statistics (fit the model first)")
         if self.normalize == "global":
-            return ((features - mean) / std).astype(np.float32), None
-        return running_normalize(features, mean, std, self.prior_seconds * FRAME_RATE, state)
+            out = np.subtract(features, mean.astype(np.float32), dtype=np.float32)
+            out /= std.astype(np.float32)
+            return out, None
+        return running_normalize(features, mean, std, self.prior_seconds * self.frame_rate, state)
 
     def stacked(self, normalised: np.ndarray, n_frames: int) -> np.ndarray:
         """``(n_frames, size)`` network inputs from normalised feature frames (the last one
         repeated where they run out)."""
         needed = n_frames * self.stack
+        if len(normalised) == needed:
+            return normalised.reshape(n_frames, self.size)
         if len(normalised) == 0:
             normalised = np.zeros((1, self.dims), dtype=np.float32)
         index = np.minimum(np.arange(needed), len(normalised) - 1)
         return normalised[index].reshape(n_frames, self.size)
 
-    def encode(self, power: np.ndarray, n_frames: int) -> np.ndarray:
-        """Network inputs for ``n_frames`` frames of the audio whose power spectra are ``power``."""
-        normalised, _ = self.normalise(self.features(power))
+    def encode(self, source: np.ndarray, n_frames: int) -> np.ndarray:
+        """Network inputs for ``n_frames`` frames of the audio whose power spectra (or
+        encoder hidden states) are ``source``."""
+        normalised, _ = self.normalise(self.features(source))
         return self.stacked(normalised, n_frames)
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "n_mels": self.n_mels, "n_mfcc": self.n_mfcc, "fps": self.fps,
                 "normalize": self.normalize, "prior_seconds": self.prior_seconds,
-                "mean": list(self.mean), "std": list(self.std)}
+                "mean": list(self.mean), "std": list(self.std),
+                "encoder": self.encoder, "layers": self.layers, "width": self.width}
 
     @classmethod
     def from_dict(cls, data: dict) -> AudioEncoding:

@@ -250,23 +250,52 @@ class ConvStackKernel:
         return h
 
 
+class LayerFusionKernel:
+    """The NumPy forward pass of ``LayerFusion``: ``(frames, layers · width)`` encoder hidden
+    states (layer-major) to ``(frames, width)``, weighted by the softmax of the saved logits."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray]):
+        logits = np.asarray(weights["fusion.logits"], dtype=np.float64)
+        self.weights = np.exp(logits - logits.max()) / np.exp(logits - logits.max()).sum()
+        """The layers' weights (summing to 1)."""
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        x = np.asarray(inputs, dtype=np.float32)
+        return np.einsum("tlw,l->tw", x.reshape(len(x), len(self.weights), -1), self.weights.astype(np.float32))
+
+
+def _fusion(weights: Mapping[str, np.ndarray], fusion_layers: int) -> LayerFusionKernel | None:
+    """The fusion in front of a network reading ``fusion_layers`` encoder hidden states (none when 0)."""
+    if not fusion_layers:
+        return None
+    fusion = LayerFusionKernel(weights)
+    if len(fusion.weights) != fusion_layers:
+        raise ValueError(f"the fusion weighs {len(fusion.weights)} layers, expected {fusion_layers}")
+    return fusion
+
+
 class AudioCNNKernel:
     """The NumPy forward pass of ``AudioCNN`` (the CTC head is a training aid and not run)."""
 
-    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]]):
+    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], fusion_layers: int = 0):
+        self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
-        return (self.encoder.forward(inputs) @ self.out_weight + self.out_bias).astype(np.float64)
+        h = inputs if self.fusion is None else self.fusion.forward(inputs)
+        return (self.encoder.forward(h) @ self.out_weight + self.out_bias).astype(np.float64)
 
 
 class EncoderDecoderKernel:
     """The NumPy forward pass of ``AudioEncoderDecoder``: conv encoder, bidirectional GRU
-    layers (torch's gate order r, z, n), linear output."""
+    layers (torch's gate order r, z, n), linear output; behind a :class:`LayerFusionKernel`
+    when it reads ``fusion_layers`` encoder hidden states."""
 
-    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int):
+    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int,
+                 fusion_layers: int = 0):
+        self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
         self.gru = []
         for layer in range(layers):
@@ -279,7 +308,7 @@ class EncoderDecoderKernel:
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
-        h = self.encoder.forward(inputs)
+        h = self.encoder.forward(inputs if self.fusion is None else self.fusion.forward(inputs))
         for forward, backward in self.gru:
             h = np.concatenate([_gru(h, *forward), _gru(h[::-1], *backward)[::-1]], axis=1)
         return (h @ self.out_weight + self.out_bias).astype(np.float64)

@@ -136,37 +136,63 @@ class ConvStack(nn.Module):
         return h.transpose(1, 2)
 
 
+class LayerFusion(nn.Module):
+    """PhISANet's All-Enc fusion: ``(batch, frames, layers · width)`` hidden states of a speech
+    encoder (layer-major) to ``(batch, frames, width)``, their sum weighted by the softmax of
+    ``layers`` learned logits (zeros at first: the plain mean)."""
+
+    def __init__(self, layers: int, width: int):
+        super().__init__()
+        self.layers, self.width = layers, width
+        self.logits = nn.Parameter(torch.zeros(layers))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        weights = torch.softmax(self.logits, dim=0)
+        return torch.einsum("btlw,l->btw", x.unflatten(-1, (self.layers, self.width)), weights)
+
+
+def _fused(n_inputs: int, fusion_layers: int) -> tuple[LayerFusion | None, int]:
+    """The fusion in front of a network reading ``fusion_layers`` hidden states (none when 0), and its output width."""
+    if not fusion_layers:
+        return None, n_inputs
+    return LayerFusion(fusion_layers, n_inputs // fusion_layers), n_inputs // fusion_layers
+
+
 class AudioCNN(nn.Module):
-    """PhISANet's streaming decoder: a :class:`ConvStack`, a linear output and an optional CTC head."""
+    """PhISANet's streaming decoder: a :class:`ConvStack`, a linear output and an optional CTC
+    head, behind a :class:`LayerFusion` when it reads ``fusion_layers`` encoder hidden states."""
 
     def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], right: list[int],
-                 dropout: float, n_phones: int):
+                 dropout: float, n_phones: int, fusion_layers: int = 0):
         super().__init__()
-        self.encoder = ConvStack(n_inputs, channels, kernels, right, dropout)
+        self.fusion, width = _fused(n_inputs, fusion_layers)
+        self.encoder = ConvStack(width, channels, kernels, right, dropout)
         self.output = nn.Linear(channels[-1], n_outputs)
         self.ctc = nn.Linear(channels[-1], n_phones + 1) if n_phones else None
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Outputs ``(batch, frames, outputs)`` and CTC logits ``(batch, frames, phones + 1)`` or ``None``."""
-        h = self.encoder(x)
+        h = self.encoder(x if self.fusion is None else self.fusion(x))
         return self.output(h), None if self.ctc is None else self.ctc(h)
 
 
 class AudioEncoderDecoder(nn.Module):
     """An offline encoder-decoder: a centred :class:`ConvStack` encoder, a bidirectional GRU
-    decoder over whole utterances, a linear output and an optional CTC head on the decoder."""
+    decoder over whole utterances, a linear output and an optional CTC head on the decoder,
+    behind a :class:`LayerFusion` when it reads ``fusion_layers`` encoder hidden states."""
 
     def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], hidden: int,
-                 layers: int, dropout: float, n_phones: int):
+                 layers: int, dropout: float, n_phones: int, fusion_layers: int = 0):
         super().__init__()
-        self.encoder = ConvStack(n_inputs, channels, kernels, [(k - 1) // 2 for k in kernels], dropout)
+        self.fusion, width = _fused(n_inputs, fusion_layers)
+        self.encoder = ConvStack(width, channels, kernels, [(k - 1) // 2 for k in kernels], dropout)
         self.decoder = nn.GRU(channels[-1], hidden, num_layers=layers, batch_first=True, bidirectional=True,
                               dropout=dropout if layers > 1 else 0.0)
         self.output = nn.Linear(2 * hidden, n_outputs)
         self.ctc = nn.Linear(2 * hidden, n_phones + 1) if n_phones else None
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        h = self.encoder(x)
+        h = self.encoder(x if self.fusion is None else self.fusion(x))
         packed = nn.utils.rnn.pack_padded_sequence(h, lengths.cpu(), batch_first=True, enforce_sorted=False)
         q, _ = self.decoder(packed)
         q, _ = nn.utils.rnn.pad_packed_sequence(q, batch_first=True, total_length=x.shape[1])
