@@ -1,4 +1,4 @@
-"""``vispeech align AUDIO TEXT -o OUT.TextGrid``: forced alignment of English speech."""
+"""``vispeech align AUDIO TEXT -o OUT.TextGrid``: forced alignment of speech with its transcript."""
 
 from __future__ import annotations
 
@@ -14,14 +14,17 @@ from vispeech.cli import lang_option, main
 @click.argument("text")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.")
-@lang_option("Language of the speech (only en).", name="language")
-def align_command(audio: Path, text: str, output: Path, language: str) -> None:
+@lang_option("Language of the speech: en or sv.", name="language")
+@click.option("--method", type=click.Choice(["pocketsphinx", "dtw"]),
+              help="pocketsphinx (English only) or DTW against espeak-ng's speech of TEXT "
+              "(default: pocketsphinx for en, dtw for sv).")
+def align_command(audio: Path, text: str, output: Path, language: str, method: str | None) -> None:
     """Align TEXT with the speech in AUDIO (WAV, FLAC) and write its words and phones."""
     from vispeech.alignment.formats import write_alignment
     from vispeech.frontends.align import align
-    from vispeech.frontends.audio import read_audio
+    from vispeech.frontends.audio import AudioClip
 
-    samples, sample_rate = read_audio(audio)
-    phones = align(samples, sample_rate, text, language)
+    clip = AudioClip.read(audio)
+    phones = align(clip.samples, clip.sample_rate, text, language, method=method)
     write_alignment(phones, output)
     click.echo(f"{output}: {len(phones.words)} words, {len(phones)} phones, {phones.duration:.2f} s")

@@ -1,14 +1,24 @@
-"""Forced alignment of English speech with its transcript, by pocketsphinx.
+"""Forced alignment of speech with its transcript: pocketsphinx for English, DTW against
+espeak-ng (:mod:`vispeech.frontends.dtw_align`) for Swedish and as an alternative for English.
 
-The pocketsphinx wheel ships the en-us acoustic model and CMUdict, so nothing is downloaded.
+pocketsphinx's wheel ships the en-us acoustic model and CMUdict, so nothing is downloaded.
 Phones come as ARPAbet without stress (the shipped dictionary has no stress digits, so every
 phone gets ``stress=0``) and silences as ``sil``.
+
+pocketsphinx aligns in two passes: words by a search through a grammar of the transcript,
+then phones (and states) inside those words. Runs of exactly zero samples, which synthetic
+speech and the silence padded around every clip have, give frames of zero energy that derail
+the word search ("Final result does not match the grammar"; no words, so setting up the
+phone pass fails with "Failed to set up sub-word alignment"). So the audio gets ±1 LSB of
+deterministic triangular dither; if the word search still finds no path (very fast or noisy
+speech), it is run once more with the beams opened to :data:`WIDE_BEAM`. If the phone pass
+fails (pocketsphinx's issue #339), each word's span is shared evenly among the phones of the
+pronunciation the word pass chose.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 import re
 import threading
 
@@ -16,57 +26,64 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
+from vispeech.frontends.activity import speech_span
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.dtw_align import dtw_align
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 
 SAMPLE_RATE = 16000
 """The acoustic model's sample rate in Hz; other rates are resampled to it."""
 
 PAD_SECONDS = 0.5
-"""Silence added before and after the audio: without it the first decoding pass can fail."""
+"""Silence added before and after the audio: without it the word search can fail."""
 
 FRAMES_PER_SECOND = 100
 """pocketsphinx reports times in 10 ms frames."""
 
-ALIGNER = "pocketsphinx 5.1.1"
-"""Names the aligner in cached results, so that a change of aligner invalidates them."""
+BEAM, WORD_BEAM = 1e-100, 1e-80
+"""The beams of the first try (``beam`` and ``pbeam``; ``wbeam``)."""
+WIDE_BEAM = 1e-300
+"""Every beam of the second try, when the first finds no path (about 40 % slower)."""
+
+MIN_PHONE_FRAMES = 3
+"""Frames each phone needs at least: the acoustic model's phones have three states."""
+
+METHODS = ("pocketsphinx", "dtw")
+"""Alignment methods: pocketsphinx (English only; the default for English) and DTW against
+espeak-ng (any language espeak speaks; the default for the others)."""
+
+ALIGNER = "pocketsphinx 5.1.1 dithered, wide-beam retry; espeak-ng DTW log-mel 1"
+"""Names the aligners in cached results, so that a change of aligner invalidates them."""
 
 _EDGE_PUNCTUATION = "\"'.,;:!?()[]{}«»“”‘’—–-"
 _ALTERNATE = re.compile(r"\(\d+\)$")
 _DECODER_LOCK = threading.Lock()  # one shared decoder per process
 
+_Segments = list[tuple[str, list[tuple[str, int, int]]]]
+"""Words (pocketsphinx names, fillers included) with their phones: (label, start frame, frames)."""
 
-def align(audio: np.ndarray, sample_rate: int, text: str, language: str = "en") -> PhoneSequence:
+
+def align(audio: np.ndarray, sample_rate: int, text: str, language: str = "en",
+          method: str | None = None) -> PhoneSequence:
     """Time-align ``text`` with ``audio``: phones and words with start/end in seconds.
 
     ``audio`` holds samples (float in [-1, 1] or int16), mono or ``(samples, channels)``
-    (channels are averaged) at ``sample_rate`` Hz. The result covers the whole audio: silence
-    before, between and after words is ``sil``. Raises :class:`VispeechError` for a language
-    other than ``"en"``, words missing from the pronouncing dictionary (named), empty text or
-    audio, or a failed alignment.
+    (channels are averaged) at ``sample_rate`` Hz. ``method`` is one of :data:`METHODS`;
+    by default pocketsphinx for ``"en"`` and DTW otherwise. The result covers the whole audio:
+    silence before, between and after words is ``sil``. Raises :class:`VispeechError` for an
+    unknown method or language, pocketsphinx with a language other than ``"en"``, words missing
+    from the pronouncing dictionary (named), empty text, audio that is empty, non-finite or has
+    no speech, or a failed alignment (saying where it failed).
     """
+    clip = AudioClip.from_array(audio, sample_rate)
+    method = method or ("pocketsphinx" if language == "en" else "dtw")
+    if method == "dtw":
+        return dtw_align(clip, text, language)
+    if method != "pocketsphinx":
+        raise VispeechError(f"unknown alignment method {method!r} (use {' or '.join(METHODS)})")
     if language != "en":
-        raise VispeechError(f"forced alignment supports English only (language 'en'), not {language!r}")
-    words = normalize_transcript(text)
-    decoder = _decoder()
-    unknown = [w for w in dict.fromkeys(words) if decoder.lookup_word(w) is None]
-    if unknown:
-        raise VispeechError(f"words not in the pronouncing dictionary: {', '.join(unknown)}")
-    samples = _to_pcm16(audio, sample_rate)
-    duration = len(samples) / SAMPLE_RATE
-    pad = np.zeros(int(PAD_SECONDS * SAMPLE_RATE), dtype=np.int16)
-    raw = np.concatenate([pad, samples, pad]).tobytes()
-    try:
-        with _DECODER_LOCK:
-            decoder.set_align_text(" ".join(words))
-            _decode(decoder, raw)
-            decoder.set_alignment()
-            _decode(decoder, raw)
-            segments = [(w.name, [(p.name, p.start, p.duration) for p in w]) for w in decoder.get_alignment()]
-    except RuntimeError as exc:
-        raise VispeechError(f"alignment failed for {text!r}: {exc}") from None
-    if not segments:
-        raise VispeechError(f"alignment failed for {text!r}: no result")
-    return _to_phone_sequence(segments, duration)
+        raise VispeechError(f"pocketsphinx aligns English only (language 'en'), not {language!r}; use method='dtw'")
+    return _pocketsphinx_align(clip, text)
 
 
 def normalize_transcript(text: str) -> list[str]:
@@ -78,44 +95,108 @@ def normalize_transcript(text: str) -> list[str]:
     return words
 
 
+def padded_pcm(clip: AudioClip) -> bytes:
+    """The clip as pocketsphinx takes it: 16 kHz 16-bit PCM with :data:`PAD_SECONDS` of silence
+    at each end and ±1 LSB of triangular dither (the same for the same clip)."""
+    pad = np.zeros(round(PAD_SECONDS * SAMPLE_RATE))
+    samples = np.concatenate([pad, clip.resampled(SAMPLE_RATE).samples * 32767.0, pad])
+    samples += np.random.default_rng(0).triangular(-1.0, 0.0, 1.0, samples.size)
+    return np.clip(np.round(samples), -32768, 32767).astype("<i2").tobytes()
+
+
+def _pocketsphinx_align(clip: AudioClip, text: str) -> PhoneSequence:
+    words = normalize_transcript(text)
+    decoder = _decoder()
+    unknown = [w for w in dict.fromkeys(words) if decoder.lookup_word(w) is None]
+    if unknown:
+        raise VispeechError(f"words not in the pronouncing dictionary: {', '.join(unknown)}")
+    n_phones = sum(len(decoder.lookup_word(w).split()) for w in words)
+    needed = n_phones * MIN_PHONE_FRAMES / FRAMES_PER_SECOND
+    if clip.duration < needed:
+        raise VispeechError(f"alignment failed: {clip.duration:.2f} s of audio is too short for the "
+                            f"{n_phones} phones of the transcript (at least {needed:.2f} s)")
+    speech_span(clip)  # refuses silence: pocketsphinx would put the words anywhere in it
+    raw = padded_pcm(clip)
+    with _DECODER_LOCK:
+        words_found = _word_pass(decoder, raw, words)
+        if words_found is None:
+            raise VispeechError(_no_path(decoder, raw, words))
+        try:
+            segments = _phone_pass(decoder, raw)
+        except RuntimeError:
+            segments = _shared_spans(decoder, words_found)
+    return _to_phone_sequence(segments, clip.duration)
+
+
+def _word_pass(decoder, raw: bytes, words: list[str]) -> list[tuple[str, int, int]] | None:
+    """Words and fillers found by the word search, ``(name, first frame, last frame)``; tried with
+    the usual beams, then with :data:`WIDE_BEAM`; ``None`` if neither finds a path."""
+    for beam, word_beam in ((BEAM, WORD_BEAM), (WIDE_BEAM, WIDE_BEAM)):
+        decoder.config["beam"], decoder.config["pbeam"], decoder.config["wbeam"] = beam, beam, word_beam
+        decoder.set_align_text(" ".join(words))  # the search reads the beams when it is set up
+        try:
+            decode_utterance(decoder, raw)
+        except RuntimeError:
+            continue
+        if decoder.hyp() is not None:
+            return [(s.word, s.start_frame, s.end_frame) for s in decoder.seg()]
+    return None
+
+
+def _phone_pass(decoder, raw: bytes) -> _Segments:
+    """Phones inside the words the last word pass found; raises RuntimeError when pocketsphinx fails."""
+    decoder.set_alignment()
+    decode_utterance(decoder, raw)
+    return [(w.name, [(p.name, p.start, p.duration) for p in w]) for w in decoder.get_alignment()]
+
+
+def _no_path(decoder, raw: bytes, words: list[str]) -> str:
+    """Why the word search failed: the first word from which no prefix of the transcript aligns
+    (found by bisection on the prefix length)."""
+    aligned, failed = 0, len(words)  # a prefix of `aligned` words aligns, one of `failed` does not
+    while failed - aligned > 1:
+        middle = (aligned + failed) // 2
+        if _word_pass(decoder, raw, words[:middle]) is None:
+            failed = middle
+        else:
+            aligned = middle
+    return (f"alignment failed: no path through the audio from word {aligned + 1} of {len(words)} "
+            f"({words[aligned]!r}) on; does the audio say the transcript?")
+
+
+def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments:
+    """The word search's spans as segments, each word's frames shared evenly among its phones."""
+    segments: _Segments = []
+    for name, first, last in words_found:
+        if name.startswith(("<", "[")):
+            segments.append((name, [(SILENCE, first, last - first + 1)]))
+            continue
+        labels = decoder.lookup_word(name).split()
+        edges = np.linspace(first, last + 1, len(labels) + 1).round().astype(int)
+        spans = zip(labels, edges[:-1], edges[1:], strict=True)
+        segments.append((name, [(label, int(a), int(b - a)) for label, a, b in spans]))
+    return segments
+
+
 @functools.cache
 def _decoder():
     from pocketsphinx import Decoder
 
-    return Decoder(
-        samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=1e-100, wbeam=1e-80, pbeam=1e-100,
-        loglevel="FATAL",
-    )
+    return Decoder(samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=BEAM, wbeam=WORD_BEAM, pbeam=BEAM,
+                   loglevel="FATAL")
 
 
-def _decode(decoder, raw: bytes) -> None:
+def decode_utterance(decoder, raw: bytes) -> None:
+    """Decode ``raw`` (:func:`padded_pcm`) as one utterance, its features computed afresh: without
+    resetting them pocketsphinx carries a running cepstral mean from one utterance to the next,
+    and a result would depend on what was decoded before."""
+    decoder.reinit_feat()
     decoder.start_utt()
     decoder.process_raw(raw, full_utt=True)
     decoder.end_utt()
 
 
-def _to_pcm16(audio: np.ndarray, sample_rate: int) -> np.ndarray:
-    samples = np.asarray(audio)
-    if samples.ndim == 2:
-        samples = samples.mean(axis=1)
-    if samples.ndim != 1 or samples.size == 0:
-        raise VispeechError(f"audio must be a non-empty 1-D or (samples, channels) array, got shape {np.shape(audio)}")
-    if sample_rate <= 0:
-        raise VispeechError(f"sample rate must be positive, got {sample_rate}")
-    if np.issubdtype(samples.dtype, np.integer):
-        samples = samples.astype(np.float64) / 32768.0
-    samples = samples.astype(np.float64)
-    if not np.all(np.isfinite(samples)):
-        raise VispeechError("audio has non-finite samples")
-    if sample_rate != SAMPLE_RATE:
-        from scipy.signal import resample_poly
-
-        g = math.gcd(int(sample_rate), SAMPLE_RATE)
-        samples = resample_poly(samples, SAMPLE_RATE // g, int(sample_rate) // g)
-    return np.round(np.clip(samples, -1.0, 1.0) * 32767).astype(np.int16)
-
-
-def _to_phone_sequence(segments: list[tuple[str, list[tuple[str, int, int]]]], duration: float) -> PhoneSequence:
+def _to_phone_sequence(segments: _Segments, duration: float) -> PhoneSequence:
     """Words and phones from pocketsphinx frames: pad removed, clipped to the audio, silences merged."""
     offset = round(PAD_SECONDS * FRAMES_PER_SECOND)
     words: list[Word] = []
@@ -137,7 +218,7 @@ def _to_phone_sequence(segments: list[tuple[str, list[tuple[str, int, int]]]], d
         if word_index is not None:
             own = [p for p in phones if p.word == word_index]
             if not own:
-                raise VispeechError(f"alignment failed: word {name!r} lies outside the audio")
+                raise VispeechError(f"alignment failed: word {_ALTERNATE.sub('', name)!r} lies outside the audio")
             words.append(Word(_ALTERNATE.sub("", name), own[0].start, own[-1].end))
     if phones and phones[-1].end < duration - TIME_TOLERANCE:
         phones.append(Phone(SILENCE, phones[-1].end, duration))
