@@ -14,6 +14,8 @@ from conftest import random_sentence, require_module
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.espeak import synthesize
 from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream, Splits
 from vispeech.models.networks.network import Network
 from vispeech.models.registry import (
@@ -66,8 +68,19 @@ PROBES = [sentence(50), sentence(51), sentence(52, "sv")]
 """Phone sequences to compare predictions on (two English, one Swedish)."""
 
 
-def probes_for(model: Estimator) -> list[PhoneSequence]:
-    """The probes the model can read (a network on phone identities reads its own language only)."""
+def audio_probes() -> list[AudioClip]:
+    """Audio to compare audio models' predictions on: espeak-ng speech (English, Swedish) and noise."""
+    clips = [AudioClip.from_array(s.audio, s.sample_rate) for s in (
+        synthesize("Bin blue at F two now.", "en"), synthesize("Mamma plockar blåbär.", "sv"))]
+    noise = np.random.default_rng(7).normal(0, 0.05, 12345).astype(np.float32)
+    return clips + [AudioClip.from_array(noise, 22050)]
+
+
+def probes_for(model: Estimator) -> list[PhoneSequence] | list[AudioClip]:
+    """The probes the model can read (audio for an audio model; a network on phone identities
+    reads its own language only)."""
+    if model.input_kind == "audio":
+        return audio_probes()
     encoding = getattr(model, "encoding_", None)
     if encoding is None or encoding.kind != "phones":
         return PROBES
@@ -86,10 +99,10 @@ def tolerance(model: Estimator) -> float:
 
 
 def assert_same_predictions(a: Estimator, b: Estimator) -> None:
-    for phones in probes_for(a):
+    for inputs in probes_for(a):
         for fps in (30.0, FPS):
-            x, y = a.predict(phones, fps), b.predict(phones, fps)
-            assert x.channels == y.channels and x.n_frames == y.n_frames == phones.n_frames(fps)
+            x, y = a.predict(inputs, fps), b.predict(inputs, fps)
+            assert x.channels == y.channels and x.n_frames == y.n_frames == inputs.n_frames(fps)
             np.testing.assert_allclose(y.values, x.values, rtol=0, atol=tolerance(a))
 
 
@@ -122,7 +135,8 @@ def test_every_family_obeys_the_contract(family):
 @pytest.mark.parametrize("family", TRAINABLE)
 def test_an_untrained_network_refuses_to_predict_and_names_training(family, tmp_path):
     model = create_model(family)
-    assert not model.is_fitted and isinstance(model, Network) and model.postprocessing == "authored"
+    expected = "audio" if model.input_kind == "audio" else "authored"  # audio networks need no phones, fitted or not
+    assert not model.is_fitted and isinstance(model, Network) and model.postprocessing == expected
     with pytest.raises(VispeechError, match=f"model {family} is not trained: fit it on a corpus"):
         model.predict(PROBES[0], FPS)
     with pytest.raises(VispeechError, match="not trained"):
@@ -190,7 +204,7 @@ def test_runnable_models_are_known_by_the_name_they_were_loaded_by(name):
     assert model.family == (name if name in DATA_FREE else json.loads(
         (pretrained_path(name) / "config.json").read_text())["family"])
     if name in PRETRAINED:
-        assert model.postprocessing == "learned-jaw"
+        assert model.postprocessing == ("audio" if model.input_kind == "audio" else "learned-jaw")
     assert repr(model).startswith(f"<{type(model).__name__} {name!r}")
 
 
@@ -228,15 +242,19 @@ def test_save_load_round_trip_of_a_fitted_model(family, tmp_path):
 @pytest.mark.parametrize("name", RUNNABLE)
 def test_streams_give_every_frame_once_in_order(name):
     model = runnable(name)
-    phones = PROBES[0]
-    stream = model.stream(phones.language, 30.0)
+    inputs = probes_for(model)[0]
+    stream = model.stream(getattr(inputs, "language", None), 30.0)
     assert stream.channels == model.channels and stream.fps == 30.0 and stream.lookahead >= 0
-    chunks = [stream.push([p]) for p in phones] + [stream.finish()]
+    if model.input_kind == "audio":  # 20 ms chunks of 16 kHz audio
+        samples = inputs.resampled(16000).samples
+        chunks = [stream.push(samples[i:i + 320]) for i in range(0, len(samples), 320)] + [stream.finish()]
+    else:
+        chunks = [stream.push([p]) for p in inputs] + [stream.finish()]
     starts = [start for start, _ in chunks]
     rows = np.concatenate([frames for _, frames in chunks])
     lengths = np.cumsum([0] + [len(frames) for _, frames in chunks])
     assert starts == list(lengths[:-1])  # contiguous, none twice
-    assert rows.shape == (phones.n_frames(30.0), len(model.channels)) and np.isfinite(rows).all()
+    assert rows.shape == (inputs.n_frames(30.0), len(model.channels)) and np.isfinite(rows).all()
     with pytest.raises(VispeechError, match="ended"):
         stream.push([])
 

@@ -41,6 +41,7 @@ PRETRAINED: dict[str, str] = {
     "grid-tdnn-lowlatency": "grid_tdnn_lowlatency",
     "grid-cohen-massaro": "grid_cohen_massaro",
     "grid-ohman": "grid_ohman",
+    "grid-audio-cnn": "grid_audio_cnn",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 
