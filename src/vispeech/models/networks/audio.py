@@ -405,9 +405,10 @@ class AudioStream(ModelStream):
 
     :meth:`push` takes float samples at :data:`~vispeech.frontends.features.SAMPLE_RATE` Hz
     (mono, in [-1, 1]) and returns ``(start_frame, frames)`` at the stream's ``fps``; network
-    frame t is computed once the inputs up to ``t + lookahead`` are in, by running the
-    network on the last ``context + lookahead`` frames. For ``audio-cnn`` that is its whole
-    receptive field, so the frames equal :meth:`AudioNetwork.predict`'s on the whole audio;
+    frame t is computed once the inputs up to ``t + lookahead`` are in: ``audio-cnn``
+    incrementally (each layer keeps the rows its next outputs need, so every frame is computed
+    once), and the frames equal :meth:`AudioNetwork.predict`'s on the whole audio; the
+    encoder-decoder by re-running the network on the last ``context + lookahead`` frames;
     :meth:`finish` pads the end as the offline prediction does. :attr:`delay` is the audio
     (seconds) after a frame's time that the stream waits for. With encoder features the input
     rows come from re-encoded recent audio instead (see the module docstring), which makes the
@@ -431,6 +432,9 @@ class AudioStream(ModelStream):
         self._inputs: list[np.ndarray] = []  # network input rows from row _first_input on
         self._first_input = 0
         self._frames = ResampledFrames(model.fps_, self.fps)
+        kernel = model.kernel
+        # a convolution network runs incrementally, each frame once; others re-run a recent window
+        self._incremental = kernel.stream(model.encoding_.size) if hasattr(kernel, "stream") else None
 
     @property
     def sample_rate(self) -> int:
@@ -508,8 +512,17 @@ class AudioStream(ModelStream):
         self._audio_start = keep
 
     def _advance(self, upto: int, final: bool) -> None:
-        """Compute network frames up to (not including) ``upto``."""
+        """Compute network frames up to (not including) ``upto`` (an incremental network: all it can)."""
         model = self.model
+        if self._incremental is not None:
+            rows = self._inputs[: self._n_model_frames() - self._first_input] if final else self._inputs
+            width = model.encoding_.size
+            out = self._incremental.push(np.stack(rows) if rows else np.zeros((0, width), np.float32), final)
+            for row in model._denormalise(out):
+                self._frames.add(row)
+            self._first_input += len(self._inputs)
+            self._inputs = []
+            return
         if not final:
             upto = min(upto, self._n_model_frames())
         start = self._frames.computed

@@ -239,15 +239,43 @@ class ConvStackKernel:
         h = np.asarray(inputs, dtype=np.float32)
         for layer in self.layers:
             behind, ahead = layer["pad"]
-            padded = np.pad(h, ((behind, ahead), (0, 0)))
-            out = np.broadcast_to(layer["bias"], (len(h), len(layer["bias"]))).copy()
-            for k, weight in enumerate(layer["weight"]):
-                out += padded[k:k + len(h)] @ weight
-            np.maximum(out, 0.0, out=out)
-            mean = out.mean(axis=1, keepdims=True)
-            var = out.var(axis=1, keepdims=True)
-            h = (out - mean) / np.sqrt(var + 1e-5) * layer["gain"] + layer["shift"]
+            h = _conv_layer(layer, np.pad(h, ((behind, ahead), (0, 0))))
         return h
+
+
+class ConvStackStream:
+    """A :class:`ConvStackKernel` run incrementally: each layer keeps the input rows its next
+    outputs still need, so every frame is computed once; the outputs equal
+    :meth:`ConvStackKernel.forward` of all the rows given."""
+
+    def __init__(self, kernel: ConvStackKernel, n_inputs: int):
+        self.kernel = kernel
+        widths = [n_inputs] + [len(layer["bias"]) for layer in kernel.layers[:-1]]
+        self._buffers = [np.zeros((layer["pad"][0], w), dtype=np.float32) for layer, w in zip(kernel.layers, widths)]
+
+    def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
+        """The output frames that ``rows`` (the next input frames) make computable; with
+        ``final``, the rest, as if the input ended after ``rows``."""
+        h = np.asarray(rows, dtype=np.float32)
+        for i, layer in enumerate(self.kernel.layers):
+            behind, ahead = layer["pad"]
+            buffer = np.concatenate([self._buffers[i], h] + ([np.zeros((ahead, h.shape[1]), np.float32)] if final else []))
+            n = len(buffer) - behind - ahead
+            h = _conv_layer(layer, buffer) if n > 0 else np.zeros((0, len(layer["bias"])), np.float32)
+            self._buffers[i] = buffer[max(0, n):] if not final else buffer[:0]
+        return h
+
+
+def _conv_layer(layer: dict, padded: np.ndarray) -> np.ndarray:
+    """One convolution, ReLU and per-frame layer norm over already padded input rows."""
+    n = len(padded) - len(layer["weight"]) + 1
+    out = np.broadcast_to(layer["bias"], (n, len(layer["bias"]))).copy()
+    for k, weight in enumerate(layer["weight"]):
+        out += padded[k:k + n] @ weight
+    np.maximum(out, 0.0, out=out)
+    mean = out.mean(axis=1, keepdims=True)
+    var = out.var(axis=1, keepdims=True)
+    return (out - mean) / np.sqrt(var + 1e-5) * layer["gain"] + layer["shift"]
 
 
 class LayerFusionKernel:
@@ -285,7 +313,27 @@ class AudioCNNKernel:
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
         h = inputs if self.fusion is None else self.fusion.forward(inputs)
-        return (self.encoder.forward(h) @ self.out_weight + self.out_bias).astype(np.float64)
+        return self._output(self.encoder.forward(h))
+
+    def stream(self, n_inputs: int) -> AudioCNNStream:
+        """An incremental forward pass over input rows of ``n_inputs`` values (:class:`AudioCNNStream`)."""
+        width = n_inputs if self.fusion is None else n_inputs // len(self.fusion.weights)
+        return AudioCNNStream(self, ConvStackStream(self.encoder, width))
+
+    def _output(self, hidden: np.ndarray) -> np.ndarray:
+        return (hidden @ self.out_weight + self.out_bias).astype(np.float64)
+
+
+class AudioCNNStream:
+    """:class:`AudioCNNKernel` frame by frame: ``push(rows, final)`` returns the outputs the
+    rows made computable, equal to :meth:`AudioCNNKernel.forward` of all rows."""
+
+    def __init__(self, kernel: AudioCNNKernel, convs: ConvStackStream):
+        self.kernel, self.convs = kernel, convs
+
+    def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
+        h = rows if self.kernel.fusion is None or not len(rows) else self.kernel.fusion.forward(rows)
+        return self.kernel._output(self.convs.push(h, final))
 
 
 class EncoderDecoderKernel:
