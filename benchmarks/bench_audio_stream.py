@@ -78,6 +78,9 @@ def percentiles(delays: np.ndarray) -> dict:
 
 def in_process(model, samples: np.ndarray, fps: float, chunk_seconds: float) -> dict:
     """The model's AudioStream alone, fed 16 kHz chunks in real time: each frame's delay and a push's cost."""
+    warm_up = model.stream(None, fps)  # the first push imports and compiles the feature code
+    warm_up.push(samples[:16000])
+    warm_up.finish()
     stream = model.stream(None, fps)
     step = round(chunk_seconds * 16000)
     sent, delays, costs = [], [], []
