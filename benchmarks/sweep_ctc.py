@@ -2,7 +2,7 @@
 
     python benchmarks/sweep_ctc.py [--family audio-cnn] [--weights 0 0.001 0.004 0.016 0.064]
                                    [--epochs 15] [--channels 64] [--train 200] [--seeds 0 1]
-                                   [--output docs/figures/ctc_sweep]
+                                   [--output docs/figures/ctc_sweep] [--save DIR]
 
 Trains networks per CTC weight (the shipped architecture of ``--family`` from
 ``train_default.ARCHITECTURES`` with the CTC weight replaced, the epoch budget capped and,
@@ -46,6 +46,8 @@ def main() -> None:
     parser.add_argument("--train", type=int, default=None, help="training utterances [default: all]")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--save", type=Path, default=None,
+                        help="keep each network in SAVE/ctc-WEIGHT-seed-SEED (for vispeech evaluate)")
     args = parser.parse_args()
 
     with warnings.catch_warnings():
@@ -66,6 +68,9 @@ def main() -> None:
         for seed in args.seeds:
             model = create_model(family, **{**params, "ctc_weight": weight, "seed": seed})
             model.fit(training, progress=False)
+            if args.save is not None:
+                model.name = f"{family}-ctc-{weight:g}-seed-{seed}"
+                model.save(args.save / model.name)
             for split in ("validation", "test"):
                 jaw = evaluate_models(corpus.split(split), {"m": model}, channels=["jawOpen"]).models[0].scores["jawOpen"]
                 scores.setdefault(f"{split}_r", []).append(jaw["r"])
