@@ -42,6 +42,7 @@ PRETRAINED: dict[str, str] = {
     "grid-cohen-massaro": "grid_cohen_massaro",
     "grid-ohman": "grid_ohman",
     "grid-audio-cnn": "grid_audio_cnn",
+    "grid-audio-encdec": "grid_audio_encdec",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 
