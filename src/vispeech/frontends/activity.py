@@ -20,7 +20,7 @@ BAND_HZ = (250.0, 8000.0)
 """The band whose energy counts, in Hz."""
 BELOW_PEAK_DB = 40.0
 """Speech frames lie at most this far below the loudest frame."""
-ABOVE_FLOOR_DB = 10.0
+ABOVE_FLOOR_DB = 6.0
 """Speech frames lie at least this far above the noise floor."""
 SILENT_DB = -70.0
 """A clip whose loudest frame is below this level (dB re full scale) is silent."""

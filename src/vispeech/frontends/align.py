@@ -82,7 +82,7 @@ def align(audio: np.ndarray, sample_rate: int, text: str, language: str = "en",
     if method != "pocketsphinx":
         raise VispeechError(f"unknown alignment method {method!r} (use {' or '.join(METHODS)})")
     if language != "en":
-        raise VispeechError(f"pocketsphinx aligns English only (language 'en'), not {language!r}; use method='dtw'")
+        raise VispeechError(f"pocketsphinx aligns English only (language 'en'), not {language!r}; use the dtw method")
     return _pocketsphinx_align(clip, text)
 
 

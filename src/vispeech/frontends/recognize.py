@@ -7,7 +7,7 @@ Decoding covers the speech (:func:`vispeech.frontends.activity.speech_span`) wid
 ``SIL`` and its fillers (``+NSN+``, ``+SPN+``, ...) become ``sil``.
 
 Free phone decoding is much less accurate than forced alignment: on GRID its phone error
-rate against the forced alignment is around 60 % (docs/corpus.md).
+rate against the forced alignment is about 67 % (docs/corpus.md).
 """
 
 from __future__ import annotations
