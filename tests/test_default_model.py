@@ -63,11 +63,12 @@ def test_default_is_the_shipped_features_network(default):
 def test_shipped_models_load_small_and_trained(name):
     assert pretrained_path(name).parent == PRETRAINED_DIR
     folder = shipped_folder(name)
-    assert sum(p.stat().st_size for p in folder.iterdir()) < 3_000_000
     config = json.loads((folder / "config.json").read_text())
+    audio = config["input"] == "audio"  # 256-channel audio networks: about 5 MB of float32 weights
+    assert sum(p.stat().st_size for p in folder.iterdir()) < (6_000_000 if audio else 3_000_000)
     model = load_model(name)
     assert model.is_fitted and model.name == config["name"] == name and model.family == config["family"]
-    assert model.postprocessing == config["postprocessing"] == "learned-jaw"
+    assert model.postprocessing == config["postprocessing"] == ("audio" if audio else "learned-jaw")
     assert list(model.channels) == config["channels"] and model.get_params() == config["params"]
     with pytest.raises(VispeechError, match="unknown model family"):  # a shipped model is not a family
         create_model(name, hidden=3)

@@ -318,7 +318,7 @@ class AudioCNNKernel:
     def stream(self, n_inputs: int) -> AudioCNNStream:
         """An incremental forward pass over input rows of ``n_inputs`` values (:class:`AudioCNNStream`)."""
         width = n_inputs if self.fusion is None else n_inputs // len(self.fusion.weights)
-        return AudioCNNStream(self, ConvStackStream(self.encoder, width))
+        return AudioCNNStream(self, ConvStackStream(self.encoder, width), width)
 
     def _output(self, hidden: np.ndarray) -> np.ndarray:
         return (hidden @ self.out_weight + self.out_bias).astype(np.float64)
@@ -328,11 +328,14 @@ class AudioCNNStream:
     """:class:`AudioCNNKernel` frame by frame: ``push(rows, final)`` returns the outputs the
     rows made computable, equal to :meth:`AudioCNNKernel.forward` of all rows."""
 
-    def __init__(self, kernel: AudioCNNKernel, convs: ConvStackStream):
-        self.kernel, self.convs = kernel, convs
+    def __init__(self, kernel: AudioCNNKernel, convs: ConvStackStream, width: int):
+        self.kernel, self.convs, self.width = kernel, convs, width
 
     def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
-        h = rows if self.kernel.fusion is None or not len(rows) else self.kernel.fusion.forward(rows)
+        if not len(rows):
+            h = np.zeros((0, self.width), dtype=np.float32)
+        else:
+            h = rows if self.kernel.fusion is None else self.kernel.fusion.forward(rows)
         return self.kernel._output(self.convs.push(h, final))
 
 
