@@ -26,6 +26,7 @@ _MODULES = {"animate-phones": "say"}
 EXTRAS = {
     "torch": "train", "matplotlib": "train", "tqdm": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
+    "transformers": "encoder",
 }
 """Optional top-level modules → the extra that installs them."""
 
