@@ -55,14 +55,7 @@ def animate(
     phones.validate()
     check_utterance(phones.duration, len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
-    track = estimator.predict(phones, fps)
-    if postprocessing is False:
-        return track
-    if isinstance(postprocessing, PostprocessConfig):
-        config = postprocessing
-    else:
-        config = PostprocessConfig.from_preset(estimator.postprocessing)
-    return postprocess(track, phones, config)
+    return _postprocessed(estimator.predict(phones, fps), phones, postprocessing, estimator.postprocessing)
 
 
 def animate_audio(
@@ -86,13 +79,16 @@ def animate_audio(
         if phones is None:
             raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
         return animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
-    track = estimator.predict(clip, fps)
+    preset = estimator.postprocessing if phones is None else "learned-jaw"
+    return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, preset)
+
+
+def _postprocessed(track: Track, phones: PhoneSequence | None, postprocessing: PostprocessConfig | bool,
+                   preset: str) -> Track:
+    """``track`` post-processed by ``postprocessing`` (a configuration, ``True`` for ``preset``, ``False`` for none)."""
     if postprocessing is False:
         return track
-    if isinstance(postprocessing, PostprocessConfig):
-        config = postprocessing
-    else:
-        config = PostprocessConfig.from_preset(estimator.postprocessing if phones is None else "learned-jaw")
+    config = postprocessing if isinstance(postprocessing, PostprocessConfig) else PostprocessConfig.from_preset(preset)
     return postprocess(track, phones, config)
 
 
