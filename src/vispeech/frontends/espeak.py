@@ -13,12 +13,19 @@ many espeak reads out), stripped of surrounding punctuation, each from its first
 its last. espeak sometimes runs a short word into the one before ("for the"); the phones of
 both then belong to the first.
 
-espeak-ng is global state: one module-level lock serialises every call.
+espeak-ng is global state: one module-level lock serialises every call. Its wave generator
+also keeps state from one utterance to the next (the phase of its pitch flutter, its echo
+buffer, its gain control are C statics), so within one process the same text would come out
+a few samples longer or shorter each time, its phone onsets moving by up to a few ms. Every
+call therefore loads the library afresh and unloads it after (about 15 ms): the same text,
+voice and rate always give the same samples and phones, in any process and any order (what a
+batch writes equals what ``vispeech say`` writes, byte for byte).
 """
 
 from __future__ import annotations
 
 import bisect
+import _ctypes
 import ctypes
 import math
 import re
@@ -137,9 +144,13 @@ class _Engine:
         audio = np.concatenate(self.chunks) if self.chunks else np.zeros(0, np.int16)
         return audio, self.events
 
+    def close(self) -> None:
+        """Terminate espeak-ng and unload the library, so that the next engine starts from its initial state."""
+        self.lib.espeak_Terminate()
+        _ctypes.dlclose(self.lib._handle)
+
 
 _lock = threading.Lock()
-_engine: _Engine | None = None
 
 
 def synthesize(text: str, language: str = "en", rate: float = 1.0) -> Speech:
@@ -149,7 +160,6 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0) -> Speech:
     speaking-rate factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover
     ``[0, duration]`` exactly, in the language's inventory.
     """
-    global _engine
     get_inventory(language)
     if not text or not text.strip():
         raise VispeechError("text is empty")
@@ -160,10 +170,12 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0) -> Speech:
     if not MIN_RATE <= factor <= MAX_RATE:
         raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate!r}")
     with _lock:
-        if _engine is None:
-            _engine = _Engine()
-        samples, events = _engine.synthesize(text, VOICES[language], round(DEFAULT_WPM * factor))
-        sample_rate = _engine.sample_rate
+        engine = _Engine()  # fresh: see the module docstring
+        try:
+            samples, events = engine.synthesize(text, VOICES[language], round(DEFAULT_WPM * factor))
+        finally:
+            engine.close()
+        sample_rate = engine.sample_rate
     if len(samples) == 0:
         raise VispeechError("espeak-ng produced no audio for this text")
     audio = samples.astype(np.float32) / 32768.0
