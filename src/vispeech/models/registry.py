@@ -89,6 +89,32 @@ def load_model(name_or_path: str | os.PathLike) -> Estimator:
     return load_folder(Path(name_or_path))
 
 
+def saved_folder(name_or_path: str | os.PathLike) -> Path | None:
+    """The folder a model name or path is saved in (a shipped model's, or the path itself); ``None`` for a data-free family."""
+    if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
+        return pretrained_path(name_or_path)
+    if isinstance(name_or_path, str) and name_or_path in DATA_FREE:
+        return None
+    return Path(name_or_path) if os.path.isdir(name_or_path) else None
+
+
+def model_version(model: Estimator, folder: Path | None = None) -> str:
+    """16 hex digits that change whenever ``model``'s output may: vispeech's version, the model's
+    name and parameters, and the files of the ``folder`` it was loaded from (its weights)."""
+    import hashlib
+    import json
+
+    import vispeech
+
+    about = {"vispeech": vispeech.__version__, "model": model.name, "params": model.get_params()}
+    digest = hashlib.sha256(json.dumps(about, sort_keys=True, default=str).encode())
+    if folder is not None:
+        for path in sorted(folder.iterdir()):
+            if path.is_file():
+                digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def load_folder(folder: Path) -> Estimator:
     """The model saved in ``folder``, whatever its family."""
     config = read_config(folder)

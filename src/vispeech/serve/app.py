@@ -51,7 +51,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import VOICES
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
-from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, pretrained_path
+from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, listen, speak
@@ -245,14 +245,8 @@ class SpeechService:
 
     def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
         """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
-        about = {"vispeech": vispeech.__version__, "model": name, "params": model.get_params()}
-        digest = hashlib.sha256(json.dumps(about, sort_keys=True, default=str).encode())
-        if folder is not None:
-            for path in sorted(folder.iterdir()):
-                if path.is_file():
-                    digest.update(path.name.encode() + path.read_bytes())
         self.models[name] = model
-        self.versions[name] = digest.hexdigest()[:16]
+        self.versions[name] = model_version(model, folder)
 
     def _choose_stream_model(self, spec: str | None) -> str:
         if spec is None:
