@@ -5,8 +5,8 @@ The CLI (``say``, ``animate``, ``animate-phones``) and the server are thin layer
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-
 
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
@@ -142,37 +142,76 @@ def listen(
     return Utterance(text=text or "", phones=phones, track=track, audio=audio.samples, sample_rate=audio.sample_rate)
 
 
-def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None) -> list[Path]:
+OUTPUT_FILES: dict[str, str] = {
+    "wav": "speech.wav",
+    "textgrid": "phones.TextGrid",
+    "csv": "animation.csv",
+    "json": "animation.json",
+    "preview": "preview.html",
+    "oculus": "animation.visemes.csv",
+    "rhubarb": "mouth_cues.tsv",
+    "talkinghead": "animation.talkinghead.json",
+}
+"""What :func:`write_outputs` can write: format name → file name (Live Link Face CSV, vispeech
+JSON, Oculus viseme curves, Rhubarb mouth cues, TalkingHead JSON; see docs/formats.md)."""
+DEFAULT_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "csv", "json", "preview")
+"""The formats ``say``, ``animate`` and ``animate-phones`` write (those the utterance has data for)."""
+
+
+def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
+    """``formats`` as a tuple of names of :data:`OUTPUT_FILES`; :class:`VispeechError` names any other."""
+    formats = tuple(formats)
+    unknown = [f for f in formats if f not in OUTPUT_FILES]
+    if unknown or not formats:
+        what = f"unknown output format {unknown[0]!r}" if unknown else "no output format given"
+        raise VispeechError(f"{what} (use {', '.join(OUTPUT_FILES)})")
+    return formats
+
+
+def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None,
+                  formats: Iterable[str] = DEFAULT_OUTPUTS, extra: Mapping[str, str] | None = None) -> list[Path]:
     """Write an utterance's files as the folder ``out_dir`` and return their paths.
 
-    Always ``animation.csv`` (Live Link Face) and ``animation.json``; with audio also
-    ``speech.wav`` and ``preview.html``, and ``phones.TextGrid`` when it has phones too. The
-    folder is written whole beside ``out_dir`` and swapped in with one rename
+    ``formats`` names the files (:data:`OUTPUT_FILES`); by default ``animation.csv`` (Live Link
+    Face) and ``animation.json``, with audio also ``speech.wav`` and ``preview.html``, and
+    ``phones.TextGrid`` when it has phones too: a format the utterance has no data for (audio,
+    phones) is left out. ``extra`` adds text files (name → content), e.g. a batch's record of
+    the line. The folder is written whole beside ``out_dir`` and swapped in with one rename
     (:func:`vispeech.files.atomic_output_dir`), so it never holds files of two runs: phones
-    written into a folder ``say`` made leave no old wav, TextGrid or preview behind. An existing ``out_dir`` is replaced only when it holds
-    nothing but those five files; any other file in it (a folder of the user's) stops the run
-    with :class:`VispeechError`, and so does a path that is not a folder.
+    written into a folder ``say`` made leave no old wav, TextGrid or preview behind. An
+    existing ``out_dir`` is replaced only when it holds nothing but files these calls write;
+    any other file in it (a folder of the user's) stops the run with :class:`VispeechError`,
+    and so does a path that is not a folder.
     """
     from vispeech.preview import render_preview
 
+    formats = check_formats(formats)
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise VispeechError(f"output path {out_dir} exists and is not a folder")
     names: list[str] = []
-    outputs = ("speech.wav", "phones.TextGrid", "animation.csv", "animation.json", "preview.html")
-    with atomic_output_dir(out_dir, replaces=outputs) as staging:
+    extra = dict(extra or {})
+    with atomic_output_dir(out_dir, replaces=(*OUTPUT_FILES.values(), *extra)) as staging:
         wav = utterance.wav_bytes()
-        if wav is not None:
-            (staging / "speech.wav").write_bytes(wav)
-            names.append("speech.wav")
-            if utterance.phones is not None:
-                write_textgrid(utterance.phones, staging / "phones.TextGrid")
-                names.append("phones.TextGrid")
-        write_track(utterance.track, staging / "animation.csv", "livelink")
-        write_track(utterance.track, staging / "animation.json", "json", phones=utterance.phones)
-        names += ["animation.csv", "animation.json"]
-        if wav is not None:
-            html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
-            (staging / "preview.html").write_text(html, encoding="utf-8")
-            names.append("preview.html")
+        for fmt in OUTPUT_FILES:
+            name = OUTPUT_FILES[fmt]
+            if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
+                continue
+            if fmt == "wav":
+                (staging / name).write_bytes(wav)
+            elif fmt == "textgrid":
+                if wav is None or utterance.phones is None:
+                    continue
+                write_textgrid(utterance.phones, staging / name)
+            elif fmt == "json":
+                write_track(utterance.track, staging / name, "json", phones=utterance.phones)
+            elif fmt == "preview":
+                html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
+                (staging / name).write_text(html, encoding="utf-8")
+            else:
+                write_track(utterance.track, staging / name, "livelink" if fmt == "csv" else fmt)
+            names.append(name)
+        for name, text in extra.items():
+            (staging / name).write_text(text, encoding="utf-8")
+            names.append(name)
     return [out_dir / n for n in names]

@@ -1,0 +1,266 @@
+"""Batch jobs: a manifest (CSV with a header, or JSONL) or a folder of inputs, read into lines.
+
+A line animates one of three inputs, as the single-utterance commands do:
+
+- ``text`` (+ ``lang``, ``rate``): espeak-ng speech, as ``vispeech say``;
+- ``audio`` (+ ``text``, its transcript, and ``lang``): recorded speech, as ``vispeech animate``;
+- ``alignment`` (+ ``lang``, else guessed from the symbols): a phone alignment, as
+  ``vispeech animate-phones``.
+
+Every line may also set ``id`` (the name of its output folder; default its line number),
+``model``, ``fps``, ``formats`` (names of :data:`vispeech.pipeline.OUTPUT_FILES`, in CSV
+separated by spaces, commas or semicolons, in JSON a list or such a string) and
+``postprocess`` (true/false); what a line leaves out comes from the job's defaults. Paths are
+relative to the manifest's folder. In CSV an empty cell is a field left out.
+
+A folder job takes each file by its extension: ``.txt`` is a text to speak, unless an audio
+file of the same stem is there (``take.wav`` + ``take.txt``): then it is that audio's
+transcript; audio files (``.wav .flac .mp3 .ogg .opus .aiff``) are recordings; ``.TextGrid``,
+``.lab``, ``.align`` and ``.json`` are alignments. Other files and hidden ones are passed over.
+
+A line that cannot run (a missing input, a bad value, an id used before) is kept with its
+``error`` and reported, never stopping the others; only a job that cannot be read at all (no
+such manifest, no header, an unknown column) raises :class:`VispeechError`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vispeech.errors import VispeechError
+from vispeech.files import read_text
+from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
+from vispeech.limits import check_fps, check_text, parse_json
+from vispeech.phonetics.inventory import get_inventory
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, check_formats
+
+FIELDS = ("id", "text", "lang", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess")
+"""The fields a manifest line may have."""
+AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".oga", ".opus", ".aiff", ".aif")
+"""Extensions a folder job reads as recordings."""
+ALIGNMENT_SUFFIXES = (".textgrid", ".lab", ".align", ".json")
+"""Extensions a folder job reads as phone alignments (compared in lower case)."""
+MAX_LINES = 1_000_000
+"""The most lines one job may have."""
+
+_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
+_TRUE = {"1", "true", "yes", "on"}
+_FALSE = {"0", "false", "no", "off"}
+
+
+@dataclass(frozen=True)
+class JobDefaults:
+    """What a line that does not say gets: language, model (``None``: the pipeline's default
+    for its input), frame rate, output formats and post-processing."""
+
+    lang: str = "en"
+    model: str | None = None
+    fps: float = DEFAULT_FPS
+    formats: tuple[str, ...] = DEFAULT_OUTPUTS
+    postprocess: bool = True
+
+
+@dataclass(frozen=True)
+class BatchLine:
+    """One line of a job: what to animate (``kind``: text, audio or alignment) and how.
+
+    ``number`` is its 1-based place in the job (the manifest's data line, or the folder entry
+    in name order); ``error`` says why the line cannot run, ``None`` when it can. ``lang`` is
+    ``None`` for an alignment whose language is guessed from its symbols.
+    """
+
+    number: int
+    id: str
+    kind: str = "text"
+    text: str | None = None
+    lang: str | None = "en"
+    audio: Path | None = None
+    alignment: Path | None = None
+    model: str | None = None
+    fps: float = DEFAULT_FPS
+    rate: float = 1.0
+    formats: tuple[str, ...] = DEFAULT_OUTPUTS
+    postprocess: bool = True
+    error: str | None = field(default=None, compare=False)
+
+    @property
+    def source(self) -> Path | None:
+        """The input file (audio or alignment), ``None`` for a text."""
+        return self.audio if self.kind == "audio" else self.alignment
+
+
+def read_job(path: str | Path, defaults: JobDefaults = JobDefaults()) -> list[BatchLine]:
+    """The lines of the job at ``path``: a folder of inputs, a ``.csv`` or a ``.jsonl`` manifest.
+
+    Ids are checked to be unique (a repeat is an error of that line). Raises
+    :class:`VispeechError` when the job cannot be read at all.
+    """
+    path = Path(path)
+    if path.is_dir():
+        lines = _folder_lines(path, defaults)
+    elif not path.exists():
+        raise VispeechError(f"batch job {path} not found")
+    else:
+        suffix = path.suffix.lower()
+        if suffix == ".csv":
+            records = _csv_records(read_text(path, "batch manifest"), path)
+        elif suffix in (".jsonl", ".ndjson"):
+            records = _jsonl_records(read_text(path, "batch manifest"), path)
+        else:
+            raise VispeechError(f"batch job {path}: give a folder, a .csv or a .jsonl manifest")
+        lines = [_parse_line(number, record, path.parent, defaults) for number, record in records]
+    if len(lines) > MAX_LINES:
+        raise VispeechError(f"batch job {path} has {len(lines)} lines; the limit is {MAX_LINES}")
+    return _unique_ids(lines)
+
+
+def _csv_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
+    reader = csv.DictReader(io.StringIO(text.lstrip("\ufeff"), newline=""))
+    columns = [c.strip() for c in reader.fieldnames or []]
+    if not columns:
+        raise VispeechError(f"batch manifest {path} has no header line (columns: {', '.join(FIELDS)})")
+    unknown = [c for c in columns if c not in FIELDS]
+    if unknown:
+        raise VispeechError(f"batch manifest {path}: unknown column {unknown[0]!r} (columns: {', '.join(FIELDS)})")
+    if not {"text", "audio", "alignment"} & set(columns):
+        raise VispeechError(f"batch manifest {path} needs a text, audio or alignment column")
+    records = []
+    for number, row in enumerate(reader, start=1):
+        if None in row:
+            records.append((number, f"has {len(columns) + len(row[None])} cells for {len(columns)} columns"))
+            continue
+        record = {k.strip(): v for k, v in row.items() if v is not None and v.strip() != ""}
+        records.append((number, record))
+    return records
+
+
+def _jsonl_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
+    records: list[tuple[int, dict | str]] = []
+    for line in text.lstrip("\ufeff").splitlines():
+        if not line.strip():
+            continue
+        number = len(records) + 1
+        try:
+            record = parse_json(line, f"line {number} of {path.name}")
+        except VispeechError as exc:
+            records.append((number, str(exc)))
+            continue
+        if not isinstance(record, dict):
+            records.append((number, "is not a JSON object"))
+            continue
+        unknown = [k for k in record if k not in FIELDS]
+        if unknown:
+            records.append((number, f"has an unknown field {unknown[0]!r} (fields: {', '.join(FIELDS)})"))
+            continue
+        records.append((number, {k: v for k, v in record.items() if v is not None}))
+    return records
+
+
+def _folder_lines(folder: Path, defaults: JobDefaults) -> list[BatchLine]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    audio_stems = {p.stem for p in files if p.suffix.lower() in AUDIO_SUFFIXES}
+    records: list[dict] = []
+    for p in files:
+        suffix = p.suffix.lower()
+        if suffix in AUDIO_SUFFIXES:
+            record = {"id": p.stem, "audio": p.name}
+            transcript = p.with_suffix(".txt")
+            if transcript.is_file():
+                record["text"] = read_text(transcript, "transcript").strip()
+            records.append(record)
+        elif suffix == ".txt" and p.stem not in audio_stems:
+            records.append({"id": p.stem, "text": read_text(p, "text").strip()})
+        elif suffix in ALIGNMENT_SUFFIXES:
+            records.append({"id": p.stem, "alignment": p.name})
+    return [_parse_line(number, record, folder, defaults) for number, record in enumerate(records, start=1)]
+
+
+def _parse_line(number: int, record: dict | str, base: Path, defaults: JobDefaults) -> BatchLine:
+    """A :class:`BatchLine` from one manifest record (a problem with it becomes the line's error)."""
+    fallback = f"{number:05d}"
+    if isinstance(record, str):
+        return BatchLine(number, fallback, error=record)
+    raw_id = record.get("id", fallback)
+    line_id = raw_id if isinstance(raw_id, str) else str(raw_id)
+    try:
+        return _checked_line(number, line_id, record, base, defaults)
+    except VispeechError as exc:
+        return BatchLine(number, line_id, error=str(exc))
+
+
+def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults: JobDefaults) -> BatchLine:
+    if not _ID.fullmatch(line_id):
+        raise VispeechError(f"id {line_id!r} is not a folder name (letters, digits, '.', '_', '-'; at most 128)")
+    text, audio, alignment = (record.get(k) for k in ("text", "audio", "alignment"))
+    for key, value in (("text", text), ("audio", audio), ("alignment", alignment), ("lang", record.get("lang")),
+                       ("model", record.get("model"))):
+        if value is not None and not isinstance(value, str):
+            raise VispeechError(f"{key} must be a string, got {json.dumps(value)[:40]}")
+    if audio is not None and alignment is not None:
+        raise VispeechError("give audio or alignment, not both")
+    if alignment is not None and text is not None:
+        raise VispeechError("an alignment line takes no text (its phones are timed already)")
+    if audio is None and alignment is None and text is None:
+        raise VispeechError("the line has no text, audio or alignment")
+    kind = "audio" if audio is not None else "alignment" if alignment is not None else "text"
+    if text is not None:
+        if not text.strip():
+            raise VispeechError("text is empty")
+        check_text(text)
+    lang = record.get("lang", None if kind == "alignment" else defaults.lang)
+    if lang is not None:
+        get_inventory(lang)
+    fps = check_fps(_number(record.get("fps", defaults.fps), "fps"))
+    rate = _number(record.get("rate", 1.0), "rate")
+    if not MIN_RATE <= rate <= MAX_RATE:
+        raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate:g}")
+    if "rate" in record and kind != "text":
+        raise VispeechError("rate is for text lines (espeak-ng's speaking rate)")
+    formats = record.get("formats", defaults.formats)
+    if isinstance(formats, str):
+        formats = [f for f in re.split(r"[\s,;]+", formats) if f]
+    if not isinstance(formats, list | tuple) or not all(isinstance(f, str) for f in formats):
+        raise VispeechError("formats must be a list of format names or a string of them")
+    return BatchLine(
+        number=number, id=line_id, kind=kind, text=text, lang=lang,
+        audio=None if audio is None else base / audio, alignment=None if alignment is None else base / alignment,
+        model=record.get("model", defaults.model), fps=fps, rate=rate, formats=check_formats(formats),
+        postprocess=_flag(record.get("postprocess", defaults.postprocess)),
+    )
+
+
+def _number(value, what: str) -> float:
+    try:
+        number = float(value) if not isinstance(value, bool) else math.nan
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number):
+        raise VispeechError(f"{what} must be a number, got {str(value)[:40]!r}")
+    return number
+
+
+def _flag(value) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in _TRUE | _FALSE:
+        return value.strip().lower() in _TRUE
+    raise VispeechError(f"postprocess must be true or false, got {str(value)[:40]!r}")
+
+
+def _unique_ids(lines: list[BatchLine]) -> list[BatchLine]:
+    """Lines with each id once: a later line reusing an id gets an error naming the first."""
+    first: dict[str, int] = {}
+    unique = []
+    for line in lines:
+        if line.id in first:
+            line = BatchLine(line.number, line.id, error=f"id {line.id!r} is used by line {first[line.id]} already")
+        elif line.error is None:
+            first[line.id] = line.number
+        unique.append(line)
+    return unique

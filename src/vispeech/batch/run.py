@@ -1,0 +1,271 @@
+"""Running a batch: every line's outputs in a folder of its own, in parallel, resumable.
+
+Each line is written as ``OUT/<id>/`` (the files ``say``, ``animate`` or ``animate-phones``
+write, in the line's formats) plus ``batch.json``, its record: the key and what went in. The
+folder is swapped in whole (:func:`vispeech.files.atomic_output_dir`), so a batch killed at
+any moment leaves each line's folder complete, old or new, never half-written.
+
+The key is a digest of everything the output depends on: vispeech's version, the input (the
+text, or the bytes of the audio or alignment file), the language, the model's version
+(:func:`vispeech.models.registry.model_version`: its parameters and weight files), frame
+rate, speaking rate, formats and post-processing. A line whose folder holds a record with its
+key and every file it names is left alone; so a rerun redoes exactly the lines that changed or
+never finished. ``OUT/index.jsonl`` lists every line of the last run (written at its end).
+
+Lines run on a pool of processes, one per core by default; each process loads a model once
+(with the ``fork`` start method the workers share the models the parent loaded). A line that
+fails is reported with its message and never stops the others.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import vispeech
+from vispeech.batch.job import BatchLine, JobDefaults, read_job
+from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_file
+from vispeech.models.contract import Estimator
+from vispeech.models.registry import load_model, model_version, saved_folder
+from vispeech.pipeline import (
+    DEFAULT_AUDIO_MODEL,
+    DEFAULT_MODEL,
+    OUTPUT_FILES,
+    Utterance,
+    animate,
+    listen,
+    speak,
+    write_outputs,
+)
+
+RECORD = "batch.json"
+"""The file in each line's folder that records its key and inputs."""
+INDEX = "index.jsonl"
+"""The file in the output folder that lists every line of the last run."""
+
+_models: dict[str, Estimator] = {}  # spec → model, per process
+
+
+@dataclass(frozen=True)
+class LineResult:
+    """What became of one line: ``status`` is ``written``, ``unchanged`` (its outputs were up
+    to date) or ``failed`` (``error`` says why); ``files`` are the names in its folder."""
+
+    number: int
+    id: str
+    status: str
+    key: str | None = None
+    files: tuple[str, ...] = ()
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass
+class BatchReport:
+    """The results of a run, in line order, its wall time (s) and the index it wrote."""
+
+    results: list[LineResult] = field(default_factory=list)
+    seconds: float = 0.0
+    index: Path | None = None
+
+    def count(self, status: str) -> int:
+        """How many lines ended with ``status``."""
+        return sum(r.status == status for r in self.results)
+
+    @property
+    def failed(self) -> list[LineResult]:
+        """The lines that failed."""
+        return [r for r in self.results if r.status == "failed"]
+
+
+def model_spec(line: BatchLine) -> str:
+    """The model a line runs: its own, else the default for its input (an audio model for
+    audio without a transcript, else the default phone model)."""
+    if line.model is not None:
+        return line.model
+    return DEFAULT_AUDIO_MODEL if line.kind == "audio" and line.text is None else DEFAULT_MODEL
+
+
+def run_batch(
+    job: str | os.PathLike | Sequence[BatchLine],
+    out_dir: str | os.PathLike,
+    *,
+    defaults: JobDefaults = JobDefaults(),
+    workers: int | None = None,
+    force: bool = False,
+    progress: Callable[[LineResult], None] | None = None,
+) -> BatchReport:
+    """Animate every line of ``job`` (a path for :func:`~vispeech.batch.job.read_job`, or its
+    lines) into ``out_dir/<id>/`` and write ``out_dir/index.jsonl``.
+
+    ``workers`` processes run the lines (default: one per core; 1 runs them in this process);
+    ``force`` redoes lines whose outputs are up to date; ``progress`` is called with each
+    line's result as it ends. Raises :class:`VispeechError` only when the job cannot be read
+    or ``out_dir`` cannot be made; every problem of a line is in its result.
+    """
+    started = time.perf_counter()
+    lines = read_job(job, defaults) if isinstance(job, str | os.PathLike) else list(job)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise VispeechError(f"output path {out} exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise VispeechError(f"cannot make output folder {out}: {exc.strerror or exc}") from None
+
+    results: dict[int, LineResult] = {}
+    todo: list[tuple[BatchLine, str, str]] = []  # line, key, record
+    versions = _load_models({model_spec(line) for line in lines if line.error is None})
+    for line in lines:
+        result, key, record = _plan(line, out, versions, force)
+        if result is None:
+            todo.append((line, key, record))
+        else:
+            results[line.number] = result
+            if progress is not None:
+                progress(result)
+    for result in _execute(todo, out, workers):
+        results[result.number] = result
+        if progress is not None:
+            progress(result)
+
+    report = BatchReport([results[line.number] for line in lines], time.perf_counter() - started, out / INDEX)
+    with atomic_output_file(report.index) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            for result in report.results:
+                f.write(json.dumps(asdict(result), ensure_ascii=False) + "\n")
+    return report
+
+
+def _load_models(specs: set[str]) -> dict[str, str | VispeechError]:
+    """Load each model once (kept for this process and forked workers): spec → its version, or the error loading it."""
+    versions: dict[str, str | VispeechError] = {}
+    for spec in sorted(specs):
+        try:
+            if spec not in _models:
+                _models[spec] = load_model(spec)
+            model = _models[spec]
+            model.check_fitted()
+            versions[spec] = model_version(model, saved_folder(spec))
+        except VispeechError as exc:
+            versions[spec] = exc
+    return versions
+
+
+def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[LineResult | None, str, str]:
+    """``(result, key, record)``: a result when the line needs no run (it failed already, or is up to date)."""
+    if line.error is not None:
+        return LineResult(line.number, line.id, "failed", error=line.error), "", ""
+    version = versions[model_spec(line)]
+    if isinstance(version, VispeechError):
+        return LineResult(line.number, line.id, "failed", error=str(version)), "", ""
+    try:
+        digest = None if line.source is None else _file_digest(line.source, line.kind)
+    except VispeechError as exc:
+        return LineResult(line.number, line.id, "failed", error=str(exc)), "", ""
+    inputs = {"kind": line.kind, "text": line.text, "lang": line.lang,
+              "source": None if line.source is None else str(line.source), "source_sha256": digest}
+    settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
+                "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess}
+    about = {"vispeech": vispeech.__version__, **inputs, **settings, "source": None}
+    key = hashlib.sha256(json.dumps(about, sort_keys=True).encode()).hexdigest()[:32]
+    record = json.dumps({"format": "vispeech-batch-line", "version": 1, "id": line.id, "key": key,
+                         "vispeech": vispeech.__version__, **inputs, **settings}, indent=1) + "\n"
+    if not force and _up_to_date(out / line.id, key, expected_files(line)):
+        return LineResult(line.number, line.id, "unchanged", key, expected_files(line)), key, record
+    return None, key, record
+
+
+def expected_files(line: BatchLine) -> tuple[str, ...]:
+    """The names a line's folder holds once written: its formats that its input has data for
+    (audio for ``speech.wav`` and ``preview.html``, audio and phones for ``phones.TextGrid``), and the record."""
+    has_audio = line.kind != "alignment"
+    has_phones = line.kind != "audio" or line.text is not None
+    names = [name for fmt, name in OUTPUT_FILES.items() if fmt in line.formats
+             and (has_audio or fmt not in ("wav", "preview", "textgrid")) and (has_phones or fmt != "textgrid")]
+    return tuple(sorted([*names, RECORD]))
+
+
+def _file_digest(path: Path, kind: str) -> str:
+    if not path.is_file():
+        raise VispeechError(f"{kind} file {path} not found" if not path.exists() else f"{kind} {path} is not a file")
+    try:
+        with open(path, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except OSError as exc:
+        raise VispeechError(f"cannot read {kind} {path}: {exc.strerror or exc}") from None
+
+
+def _up_to_date(folder: Path, key: str, names: tuple[str, ...]) -> bool:
+    """True when ``folder``'s record has ``key`` and every file in ``names`` is there."""
+    try:
+        record = json.loads((folder / RECORD).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(record, dict) and record.get("key") == key and all((folder / n).is_file() for n in names)
+
+
+def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | None):
+    """Run the lines, yielding each result as it ends (in this process when ``workers`` is 1 or there is one line)."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
+    if workers == 1:
+        for line, key, record in todo:
+            yield _run_line(line, out, key, record)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        pending = {pool.submit(_run_line, line, out, key, record): line for line, key, record in todo}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                line = pending.pop(future)
+                try:
+                    yield future.result()
+                except Exception as exc:  # a worker that died (killed, out of memory): the line failed
+                    yield LineResult(line.number, line.id, "failed", error=f"worker failed: {type(exc).__name__}: {exc}")
+
+
+def _run_line(line: BatchLine, out: Path, key: str, record: str) -> LineResult:
+    """Animate one line and write its folder; any error becomes the line's failed result."""
+    started = time.perf_counter()
+    try:
+        utterance, title = _animate(line)
+        paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record})
+        return LineResult(line.number, line.id, "written", key, tuple(sorted(p.name for p in paths)),
+                          seconds=time.perf_counter() - started)
+    except VispeechError as exc:
+        error = str(exc)
+    except OSError as exc:
+        error = f"{exc.strerror or exc}" + (f" ({exc.filename})" if getattr(exc, "filename", None) else "")
+    except Exception as exc:  # noqa: BLE001 (one line's unexpected failure must not stop the batch)
+        error = f"internal error: {type(exc).__name__}: {exc}"
+    return LineResult(line.number, line.id, "failed", key, error=error, seconds=time.perf_counter() - started)
+
+
+def _animate(line: BatchLine) -> tuple[Utterance, str]:
+    """The utterance of a line and the title of its preview."""
+    spec = model_spec(line)
+    model = _models.get(spec)
+    if model is None:
+        model = _models[spec] = load_model(spec)
+    if line.kind == "text":
+        return speak(line.text, line.lang, model=model, rate=line.rate, fps=line.fps,
+                     postprocessing=line.postprocess), line.text
+    if line.kind == "audio":
+        from vispeech.frontends.audio import AudioClip
+
+        clip = AudioClip.read(line.audio)
+        return listen(clip, line.text, line.lang or "en", model=model, fps=line.fps,
+                      postprocessing=line.postprocess), line.text or line.audio.name
+    from vispeech.alignment.formats import read_alignment
+
+    phones = read_alignment(line.alignment, line.lang)
+    track = animate(phones, model, line.fps, line.postprocess)
+    return Utterance(phones=phones, track=track), line.alignment.name
+

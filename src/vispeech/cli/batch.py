@@ -1,0 +1,63 @@
+"""``vispeech batch JOB -o OUT``: many lines at once, in parallel, resumable."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import click
+
+from vispeech.cli import lang_option, main
+from vispeech.models.registry import RUNNABLE
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
+
+
+@main.command()
+@click.argument("job", type=click.Path(path_type=Path))
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Output folder: one folder per line, and index.jsonl.")
+@lang_option("Language of lines that do not say: sv or en.")
+@click.option("--model", "-m", default=None,
+              help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
+                   "[default: grid-tdnn; grid-audio-encdec for audio without text].")
+@click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second of lines that do not say.")
+@click.option("--formats", default=",".join(DEFAULT_OUTPUTS), show_default=True,
+              help=f"Files of lines that do not say, comma-separated: {', '.join(OUTPUT_FILES)}.")
+@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings (lines that do not say).")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+              help="Worker processes [default: one per core].")
+@click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
+          jobs: int | None, force: bool, quiet: bool) -> None:
+    """Animate every line of JOB into OUTPUT/<id>/.
+
+    JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
+    alignments) or a manifest: CSV with a header, or JSONL, with the fields id, text, lang,
+    audio, alignment, model, fps, rate, formats, postprocess (docs/batch.md). A rerun redoes
+    only the lines whose input or settings changed. A failed line is reported at the end and
+    never stops the others; the exit code is then 1.
+    """
+    from vispeech.batch import JobDefaults, read_job, run_batch
+    from vispeech.limits import check_fps
+    from vispeech.pipeline import check_formats
+
+    defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),
+                           formats=check_formats(f for f in formats.split(",") if f.strip()),
+                           postprocess=not no_postprocess)
+    lines = read_job(job, defaults)
+    workers = jobs or os.cpu_count() or 1
+    click.echo(f"{len(lines)} lines from {job}, {workers} worker{'s' * (workers > 1)} -> {out_dir}/", err=True)
+    with click.progressbar(length=len(lines), label="animating", show_eta=True, show_pos=True,
+                           file=sys.stderr, hidden=quiet,
+                           item_show_func=lambda result: result and result.id) as bar:
+        report = run_batch(lines, out_dir, workers=workers, force=force,
+                           progress=lambda result: bar.update(1, result))
+    rate = len(lines) / report.seconds if report.seconds > 0 else 0.0
+    click.echo(f"{report.count('written')} written, {report.count('unchanged')} unchanged, "
+               f"{report.count('failed')} failed in {report.seconds:.1f} s ({rate:.1f} lines/s) -> {report.index}")
+    for result in report.failed:
+        click.echo(f"failed: line {result.number} ({result.id}): {result.error}", err=True)
+    if report.failed:
+        sys.exit(1)
