@@ -6,6 +6,7 @@ The CLI (``say``, ``animate``, ``animate-phones``) and the server are thin layer
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from pathlib import Path
 
 from vispeech.alignment.formats import write_textgrid
@@ -130,16 +131,23 @@ def listen(
     own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster.
     """
     check_fps(fps)
+    utterance = hear(clip, text, language)
+    default = DEFAULT_AUDIO_MODEL if utterance.phones is None else DEFAULT_MODEL
+    track = animate_audio(clip, default if model is None else model, fps, postprocessing, phones=utterance.phones)
+    return replace(utterance, track=track)
+
+
+def hear(clip: AudioClip, text: str | None = None, language: str = "en") -> Utterance:
+    """The first half of :func:`listen`: the recording's utterance without a track, its audio at
+    most :data:`MAX_OUTPUT_SAMPLE_RATE` and, with ``text``, the transcript's aligned phones."""
     phones = None
     if text is not None:
         from vispeech.frontends.align import align
 
         check_text(text)
         phones = align(clip.samples, clip.sample_rate, text, language)
-    default = DEFAULT_AUDIO_MODEL if phones is None else DEFAULT_MODEL
-    track = animate_audio(clip, default if model is None else model, fps, postprocessing, phones=phones)
     audio = clip.resampled(min(clip.sample_rate, MAX_OUTPUT_SAMPLE_RATE))
-    return Utterance(text=text or "", phones=phones, track=track, audio=audio.samples, sample_rate=audio.sample_rate)
+    return Utterance(text=text or "", phones=phones, audio=audio.samples, sample_rate=audio.sample_rate)
 
 
 OUTPUT_FILES: dict[str, str] = {

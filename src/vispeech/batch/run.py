@@ -25,7 +25,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import vispeech
@@ -40,8 +40,8 @@ from vispeech.pipeline import (
     OUTPUT_FILES,
     Utterance,
     animate,
-    listen,
-    speak,
+    animate_audio,
+    hear,
     write_outputs,
 )
 
@@ -49,6 +49,8 @@ RECORD = "batch.json"
 """The file in each line's folder that records its key and inputs."""
 INDEX = "index.jsonl"
 """The file in the output folder that lists every line of the last run."""
+BACKENDS = ("local", "ray")
+"""Where lines run: a local pool of processes, or a Ray cluster."""
 
 _models: dict[str, Estimator] = {}  # spec → model, per process
 
@@ -99,6 +101,8 @@ def run_batch(
     *,
     defaults: JobDefaults = JobDefaults(),
     workers: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
     force: bool = False,
     progress: Callable[[LineResult], None] | None = None,
 ) -> BatchReport:
@@ -106,11 +110,14 @@ def run_batch(
     lines) into ``out_dir/<id>/`` and write ``out_dir/index.jsonl``.
 
     ``workers`` processes run the lines (default: one per core; 1 runs them in this process);
-    ``force`` redoes lines whose outputs are up to date; ``progress`` is called with each
+    ``backend="ray"`` runs them on a Ray cluster instead (``address``; default a local instance
+    of ``workers`` CPUs; :mod:`vispeech.batch.cluster`), with the same outputs; ``force`` redoes lines whose outputs are up to date; ``progress`` is called with each
     line's result as it ends. Raises :class:`VispeechError` only when the job cannot be read
     or ``out_dir`` cannot be made; every problem of a line is in its result.
     """
     started = time.perf_counter()
+    if backend not in BACKENDS:
+        raise VispeechError(f"unknown batch backend {backend!r} (use {' or '.join(BACKENDS)})")
     lines = read_job(job, defaults) if isinstance(job, str | os.PathLike) else list(job)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -131,7 +138,7 @@ def run_batch(
             results[line.number] = result
             if progress is not None:
                 progress(result)
-    for result in _execute(todo, out, workers):
+    for result in _execute(todo, out, workers, backend, address):
         results[result.number] = result
         if progress is not None:
             progress(result)
@@ -162,14 +169,14 @@ def _load_models(specs: set[str]) -> dict[str, str | VispeechError]:
 def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[LineResult | None, str, str]:
     """``(result, key, record)``: a result when the line needs no run (it failed already, or is up to date)."""
     if line.error is not None:
-        return LineResult(line.number, line.id, "failed", error=line.error), "", ""
+        return failed(line, None, line.error), "", ""
     version = versions[model_spec(line)]
     if isinstance(version, VispeechError):
-        return LineResult(line.number, line.id, "failed", error=str(version)), "", ""
+        return failed(line, None, version), "", ""
     try:
         digest = None if line.source is None else _file_digest(line.source, line.kind)
     except VispeechError as exc:
-        return LineResult(line.number, line.id, "failed", error=str(exc)), "", ""
+        return failed(line, None, exc), "", ""
     inputs = {"kind": line.kind, "text": line.text, "lang": line.lang,
               "source": None if line.source is None else str(line.source), "source_sha256": digest}
     settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
@@ -212,9 +219,19 @@ def _up_to_date(folder: Path, key: str, names: tuple[str, ...]) -> bool:
     return isinstance(record, dict) and record.get("key") == key and all((folder / n).is_file() for n in names)
 
 
-def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | None):
-    """Run the lines, yielding each result as it ends (in this process when ``workers`` is 1 or there is one line)."""
-    workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
+def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | None, backend: str,
+             address: str | None):
+    """Run the lines, yielding each result as it ends: on Ray (:mod:`vispeech.batch.cluster`), in a
+    pool of processes, or in this process when ``workers`` is 1 or there is one line."""
+    workers = max(1, workers or os.cpu_count() or 1)
+    if not todo:
+        return
+    if backend == "ray":
+        from vispeech.batch.cluster import execute_on_ray
+
+        yield from execute_on_ray(todo, out, workers, address)
+        return
+    workers = min(workers, len(todo) or 1)
     if workers == 1:
         for line, key, record in todo:
             yield _run_line(line, out, key, record)
@@ -228,44 +245,75 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
                 try:
                     yield future.result()
                 except Exception as exc:  # a worker that died (killed, out of memory): the line failed
-                    yield LineResult(line.number, line.id, "failed", error=f"worker failed: {type(exc).__name__}: {exc}")
+                    yield failed(line, key=None, error=f"worker failed: {type(exc).__name__}: {exc}")
 
 
-def _run_line(line: BatchLine, out: Path, key: str, record: str) -> LineResult:
-    """Animate one line and write its folder; any error becomes the line's failed result."""
-    started = time.perf_counter()
-    try:
-        utterance, title = _animate(line)
-        paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record})
-        return LineResult(line.number, line.id, "written", key, tuple(sorted(p.name for p in paths)),
-                          seconds=time.perf_counter() - started)
-    except VispeechError as exc:
-        error = str(exc)
-    except OSError as exc:
-        error = f"{exc.strerror or exc}" + (f" ({exc.filename})" if getattr(exc, "filename", None) else "")
-    except Exception as exc:  # noqa: BLE001 (one line's unexpected failure must not stop the batch)
-        error = f"internal error: {type(exc).__name__}: {exc}"
-    return LineResult(line.number, line.id, "failed", key, error=error, seconds=time.perf_counter() - started)
+@dataclass
+class Prepared:
+    """A line's inputs made ready for its model: the utterance without its track (text, phones,
+    audio) and, for a recording, its clip; the I/O and feature half of a line."""
+
+    utterance: Utterance
+    clip: object | None = None
 
 
-def _animate(line: BatchLine) -> tuple[Utterance, str]:
-    """The utterance of a line and the title of its preview."""
-    spec = model_spec(line)
-    model = _models.get(spec)
-    if model is None:
-        model = _models[spec] = load_model(spec)
+def prepare(line: BatchLine) -> Prepared:
+    """Read, synthesise or align what ``line`` animates (espeak-ng speech, a recording and its
+    alignment, an alignment file)."""
     if line.kind == "text":
-        return speak(line.text, line.lang, model=model, rate=line.rate, fps=line.fps,
-                     postprocessing=line.postprocess), line.text
+        from vispeech.frontends.espeak import synthesize
+
+        speech = synthesize(line.text, line.lang, rate=line.rate)
+        return Prepared(Utterance(text=line.text, phones=speech.phones, audio=speech.audio,
+                                  sample_rate=speech.sample_rate))
     if line.kind == "audio":
         from vispeech.frontends.audio import AudioClip
 
         clip = AudioClip.read(line.audio)
-        return listen(clip, line.text, line.lang or "en", model=model, fps=line.fps,
-                      postprocessing=line.postprocess), line.text or line.audio.name
+        return Prepared(hear(clip, line.text, line.lang or "en"), clip)
     from vispeech.alignment.formats import read_alignment
 
-    phones = read_alignment(line.alignment, line.lang)
-    track = animate(phones, model, line.fps, line.postprocess)
-    return Utterance(phones=phones, track=track), line.alignment.name
+    return Prepared(Utterance(phones=read_alignment(line.alignment, line.lang)))
 
+
+def animate_prepared(line: BatchLine, prepared: Prepared, model: Estimator | None = None) -> Utterance:
+    """The utterance of a prepared line with its track, animated by ``model`` (default: the line's, loaded once per process)."""
+    if model is None:
+        spec = model_spec(line)
+        if spec not in _models:
+            _models[spec] = load_model(spec)
+        model = _models[spec]
+    utterance = prepared.utterance
+    if prepared.clip is not None:
+        track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
+    else:
+        track = animate(utterance.phones, model, line.fps, line.postprocess)
+    return replace(utterance, track=track)
+
+
+def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:
+    """Write a line's folder (its formats and its record) as one swap; the names written."""
+    title = line.text or (line.source.name if line.source is not None else None)
+    paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record})
+    return tuple(sorted(p.name for p in paths))
+
+
+def failed(line: BatchLine, key: str | None, error: BaseException | str, seconds: float = 0.0) -> LineResult:
+    """The failed result of a line, with a one-line message for ``error``."""
+    if isinstance(error, VispeechError):
+        error = str(error)
+    elif isinstance(error, OSError):
+        error = f"{error.strerror or error}" + (f" ({error.filename})" if getattr(error, "filename", None) else "")
+    elif isinstance(error, BaseException):
+        error = f"internal error: {type(error).__name__}: {error}"
+    return LineResult(line.number, line.id, "failed", key, error=error, seconds=seconds)
+
+
+def _run_line(line: BatchLine, out: Path, key: str, record: str) -> LineResult:
+    """Prepare, animate and write one line; any error becomes the line's failed result."""
+    started = time.perf_counter()
+    try:
+        files = write_line(line, out, animate_prepared(line, prepare(line)), key, record)
+    except Exception as exc:  # noqa: BLE001 (one line's failure must not stop the batch)
+        return failed(line, key, exc, time.perf_counter() - started)
+    return LineResult(line.number, line.id, "written", key, files, seconds=time.perf_counter() - started)
