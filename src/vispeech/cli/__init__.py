@@ -27,6 +27,7 @@ EXTRAS = {
     "torch": "train", "matplotlib": "train", "tqdm": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
     "transformers": "encoder",
+    "ray": "ray",
 }
 """Optional top-level modules → the extra that installs them."""
 

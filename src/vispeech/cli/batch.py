@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import lang_option, main
+from vispeech.errors import VispeechError
 from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
 
@@ -27,10 +28,14 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings (lines that do not say).")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
               help="Worker processes [default: one per core].")
+@click.option("--backend", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="Where lines run: a local pool of processes, or Ray (the ray extra).")
+@click.option("--address", default=None,
+              help="With --backend ray: the cluster to join (HEAD:6379 or auto) [default: a local Ray instance].")
 @click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
-          jobs: int | None, force: bool, quiet: bool) -> None:
+          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool) -> None:
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
@@ -47,12 +52,17 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
                            formats=check_formats(f for f in formats.split(",") if f.strip()),
                            postprocess=not no_postprocess)
     lines = read_job(job, defaults)
+    if address is not None and backend != "ray":
+        raise VispeechError("--address is for --backend ray")
+    if backend == "ray":
+        import ray  # noqa: F401 (an error naming the extra before any work)
     workers = jobs or os.cpu_count() or 1
-    click.echo(f"{len(lines)} lines from {job}, {workers} worker{'s' * (workers > 1)} -> {out_dir}/", err=True)
+    where = f" on Ray ({address or 'a local instance'})" if backend == "ray" else ""
+    click.echo(f"{len(lines)} lines from {job}, {workers} worker{'s' * (workers > 1)}{where} -> {out_dir}/", err=True)
     with click.progressbar(length=len(lines), label="animating", show_eta=True, show_pos=True,
                            file=sys.stderr, hidden=quiet,
                            item_show_func=lambda result: result and result.id) as bar:
-        report = run_batch(lines, out_dir, workers=workers, force=force,
+        report = run_batch(lines, out_dir, workers=workers, backend=backend, address=address, force=force,
                            progress=lambda result: bar.update(1, result))
     rate = len(lines) / report.seconds if report.seconds > 0 else 0.0
     click.echo(f"{report.count('written')} written, {report.count('unchanged')} unchanged, "
