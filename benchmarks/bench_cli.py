@@ -10,8 +10,9 @@ Times, as the median (and minimum) wall time of N runs of a fresh process each:
   :func:`vispeech.alignment.formats.write_alignment`);
 - ``vispeech say "SENTENCE" -o DIR``: the same sentence spoken by espeak-ng;
 - espeak-ng's own synthesis of that sentence in-process
-  (:func:`vispeech.frontends.espeak.synthesize`): the first call in a process (loads the
-  library and the voice, as ``say`` does once) and later calls.
+  (:func:`vispeech.frontends.espeak.synthesize`): the first call in a process and later
+  calls (every call loads the library and the voice afresh, so that a text always sounds
+  the same; later calls find the files in the page cache).
 
 Targets (issue 7): animate-phones ≤ 0.6 s; say ≤ 0.6 s plus espeak-ng's first-call time.
 Every process is pinned to one CPU with OpenMP/OpenBLAS/MKL threads set to 1.
