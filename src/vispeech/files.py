@@ -104,6 +104,7 @@ _RENAME_EXCHANGE = 2
 _SYS_RENAMEAT2 = {"x86_64": 316, "amd64": 316, "aarch64": 276, "arm64": 276}
 _swap_function: Any = None
 _cleaned: set[str] = set()
+_staging: set[str] = set()  # folders atomic_output_dir is writing in this process
 
 
 def _exchange_function() -> Any:
@@ -320,6 +321,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
             key = lock_name[: -len(".lock")]
             staging, complete = Path(f"{key}.tmp"), Path(f"{key}.new")
             os.mkdir(staging)
+            _staging.add(str(staging))
     except OSError as exc:
         if lock_fd is not None:
             os.close(lock_fd)
@@ -360,6 +362,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:
+        _staging.discard(str(staging))
         aside = Path(f"{key}.old")
         if aside.is_dir() and not os.path.lexists(target):
             try:
@@ -380,10 +383,15 @@ def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
     The temporary file (``.vispeech-*.part`` in the same folder) is fsync-ed before the
     rename, so ``path`` is always the old complete file or the new complete one; a block that
     raises removes it, and what a killed run left is removed by the next write into that
-    folder (once per process and folder; only files no live process holds).
+    folder (once per process and folder; only files no live process holds). Inside a folder
+    that :func:`atomic_output_dir` is writing, the file is written in place: nobody sees that
+    folder before it is fsync-ed whole and swapped in.
     """
     target = Path(path)
     parent = target.parent
+    if os.path.realpath(parent) in _staging:
+        yield target
+        return
     fd = None
     try:
         parent.mkdir(parents=True, exist_ok=True)
