@@ -109,7 +109,7 @@ def speech_messages(
     samples_done = frames_done = seq = 0
     sample_rate = None
     for clause in clauses:
-        speech = synthesize(clause, language, rate)
+        speech = synthesize(clause, language, rate, reproducible=False)  # latency first: see espeak's docstring
         track = animate(speech.phones, model, fps).select(channels)
         messages: list[dict] = []
         if sample_rate is None:
