@@ -55,12 +55,26 @@ def test_ict_head_animation(tmp_path, shared_dir):
     write_gltf_animation(track, base, tmp_path / "head.glb")
     original = pygltflib.GLTF2().load(str(base))
     gltf = pygltflib.GLTF2().load(str(tmp_path / "head.glb"))
-    # The compressed, quantized model passes through untouched.
-    assert gltf.binary_blob()[:len(original.binary_blob())] == original.binary_blob()
-    assert gltf.extensionsRequired == ["KHR_mesh_quantization", "EXT_meshopt_compression"]
-    assert len(gltf.buffers) == 2 and gltf.buffers[1].extensions == original.buffers[1].extensions
-    assert gltf.buffers[0].byteLength == len(gltf.binary_blob())
+    # The meshopt-compressed views are decoded into one plain buffer (importers without the
+    # extension, Blender's among them, open it); the quantization stays.
+    assert "EXT_meshopt_compression" in original.extensionsRequired
+    assert gltf.extensionsUsed == gltf.extensionsRequired == ["KHR_mesh_quantization"]
+    assert len(gltf.buffers) == 1 and gltf.buffers[0].byteLength == len(gltf.binary_blob())
     assert len(gltf.accessors) == len(original.accessors) + 2
+    blob = gltf.binary_blob()
+    for view, before in zip(gltf.bufferViews, original.bufferViews):
+        ext = before.extensions["EXT_meshopt_compression"]
+        assert not view.extensions and view.buffer == 0 and view.byteLength == ext["count"] * ext["byteStride"]
+    primitive = gltf.meshes[0].primitives[0]
+    for accessor_index in (primitive.attributes.POSITION, primitive.targets[0]["POSITION"]):
+        accessor = gltf.accessors[accessor_index]
+        view = gltf.bufferViews[accessor.bufferView]
+        dtype = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5126: "<f4"}[accessor.componentType]
+        rows = np.frombuffer(blob, np.uint8, accessor.count * view.byteStride,
+                             view.byteOffset + (accessor.byteOffset or 0)).reshape(accessor.count, view.byteStride)
+        size = np.dtype(dtype).itemsize
+        values = rows[:, :3 * size].copy().view(dtype).reshape(accessor.count, 3)
+        assert values.min(axis=0).tolist() == accessor.min and values.max(axis=0).tolist() == accessor.max
 
     (animation,) = gltf.animations
     assert animation.name == "speech"
@@ -109,3 +123,21 @@ def test_bad_base_files(tmp_path):
     (tmp_path / "text.glb").write_text("{}")
     with pytest.raises(VispeechError, match="not a binary glTF"):
         write_gltf_animation(speech_track(), tmp_path / "text.glb", tmp_path / "out.glb")
+
+
+def test_meshopt_data_that_would_decode_too_large_is_refused(tmp_path, shared_dir):
+    import json
+    import struct
+
+    data = (shared_dir / "assets/ict_head.glb").read_bytes()
+    length = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20:20 + length])
+    gltf["bufferViews"][0]["extensions"]["EXT_meshopt_compression"]["count"] = 10**12
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + length:]
+    chunks = struct.pack("<I4s", len(text), b"JSON") + text + rest
+    (tmp_path / "huge.glb").write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks)
+    with pytest.raises(VispeechError, match="would decode to more than 512 MiB"):
+        write_gltf_animation(speech_track(), tmp_path / "huge.glb", tmp_path / "out.glb")
+    assert not (tmp_path / "out.glb").exists()

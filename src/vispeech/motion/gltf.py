@@ -3,8 +3,11 @@
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
 and most exporters write it) with ARKit names; ``eyeBlink_L``-style ``_L``/``_R`` suffixes and
 ``blendShape1.jawOpen``-style prefixes are accepted, case-insensitively. The existing binary
-chunk is kept byte for byte (compressed or quantized meshes are not decoded); the animation's
-times and weights are appended to it. pygltflib reads and writes the JSON.
+data is kept byte for byte, except that meshoptimizer-compressed buffer views
+(``EXT_meshopt_compression``, as gltfpack writes them) are decoded (the ``meshopt``
+package), so that Blender, Maya and other importers without that extension open the file;
+quantized attributes (``KHR_mesh_quantization``) stay as they are. The animation's times and
+weights are appended. pygltflib reads and writes the JSON.
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ def write_gltf_animation(
     if not nodes:
         raise VispeechError(f"{base_glb}: no node uses the meshes with ARKit-named morph targets")
 
-    blob = bytearray(gltf.binary_blob() or b"")
+    blob = bytearray(_decompressed(gltf, base_glb))
     if not gltf.buffers:
         gltf.buffers.append(pygltflib.Buffer(byteLength=0))
     times = (np.arange(track.n_frames) / track.fps).astype(np.float32)
@@ -176,6 +179,47 @@ def _count(item: dict, key: str, where: str, path: Path) -> int | None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise VispeechError(f"{path}: {where}.{key} must be a non-negative integer, got {value!r}")
     return value
+
+
+def _decompressed(gltf: pygltflib.GLTF2, path: str | os.PathLike) -> bytes:
+    """The binary chunk with every ``EXT_meshopt_compression`` buffer view decoded in place
+    (``gltf`` changed to match: one buffer, no fallback buffers, the extension dropped); the
+    chunk as it is when nothing is compressed."""
+    blob = gltf.binary_blob() or b""
+    compressed = "EXT_meshopt_compression"
+    if compressed not in (gltf.extensionsUsed or []):
+        return blob
+    import meshopt
+
+    out = bytearray()
+    try:
+        for view in gltf.bufferViews:
+            ext = (view.extensions or {}).get(compressed)
+            if ext is not None:
+                if ext["buffer"] != 0:
+                    raise VispeechError(f"{path}: compressed data outside the binary chunk")
+                size = int(ext["count"]) * int(ext["byteStride"])
+                if not 0 <= size <= MAX_GLB_BYTES - len(out):
+                    raise VispeechError(f"{path}: its meshopt-compressed data would decode to more than "
+                                        f"{MAX_GLB_BYTES // 2**20} MiB")
+                source = blob[ext["byteOffset"]:ext["byteOffset"] + ext["byteLength"]]
+                data = meshopt.decode_gltf_buffer(source, ext["count"], ext["byteStride"], ext["mode"],
+                                                  ext.get("filter")).tobytes()
+                view.extensions = {k: v for k, v in view.extensions.items() if k != compressed}
+            elif view.buffer == 0:
+                data = blob[(view.byteOffset or 0):(view.byteOffset or 0) + view.byteLength]
+            else:
+                raise VispeechError(f"{path}: an uncompressed buffer view outside the binary chunk")
+            out.extend(b"\x00" * (-len(out) % 4))
+            view.buffer, view.byteOffset, view.byteLength = 0, len(out), len(data)
+            out.extend(data)
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise VispeechError(f"{path}: cannot decode its meshopt-compressed data ({exc})") from None
+    out.extend(b"\x00" * (-len(out) % 4))
+    gltf.buffers = [pygltflib.Buffer(byteLength=len(out))]
+    gltf.extensionsUsed = [e for e in gltf.extensionsUsed if e != compressed]
+    gltf.extensionsRequired = [e for e in (gltf.extensionsRequired or []) if e != compressed]
+    return bytes(out)
 
 
 def _glb_bytes(gltf: pygltflib.GLTF2, blob: bytes) -> bytes:
