@@ -1,5 +1,5 @@
-"""The glTF that ``vispeech convert --glb`` writes opens in Blender (Debian's ``blender``, headless)
-with its shape-key animation equal to the track."""
+"""The glTF and FBX that ``vispeech convert --glb`` writes open in Blender (Debian's ``blender``,
+headless) with their shape-key animation equal to the track."""
 
 import json
 import shutil
@@ -10,9 +10,16 @@ import numpy as np
 
 from conftest import require
 from vispeech.motion.gltf import write_gltf_animation
-from vispeech.pipeline import speak
+from vispeech.pipeline import speak, write_outputs
 
-READ_GLTF = Path(__file__).parent / "blender" / "read_gltf.py"
+READ_SCENE = Path(__file__).parent / "blender" / "read_scene.py"
+
+
+def _read_in_blender(blender: str, path: Path, out: Path) -> dict:
+    result = subprocess.run([blender, "-b", "--factory-startup", "--python", str(READ_SCENE), "--", str(path), str(out)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0 and out.is_file(), result.stdout[-2000:] + result.stderr[-2000:]
+    return json.loads(out.read_text())
 
 
 def test_blender_imports_the_animated_head(tmp_path, shared_dir):
@@ -21,11 +28,7 @@ def test_blender_imports_the_animated_head(tmp_path, shared_dir):
     track = speak("My mom made a large map of the farm.", "en").track
     glb = tmp_path / "head.glb"
     write_gltf_animation(track, shared_dir / "assets" / "ict_head.glb", glb)
-    out = tmp_path / "blender.json"
-    result = subprocess.run([blender, "-b", "--factory-startup", "--python", str(READ_GLTF), "--", str(glb), str(out)],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0 and out.is_file(), result.stdout[-2000:] + result.stderr[-2000:]
-    found = json.loads(out.read_text())
+    found = _read_in_blender(blender, glb, tmp_path / "blender.json")
 
     (head,) = [o for o in found["objects"] if o["shape_keys"]]
     assert head["shape_keys"][0] == "Basis" and len(head["shape_keys"]) == 52
@@ -38,3 +41,39 @@ def test_blender_imports_the_animated_head(tmp_path, shared_dir):
         np.testing.assert_allclose(keys[:, 0], frames, atol=1e-3)
         np.testing.assert_allclose(keys[:, 1], track[channel], atol=1e-6)
     assert np.ptp(np.array(head["fcurves"]['key_blocks["jawOpen"].value'])[:, 1]) > 0.1  # the mouth moves
+
+
+def test_fbx_made_by_blender_carries_the_animation(tmp_path, shared_dir):
+    from test_cli_say import run
+
+    blender = shutil.which("blender")
+    require(blender, "Blender (apt-get install blender python3-numpy)")
+    utterance = speak("Bob met my mum at five.", "en")
+    write_outputs(utterance, tmp_path / "said")
+    fbx = tmp_path / "head.fbx"
+    result = run("convert", str(tmp_path / "said" / "animation.json"), str(fbx), "--glb",
+                 str(shared_dir / "assets" / "ict_head.glb"))
+    assert result.exit_code == 0, result.output
+    assert fbx.read_bytes()[:18] == b"Kaydara FBX Binary"
+    found = _read_in_blender(blender, fbx, tmp_path / "fbx.json")
+    (head,) = [o for o in found["objects"] if o["shape_keys"]]
+    assert "jawOpen" in head["shape_keys"] and len(head["shape_keys"]) == 52
+    track = utterance.track
+    assert found["fps"] == track.fps  # the scene was set to the track's rate: one FBX frame per track frame
+    keys = np.array(head["fcurves"]['key_blocks["jawOpen"].value'])
+    frames = keys[:, 0] - keys[0, 0]
+    np.testing.assert_allclose(frames[:track.n_frames], np.arange(track.n_frames), atol=1e-3)
+    np.testing.assert_allclose(keys[:track.n_frames, 1], track["jawOpen"], atol=1e-3)
+
+
+def test_fbx_without_base_model_or_blender_is_one_error(tmp_path, monkeypatch):
+    from test_cli_say import assert_clean_error, run
+
+    write_outputs(speak("Hello.", "en"), tmp_path / "said")
+    animation = str(tmp_path / "said" / "animation.json")
+    assert_clean_error(run("convert", animation, str(tmp_path / "a.fbx")))
+    monkeypatch.setenv("PATH", str(tmp_path))  # no blender here
+    monkeypatch.delenv("BLENDER", raising=False)
+    result = run("convert", animation, str(tmp_path / "a.fbx"), "--glb", str(tmp_path / "none.glb"))
+    assert_clean_error(result)
+    assert "needs Blender" in result.output and not (tmp_path / "a.fbx").exists()

@@ -82,7 +82,7 @@ def test_glb_output(tmp_path, take, shared_dir):
 @pytest.mark.parametrize("args,text", [
     (["missing.csv", "out.json"], "not found"),
     (["take.csv", "out.xyz"], "cannot tell the track format"),
-    (["take.csv", "out.json", "--to", "fbx"], "unknown track format 'fbx'"),
+    (["take.csv", "out.json", "--to", "usd"], "unknown track format 'usd'"),
     (["take.csv", "out.glb"], "needs a base model"),
     (["take.csv", "out.json", "--fps", "0"], "--fps must be positive"),
     (["take.csv", "out.json", "--pose-table", "nope"], "pose table not found"),

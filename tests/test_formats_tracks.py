@@ -159,12 +159,14 @@ def test_format_dispatch():
     assert track_format("a.csv") == "livelink" and track_format("a.visemes.csv") == "oculus"
     assert track_format("A.JSON") == "json" and track_format("a.talkinghead.json") == "talkinghead"
     assert track_format("a.tsv") == "rhubarb" and track_format("a.rhubarb.json") == "rhubarb"
-    assert track_format("a.glb") == "gltf"
-    assert set(FORMATS) == {"livelink", "json", "talkinghead", "oculus", "rhubarb", "gltf"}
-    with pytest.raises(VispeechError, match="known formats: livelink, json, talkinghead, oculus, rhubarb, gltf"):
+    assert track_format("a.glb") == "gltf" and track_format("a.FBX") == "fbx"
+    assert set(FORMATS) == {"livelink", "json", "talkinghead", "oculus", "rhubarb", "gltf", "fbx"}
+    with pytest.raises(VispeechError, match="known formats: livelink, json, talkinghead, oculus, rhubarb, gltf, fbx"):
         track_format("a.txt")
-    with pytest.raises(VispeechError, match="unknown track format 'fbx'"):
-        write_track(small_track(), "a.json", "fbx")
+    with pytest.raises(VispeechError, match="unknown track format 'usd'"):
+        write_track(small_track(), "a.json", "usd")
+    with pytest.raises(VispeechError, match="writing FBX needs a base model"):
+        write_track(small_track(), "a.fbx")
     with pytest.raises(VispeechError, match="cannot be read"):
         read_track("a.glb")
 

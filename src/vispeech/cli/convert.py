@@ -12,19 +12,20 @@ from vispeech.cli import main
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
-              help="Output format: livelink, json, talkinghead, oculus, rhubarb or gltf "
+              help="Output format: livelink, json, talkinghead, oculus, rhubarb, gltf or fbx "
               "(default: from OUTPUT's extension).")
 @click.option("--fps", type=float, help="Resample to this many frames per second.")
 @click.option("--pose-table", help="Pose table (JSON file or built-in name): retargets the track, or for "
               "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
 @click.option("--glb", "base_glb", type=click.Path(path_type=Path),
-              help="Base model with ARKit-named morph targets (needed for gltf).")
+              help="Base model with ARKit-named morph targets (needed for gltf and fbx).")
 def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float | None,
                     pose_table: str | None, base_glb: Path | None) -> None:
     """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
-    .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb).
+    .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb), .fbx fbx (needs
+    --glb and Blender).
     """
     from vispeech.limits import check_fps
     from vispeech.motion.io import read_track, track_format, write_track

@@ -9,6 +9,7 @@ talkinghead   ``.talkinghead.json``                   yes    TalkingHead ``{"nam
 oculus        ``.visemes.csv``, ``.visemes.json``     --     15 Oculus viseme curves (CSV or JSON)
 rhubarb       ``.tsv``, ``.rhubarb.json``             --     Rhubarb mouth cues (TSV or JSON)
 gltf          ``.glb``                                --     glTF morph-target animation on a base GLB
+fbx           ``.fbx``                                --     the same as FBX, made by Blender
 ============  ======================================  =====  ==========================================
 
 The longest matching extension wins; a ``.json`` file being read is recognised by its content
@@ -61,6 +62,7 @@ FORMATS: dict[str, TrackFormat] = {
         TrackFormat("oculus", (".visemes.csv", ".visemes.json"), "Oculus 15-viseme curves (CSV or JSON)"),
         TrackFormat("rhubarb", (".tsv", ".rhubarb.json"), "Rhubarb mouth cues (TSV or JSON)"),
         TrackFormat("gltf", (".glb",), "glTF 2.0 morph-target animation added to a base GLB"),
+        TrackFormat("fbx", (".fbx",), "FBX of a base GLB's model with the animation (needs Blender)"),
     )
 }
 """Every track format by name."""
@@ -113,7 +115,7 @@ def write_track(
     Parameters
     ----------
     phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``).
-    base_glb : the model ``gltf`` adds the animation to (required for it).
+    base_glb : the model ``gltf`` and ``fbx`` add the animation to (required for them).
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
         replaces the shipped one; for every other format a retargeting applied before writing.
     """
@@ -139,7 +141,13 @@ def write_track(
             write_rhubarb_tsv(track, path, pose_table)
     else:
         if base_glb is None:
-            raise VispeechError("writing glTF needs a base model (.glb with ARKit-named morph targets)")
+            raise VispeechError(f"writing {'FBX' if name == 'fbx' else 'glTF'} needs a base model "
+                                "(.glb with ARKit-named morph targets)")
+        if name == "fbx":
+            from vispeech.motion.fbx import write_fbx_animation
+
+            write_fbx_animation(track, base_glb, path)
+            return
         from vispeech.motion.gltf import write_gltf_animation  # pygltflib: imported only for glTF
 
         write_gltf_animation(track, base_glb, path)

@@ -1,7 +1,7 @@
-"""Run by Blender (``blender -b --python read_gltf.py -- IN.glb OUT.json``): import a glTF file
-as Blender's own importer does and write what arrived as JSON: each object's type, its shape
-keys and the keyframes (frame, value) of every F-curve of its shape-key action, and the
-scene's frame rate."""
+"""Run by Blender (``blender -b --python read_gltf.py -- IN.glb|IN.fbx OUT.json``): import a glTF
+or FBX file as Blender's own importers do and write what arrived as JSON: each object's type,
+its shape keys and the keyframes (frame, value) of every F-curve of its shape-key action, and
+the scene's frame rate."""
 
 import json
 import sys
@@ -14,7 +14,10 @@ import bpy  # noqa: E402
 
 glb, out = sys.argv[sys.argv.index("--") + 1:]
 bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.import_scene.gltf(filepath=glb)
+if glb.lower().endswith(".fbx"):
+    bpy.ops.import_scene.fbx(filepath=glb)
+else:
+    bpy.ops.import_scene.gltf(filepath=glb)
 found = {"fps": bpy.context.scene.render.fps / bpy.context.scene.render.fps_base, "objects": []}
 for obj in bpy.data.objects:
     item = {"name": obj.name, "type": obj.type, "shape_keys": [], "fcurves": {}}
