@@ -1,6 +1,6 @@
 """Latency of the /api/stream WebSocket, alone and under 50 concurrent sessions.
 
-    python benchmarks/load_stream.py [--sessions 50] [--runs 5] [--lang en] [--text TEXT] [--json OUT]
+    python benchmarks/load_stream.py [--sessions 50] [--runs 5] [--lang en] [--text TEXT] [--json OUT] [--processes N]
 
 Starts `vispeech serve` on 127.0.0.1 on a free port in a subprocess (no rate limit, no
 per-address stream cap since every session comes from 127.0.0.1, a temporary cache), then:
@@ -116,6 +116,7 @@ def main() -> int:
     parser.add_argument("--text", help="text to stream (default: a three-sentence chat reply)")
     parser.add_argument("--deadline", type=float, default=300.0, help="seconds before everything stops")
     parser.add_argument("--json", help="also write the figures to this JSON file")
+    parser.add_argument("--processes", type=int, default=1, help="server processes (vispeech serve --processes)")
     args = parser.parse_args()
     sessions, runs = min(max(args.sessions, 1), 100), min(max(args.runs, 1), 50)
     text = args.text or TEXTS[args.lang]
@@ -125,7 +126,7 @@ def main() -> int:
             return await run(server, text, args.lang, sessions, runs)
 
     # every session comes from 127.0.0.1: lift the per-address cap, as distinct clients would not meet it
-    with running_server("--rate-limit", "0", "--max-streams-per-ip", "200") as server:
+    with running_server("--rate-limit", "0", "--max-streams-per-ip", "200", "--processes", str(args.processes)) as server:
         report = asyncio.run(bounded(server))
     print_report(report)
     if args.json:

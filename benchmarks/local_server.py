@@ -40,12 +40,18 @@ class LocalServer:
         return self.url.replace("http://", "ws://") + "/api/stream"
 
     def cpu_seconds(self) -> float | None:
-        """User + system CPU time the server process has used (Linux only, else ``None``)."""
-        try:
-            fields = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            return None
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        """User + system CPU time the server process and its live child processes (``--processes``)
+        have used (Linux only, else ``None``)."""
+        total, found = 0, False
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if stat.parent.name == str(self.pid) or fields[1] == str(self.pid):
+                total += int(fields[11]) + int(fields[12])
+                found = True
+        return total / os.sysconf("SC_CLK_TCK") if found else None
 
 
 @contextmanager

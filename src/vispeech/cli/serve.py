@@ -44,6 +44,9 @@ from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_MODEL
               help="Browser origin (https://app.example.com, or a host name) allowed to use the API and the "
               "stream, beside the server's own and the allowed hosts (repeatable; * for any). Others get 403.")
 @click.option("--workers", type=click.IntRange(min=1), help="Threads for the CPU-heavy work [default: cores - 1].")
+@click.option("--processes", default=1, show_default=True, type=click.IntRange(min=1),
+              help="Server processes sharing the port and the SQLite cache, each with its models and threads "
+              "(limits count per process).")
 @click.option("--max-queue", default=64, show_default=True, type=click.IntRange(min=1),
               help="Jobs that may wait for a worker; beyond that requests get 503 (busy).")
 @click.option("--max-streams", default=500, show_default=True, type=click.IntRange(min=1),
@@ -64,7 +67,7 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
           default_model: str, stream_model: str | None, audio_model: str, rate_limit: float, burst: int,
           chat_url: str | None, chat_reply_field: str, token: str | None, allow_host: tuple[str, ...],
           allow_origin: tuple[str, ...],
-          workers: int | None, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
+          workers: int | None, processes: int, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
           stream_timeout: float, cache_mb: int, ws_deflate: bool, log_level: str) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
 
@@ -83,11 +86,20 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
                          allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))), max_queue=max_queue,
                          max_streams=max_streams, max_streams_per_ip=max_streams_per_ip, idle_timeout=idle_timeout,
                          stream_timeout=stream_timeout, cache_bytes=cache_mb * 1024 * 1024, **extra)
-    app = create_app(config)
+    app = create_app(config)  # with several processes: checks the settings and models once, here
     service = app.state.service
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
                f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
-               f"{', token required' if token else ''})")
-    uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=config.max_message_bytes,
-                ws_per_message_deflate=ws_deflate,
-                timeout_graceful_shutdown=5)
+               f"{f', {processes} processes' if processes > 1 else ''}{', token required' if token else ''})")
+    options = {"host": host, "port": port, "log_level": log_level, "ws_max_size": config.max_message_bytes,
+               "ws_per_message_deflate": ws_deflate, "timeout_graceful_shutdown": 5}
+    if processes == 1:
+        uvicorn.run(app, **options)
+        return
+    import os
+
+    from vispeech.serve.app import CONFIG_VARIABLE
+
+    os.environ[CONFIG_VARIABLE] = config.to_json()
+    del app, service
+    uvicorn.run("vispeech.serve.app:app_from_environment", factory=True, workers=processes, **options)

@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Annotated
 
@@ -55,7 +55,7 @@ from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_ver
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, listen, speak
-from vispeech.serve.bot import ChatBot, ChatBotError, RuleBot
+from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
 from vispeech.serve.safety import (
     DEFAULT_ALLOWED_HOSTS,
@@ -206,6 +206,47 @@ class ServeConfig:
     allowed_origins: tuple[str, ...] | None = None
     token: str | None = None
     static_dir: Path | None = None
+
+    def to_json(self) -> str:
+        """The settings as JSON, for the server's other processes (:func:`app_from_environment`).
+
+        Raises :class:`VispeechError` for a chat bot other than the rule bot or the HTTP relay."""
+        data = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "bot"}
+        data = {k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v for k, v in data.items()}
+        bot = self.bot
+        if isinstance(bot, HTTPChatBot):
+            data["bot"] = {"url": bot.url, "message_field": bot.message_field, "lang_field": bot.lang_field,
+                           "reply_field": bot.reply_field, "headers": bot.headers, "timeout": bot.timeout}
+        elif type(bot) is RuleBot:
+            data["bot"] = None
+        else:
+            raise VispeechError(f"the chat bot {bot!r} cannot be handed to other server processes")
+        return json.dumps(data)
+
+    @classmethod
+    def from_json(cls, text: str) -> ServeConfig:
+        """The settings :meth:`to_json` wrote."""
+        data = json.loads(text)
+        bot = data.pop("bot")
+        for key in ("avatar", "static_dir"):
+            data[key] = None if data[key] is None else Path(data[key])
+        for key in ("allowed_hosts", "allowed_origins"):
+            data[key] = None if data[key] is None else tuple(data[key])
+        return cls(**data, bot=RuleBot() if bot is None else HTTPChatBot(**bot))
+
+
+CONFIG_VARIABLE = "VISPEECH_SERVE_CONFIG"
+"""The environment variable through which ``vispeech serve --processes N`` hands its settings
+(:meth:`ServeConfig.to_json`) to each server process."""
+
+
+def app_from_environment() -> FastAPI:
+    """The application of one of several server processes, set up from :data:`CONFIG_VARIABLE`
+    (uvicorn's ``factory``: each process loads its own models and shares the SQLite cache)."""
+    text = os.environ.get(CONFIG_VARIABLE)
+    if not text:
+        raise VispeechError(f"{CONFIG_VARIABLE} is not set: start the processes with vispeech serve --processes N")
+    return create_app(ServeConfig.from_json(text))
 
 
 class SpeechService:
