@@ -111,9 +111,10 @@ def run_batch(
 
     ``workers`` processes run the lines (default: one per core; 1 runs them in this process);
     ``backend="ray"`` runs them on a Ray cluster instead (``address``; default a local instance
-    of ``workers`` CPUs; :mod:`vispeech.batch.cluster`), with the same outputs; ``force`` redoes lines whose outputs are up to date; ``progress`` is called with each
-    line's result as it ends. Raises :class:`VispeechError` only when the job cannot be read
-    or ``out_dir`` cannot be made; every problem of a line is in its result.
+    of ``workers`` CPUs; :mod:`vispeech.batch.cluster`), with the same outputs. ``force``
+    redoes lines whose outputs are up to date; ``progress`` is called with each line's result
+    as it ends. Raises :class:`VispeechError` only when the job cannot be read or ``out_dir``
+    cannot be made; every problem of a line is in its result.
     """
     started = time.perf_counter()
     if backend not in BACKENDS:
