@@ -60,6 +60,35 @@ def receive_until_end(ws) -> list[dict]:
             return messages
 
 
+def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
+    import time
+
+    import vispeech.serve.app as app_module
+
+    original = app_module.speech_messages
+
+    def slow_after_first(*args, **kwargs):  # an overloaded server: the second clause comes 1.5 s later
+        for i, batch in enumerate(original(*args, **kwargs)):
+            if i == 1:
+                time.sleep(1.5)
+            yield batch
+
+    monkeypatch.setattr(app_module, "speech_messages", slow_after_first)
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
+        messages = receive_until_end(ws)
+    warnings = [m for m in messages if m["type"] == "warning"]
+    assert len(warnings) == 1 and warnings[0]["code"] == "late"
+    first_clause = next(m["start"] for m in messages[messages.index(warnings[0]):] if m["type"] == "audio")
+    assert 1.5 - first_clause - 0.3 < warnings[0]["seconds"] < 1.5 - first_clause + 0.5  # the sleep past the due time
+    assert "overloaded" in warnings[0]["message"] and messages[-1]["type"] == "end"
+
+    monkeypatch.setattr(app_module, "speech_messages", original)
+    with client.websocket_connect("/api/stream") as ws:  # in time: no warning
+        ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
+        assert "warning" not in [m["type"] for m in receive_until_end(ws)]
+
+
 def test_split_clauses():
     assert split_clauses("Hello, world! How are you? Fine; thanks.") == [
         "Hello,", "world!", "How are you?", "Fine;", "thanks."]

@@ -814,14 +814,28 @@ class _StreamConnection(_Connection):
         _, model = self.service.model(message.model, stream=True)
         messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate)
 
-        def next_clause() -> list[str] | None:
+        def next_clause() -> tuple[list[str], float | None] | None:
             batch = next(messages, None)
-            return None if batch is None else [_json(item) for item in batch]
+            if batch is None:
+                return None
+            begin = next((item["start"] for item in batch if item["type"] == "audio"), None)
+            return [_json(item) for item in batch], begin
 
         weights = [len(clause) * TEXT_WORK_PER_CHAR for clause in split_clauses(message.text)]
+        playing = None  # when the first audio chunk left: the client's playback starts no earlier
         try:
             while (batch := await self._run(next_clause, weight=weights.pop(0) if weights else 0.0)) is not None:
-                for text in batch:
+                texts, begin = batch
+                now = time.monotonic()
+                if playing is None and begin is not None:
+                    playing = now - begin
+                elif begin is not None and now - playing > begin:
+                    late = now - playing - begin
+                    await _send(self.ws, WarningMessage(
+                        code="late", seconds=round(late, 3),
+                        message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
+                                "overloaded (buffer more before playing, or try again later)"))
+                for text in texts:
                     await self.ws.send_text(text)
         finally:
             with contextlib.suppress(ValueError):  # still running in its thread

@@ -254,16 +254,19 @@ class EndMessage(BaseModel):
 
 
 class WarningMessage(BaseModel):
-    """Listen server message: the audio stream goes on, but its frames are (or may be) late.
+    """Stream and listen server message: the stream goes on, but its frames are (or may be) late.
 
-    ``too_fast``: the client sends audio faster than real time by a large factor, so the frames
-    come as fast as the server computes them, not as live audio would; ``seconds`` is how far
-    the audio received leads real time. ``behind``: the server gave frames ``seconds`` after
-    the audio they needed arrived.
+    ``too_fast`` (listen): the client sends audio faster than real time by a large factor, so
+    the frames come as fast as the server computes them, not as live audio would; ``seconds``
+    is how far the audio received leads real time. ``behind`` (listen): the server gave frames
+    ``seconds`` after the audio they needed arrived. ``late`` (stream): a clause's audio and
+    frames leave the server ``seconds`` after they are due, playback taken to start when the
+    first audio chunk left (the server is overloaded: buffer more before playing, or come back
+    later).
     """
 
     type: Literal["warning"] = "warning"
-    code: Literal["too_fast", "behind"]
+    code: Literal["too_fast", "behind", "late"]
     message: str
     seconds: float
 
