@@ -72,6 +72,8 @@ def report_concurrent(results: list[StreamTimings], failures: list[str], wall: f
         "sessions_with_late_frames": sum(1 for r in results if r.frames_late),
         "audio_chunks": sum(r.n_audio for r in results),
         "audio_chunks_late": sum(r.audio_late for r in results),
+        "late_warnings": sum(r.warnings for r in results),
+        "sessions_warned": sum(1 for r in results if r.warnings),
     }
 
 
@@ -104,6 +106,7 @@ def print_report(report: dict) -> None:
     print(f"  total        p50 {c['total_ms_p50']:8.1f} ms   p95 {c['total_ms_p95']:8.1f} ms")
     print(f"  frames late  {c['frames_late']} of {c['frames']} ({c['sessions_with_late_frames']} sessions); "
           f"audio chunks late {c['audio_chunks_late']} of {c['audio_chunks']}")
+    print(f"  late warnings {c['late_warnings']} ({c['sessions_warned']} sessions told they were late)")
     for failure in c["failures"]:
         print(f"  failure: {failure}")
 

@@ -33,6 +33,8 @@ class StreamTimings:
     audio_late: int
     n_audio: int
     model: str = ""
+    warnings: int = 0
+    """``late`` warnings the server sent (clauses it knew to be late)."""
 
     def summary(self) -> str:
         ms = 1000.0
@@ -44,6 +46,7 @@ class StreamTimings:
             f"{self.n_frames} frames at {self.fps:g} fps)",
             f"frames late    {self.frames_late} of {self.n_frames}",
             f"audio late     {self.audio_late} of {self.n_audio} chunks",
+            f"late warnings  {self.warnings}",
         ])
 
 
@@ -60,7 +63,7 @@ async def time_stream(url: str, text: str, lang: str = "en", model: str | None =
     frames: list[tuple[float, int, int]] = []
     audio: list[tuple[float, float]] = []  # arrival, start in the audio
     start_message: dict = {}
-    samples = 0
+    samples = warnings = 0
     async with websockets.connect(url, max_size=None, open_timeout=timeout, close_timeout=2) as ws:
         sent = time.perf_counter()
         await ws.send(json.dumps({"type": "text", "text": text, "lang": lang, "model": model}))
@@ -76,6 +79,8 @@ async def time_stream(url: str, text: str, lang: str = "en", model: str | None =
                 elif kind == "audio":
                     audio.append((now, float(message["start"])))
                     samples += len(base64.b64decode(message["pcm16"])) // 2
+                elif kind == "warning":
+                    warnings += 1
                 elif kind == "end":
                     total = now
                     break
@@ -95,7 +100,7 @@ async def time_stream(url: str, text: str, lang: str = "en", model: str | None =
         n_frames=sum(count for _, _, count in frames), fps=fps,
         audio_seconds=samples / float(start_message.get("sample_rate") or 22050),
         frames_late=late, audio_late=sum(1 for arrival, start in audio if arrival > playback + start),
-        n_audio=len(audio), model=str(start_message.get("model", "")),
+        n_audio=len(audio), model=str(start_message.get("model", "")), warnings=warnings,
     )
 
 
