@@ -120,11 +120,15 @@ def main() -> int:
     parser.add_argument("--deadline", type=float, default=300.0, help="seconds before everything stops")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     parser.add_argument("--processes", type=int, default=1, help="server processes (vispeech serve --processes)")
+    parser.add_argument("--settle", type=float, default=10.0,
+                        help="seconds to wait, with several processes, for every one to be ready")
     args = parser.parse_args()
     sessions, runs = min(max(args.sessions, 1), 100), min(max(args.runs, 1), 50)
     text = args.text or TEXTS[args.lang]
 
     async def bounded(server: LocalServer) -> dict:
+        if args.processes > 1:  # the first process to answer may not be the last to have loaded its models
+            await asyncio.sleep(args.settle)
         async with asyncio.timeout(args.deadline):
             return await run(server, text, args.lang, sessions, runs)
 
