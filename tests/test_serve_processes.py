@@ -4,8 +4,6 @@ answering on one port over one SQLite cache."""
 from __future__ import annotations
 
 import json
-import socket
-import subprocess
 import sys
 import time
 import urllib.request
@@ -19,6 +17,9 @@ require_module("uvicorn", "uvicorn (the serve extra)")
 
 from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from local_server import running_server  # noqa: E402  (the benchmarks' `vispeech serve` subprocess)
 
 
 def test_settings_round_trip_through_json(tmp_path):
@@ -52,28 +53,8 @@ def _children(pid: int) -> list[int]:
     return found
 
 
-def test_two_processes_serve_one_port_and_one_cache(tmp_path):
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    cache = tmp_path / "cache.sqlite3"
-    log = open(tmp_path / "server.log", "wb")
-    server = subprocess.Popen([sys.executable, "-c", "from vispeech.cli import main; main()", "serve", "--port",
-                               str(port), "--cache", str(cache), "--processes", "2", "--rate-limit", "0",
-                               "--log-level", "warning"], stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 180
-        while True:
-            assert server.poll() is None, (tmp_path / "server.log").read_text(errors="replace")[-2000:]
-            try:
-                with urllib.request.urlopen(f"{url}/api/config", timeout=2) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            assert time.monotonic() < deadline, "the server did not start"
-            time.sleep(0.3)
+def test_two_processes_serve_one_port_and_one_cache():
+    with running_server("--processes", "2", "--rate-limit", "0", startup_timeout=180) as server:
         if sys.platform.startswith("linux"):
             deadline = time.monotonic() + 120
             while len(_children(server.pid)) < 2 and time.monotonic() < deadline:
@@ -81,7 +62,8 @@ def test_two_processes_serve_one_port_and_one_cache(tmp_path):
             assert len(_children(server.pid)) >= 2  # the two worker processes under the supervisor
 
         def speak(text: str) -> dict:
-            request = urllib.request.Request(f"{url}/api/speak", data=json.dumps({"text": text, "lang": "en"}).encode(),
+            request = urllib.request.Request(f"{server.url}/api/speak",
+                                             data=json.dumps({"text": text, "lang": "en"}).encode(),
                                              headers={"Content-Type": "application/json"})
             with urllib.request.urlopen(request, timeout=60) as response:
                 return json.load(response)
@@ -90,12 +72,5 @@ def test_two_processes_serve_one_port_and_one_cache(tmp_path):
         assert all(a["animation"]["frames"] for a in answers)
         again = speak("Line 3 of the test.")  # cached by whichever process made it: one shared cache
         assert again["audio_url"] == answers[3]["audio_url"]
-        with urllib.request.urlopen(f"{url}{answers[0]['audio_url']}", timeout=30) as response:
+        with urllib.request.urlopen(f"{server.url}{answers[0]['audio_url']}", timeout=30) as response:
             assert response.read(4) == b"RIFF"
-    finally:
-        server.terminate()
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            server.kill()
-        log.close()
