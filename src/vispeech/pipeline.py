@@ -102,14 +102,31 @@ def speak(
     fps: float = DEFAULT_FPS,
     postprocessing: PostprocessConfig | bool = True,
 ) -> Utterance:
-    """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length."""
+    """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length.
+
+    What is spoken is :func:`vispeech.frontends.text.speakable` of ``text`` (no Markdown markup,
+    links or emoji), and that is the utterance's ``text``.
+    """
     from vispeech.frontends.espeak import synthesize
 
     check_text(text)
     check_fps(fps)
-    speech = synthesize(text, language, rate=rate)
+    spoken = spoken_text(text)
+    speech = synthesize(spoken, language, rate=rate)
     track = animate(speech.phones, model, fps, postprocessing)
-    return Utterance(text=text, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
+    return Utterance(text=spoken, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
+
+
+def spoken_text(text: str) -> str:
+    """What of ``text`` is spoken (:func:`~vispeech.frontends.text.speakable`); :class:`VispeechError`
+    when nothing is left."""
+    from vispeech.frontends.text import speakable
+
+    spoken = speakable(text)
+    if not spoken:
+        raise VispeechError("text is empty" if not text.strip() else
+                            "nothing to say: the text has no words once emoji, markup and links are left out")
+    return spoken
 
 
 def listen(

@@ -42,7 +42,7 @@ from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
-from vispeech.pipeline import DEFAULT_FPS, animate
+from vispeech.pipeline import DEFAULT_FPS, animate, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
 
 MAX_PHONE_SECONDS = 10.0
@@ -102,9 +102,7 @@ def speech_messages(
     """
     from vispeech.frontends.espeak import synthesize
 
-    clauses = split_clauses(text)
-    if not clauses:
-        raise VispeechError("text is empty")
+    clauses = split_clauses(spoken_text(text))
     channels = stream_channels(model, language, fps)
     samples_done = frames_done = seq = 0
     sample_rate = None

@@ -1,0 +1,49 @@
+"""What of a text is spoken: Markdown's words without markup, no links, no emoji; plain text as it was."""
+
+import pytest
+
+from conftest import read_sentences
+from test_cli_say import assert_clean_error, run
+from vispeech.errors import VispeechError
+from vispeech.frontends.text import speakable
+from vispeech.pipeline import speak
+
+
+@pytest.mark.parametrize("lang", ["en", "sv"])
+def test_plain_sentences_are_spoken_as_written(lang):
+    for sentence in read_sentences(lang):
+        assert speakable(sentence) == sentence
+    for sentence in ("It costs 3.50 or 1,000 kronor.", "5 * 3 = 15, and 2 < 3 & 4 > 1.", "snake_case stays.",
+                     "Hej!\nHur mår du ... ?"):
+        assert speakable(sentence) == " ".join(sentence.split())
+
+
+@pytest.mark.parametrize("text,spoken", [
+    ("Hej 🙂! Hur mår du? 👍🏽", "Hej! Hur mår du?"),
+    ("Family: 👨‍👩‍👧 ✔️ done 🎉", "Family: done"),
+    ("**Sure!** See [the docs](https://example.org/docs) or https://vispeech.org/x, or www.example.org.",
+     "Sure! See the docs or, or."),
+    ("Steps:\n\n1. Open the file\n2. Save it\n\n```python\nprint(1)\n```\nDone", "Steps: Open the file. Save it. Done"),
+    ("# Opening hours\nWe open at *nine* and close at __five__.", "Opening hours. We open at nine and close at five."),
+    ("Use `vispeech say` now. ![logo](logo.png)", "Use vispeech say now."),
+    ("> A quote<br>with a break", "A quote with a break"),
+])
+def test_markup_links_and_emoji_are_not_spoken(text, spoken):
+    assert speakable(text) == spoken
+
+
+def test_nothing_to_say_is_one_error(tmp_path):
+    with pytest.raises(VispeechError, match="nothing to say"):
+        speak("🙂 👍", "en")
+    result = run("say", "🙂", "-o", str(tmp_path / "out"))
+    assert_clean_error(result)
+    assert "nothing to say" in result.output and not (tmp_path / "out").exists()
+
+
+def test_say_speaks_the_words_and_writes_them(tmp_path):
+    from vispeech.alignment.formats import read_alignment
+
+    result = run("say", "**Hello** 🙂, see [our page](https://example.org)!", "-o", str(tmp_path / "out"))
+    assert result.exit_code == 0, result.output
+    phones = read_alignment(tmp_path / "out" / "phones.TextGrid", "en")
+    assert [w.text for w in phones.words] == ["Hello", "see", "our", "page"]
