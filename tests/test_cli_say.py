@@ -140,3 +140,27 @@ def test_bad_alignments(tmp_path, content):
 
 def test_missing_alignment_file(tmp_path):
     assert_clean_error(run("animate-phones", str(tmp_path / "none.TextGrid"), "-o", str(tmp_path / "o")))
+
+
+@pytest.mark.parametrize("command", [["say", "Hello."], ["animate-phones", "ALIGNMENT"], ["animate", "AUDIO"]])
+def test_a_refused_output_folder_stops_the_command_before_any_work(tmp_path, monkeypatch, command):
+    import vispeech.cli.animate
+    import vispeech.cli.say
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work began before the output folder was checked")
+
+    for module in (vispeech.cli.say, vispeech.cli.animate):
+        for name in ("speak", "animate", "listen"):
+            if hasattr(module, name):
+                monkeypatch.setattr(module, name, no_work)
+    monkeypatch.setattr("vispeech.alignment.formats.read_alignment", no_work)
+    monkeypatch.setattr("vispeech.frontends.audio.AudioClip.read", no_work)
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("a user's file", encoding="utf-8")
+    args = [tmp_path / "x.TextGrid" if a == "ALIGNMENT" else tmp_path / "x.wav" if a == "AUDIO" else a for a in command]
+    result = run(*map(str, args), "-o", str(out))
+    assert_clean_error(result)
+    assert "holds files vispeech did not write (notes.txt)" in result.output
+    assert (out / "notes.txt").read_text(encoding="utf-8") == "a user's file"

@@ -265,9 +265,42 @@ def _clean_stale(parent: Path) -> None:
             os.close(fd)
 
 
-def _foreign_entries(target: Path, allowed: set[str]) -> list[str]:
-    """Names in folder ``target`` that are neither in ``allowed`` nor vispeech's own leftovers."""
-    return sorted(n for n in os.listdir(target) if n not in allowed and not n.startswith(_PREFIX))
+def _refuse_foreign(target: Path, allowed: set[str], shown: Path) -> None:
+    """:class:`VispeechError` when folder ``target`` holds names neither in ``allowed`` nor vispeech's own leftovers."""
+    foreign = sorted(n for n in os.listdir(target) if n not in allowed and not n.startswith(_PREFIX))
+    if foreign:
+        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        raise VispeechError(f"output folder {shown} holds files vispeech did not write "
+                            f"({', '.join(foreign[:3])}{more}): empty it or choose another folder")
+
+
+def check_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) -> None:
+    """Refuse now, with :class:`VispeechError`, a folder that :func:`atomic_output_dir` with
+    ``replaces`` would refuse after the work: a path that is not a folder, read-only, the root,
+    a mount point or above the current folder, or a folder holding files other than ``replaces``
+    (and vispeech's leftovers). Call it before long work; the swap checks again."""
+    target = _checked_target(path)
+    if target.is_dir():
+        _refuse_foreign(target, set(replaces), Path(path))
+
+
+def _checked_target(path: str | os.PathLike) -> Path:
+    """The real path of output folder ``path``, refused when it cannot be replaced as a whole."""
+    target = Path(os.path.realpath(path))
+    shown = Path(path)
+    if target == target.parent:
+        raise VispeechError(f"cannot replace output folder {shown}: it is the root folder")
+    if os.path.lexists(target) and not target.is_dir():
+        raise VispeechError(f"output path {shown} exists and is not a folder")
+    if target.is_dir() and not os.access(target, os.W_OK):
+        raise VispeechError(f"cannot write to output folder {shown}: Permission denied")
+    cwd = Path(os.path.realpath(os.getcwd()))
+    if cwd == target or target in cwd.parents:
+        raise VispeechError(f"output folder {shown} holds the current folder: give another folder")
+    if os.path.ismount(target):
+        raise VispeechError(f"output folder {shown} is a mount point and cannot be replaced as a whole: "
+                            "give a folder inside it")
+    return target
 
 
 @contextmanager
@@ -293,21 +326,9 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     not a folder, is read-only, is a mount point, is the current folder or one above it, or
     its parent cannot be written (the new folder is made there).
     """
-    target = Path(os.path.realpath(path))
+    target = _checked_target(path)
     parent = target.parent
     shown = Path(path)
-    if target == parent:
-        raise VispeechError(f"cannot replace output folder {shown}: it is the root folder")
-    if os.path.lexists(target) and not target.is_dir():
-        raise VispeechError(f"output path {shown} exists and is not a folder")
-    if target.is_dir() and not os.access(target, os.W_OK):
-        raise VispeechError(f"cannot write to output folder {shown}: Permission denied")
-    cwd = Path(os.path.realpath(os.getcwd()))
-    if cwd == target or target in cwd.parents:
-        raise VispeechError(f"output folder {shown} holds the current folder: give another folder")
-    if os.path.ismount(target):
-        raise VispeechError(f"output folder {shown} is a mount point and cannot be replaced as a whole: "
-                            "give a folder inside it")
     lock_fd = None
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -335,12 +356,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
             os.rename(staging, complete)
             _fsync(parent, directory=True)
             if target.is_dir():
-                allowed = set(os.listdir(complete)) | set(replaces)
-                foreign = _foreign_entries(target, allowed)
-                if foreign:
-                    more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-                    raise VispeechError(f"output folder {shown} holds files vispeech did not write "
-                                        f"({', '.join(foreign[:3])}{more}): empty it or choose another folder")
+                _refuse_foreign(target, set(os.listdir(complete)) | set(replaces), shown)
                 os.chmod(complete, stat.S_IMODE(target.stat().st_mode))
                 if _exchange(str(complete), str(target)):
                     old = complete  # the old folder now lies where the new one was

@@ -12,7 +12,7 @@ from pathlib import Path
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_dir
+from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
@@ -191,6 +191,12 @@ def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
         what = f"unknown output format {unknown[0]!r}" if unknown else "no output format given"
         raise VispeechError(f"{what} (use {', '.join(OUTPUT_FILES)})")
     return formats
+
+
+def check_outputs(out_dir: str | Path, *, extra: Iterable[str] = ()) -> None:
+    """Refuse now an output folder :func:`write_outputs` would refuse after the work (one holding
+    a user's files, a file, a read-only folder: :func:`vispeech.files.check_output_dir`)."""
+    check_output_dir(out_dir, replaces=(*OUTPUT_FILES.values(), *extra))
 
 
 def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None,

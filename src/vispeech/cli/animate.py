@@ -10,7 +10,7 @@ from vispeech.cli import lang_option, main
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
-from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, listen, write_outputs
+from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, check_outputs, listen, write_outputs
 
 
 @main.command()
@@ -33,6 +33,7 @@ def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str 
     the audio and the model animates its phones.
     """
     check_fps(fps, "--fps")
+    check_outputs(out_dir)
     clip = AudioClip.read(audio)
     utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
     paths = write_outputs(utterance, out_dir, title=text or audio.name)

@@ -10,7 +10,9 @@ from vispeech.cli import lang_option, main
 from vispeech.errors import VispeechError
 from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, speak, write_outputs
+from vispeech.pipeline import (
+    DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,
+)
 
 _model_option = click.option(
     "--model", "-m", default=DEFAULT_MODEL, show_default=True,
@@ -38,6 +40,7 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
         if text is None:
             raise VispeechError(f"unknown language {lang!r} (use sv or en)")
     check_text(text)
+    check_outputs(out_dir)
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
     paths = write_outputs(utterance, out_dir)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
@@ -61,6 +64,7 @@ def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str,
     from vispeech.alignment.formats import read_alignment
 
     check_fps(fps, "--fps")
+    check_outputs(out_dir)
     phones = read_alignment(alignment, lang)
     track = animate(phones, model, fps, not no_postprocess)
     write_outputs(Utterance(phones=phones, track=track), out_dir)
