@@ -164,3 +164,20 @@ def test_a_refused_output_folder_stops_the_command_before_any_work(tmp_path, mon
     assert_clean_error(result)
     assert "holds files vispeech did not write (notes.txt)" in result.output
     assert (out / "notes.txt").read_text(encoding="utf-8") == "a user's file"
+
+
+def test_say_reads_a_text_file(tmp_path):
+    text = "# Welcome\n\nThis is a **long** text,\nread from a file 🙂.\n"
+    (tmp_path / "reply.md").write_text(text, encoding="utf-8")
+    result = run("say", "--text-file", str(tmp_path / "reply.md"), "-o", str(tmp_path / "out"))
+    assert result.exit_code == 0, result.output
+    from vispeech.alignment.formats import read_alignment
+
+    words = [w.text for w in read_alignment(tmp_path / "out" / "phones.TextGrid", "en").words]
+    assert words == ["Welcome", "This", "is", "a", "long", "text", "read", "from", "a", "file"]
+    for args, message in [(["Hello.", "--text-file", str(tmp_path / "reply.md")], "not both"),
+                          (["--text-file", str(tmp_path / "missing.txt")], "missing.txt"),
+                          (["--text-file", str(tmp_path)], "")]:
+        result = run("say", *args, "-o", str(tmp_path / "bad"))
+        assert_clean_error(result)
+        assert message in result.output and not (tmp_path / "bad").exists()

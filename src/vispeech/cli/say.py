@@ -29,12 +29,22 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @_fps_option
 @click.option("--rate", default=1.0, show_default=True, type=float, help="Speaking-rate factor (1.0 = normal).")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
-def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool) -> None:
+@click.option("--text-file", type=click.Path(path_type=Path), default=None,
+              help="Speak the text of this file (UTF-8; at most 10,000 characters) instead of TEXT.")
+def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool,
+        text_file: Path | None) -> None:
     """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
 
-    Without TEXT a greeting in the chosen language is spoken.
+    Without TEXT (or --text-file) a greeting in the chosen language is spoken. Markdown markup,
+    links and emoji are not spoken.
     """
     check_fps(fps, "--fps")
+    if text_file is not None:
+        if text is not None:
+            raise VispeechError("give TEXT or --text-file, not both")
+        from vispeech.files import read_text
+
+        text = read_text(text_file, "text file")
     if text is None:
         text = GREETINGS.get(lang)
         if text is None:
