@@ -107,14 +107,20 @@ def speak(
     What is spoken is :func:`vispeech.frontends.text.speakable` of ``text`` (no Markdown markup,
     links or emoji), and that is the utterance's ``text``.
     """
+    check_fps(fps)
+    utterance = voice(text, language, rate=rate)
+    return replace(utterance, track=animate(utterance.phones, model, fps, postprocessing))
+
+
+def voice(text: str, language: str = "en", *, rate: float = 1.0) -> Utterance:
+    """The first half of :func:`speak`: the utterance without a track, what of ``text`` is
+    spoken (:func:`spoken_text`) with espeak-ng's audio and phones."""
     from vispeech.frontends.espeak import synthesize
 
     check_text(text)
-    check_fps(fps)
     spoken = spoken_text(text)
     speech = synthesize(spoken, language, rate=rate)
-    track = animate(speech.phones, model, fps, postprocessing)
-    return Utterance(text=spoken, phones=speech.phones, track=track, audio=speech.audio, sample_rate=speech.sample_rate)
+    return Utterance(text=spoken, phones=speech.phones, audio=speech.audio, sample_rate=speech.sample_rate)
 
 
 def spoken_text(text: str) -> str:

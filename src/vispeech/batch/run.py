@@ -32,6 +32,7 @@ import vispeech
 from vispeech.batch.job import BatchLine, JobDefaults, read_job
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
+from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model, model_version, saved_folder
 from vispeech.pipeline import (
@@ -42,6 +43,7 @@ from vispeech.pipeline import (
     animate,
     animate_audio,
     hear,
+    voice,
     write_outputs,
 )
 
@@ -157,14 +159,19 @@ def _load_models(specs: set[str]) -> dict[str, str | VispeechError]:
     versions: dict[str, str | VispeechError] = {}
     for spec in sorted(specs):
         try:
-            if spec not in _models:
-                _models[spec] = load_model(spec)
-            model = _models[spec]
+            model = _model(spec)
             model.check_fitted()
             versions[spec] = model_version(model, saved_folder(spec))
         except VispeechError as exc:
             versions[spec] = exc
     return versions
+
+
+def _model(spec: str) -> Estimator:
+    """The model ``spec`` names, loaded once per process."""
+    if spec not in _models:
+        _models[spec] = load_model(spec)
+    return _models[spec]
 
 
 def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[LineResult | None, str, str]:
@@ -232,7 +239,7 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
 
         yield from execute_on_ray(todo, out, workers, address)
         return
-    workers = min(workers, len(todo) or 1)
+    workers = min(workers, len(todo))
     if workers == 1:
         for line, key, record in todo:
             yield _run_line(line, out, key, record)
@@ -255,21 +262,15 @@ class Prepared:
     audio) and, for a recording, its clip; the I/O and feature half of a line."""
 
     utterance: Utterance
-    clip: object | None = None
+    clip: AudioClip | None = None
 
 
 def prepare(line: BatchLine) -> Prepared:
     """Read, synthesise or align what ``line`` animates (espeak-ng speech, a recording and its
     alignment, an alignment file)."""
     if line.kind == "text":
-        from vispeech.frontends.espeak import synthesize
-
-        speech = synthesize(line.text, line.lang, rate=line.rate)
-        return Prepared(Utterance(text=line.text, phones=speech.phones, audio=speech.audio,
-                                  sample_rate=speech.sample_rate))
+        return Prepared(voice(line.text, line.lang, rate=line.rate))
     if line.kind == "audio":
-        from vispeech.frontends.audio import AudioClip
-
         clip = AudioClip.read(line.audio)
         return Prepared(hear(clip, line.text, line.lang or "en"), clip)
     from vispeech.alignment.formats import read_alignment
@@ -277,13 +278,9 @@ def prepare(line: BatchLine) -> Prepared:
     return Prepared(Utterance(phones=read_alignment(line.alignment, line.lang)))
 
 
-def animate_prepared(line: BatchLine, prepared: Prepared, model: Estimator | None = None) -> Utterance:
-    """The utterance of a prepared line with its track, animated by ``model`` (default: the line's, loaded once per process)."""
-    if model is None:
-        spec = model_spec(line)
-        if spec not in _models:
-            _models[spec] = load_model(spec)
-        model = _models[spec]
+def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
+    """The utterance of a prepared line with its track, animated by the line's model."""
+    model = _model(model_spec(line))
     utterance = prepared.utterance
     if prepared.clip is not None:
         track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
