@@ -25,3 +25,21 @@ def test_model_reproduces_its_golden_tracks(model: str) -> None:
         assert track.channels == channels, (model, entry["text"])
         np.testing.assert_allclose(track.values, _TRACKS[f"{model}/{i}"], atol=1e-5, rtol=0,
                                    err_msg=f"{model}: {entry['text']}")
+
+
+_SPEECH = json.loads((GOLDEN / "speech.json").read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("entry", _SPEECH, ids=[e["text"][:24] for e in _SPEECH])
+def test_espeak_gives_the_golden_swedish_and_english_phones(entry: dict) -> None:
+    """The curated front end still speaks sv and en as it did before other languages came
+    through IPA: same phones, stresses, words and times (so the same tracks, given the above)."""
+    from vispeech.frontends.espeak import synthesize
+
+    phones = synthesize(entry["text"], entry["language"]).phones.to_dict()
+    golden = {k: v for k, v in entry.items() if k != "text"}
+    assert [(p["symbol"], p["stress"], p["word"]) for p in phones["phones"]] == \
+        [(p["symbol"], p["stress"], p["word"]) for p in golden["phones"]]
+    assert [w["text"] for w in phones["words"]] == [w["text"] for w in golden["words"]]
+    np.testing.assert_allclose([(p["start"], p["end"]) for p in phones["phones"]],
+                               [(p["start"], p["end"]) for p in golden["phones"]], atol=1e-9)

@@ -6,7 +6,10 @@ Run once, from the repository root, before a change that must not alter any mode
     python tests/golden/record.py grid-ohman   # add (or replace) one model, keeping the others
 
 It writes ``tests/golden/phones.json`` (the espeak-ng phones of the 20 acceptance sentences,
-kept so that later runs do not depend on espeak-ng's run-to-run jitter) and
+kept so that later runs do not depend on espeak-ng's run-to-run jitter),
+``tests/golden/speech.json`` (the same sentences' phones as reproducible espeak-ng gives them
+today, which the front end must keep giving: recorded at commit caf6edb, before espeak-ng's
+other languages were read through IPA, issue 14) and
 ``tests/golden/tracks.npz`` (for every model and sentence, the post-processed track at
 30 fps: float32 values, with the channel names in ``channels/<model>``).
 First recorded at commit 7c41688, before the model-contract rework (issue 7); the fitted
@@ -41,6 +44,10 @@ def main() -> None:
     else:
         recorded = [{"text": text, **synthesize(text, lang).phones.to_dict()} for lang, text in sentences]
         phones_path.write_text(json.dumps(recorded, indent=1) + "\n", encoding="utf-8")
+    speech_path = HERE / "speech.json"
+    if not speech_path.is_file():
+        speech = [{"text": text, **synthesize(text, lang).phones.to_dict()} for lang, text in sentences]
+        speech_path.write_text(json.dumps(speech, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
     only = sys.argv[1:]
     arrays: dict[str, np.ndarray] = {}
     if only and (HERE / "tracks.npz").is_file():
