@@ -10,8 +10,11 @@
                the rest being :meth:`PhoneSequence.to_dict`.
 =============  =================================================================================
 
-Labels may carry stress as the inventories allow (ARPAbet ``AA1``, Swedish ``'a``); the
-language is guessed from the labels unless given.
+Labels may carry stress as the phone sets allow (ARPAbet ``AA1``, Swedish ``'a``, IPA ``ˈa``);
+the phone set is guessed from the labels unless given. IPA labels (as MFA's newer models write
+them: ``tʃ``, ``aj``, ``ɑː``, ``tʰ``) read as their segments, diacritics the face does not show
+dropped (:mod:`vispeech.phonetics.ipa`), in JSON too. A label that is no phone is an error
+naming it, its position and its time.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
 from vispeech.limits import MAX_DURATION_S, check_utterance, parse_json
-from vispeech.phonetics.inventory import guess_language, is_silence, is_vowel, parse_symbol
+from vispeech.phonetics.inventory import IPA, guess_language, is_silence, is_vowel, parse_symbol
 
 JSON_FORMAT = "vispeech-phones"
 """The ``format`` tag of the JSON alignment form."""
@@ -34,6 +37,7 @@ JSON_FORMAT = "vispeech-phones"
 _UNITS_PER_SECOND = {".lab": 10_000_000, ".align": 25_000}
 _SILENT_WORDS = frozenset({"", "sil", "sp", "<eps>"})
 _SWEDISH_STRESS_MARKS = {1: "'", 2: '"'}
+_IPA_STRESS_MARKS = {1: "ˈ", 2: "ˌ"}
 
 _Span = tuple[float, float, str]
 
@@ -341,9 +345,14 @@ def _build(phone_spans: list[_Span], word_spans: list[_Span], path: Path, langua
     labels = [label for _, _, label in phone_spans]
     try:
         language = language or guess_language(labels)
-        parsed = [parse_symbol(label, language) for label in labels]
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
+    parsed = []
+    for position, (start, _, label) in enumerate(phone_spans):
+        try:
+            parsed.append(parse_symbol(label, language))
+        except VispeechError as exc:
+            raise VispeechError(f"{path}: phone {position} at {start:.3f} s: {exc}") from None
     words = [Word(label, start, end) for start, end, label in word_spans if label.lower() not in _SILENT_WORDS]
     phones = []
     for (start, end, _), (symbol, stress) in zip(phone_spans, parsed):
@@ -376,12 +385,14 @@ def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
         raise VispeechError(f"{path}: {exc}") from None
     if language is not None:
         phones.language = language
-    for p in phones:
+    for position, p in enumerate(phones.phones):
         try:
-            symbol, _ = parse_symbol(p.symbol, phones.language)
+            symbol, stress = parse_symbol(p.symbol, phones.language)
         except VispeechError as exc:
-            raise VispeechError(f"{path}: {exc}") from None
-        if symbol != p.symbol:
+            raise VispeechError(f"{path}: phone {position} at {p.start:.3f} s: {exc}") from None
+        if phones.language == IPA:  # IPA as written (t͡ʃ, pʰ, ˈa) reads as its segment
+            phones.phones[position] = Phone(symbol, p.start, p.end, p.word, p.stress or stress)
+        elif symbol != p.symbol:
             raise VispeechError(f"{path}: phone symbol {p.symbol!r} is not an inventory symbol (use {symbol!r})")
     return _validated(phones, path)
 
@@ -400,9 +411,10 @@ def _validated(phones: PhoneSequence, path: Path) -> PhoneSequence:
 
 
 def _label(phone: Phone, language: str) -> str:
-    """The file label of ``phone``: ARPAbet vowels with their stress digit, Swedish stress marks."""
+    """The file label of ``phone``: ARPAbet vowels with their stress digit, Swedish and IPA stress marks."""
     if is_silence(phone.symbol):
         return phone.symbol
     if language == "en":
         return f"{phone.symbol}{phone.stress}" if is_vowel(phone.symbol, "en") else phone.symbol
-    return _SWEDISH_STRESS_MARKS.get(phone.stress, "") + phone.symbol
+    marks = _IPA_STRESS_MARKS if language == IPA else _SWEDISH_STRESS_MARKS
+    return marks.get(phone.stress, "") + phone.symbol

@@ -1,10 +1,13 @@
 """espeak-ng phoneme names to inventory symbols.
 
-espeak-ng reports phonemes by their ASCII mnemonics (``'E``, ``u-``, ``aI@``), prefixed with
-a stress mark. Those names are what :mod:`vispeech.frontends.espeak` reads; they are more
-stable than the IPA option, whose strings are cut at 8 bytes. The tables below cover every
-sounding phoneme of espeak-ng 1.52's ``sv`` table and of ``en-us`` (with ``en``), each on top
-of the shared ``base1`` consonants.
+For Swedish and English, espeak-ng reports phonemes by their ASCII mnemonics (``'E``,
+``u-``, ``aI@``), prefixed with a stress mark, and :func:`espeak_to_symbols` maps them onto
+the curated inventories. The tables below cover every sounding phoneme of espeak-ng 1.52's
+``sv`` table and of ``en-us`` (with ``en``), each on top of the shared ``base1`` consonants.
+Every other language is read with espeak-ng's IPA option (:func:`espeak_ipa_to_symbols`):
+a phoneme's IPA string (cut at 8 bytes, which no phoneme seen so far reaches), or, for the
+few phonemes espeak-ng gives no IPA, its mnemonic with the ASCII letters that have an IPA
+reading converted (``tS`` ``n^`` ``s.``).
 
 Swedish voice output can switch to English pronunciation for loanwords (``(en)`` ...
 ``(sv)`` events); such names are read with the English table and carried over to the
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 from vispeech.errors import VispeechError
 from vispeech.phonetics.inventory import SILENCE, get_inventory, is_vowel
+from vispeech.phonetics.ipa import DROPPED, LABIALISED, LENGTH, RHOTIC, STRESS_MARKS, split_ipa
 
 # Consonants of espeak's base1 table, shared by every voice.
 _BASE1_SV = {
@@ -107,3 +111,50 @@ def espeak_to_symbols(name: str, language: str, table: str | None = None) -> tup
         pairs.append((symbol, stressed))
         stress = 0 if stressed else stress
     return tuple(pairs)
+
+
+# espeak-ng mnemonics left in IPA output where a phoneme defines no IPA: the letters they use.
+_MNEMONIC_LETTERS = {
+    "tS": "tʃ", "dZ": "dʒ", "ts": "ts", "dz": "dz", "S": "ʃ", "Z": "ʒ", "T": "θ", "D": "ð", "N": "ŋ",
+    "C": "ç", "J": "ɲ", "R": "ʁ", "Q": "ɣ", "X": "χ", "B": "β", "G": "ɣ", "L": "ʎ", "A": "ɑ", "E": "ɛ",
+    "I": "ɪ", "O": "ɔ", "U": "ʊ", "V": "ʌ", "Y": "ʏ", "W": "œ", "@": "ə", "3": "ɜ", "0": "ɒ", "8": "ɵ",
+    "&": "æ", "?": "ʔ",
+}
+_MNEMONIC_MARKS = {"^": {"n": "ɲ", "l": "ʎ"}, ".": {"s": "ʂ", "z": "ʐ", "t": "ʈ", "d": "ɖ", "n": "ɳ", "l": "ɭ", "r": "ɻ"}}
+
+
+def espeak_ipa_to_symbols(name: str) -> tuple[tuple[str, int], ...]:
+    """IPA ``(symbol, stress)`` pairs for one phoneme as espeak-ng's IPA option reports it.
+
+    Pauses (empty names) give ``(("sil", 0),)``; most phonemes give one pair, a phoneme that
+    holds several segments (Danish ``ʔo``) one pair each, and one of modifiers only (a length
+    mark of its own) none: it belongs to the phone before. Raises :class:`VispeechError` for
+    a name that is not IPA, even read as a mnemonic.
+    """
+    bare = name.strip()
+    if bare in PAUSE_NAMES:
+        return ((SILENCE, 0),)
+    if all(c in DROPPED or c in STRESS_MARKS or c in (LENGTH, LABIALISED, RHOTIC) or c.isdigit() for c in bare):
+        return ()  # modifiers (or a bare variant digit) of the phone before
+    mnemonic = any(c.isascii() and (c.isupper() or c in "#-.^[;:0123456789@&?`'\"") for c in bare)
+    pairs = tuple(split_ipa(_from_mnemonic(bare) if mnemonic else bare))
+    if not pairs:
+        raise VispeechError(f"espeak phoneme {name!r} has no IPA segment")
+    return pairs
+
+
+def _from_mnemonic(name: str) -> str:
+    """An espeak-ng mnemonic (after any IPA stress mark) in IPA letters: ``tS`` -> ``tʃ``, ``s.``
+    -> ``ʂ``, ``t[`` -> ``t̪``; variant marks (``#``, ``-``, `````, digits after the first letter) dropped."""
+    stress = "".join(c for c in name[:1] if c in "ˈˌ")
+    text = name[len(stress):]
+    head = text[:2] if text[:2] in _MNEMONIC_LETTERS else text[:1]
+    rest = text[len(head):]
+    letters = _MNEMONIC_LETTERS.get(head, head)
+    for mark, table in _MNEMONIC_MARKS.items():
+        if rest.startswith(mark) and letters in table:
+            letters, rest = table[letters], rest[1:]
+    if rest.startswith("["):
+        letters, rest = letters + "\u032a", rest[1:]
+    rest = "".join(c for c in rest if c not in "#-0123456789;`'\"")
+    return stress + letters + rest

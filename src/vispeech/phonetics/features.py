@@ -6,8 +6,9 @@ manners, four three-valued vowel features (0, 0.5, 1) and stress. The extras aft
 pause) tell apart the phones both languages have, so one vector space serves Swedish and
 English alike: a model trained on English features can drive Swedish phones.
 
-The values live in ``data/features.tsv`` (one row per language and phone; every column but
-``stress``, which comes from the phone). Conventions: vowels are ``voiced``; diphthongs carry
+The values of the curated inventories live in ``data/features.tsv`` (one row per language and
+phone; every column but ``stress``, which comes from the phone); those of IPA phones come from
+the IPA itself (:func:`vispeech.phonetics.ipa.ipa_features`). Conventions: vowels are ``voiced``; diphthongs carry
 their onset quality (``AW`` with half rounding for its rounded glide); lip rounding and
 protrusion are also set for rounded consonants (``W``, ``SH``-like, Swedish ``S``);
 ``release`` is kept for Beskow's stop-release symbols, which neither inventory has.
@@ -24,7 +25,8 @@ from importlib import resources
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.phonetics.inventory import LANGUAGES, get_inventory, is_vowel
+from vispeech.phonetics.inventory import IPA, LANGUAGES, PAUSE, get_inventory, is_silence, is_vowel
+from vispeech.phonetics.ipa import ipa_features
 
 FEATURE_NAMES: tuple[str, ...] = (
     # Beskow (2004), in his order
@@ -43,7 +45,7 @@ _STRESS = FEATURE_NAMES.index("stress")
 
 
 @cache
-def _table() -> dict[str, dict[str, np.ndarray]]:
+def _curated() -> dict[str, dict[str, np.ndarray]]:
     """``{language: {symbol: vector with stress 0}}`` read from ``data/features.tsv``."""
     text = resources.files("vispeech.phonetics").joinpath("data/features.tsv").read_text(encoding="utf-8")
     rows = csv.DictReader(text.splitlines(), delimiter="\t")
@@ -55,6 +57,26 @@ def _table() -> dict[str, dict[str, np.ndarray]]:
     return table
 
 
+@cache
+def _ipa() -> dict[str, np.ndarray]:
+    """``{symbol: vector with stress 0}`` of every IPA phone, silences included."""
+    table: dict[str, np.ndarray] = {}
+    for symbol in get_inventory(IPA).symbols:
+        if is_silence(symbol):
+            features = {"silence": 1.0, "pause": float(symbol == PAUSE)}
+        else:
+            features = ipa_features(symbol)
+        vector = np.array([features.get(name, 0.0) for name in FEATURE_NAMES])
+        vector.setflags(write=False)
+        table[symbol] = vector
+    return table
+
+
+def _table(language: str) -> dict[str, np.ndarray]:
+    """``{symbol: vector with stress 0}`` of one phone set."""
+    return _ipa() if language == IPA else _curated()[language]
+
+
 def phone_features(symbol: str, language: str, stress: int = 0) -> np.ndarray:
     """Feature vector (float64, ``len(FEATURE_NAMES)``) of an inventory symbol.
 
@@ -62,7 +84,7 @@ def phone_features(symbol: str, language: str, stress: int = 0) -> np.ndarray:
     """
     get_inventory(language)
     try:
-        vector = _table()[language][symbol].copy()
+        vector = _table(language)[symbol].copy()
     except KeyError:
         raise VispeechError(f"unknown phone symbol {symbol!r} for language {language}") from None
     if stress and is_vowel(symbol, language):
@@ -74,7 +96,7 @@ def phone_features(symbol: str, language: str, stress: int = 0) -> np.ndarray:
 def feature_table(language: str) -> tuple[tuple[str, ...], np.ndarray]:
     """``(symbols, matrix)``: every inventory symbol and its unstressed feature row (read-only)."""
     symbols = get_inventory(language).symbols
-    matrix = np.stack([_table()[language][s] for s in symbols])
+    matrix = np.stack([_table(language)[s] for s in symbols])
     matrix.setflags(write=False)
     return symbols, matrix
 

@@ -1,8 +1,10 @@
 """Phone inventories.
 
-Every phone sequence in vispeech uses one symbol set per language: Swedish in the thesis's
-MFA-style ASCII set, English in ARPAbet (stress kept apart from the symbol, see
-:class:`vispeech.alignment.phones.Phone`). Both share the silence symbols below.
+Every phone sequence in vispeech uses one of three symbol sets, named by its ``language``:
+Swedish (``sv``) in the thesis's MFA-style ASCII set, English (``en``) in ARPAbet, and IPA
+(``ipa``) for every other language espeak-ng speaks, and for any transcription in IPA (see
+:mod:`vispeech.phonetics.ipa`). Stress is kept apart from the symbol (see
+:class:`vispeech.alignment.phones.Phone`). All three share the silence symbols below.
 
 Swedish (47 symbols, X-SAMPA-like as the NST lexicon writes them; example words in brackets):
 
@@ -28,8 +30,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cache
 
 from vispeech.errors import VispeechError
+from vispeech.phonetics.ipa import ipa_symbols, parse_ipa
 
 SILENCE = "sil"
 """Silence: leading, trailing and long pauses."""
@@ -39,8 +43,11 @@ PAUSE = "sp"
 
 SILENCE_SYMBOLS = frozenset({SILENCE, PAUSE})
 
-LANGUAGES = ("sv", "en")
-"""Languages with an inventory: Swedish and (American) English."""
+IPA = "ipa"
+"""The phone set of every language without a curated inventory: IPA segments."""
+
+LANGUAGES = ("sv", "en", IPA)
+"""The phone sets: Swedish and (American) English, curated; IPA, for any language."""
 
 _SILENCE_LABELS = frozenset({"sil", "spn", "<eps>", "", "_"})  # compared lower-case; "sp" is PAUSE
 _SWEDISH_STRESS_MARKS = {"'": 1, '"': 2}
@@ -81,11 +88,19 @@ _INVENTORIES = {
 
 
 def get_inventory(language: str) -> Inventory:
-    """The inventory of ``language`` (``"sv"`` or ``"en"``)."""
+    """The inventory of ``language`` (``"sv"``, ``"en"`` or ``"ipa"``)."""
+    if language == IPA:
+        return _ipa_inventory()
     try:
         return _INVENTORIES[language]
     except (KeyError, TypeError):
-        raise VispeechError(f"unknown language {language!r} (use sv or en)") from None
+        raise VispeechError(f"unknown language {language!r} for phones (use sv, en or ipa)") from None
+
+
+@cache
+def _ipa_inventory() -> Inventory:
+    symbols, vowels = ipa_symbols()
+    return Inventory(IPA, symbols + (SILENCE, PAUSE), vowels)
 
 
 def parse_symbol(label: str, language: str) -> tuple[str, int]:
@@ -94,7 +109,8 @@ def parse_symbol(label: str, language: str) -> tuple[str, int]:
     ``sil``, ``SIL``, ``spn``, ``<eps>``, ``_`` and the empty label read as ``sil``, ``sp``
     as ``sp`` (any case). English takes ARPAbet in any case with an optional stress digit
     (``AA1`` -> ``("AA", 1)``); Swedish takes its symbols with an optional leading stress
-    mark ``'`` (1) or ``"`` (2).
+    mark ``'`` (1) or ``"`` (2); IPA takes one segment (:func:`~vispeech.phonetics.ipa.parse_ipa`:
+    ``ˈaː`` -> ``("aː", 1)``, diacritics that the face does not show dropped).
     """
     inventory = get_inventory(language)
     text = label.strip()
@@ -104,6 +120,11 @@ def parse_symbol(label: str, language: str) -> tuple[str, int]:
     if folded in _SILENCE_LABELS:
         return SILENCE, 0
     stress = 0
+    if language == IPA:
+        symbol, stress = parse_ipa(text)
+        if symbol in inventory.symbols:
+            return symbol, stress
+        raise VispeechError(f"IPA phone {label!r} ({symbol}) has no articulatory features in vispeech")
     if language == "en":
         symbol = text.upper()
         if symbol[-1:] in ("0", "1", "2"):
@@ -118,21 +139,25 @@ def parse_symbol(label: str, language: str) -> tuple[str, int]:
 
 
 def guess_language(labels: Iterable[str]) -> str:
-    """``"en"`` if every non-silence label is ARPAbet, else ``"sv"`` if all are Swedish.
+    """``"en"`` if every non-silence label is ARPAbet, else ``"sv"`` if all are Swedish, else
+    ``"ipa"`` if all are IPA segments.
 
-    Labels with no phone at all (only silences) count as English. Raises
-    :class:`VispeechError` naming the first label that is neither.
+    Labels with no phone at all (only silences) count as English; IPA labels that are also
+    Swedish symbols (``m a t``) read as Swedish. Raises :class:`VispeechError` naming the first
+    label, and its position, that is none of these.
     """
     labels = list(labels)
-    not_english = [label for label in labels if not _parses(label, "en")]
-    if not not_english:
-        return "en"
-    not_swedish = [label for label in labels if not _parses(label, "sv")]
-    if not not_swedish:
-        return "sv"
-    neither = [label for label in not_swedish if label in not_english]
-    first = neither[0] if neither else not_swedish[0]
-    raise VispeechError(f"unknown phone symbol {first!r}: neither ARPAbet nor Swedish")
+    sets = {"en": "ARPAbet", "sv": "Swedish", IPA: "IPA"}
+    parses = {language: [_parses(label, language) for label in labels] for language in sets}
+    for language in sets:
+        if all(parses[language]):
+            return language
+    for position, label in enumerate(labels):
+        if not any(parses[language][position] for language in sets):
+            raise VispeechError(f"unknown phone symbol {label!r} (phone {position}): neither ARPAbet, Swedish nor IPA")
+    best = max(sets, key=lambda language: sum(parses[language]))
+    position = parses[best].index(False)
+    raise VispeechError(f"unknown phone symbol {labels[position]!r} (phone {position}): the other phones are {sets[best]}")
 
 
 def is_vowel(symbol: str, language: str) -> bool:

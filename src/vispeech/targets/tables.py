@@ -85,7 +85,7 @@ def _number(value, key: str) -> float:
 
 
 class TargetTable:
-    """Targets of every phone of both languages: values and which of them are defined.
+    """Targets of every phone of every phone set: values and which of them are defined.
 
     ``overrides`` (``{"sv": {symbol: {channel: value or None}}, "en": {...}}``) apply on top
     of the data file's own overrides; ``None`` marks a channel undefined.
@@ -95,28 +95,35 @@ class TargetTable:
         self.channels = TARGET_CHANNELS
         self._values: dict[str, np.ndarray] = {}
         self._defined: dict[str, np.ndarray] = {}
-        data = _data()
-        bias, weights = self._feature_map(data["feature_map"])
+        self._bias, self._weights = self._feature_map(_data()["feature_map"])
         extra = overrides or {}
         if not isinstance(extra, Mapping) or not all(isinstance(t, Mapping) for t in extra.values()):
             raise VispeechError("target overrides must be {language: {symbol: {channel: value}}}")
         unknown = set(extra) - set(LANGUAGES)
         if unknown:
             raise VispeechError(f"target overrides for unknown language {min(unknown)!r}")
-        for language in LANGUAGES:
-            rows = phone_rows(language)
-            values = np.clip(bias + rows.features @ weights, 0.0, 1.0)
-            defined = np.ones(values.shape, dtype=bool)
-            for rule in data["underspecified"]:
-                when = np.all([rows.features[:, FEATURE_NAMES.index(f)] == v for f, v in rule["when"].items()], axis=0)
-                for state in ("defined", "undefined"):
-                    for channel in self._columns(rule.get(state, ())):
-                        defined[when, channel] = state == "defined"
-            for table in (data["overrides"].get(language, {}), extra.get(language, {})):
-                self._apply_overrides(table, rows, values, defined)
-            values.setflags(write=False)
-            defined.setflags(write=False)
-            self._values[language], self._defined[language] = values, defined
+        self._extra = extra
+        for language in extra:  # checked now; the other phone sets when first asked for
+            self._build(language)
+
+    def _build(self, language: str) -> None:
+        """Compute the targets of ``language``'s rows (once)."""
+        if language in self._values:
+            return
+        data = _data()
+        rows = phone_rows(language)
+        values = np.clip(self._bias + rows.features @ self._weights, 0.0, 1.0)
+        defined = np.ones(values.shape, dtype=bool)
+        for rule in data["underspecified"]:
+            when = np.all([rows.features[:, FEATURE_NAMES.index(f)] == v for f, v in rule["when"].items()], axis=0)
+            for state in ("defined", "undefined"):
+                for channel in self._columns(rule.get(state, ())):
+                    defined[when, channel] = state == "defined"
+        for table in (data["overrides"].get(language, {}), self._extra.get(language, {})):
+            self._apply_overrides(table, rows, values, defined)
+        values.setflags(write=False)
+        defined.setflags(write=False)
+        self._values[language], self._defined[language] = values, defined
 
     def _columns(self, names: Iterable[str]) -> list[int]:
         return [self.channels.index(c) for name in names for c in expand_channel(name)]
@@ -154,11 +161,13 @@ class TargetTable:
     def values(self, language: str) -> np.ndarray:
         """Targets of every row of :func:`phone_rows` (undefined ones hold the feature-derived value)."""
         get_inventory(language)
+        self._build(language)
         return self._values[language]
 
     def defined(self, language: str) -> np.ndarray:
         """Which entries of :meth:`values` the phone actually specifies."""
         get_inventory(language)
+        self._build(language)
         return self._defined[language]
 
 
