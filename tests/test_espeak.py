@@ -142,7 +142,7 @@ def test_silence_only_text():
     [
         (("",), "text is empty"),
         ((" \n\t ",), "text is empty"),
-        (("hej", "de"), "unknown language 'de'"),
+        (("hej", "xx"), "unknown language 'xx'"),
         (("hej", "sv", 0.2), "rate must be between 0.5 and 2.5"),
         (("hej", "sv", float("nan")), "rate must be between"),
     ],

@@ -78,7 +78,8 @@ def split_clauses(text: str) -> list[str]:
 
 
 def stream_channels(model: Estimator, language: str, fps: float) -> tuple[str, ...]:
-    """The channels of ``model``'s post-processed tracks (those a stream's frames carry)."""
+    """The channels of ``model``'s post-processed tracks (those a stream's frames carry) for
+    phones of ``language`` (a phone set: ``sv``, ``en`` or ``ipa``)."""
     probe = PhoneSequence([Phone(SILENCE, 0.0, 1.0 / fps)], language)
     return animate(probe, model, fps).channels
 
@@ -100,10 +101,10 @@ def speech_messages(
     (``n_frames``, ``duration`` in seconds). The frames cover the audio as
     :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them.
     """
-    from vispeech.frontends.espeak import synthesize
+    from vispeech.frontends.espeak import phone_set, synthesize
 
     clauses = split_clauses(spoken_text(text))
-    channels = stream_channels(model, language, fps)
+    channels = stream_channels(model, phone_set(language), fps)
     samples_done = frames_done = seq = 0
     sample_rate = None
     for clause in clauses:

@@ -37,6 +37,7 @@ from vispeech.errors import VispeechError
 from vispeech.files import read_text
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
 from vispeech.limits import check_fps, check_text, parse_json
+from vispeech.frontends.espeak import find_voice
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, check_formats
 
@@ -214,8 +215,10 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
             raise VispeechError("text is empty")
         check_text(text)
     lang = record.get("lang", None if kind == "alignment" else defaults.lang)
-    if lang is not None:
-        get_inventory(lang)
+    if lang is not None and kind == "alignment":
+        get_inventory(lang)  # the alignment's phone set
+    elif lang is not None:
+        lang = find_voice(lang).language
     fps = check_fps(_number(record.get("fps", defaults.fps), "fps"))
     rate = _number(record.get("rate", 1.0), "rate")
     if not MIN_RATE <= rate <= MAX_RATE:

@@ -14,7 +14,7 @@ from vispeech.cli import lang_option, main
 @click.argument("text")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.")
-@lang_option("Language of the speech: en or sv.", name="language")
+@lang_option("Language of the speech: en (pocketsphinx) or any other `vispeech languages` lists (DTW against espeak-ng).", name="language")
 @click.option("--method", type=click.Choice(["pocketsphinx", "dtw"]),
               help="pocketsphinx (English only) or DTW against espeak-ng's speech of TEXT "
               "(default: pocketsphinx for en, dtw for sv).")

@@ -17,7 +17,7 @@ from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, c
 @click.argument("audio", type=click.Path(path_type=Path))
 @click.option("--text", "-t", default=None,
               help="The transcript, aligned with the audio: its phones drive the model.")
-@lang_option("Language of the transcript: sv or en.")
+@lang_option("Language of the transcript: any `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option("--model", "-m", default=None,
               help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "

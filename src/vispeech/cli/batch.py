@@ -18,7 +18,7 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
 @click.argument("job", type=click.Path(path_type=Path))
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder: one folder per line, and index.jsonl.")
-@lang_option("Language of lines that do not say: sv or en.")
+@lang_option("Language of lines that do not say: any `vispeech languages` lists.")
 @click.option("--model", "-m", default=None,
               help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
                    "[default: grid-tdnn; grid-audio-encdec for audio without text].")

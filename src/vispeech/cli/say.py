@@ -23,7 +23,7 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 
 @main.command()
 @click.argument("text", required=False)
-@lang_option("Language of the text: sv or en.")
+@lang_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @_model_option
 @_fps_option
@@ -48,7 +48,7 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
     if text is None:
         text = GREETINGS.get(lang)
         if text is None:
-            raise VispeechError(f"unknown language {lang!r} (use sv or en)")
+            raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {lang!r}")
     check_text(text)
     check_outputs(out_dir)
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
@@ -61,7 +61,7 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 @main.command("animate-phones")
 @click.argument("alignment", type=click.Path(path_type=Path))
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
-@lang_option("Language of the symbols: sv or en [default: guessed from the symbols].", default=None)
+@lang_option("Phone set of the symbols: sv, en or ipa [default: guessed from the symbols].", default=None)
 @_model_option
 @_fps_option
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")

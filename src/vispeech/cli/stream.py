@@ -29,7 +29,7 @@ SERVER = "ws://127.0.0.1:8000"
               help="With --audio: write the frames to this file (format from the extension: .json, .csv, ...).")
 @click.option("--url", help=f"The server's WebSocket URL [default: {SERVER}/api/stream; with --audio "
               f"{SERVER}/api/listen].")
-@lang_option("Language of the text: sv or en.")
+@lang_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--model", "-m", default=None, help="Model name [default: the server's stream or audio model].")
 @click.option("--timeout", default=60.0, show_default=True, type=float,
               help="Seconds to wait for the whole stream (with --audio --realtime: beyond the audio's length).")

@@ -3,10 +3,14 @@
 The library comes from the ``espeakng-loader`` wheel and is driven through ctypes in
 synchronous mode with phoneme events. Every phone's onset is the sample espeak reports for
 its phoneme event; a phone lasts until the next event (the last one to the end of the audio).
-Phoneme names are espeak's ASCII mnemonics, mapped to the inventory by
-:mod:`vispeech.phonetics.espeak_names`; pauses, and any audio before the first phoneme, are
-``sil``. In Swedish, ``r`` followed by ``t d n l s`` in the same word merges into the
-retroflex (``rt rd rn rl rs``), as the MFA-style Swedish inventory writes it.
+Every voice espeak-ng ships with its dictionary speaks (:func:`voices`). Swedish (``sv``) and
+English (``en``, voice ``en-us``) phonemes are read by their ASCII mnemonics into the curated
+inventories; every other language's by their IPA into IPA phones (:func:`phone_set`), both
+by :mod:`vispeech.phonetics.espeak_names`. Pauses, and any audio before the first phoneme,
+are ``sil``. In Swedish, ``r`` followed by ``t d n l s`` in the same word merges into the
+retroflex (``rt rd rn rl rs``), as the MFA-style Swedish inventory writes it. A phoneme with
+no IPA reading (none in espeak-ng 1.52's voices as far as tested) is joined to the phone
+before it, with a :class:`PhoneWarning`.
 
 Words are the blank-separated tokens of the text (``"$1,000,000"`` is one word however
 many espeak reads out), stripped of surrounding punctuation, each from its first phone to
@@ -33,18 +37,20 @@ import ctypes
 import math
 import re
 import threading
+import warnings
 from dataclasses import dataclass, replace
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
-from vispeech.phonetics.espeak_names import espeak_to_symbols
-from vispeech.phonetics.inventory import SILENCE, get_inventory, is_silence
+from vispeech.phonetics.espeak_names import espeak_ipa_to_symbols, espeak_to_symbols
+from vispeech.phonetics.inventory import IPA, SILENCE, is_silence
 
-VOICES = {"sv": "sv", "en": "en-us"}
-"""espeak-ng voice used for each language."""
+CURATED = {"sv": "sv", "en": "en-us"}
+"""The languages read into a curated inventory, and the espeak-ng voice each is spoken with."""
 
 DEFAULT_WPM = 175
 """espeak-ng's default speaking rate in words per minute (``rate=1.0``)."""
@@ -58,9 +64,31 @@ _RETROFLEX = {"t": "rt", "d": "rd", "n": "rn", "l": "rl", "s": "rs"}
 # espeak_lib.h constants
 _AUDIO_OUTPUT_SYNCHRONOUS = 2
 _INITIALIZE_PHONEME_EVENTS = 0x1
+_INITIALIZE_PHONEME_IPA = 0x2
 _CHARS_UTF8 = 1
 _RATE = 1
 _EVENT_LIST_TERMINATED, _EVENT_WORD, _EVENT_PHONEME = 0, 1, 7
+
+
+class PhoneWarning(UserWarning):
+    """espeak-ng spoke a phoneme that has no phone in vispeech (it joins the phone before it)."""
+
+
+@dataclass(frozen=True)
+class Voice:
+    """An espeak-ng voice: the language code that selects it, its name and phone set, and the
+    other codes that select it (``fr`` for ``fr-fr``, ``zh`` for ``cmn``)."""
+
+    language: str
+    name: str
+    identifier: str
+    phones: str
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def selector(self) -> str:
+        """What selects this voice in espeak-ng (``espeak_SetVoiceByName``)."""
+        return CURATED.get(self.language, self.identifier)
 
 
 @dataclass
@@ -97,12 +125,24 @@ class _Event(ctypes.Structure):
 _Callback = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int, ctypes.POINTER(_Event))
 
 
-class _Engine:
-    """The loaded library, its sample rate, and what the callback collects for one call."""
+class _VoiceEntry(ctypes.Structure):
+    _fields_ = [
+        ("name", ctypes.c_char_p), ("languages", ctypes.c_void_p), ("identifier", ctypes.c_char_p),
+        ("gender", ctypes.c_ubyte), ("age", ctypes.c_ubyte), ("variant", ctypes.c_ubyte),
+        ("xx1", ctypes.c_ubyte), ("score", ctypes.c_int), ("spare", ctypes.c_void_p),
+    ]
 
-    def __init__(self) -> None:
+
+class _Engine:
+    """The loaded library, its sample rate, and what the callback collects for one call.
+
+    ``ipa``: phoneme events carry IPA names (else ASCII mnemonics), fixed when it starts.
+    """
+
+    def __init__(self, ipa: bool = False) -> None:
         import espeakng_loader
 
+        self.ipa = ipa
         self.lib = ctypes.CDLL(espeakng_loader.get_library_path())
         self.lib.espeak_Initialize.restype = ctypes.c_int
         self.lib.espeak_Initialize.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
@@ -113,7 +153,8 @@ class _Engine:
             ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p,
         ]
         data_parent = str(Path(espeakng_loader.get_data_path()).parent).encode()
-        rate = self.lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, data_parent, _INITIALIZE_PHONEME_EVENTS)
+        options = _INITIALIZE_PHONEME_EVENTS | (_INITIALIZE_PHONEME_IPA if ipa else 0)
+        rate = self.lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, data_parent, options)
         if rate <= 0:
             raise RuntimeError("could not initialise espeak-ng")
         self.sample_rate = rate
@@ -128,8 +169,9 @@ class _Engine:
         i = 0
         while events and events[i].type != _EVENT_LIST_TERMINATED:
             event = events[i]
-            if event.type == _EVENT_PHONEME:
-                self.events.append(("phoneme", event.sample, event.id.string.decode("ascii", "replace")))
+            if event.type == _EVENT_PHONEME:  # an IPA name cut at 8 bytes may end in half a character
+                name = event.id.string.decode("utf-8", "ignore") if self.ipa else event.id.string.decode("ascii", "replace")
+                self.events.append(("phoneme", event.sample, name))
             elif event.type == _EVENT_WORD:
                 self.events.append(("word", event.sample, event.text_position, event.length))
             i += 1
@@ -147,6 +189,25 @@ class _Engine:
         audio = np.concatenate(self.chunks) if self.chunks else np.zeros(0, np.int16)
         return audio, self.events
 
+    def voices(self) -> list[tuple[list[tuple[int, str]], str, str]]:
+        """``(languages, name, identifier)`` of every voice espeak-ng lists; ``languages``:
+        ``(priority, code)`` pairs, the voice's own code first (a lower priority fits better)."""
+        self.lib.espeak_ListVoices.restype = ctypes.POINTER(ctypes.POINTER(_VoiceEntry))
+        self.lib.espeak_ListVoices.argtypes = [ctypes.c_void_p]
+        entries = self.lib.espeak_ListVoices(None)
+        found, i = [], 0
+        while entries[i]:
+            entry = entries[i].contents
+            raw = ctypes.string_at(entry.languages, 256)  # (priority byte, code, NUL)..., then NUL
+            languages, k = [], 0
+            while k < len(raw) and raw[k] != 0:
+                end = raw.index(b"\0", k + 1)
+                languages.append((raw[k], raw[k + 1:end].decode("ascii", "replace").lower()))
+                k = end + 1
+            found.append((languages, entry.name.decode("utf-8", "replace"), entry.identifier.decode("utf-8", "replace")))
+            i += 1
+        return found
+
     def close(self) -> None:
         """Terminate espeak-ng and unload the library, so that the next engine starts from its initial state."""
         self.lib.espeak_Terminate()
@@ -157,17 +218,79 @@ _lock = threading.Lock()
 _engine: _Engine | None = None  # kept loaded between calls that need not be reproducible
 
 
+@cache
+def voices() -> tuple[Voice, ...]:
+    """Every language espeak-ng can speak here, by code, sorted: the voices it lists whose
+    pronunciation dictionary is installed (one voice per code), with ``en`` for ``en-us``."""
+    import espeakng_loader
+
+    with _lock:
+        engine = _Engine()
+        try:
+            listed = engine.voices()
+        finally:
+            engine.close()
+    data = Path(espeakng_loader.get_data_path())
+    found: dict[str, Voice] = {}
+    aliases: dict[str, tuple[int, str]] = {}  # other code -> (priority, voice code)
+    for languages, name, identifier in listed:
+        code = languages[0][1]
+        if code in found or not (data / f"{_dictionary(data, identifier, code)}_dict").is_file():
+            continue
+        found[code] = Voice(code, name, identifier, IPA)
+        for priority, other in languages[1:]:
+            if other not in aliases or priority < aliases[other][0]:
+                aliases[other] = (priority, code)
+    found["sv"] = replace(found["sv"], phones="sv")
+    found["en"] = replace(found.pop("en-us"), language="en", phones="en")  # the curated English
+    aliases = {other: ("en" if code == "en-us" else code) for other, (_, code) in aliases.items()}
+    aliases["en-us"] = "en"
+    by_voice: dict[str, list[str]] = {}
+    for other, code in sorted(aliases.items()):
+        if other not in found and code in found:
+            by_voice.setdefault(code, []).append(other)
+    return tuple(sorted((replace(v, aliases=tuple(by_voice.get(v.language, ()))) for v in found.values()),
+                        key=lambda v: v.language))
+
+
+def _dictionary(data: Path, identifier: str, code: str) -> str:
+    """The pronunciation dictionary a voice reads: its file's ``dictionary`` line, else its language's."""
+    path = data / "lang" / identifier
+    if path.is_file():
+        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+            words = line.split()
+            if len(words) >= 2 and words[0] == "dictionary":
+                return words[1]
+    return code.split("-")[0]
+
+
+def find_voice(language: str) -> Voice:
+    """The voice of a language code (any case); :class:`VispeechError` naming the command that lists them."""
+    code = str(language).strip().lower()
+    for voice in voices():
+        if voice.language == code or code in voice.aliases:
+            return voice
+    raise VispeechError(f"unknown language {language!r}: `vispeech languages` lists the {len(voices())} espeak-ng speaks")
+
+
+def phone_set(language: str) -> str:
+    """The phone set a language's phones come in: ``sv``, ``en`` or ``ipa`` (every other language)."""
+    return find_voice(language).phones
+
+
 def synthesize(text: str, language: str = "en", rate: float = 1.0, *, reproducible: bool = True) -> Speech:
     """Speak ``text`` with espeak-ng and return the audio with its phones and words.
 
-    ``language`` is ``"sv"`` (voice ``sv``) or ``"en"`` (voice ``en-us``); ``rate`` is a
+    ``language`` is a code of :func:`voices`: ``"sv"`` and ``"en"`` (voice ``en-us``) give
+    phones of the curated inventories, every other language IPA phones. ``rate`` is a
     speaking-rate factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover
-    ``[0, duration]`` exactly, in the language's inventory. ``reproducible=False`` saves
-    about 7 ms by reusing the library loaded by the last such call, at the price of samples
-    and phone onsets that depend on what was spoken before (see the module docstring).
+    ``[0, duration]`` exactly. ``reproducible=False`` saves about 7 ms by reusing the library
+    loaded by the last such call, at the price of samples and phone onsets that depend on
+    what was spoken before (see the module docstring).
     """
     global _engine
-    get_inventory(language)
+    voice = find_voice(language)
+    ipa = voice.phones == IPA
     if not text or not text.strip():
         raise VispeechError("text is empty")
     try:
@@ -177,12 +300,12 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0, *, reproducib
     if not MIN_RATE <= factor <= MAX_RATE:
         raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate!r}")
     with _lock:
-        if reproducible and _engine is not None:  # the library must be unloaded to start afresh
+        if _engine is not None and (reproducible or _engine.ipa != ipa):  # unload to start afresh
             _engine.close()
             _engine = None
-        engine = _engine or _Engine()
+        engine = _engine or _Engine(ipa)
         try:
-            samples, events = engine.synthesize(text, VOICES[language], round(DEFAULT_WPM * factor))
+            samples, events = engine.synthesize(text, voice.selector, round(DEFAULT_WPM * factor))
         finally:
             if reproducible:
                 engine.close()
@@ -192,12 +315,15 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0, *, reproducib
     if len(samples) == 0:
         raise VispeechError("espeak-ng produced no audio for this text")
     audio = samples.astype(np.float32) / 32768.0
-    phones = _phone_sequence(text, events, len(audio), sample_rate, language)
+    phones = _phone_sequence(text, events, len(audio), sample_rate, voice.phones, voice.language)
     return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
 
 
-def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate: int, language: str) -> PhoneSequence:
-    """Turn espeak's word and phoneme events into a gap-free, validated phone sequence."""
+def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate: int, language: str,
+                    spoken: str) -> PhoneSequence:
+    """Turn espeak's word and phoneme events into a gap-free, validated phone sequence.
+
+    ``language`` is the phone set, ``spoken`` the language code (for warnings)."""
     # A word is a blank-separated token of the text. espeak may read one token as several
     # words ("1,000,000", "iPhone") and reports their positions loosely: each word event
     # goes to the token its position falls in (or the one before, on a blank).
@@ -222,7 +348,19 @@ def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate:
     phones: list[Phone] = []
     for i, (start, name, table, word) in enumerate(onsets):
         stop = onsets[i + 1][0] if i + 1 < len(onsets) else n_samples
-        pairs = espeak_to_symbols(name, language, table)
+        if language == IPA:
+            try:
+                pairs = espeak_ipa_to_symbols(name)
+            except VispeechError:
+                warnings.warn(f"espeak-ng phoneme {name!r} ({spoken}) has no IPA phone; it joins the phone "
+                              "before it", PhoneWarning, stacklevel=3)
+                pairs = ()
+            if not pairs:  # a length mark of its own, or an unknown phoneme: the phone before lasts
+                if phones and stop > start:
+                    phones[-1] = replace(phones[-1], end=stop / sample_rate)
+                continue
+        else:
+            pairs = espeak_to_symbols(name, language, table)
         for k, (symbol, stress) in enumerate(pairs):  # r-coloured vowels: equal parts
             a = start + (stop - start) * k / len(pairs)
             b = start + (stop - start) * (k + 1) / len(pairs)
