@@ -54,7 +54,9 @@ def client(site) -> TestClient:
 def test_config(client, site):
     config = client.get("/api/config").json()
     assert config["avatar_url"] == "/avatar.glb"
-    assert config["languages"] == ["sv", "en"]
+    assert config["languages"][:2] == ["sv", "en"] and {"de", "cmn", "sw"} <= set(config["languages"])
+    assert len(config["languages"]) > 100 and config["language_names"]["de"] == "German"
+    assert config["chat_languages"] == ["sv", "en"]  # the rule bot
     assert config["default_model"] == DEFAULT_MODEL and {"baseline", DEFAULT_MODEL} <= set(config["models"])
     assert "tdnn-beskow" not in config["models"]  # untrained networks are not offered
     assert config["fps"] == 30.0 and config["max_text"] == 1000
@@ -96,6 +98,16 @@ def test_chat_answers_in_swedish_and_english(client):
     assert sv["speech"]["text"] == GREETINGS["sv"] and sv["speech"]["animation"]["n_frames"] > 10
     en = client.post("/api/chat", json={"message": "What is your name?", "lang": "en", "speak": False}).json()
     assert en == {"reply": "My name is Vera.", "lang": "en", "speech": None}
+    other = client.post("/api/chat", json={"message": "Guten Tag!", "lang": "de"})
+    assert other.status_code == 400 and "chat bot speaks sv and en, not 'de'" in other.json()["detail"]
+
+
+def test_speak_in_any_language_espeak_speaks(client):
+    german = client.post("/api/speak", json={"text": "Guten Tag, wie geht es dir?", "lang": "de"}).json()
+    phones = german["animation"]["phones"]
+    assert phones["language"] == "ipa" and "ɡ" in [p["symbol"] for p in phones["phones"]]
+    french = client.post("/api/speak", json={"text": "Bonjour mon ami.", "lang": "fr"})  # fr is fr-fr's code
+    assert french.status_code == 200 and french.json()["animation"]["n_frames"] > 10
 
 
 def test_pages_static_files_and_the_2d_face(client, site):
@@ -126,7 +138,7 @@ def test_without_avatar_or_built_web_app(tmp_path):
     ({"text": ""}, 422, "text"),
     ({"text": "   "}, 422, "text"),
     ({"text": "hi\u0000there"}, 422, "control characters"),
-    ({"text": "hello", "lang": "fr"}, 422, "lang"),
+    ({"text": "hello", "lang": "xx"}, 422, "unknown language 'xx'"),
     ({"text": "hello", "model": "no-such-model"}, 400, "unknown model"),
     ({"text": "hello", "model": "tdnn-beskow"}, 400, "unknown model"),
     ({"text": "hello", "rate": 9}, 422, "rate"),
@@ -258,6 +270,9 @@ def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
     with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", bot=bot, rate_limit=0))) as app:
         answer = app.post("/api/chat", json={"message": "hej", "lang": "sv", "speak": False}).json()
         assert answer["reply"] == "echo hej (sv)"
+        german = app.post("/api/chat", json={"message": "hallo", "lang": "de"}).json()  # any language passes through
+        assert german["reply"] == "echo hallo (de)" and german["speech"]["animation"]["phones"]["language"] == "ipa"
+        assert app.get("/api/config").json()["chat_languages"] is None
         failed = app.post("/api/chat", json={"message": "fail", "speak": False})
         assert failed.status_code == 502 and "HTTP 500" in failed.json()["detail"]
 

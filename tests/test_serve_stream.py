@@ -153,7 +153,7 @@ def test_bad_stream_messages_get_errors_and_the_stream_goes_on(client):
             ('{"type": "shout"}', '"type" must be'),
             ('{"text": "hi"}', '"type" is missing'),
             ('{"type": "text", "text": ""}', "text"),
-            ('{"type": "text", "text": "hi", "lang": "de"}', "lang"),
+            ('{"type": "text", "text": "hi", "lang": "xx"}', "unknown language"),
             ('{"type": "text", "text": "hi", "model": "nope"}', "unknown model"),
             ('{"type": "phones", "phones": [{"symbol": "AA", "start": 0, "end": NaN}]}', "finite"),
         ]:
@@ -346,7 +346,7 @@ def test_stream_command_times_a_real_server(tmp_path):
         result = CliRunner().invoke(main, ["stream", "Hej! Hur mår du?", "--lang", "sv", "--url", url])
         assert result.exit_code == 0, result.output
         assert "first frame" in result.output and "frames late" in result.output
-        refused = CliRunner().invoke(main, ["stream", "hi", "--lang", "de", "--url", url])
+        refused = CliRunner().invoke(main, ["stream", "hi", "--lang", "xx", "--url", url])
         assert refused.exit_code == 2 and "lang" in refused.output
     finally:
         server.should_exit = True

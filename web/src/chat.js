@@ -5,7 +5,7 @@ import { startApp } from './app.js';
 import { requestChat, streamSpeech } from './server.js';
 
 const $ = (id) => document.getElementById(id);
-const LANGUAGE_NAMES = { sv: 'Svenska', en: 'English' };
+const LANGUAGE_NAMES = { sv: 'Svenska', en: 'English' }; // the rest: the names the server sends
 const status = $('status');
 const show = (message) => {
   status.textContent = message;
@@ -27,7 +27,20 @@ function fillSelect(select, values, chosen, label = (v) => v) {
 
 async function setup(app) {
   const { config } = app;
-  fillSelect($('lang'), config.languages, config.languages[0], (v) => LANGUAGE_NAMES[v] || v);
+  const names = { ...(config.language_names || {}), ...LANGUAGE_NAMES };
+  fillSelect($('lang'), config.languages, config.languages[0], (v) => names[v] || v);
+  // Send asks the chat bot, which may answer in some languages only; Say speaks any of them.
+  const chatLanguages = config.chat_languages || null;
+  const chatRefused = () => chatLanguages !== null && !chatLanguages.includes($('lang').value);
+  const updateSend = () => {
+    const lang = $('lang').value;
+    const refused = chatRefused();
+    $('send').disabled = refused;
+    $('send').title = refused
+      ? `The chat bot answers in ${chatLanguages.map((v) => names[v] || v).join(' and ')}; Say speaks ${names[lang] || lang}.`
+      : '';
+  };
+  $('lang').onchange = updateSend;
   fillSelect($('model'), config.models, config.default_model);
   $('model').disabled = !config.models.length;
   if (config.max_text) $('text').maxLength = config.max_text;
@@ -41,7 +54,9 @@ async function setup(app) {
 
   const busy = (on) => {
     for (const id of ['send', 'say']) $(id).disabled = on;
+    if (!on) updateSend();
   };
+  updateSend();
 
   // Talk: the microphone drives the avatar until the button is pressed again.
   let listening = null;
@@ -104,13 +119,13 @@ async function setup(app) {
 
   $('form').onsubmit = (e) => {
     e.preventDefault();
-    submit(true);
+    submit(!chatRefused());
   };
   $('say').onclick = () => submit(false);
   $('text').onkeydown = (e) => {
     if (e.key === 'Enter' && !e.shiftKey) {
       e.preventDefault();
-      submit(true);
+      submit(!chatRefused()); // in a language the bot does not answer in, Enter says the text
     }
   };
 }

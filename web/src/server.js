@@ -5,7 +5,10 @@ import { decodePcm16 } from './performer.js';
 
 const LIVE_MARGIN = 0.1; // seconds a live frame may take beyond the stream's delay before it is late
 
-const DEFAULT_CONFIG = { avatar_url: null, languages: ['sv', 'en'], models: [], default_model: null, fps: 30 };
+const DEFAULT_CONFIG = {
+  avatar_url: null, languages: ['sv', 'en'], language_names: {}, chat_languages: ['sv', 'en'], models: [],
+  default_model: null, fps: 30,
+};
 
 async function postJson(path, body) {
   const response = await fetch(path, {

@@ -48,12 +48,11 @@ import vispeech.preview
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
-from vispeech.frontends.espeak import VOICES
+from vispeech.frontends.espeak import find_voice, voices
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
-from vispeech.phonetics.inventory import LANGUAGES
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, listen, speak
 from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
@@ -129,6 +128,12 @@ _ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 
 
 def _default_workers() -> int:
     return max(1, (os.cpu_count() or 2) - 1)
+
+
+def _chat_languages(bot: ChatBot) -> list[str] | None:
+    """The languages ``bot`` answers in (``None``: any, or it does not say)."""
+    languages = getattr(bot, "languages", None)
+    return None if languages is None else list(languages)
 
 
 @dataclass
@@ -346,7 +351,9 @@ class SpeechService:
 
     def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
         name, model = self.model(model_name)
-        return CacheKey(text, lang, VOICES[lang], float(rate), name, self.versions[name], self.config.fps), model
+        voice = find_voice(lang)
+        return CacheKey(text, voice.language, voice.selector, float(rate), name, self.versions[name],
+                        self.config.fps), model
 
     def lookup(self, text: str, lang: str, model_name: str | None, rate: float) -> dict | None:
         """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
@@ -536,7 +543,9 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         return {
             "avatar_url": "/avatar.glb" if config.avatar is not None else None,
             "avatar_credit": config.avatar_credit,
-            "languages": list(LANGUAGES),
+            "languages": [v.language for v in sorted(voices(), key=lambda v: (v.phones == "ipa", v.language != "sv"))],
+            "language_names": {v.language: v.name.strip() for v in voices()},
+            "chat_languages": _chat_languages(config.bot),
             "models": [name for name, model in service.models.items() if model.input_kind == "phones"],
             "audio_models": [name for name, model in service.models.items() if model.input_kind == "audio"],
             "default_model": config.default_model,

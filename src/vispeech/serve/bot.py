@@ -24,7 +24,10 @@ class ChatBotError(RuntimeError):
 
 @runtime_checkable
 class ChatBot(Protocol):
-    """Anything that answers a chat message in a language (``"sv"`` or ``"en"``) with text."""
+    """Anything that answers a chat message in a language (a code of ``vispeech languages``) with
+    text; ``languages`` are the codes it answers in, ``None`` for any."""
+
+    languages: tuple[str, ...] | None
 
     def reply(self, message: str, lang: str) -> str: ...
 
@@ -76,6 +79,8 @@ class RuleBot:
     (local time by default).
     """
 
+    languages = ("sv", "en")
+
     def __init__(self, name: str = "Vera", clock: Callable[[], datetime] = datetime.now) -> None:
         self.name = name
         self.clock = clock
@@ -85,7 +90,8 @@ class RuleBot:
     def reply(self, message: str, lang: str) -> str:
         """The answer to ``message`` in ``lang``."""
         if lang not in self._rules:
-            raise VispeechError(f"unknown language {lang!r} (use sv or en)")
+            raise VispeechError(f"the built-in chat bot speaks sv and en, not {lang!r}; connect a chat service "
+                                "(vispeech serve --chat-url) for other languages")
         rule = next((rule for rule, pattern in self._rules[lang] if pattern.search(message)), "fallback")
         return _REPLIES[lang][rule].format(name=self.name, time=f"{self.clock():%H:%M}")
 
@@ -100,6 +106,7 @@ class HTTPChatBot:
     """
 
     max_reply_bytes = 1 << 20
+    languages = None  # any: the language is passed through
 
     def __init__(
         self,

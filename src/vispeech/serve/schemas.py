@@ -35,7 +35,17 @@ def _printable(text: str) -> str:
     return text
 
 
-Language = Literal["sv", "en"]
+def _spoken_language(code: str) -> str:
+    from vispeech.frontends.espeak import find_voice
+
+    return find_voice(code).language
+
+
+Language = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=40),
+                     AfterValidator(_spoken_language)]
+"""A language espeak-ng speaks (``vispeech languages``), read as its own code (``fr`` -> ``fr-fr``)."""
+PhoneSet = Literal["sv", "en", "ipa"]
+"""The phone set of timed phones: Swedish, English (ARPAbet) or IPA."""
 Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS),
                  AfterValidator(_printable)]
 Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
@@ -123,7 +133,7 @@ class ChatRequest(BaseModel):
 
 class ChatResponse(BaseModel):
     reply: str
-    lang: Language
+    lang: str
     speech: SpeakResponse | None = None
 
 
@@ -133,6 +143,11 @@ class ConfigResponse(BaseModel):
     avatar_url: str | None
     avatar_credit: str | None = None
     languages: list[str]
+    """Codes of the languages text is spoken in: sv and en first, then every other espeak-ng voice."""
+    language_names: dict[str, str] = {}
+    """Each language's name, as espeak-ng gives it (``de``: ``German``)."""
+    chat_languages: list[str] | None = None
+    """The languages the chat bot answers in (``null``: any)."""
     models: list[str]
     """Models that animate text and phones (``/api/speak``, ``/api/chat``, ``/api/stream``)."""
     audio_models: list[str] = []
@@ -176,7 +191,7 @@ class PhonesMessage(BaseModel):
 
     type: Literal["phones"]
     phones: Annotated[list[StreamPhone], Field(max_length=MAX_PHONES_PER_MESSAGE)]
-    lang: Language | None = None
+    lang: PhoneSet | None = None
     final: bool = False
     model: ModelName | None = None
 
