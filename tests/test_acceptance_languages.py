@@ -120,3 +120,43 @@ def test_cli_lists_languages_and_says_in_one(tmp_path):
     unknown = CliRunner().invoke(main, ["say", "hi", "--lang", "xx", "-o", str(tmp_path / "xx")])
     assert unknown.exit_code == 2 and "unknown language 'xx'" in unknown.output
     assert not (tmp_path / "xx").exists()
+
+
+@pytest.mark.parametrize(("symbol", "language", "viseme"), [
+    ("P", "en", "PP"), ("M", "en", "PP"), ("F", "en", "FF"), ("TH", "en", "TH"), ("T", "en", "DD"), ("K", "en", "kk"),
+    ("CH", "en", "CH"), ("SH", "en", "CH"), ("S", "en", "SS"), ("N", "en", "nn"), ("L", "en", "nn"), ("R", "en", "RR"),
+    ("HH", "en", "kk"), ("W", "en", None), ("AA", "en", None), ("sil", "en", None), ("rs", "sv", "SS"),
+    ("ɸ", "ipa", "PP"), ("ʋ", "ipa", "FF"), ("ʂ", "ipa", "SS"), ("ɕ", "ipa", "CH"), ("ŋ", "ipa", "nn"), ("ʁ", "ipa", "kk"),
+    ("ɾ", "ipa", "RR"), ("ɭ", "ipa", "nn"), ("ʈ", "ipa", "DD"), ("ʔ", "ipa", "kk"), ("j", "ipa", None), ("aɪ", "ipa", None),
+])
+def test_oculus_visemes_of_consonants_come_from_their_features(symbol, language, viseme):
+    from vispeech.motion.visemes import oculus_viseme
+
+    assert oculus_viseme(symbol, language) == viseme
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_viseme_exports_name_lip_consonants_in_every_language(utterances, model):
+    """Oculus PP and Rhubarb A on every bilabial, FF and G on every labiodental; a pose alone
+    would read closed lips as silence."""
+    from vispeech.motion.visemes import mouth_cues, oculus_visemes
+
+    for lang, _ in SENTENCES:
+        utt = utterances[lang, model]
+        visemes = oculus_visemes(utt.track, phones=utt.phones)
+        top = np.array(visemes.channels)[np.argmax(visemes.values, axis=1)]
+        cues = mouth_cues(utt.track, phones=utt.phones)
+        for phone in utt.phones:
+            lips = {"PP": "A", "FF": "G"}.get(oculus_viseme_of(phone))
+            if lips is None:
+                continue
+            frames = phone_frames(phone.start, phone.end, utt.track.fps, utt.track.n_frames, pad=0)
+            assert {"PP": "A", "FF": "G"}[top[frames][0]] == lips, (lang, phone)
+            start, end = frames[0] / utt.track.fps, (frames[-1] + 1) / utt.track.fps  # a short phone: its frame's
+            assert any(c.value == lips and c.start < end and c.end > start for c in cues), (lang, phone)
+
+
+def oculus_viseme_of(phone) -> str | None:
+    from vispeech.motion.visemes import oculus_viseme
+
+    return None if phone.is_silence else oculus_viseme(phone.symbol, "ipa")

@@ -246,7 +246,8 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
                 html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
                 (staging / name).write_text(html, encoding="utf-8")
             else:
-                write_track(utterance.track, staging / name, "livelink" if fmt == "csv" else fmt)
+                write_track(utterance.track, staging / name, "livelink" if fmt == "csv" else fmt,
+                            phones=utterance.phones)
             names.append(name)
         for name, text in extra.items():
             (staging / name).write_text(text, encoding="utf-8")

@@ -114,7 +114,8 @@ def write_track(
 
     Parameters
     ----------
-    phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``).
+    phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``); ``oculus``
+        and ``rhubarb`` name each consonant's viseme or shape by its features.
     base_glb : the model ``gltf`` and ``fbx`` add the animation to (required for them).
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
         replaces the shipped one; for every other format a retargeting applied before writing.
@@ -133,12 +134,12 @@ def write_track(
     elif name == "talkinghead":
         write_talkinghead_json(track, path)
     elif name == "oculus":
-        (write_oculus_json if as_json else write_oculus_csv)(track, path, pose_table)
+        (write_oculus_json if as_json else write_oculus_csv)(track, path, pose_table, phones)
     elif name == "rhubarb":
         if as_json:
-            write_rhubarb_json(track, path, pose_table, sound_file=audio or "")
+            write_rhubarb_json(track, path, pose_table, sound_file=audio or "", phones=phones)
         else:
-            write_rhubarb_tsv(track, path, pose_table)
+            write_rhubarb_tsv(track, path, pose_table, phones)
     else:
         if base_glb is None:
             raise VispeechError(f"writing {'FBX' if name == 'fbx' else 'glTF'} needs a base model "

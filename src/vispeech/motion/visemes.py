@@ -1,7 +1,14 @@
 """Viseme exports: Oculus/OVRLipSync viseme curves and Rhubarb Lip Sync mouth cues.
 
 Both go through a morph :class:`PoseTable` from ARKit channels: by default the shipped
-``oculus_visemes`` and ``rhubarb_shapes`` tables.
+``oculus_visemes`` and ``rhubarb_shapes`` tables. A pose cannot tell closed lips for /m/ from
+closed lips at rest, so when the phones are known (``phones``), each consonant's frames take
+the viseme or shape its articulatory features name, in any language: Oculus ``PP`` for
+bilabials, ``FF`` labiodentals, ``TH`` dentals, ``CH`` postalveolar and palatal fricatives and
+affricates, ``SS`` other sibilants, ``nn`` other nasals and laterals, ``RR`` rhotic
+approximants, ``DD`` other coronal stops, ``kk`` dorsal and glottal consonants (glides keep
+the pose's); Rhubarb ``A`` for bilabials, ``G`` labiodentals, ``H`` laterals. Vowels and
+silences keep the pose's visemes and shapes.
 
 - Oculus curves: 15 channels in OVRLipSync order ``sil PP FF TH DD kk CH SS nn RR aa E ih oh
   ou``, as CSV (``time`` in seconds, then the 15 values) or as vispeech animation JSON.
@@ -19,11 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.motion.jsonformat import write_animation_json
 from vispeech.motion.retarget import PoseTable
 from vispeech.motion.track import Track
+from vispeech.phonetics.features import FEATURE_NAMES, phone_features
 
 OCULUS_VISEMES = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
 """The 15 Oculus/Meta visemes in OVRLipSync index order."""
@@ -40,8 +49,58 @@ class MouthCue:
     value: str
 
 
-def oculus_visemes(track: Track, pose_table: PoseTable | None = None) -> Track:
-    """The 15 Oculus viseme curves of an ARKit ``track``, channels named as :data:`OCULUS_VISEMES`."""
+def oculus_viseme(symbol: str, language: str) -> str | None:
+    """The Oculus viseme a consonant's features name (see the module docstring); ``None`` for
+    vowels, glides and silences."""
+    f = dict(zip(FEATURE_NAMES, phone_features(symbol, language)))
+    if f["vowel"] or f["silence"]:
+        return None
+    sibilant = f["fricative"] and (f["alveolar"] or f["retroflex"] or f["postalveolar"] or f["palatal"])
+    for viseme, holds in (
+        ("PP", f["bilabial"]), ("FF", f["labiodental"]), ("TH", f["dental"] and f["fricative"] and not f["stop"]),
+        ("CH", (f["postalveolar"] or f["palatal"]) and f["fricative"]), ("SS", sibilant),
+        ("nn", f["nasal"] or f["lateral"]), ("RR", f["approximant"] and (f["alveolar"] or f["retroflex"] or f["postalveolar"])),
+        ("DD", f["stop"] and (f["alveolar"] or f["retroflex"] or f["dental"] or f["postalveolar"])),
+        ("kk", (f["velar"] or f["glottal"] or f["palatal"]) and not f["approximant"]),
+    ):
+        if holds:
+            return viseme
+    return None
+
+
+def rhubarb_shape(symbol: str, language: str) -> str | None:
+    """The Rhubarb shape a consonant's features name (``A`` bilabial, ``G`` labiodental, ``H``
+    lateral); ``None`` for every other phone."""
+    f = dict(zip(FEATURE_NAMES, phone_features(symbol, language)))
+    if f["vowel"] or f["silence"]:
+        return None
+    return "A" if f["bilabial"] else "G" if f["labiodental"] else "H" if f["lateral"] else None
+
+
+def _phone_frames(track: Track, phones: PhoneSequence, name_of) -> list[tuple[np.ndarray, str]]:
+    """``(frames, name)`` of every phone that ``name_of(symbol, language)`` names: the frames whose
+    time lies in the phone (the nearest one for a phone shorter than a frame)."""
+    times = track.times
+    out = []
+    for phone in phones:
+        name = name_of(phone.symbol, phones.language)
+        if name is None:
+            continue
+        frames = np.flatnonzero((times >= phone.start - TIME_TOLERANCE) & (times < phone.end - TIME_TOLERANCE))
+        if not len(frames):
+            nearest = int(round(((phone.start + phone.end) / 2 - track.start_time) * track.fps))
+            frames = np.array([nearest]) if 0 <= nearest < track.n_frames else frames
+        out.append((frames, name))
+    return out
+
+
+def oculus_visemes(track: Track, pose_table: PoseTable | None = None,
+                   phones: PhoneSequence | None = None) -> Track:
+    """The 15 Oculus viseme curves of an ARKit ``track``, channels named as :data:`OCULUS_VISEMES`.
+
+    With ``phones``, a consonant's frames give its viseme (see the module docstring) the frame's
+    largest weight and ``sil`` none.
+    """
     table = pose_table or PoseTable.load("oculus_visemes")
     visemes = table.apply(track)
     names = {}
@@ -53,12 +112,17 @@ def oculus_visemes(track: Track, pose_table: PoseTable | None = None) -> Track:
     if missing:
         raise VispeechError(f"pose table {table.name!r} has no control for viseme(s) {', '.join(missing)}")
     values = np.stack([visemes[names[v]] for v in OCULUS_VISEMES], axis=1)
+    if phones is not None:
+        for frames, viseme in _phone_frames(track, phones, oculus_viseme):
+            values[frames, OCULUS_VISEMES.index(viseme)] = values[frames].max(axis=1)
+            values[frames, 0] = 0.0
     return Track(values, OCULUS_VISEMES, track.fps, track.start_time)
 
 
-def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
+                     phones: PhoneSequence | None = None) -> None:
     """Write the Oculus viseme curves as CSV: ``time,sil,PP,...,ou``, one row per frame (atomic)."""
-    visemes = oculus_visemes(track, pose_table)
+    visemes = oculus_visemes(track, pose_table, phones)
     lines = [",".join(("time",) + OCULUS_VISEMES)]
     for t, row in zip(visemes.times, visemes.values):
         lines.append(",".join([f"{t:.6f}"] + [f"{v:.6f}" for v in row]))
@@ -66,13 +130,15 @@ def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTabl
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
-def write_oculus_json(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+def write_oculus_json(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
+                      phones: PhoneSequence | None = None) -> None:
     """Write the Oculus viseme curves as vispeech animation JSON (channels ``sil`` ... ``ou``)."""
-    write_animation_json(oculus_visemes(track, pose_table), path)
+    write_animation_json(oculus_visemes(track, pose_table, phones), path)
 
 
-def mouth_cues(track: Track, pose_table: PoseTable | None = None) -> list[MouthCue]:
-    """Rhubarb mouth cues: per frame the shape with the largest weight, runs merged.
+def mouth_cues(track: Track, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None) -> list[MouthCue]:
+    """Rhubarb mouth cues: per frame the shape with the largest weight (with ``phones``, the shape
+    a consonant's features name, see the module docstring), runs merged.
 
     Frame k covers ``[k / fps, (k + 1) / fps)`` seconds from the first frame; boundaries are
     rounded to centiseconds as Rhubarb's are, and cues that round to nothing are dropped.
@@ -82,6 +148,11 @@ def mouth_cues(track: Track, pose_table: PoseTable | None = None) -> list[MouthC
         raise VispeechError(f"mouth cues need a morph pose table; {table.name!r} is a {table.kind} table")
     shapes = table.apply(track)
     labels = [shapes.channels[i] for i in np.argmax(shapes.values, axis=1)]
+    if phones is not None:
+        for frames, shape in _phone_frames(track, phones, rhubarb_shape):
+            if shape in shapes.channels:
+                for k in frames:
+                    labels[k] = shape
     bounds = [round(k * 100 / track.fps) for k in range(track.n_frames + 1)]
     cues: list[list] = []
     for k, label in enumerate(labels):
@@ -95,9 +166,10 @@ def mouth_cues(track: Track, pose_table: PoseTable | None = None) -> list[MouthC
     return [MouthCue(start / 100, end / 100, label) for start, end, label in cues]
 
 
-def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None) -> None:
+def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
+                      phones: PhoneSequence | None = None) -> None:
     """Write mouth cues as Rhubarb's TSV: ``start<TAB>shape`` lines, then ``end<TAB>X``."""
-    cues = mouth_cues(track, pose_table)
+    cues = mouth_cues(track, pose_table, phones)
     lines = [f"{cue.start:.2f}\t{cue.value}\n" for cue in cues]
     lines.append(f"{_duration(track):.2f}\tX\n")
     with atomic_output_file(path) as tmp:
@@ -105,10 +177,11 @@ def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTab
 
 
 def write_rhubarb_json(
-    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, sound_file: str = ""
+    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, sound_file: str = "",
+    phones: PhoneSequence | None = None,
 ) -> None:
     """Write mouth cues as Rhubarb's JSON, byte for byte in Rhubarb's layout."""
-    cues = mouth_cues(track, pose_table) or [MouthCue(0.0, 0.0, "X")]
+    cues = mouth_cues(track, pose_table, phones) or [MouthCue(0.0, 0.0, "X")]
     body = ",\n".join(
         f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues)
     text = (
