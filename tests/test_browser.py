@@ -283,3 +283,30 @@ def test_animation_clock_follows_the_audio_within_one_frame(page, speech):
         assert abs(d["shown"] - d["audio"]) <= 1 / fps, d
         assert abs(start_time + d["frame"] / fps - d["audio"]) <= 1 / fps, d
 
+
+
+def test_chat_page_offers_every_language_and_says_german(server_url):
+    """The language menu lists espeak-ng's languages by name; with the rule bot, Send is off for
+    German and Say speaks it, the head closing its lips on the /m/ of "Mama"."""
+    with _browser_page(f"{server_url}/") as chat:
+        menu = chat.evaluate("() => [...document.querySelectorAll('#lang option')].map((o) => [o.value, o.text])")
+        assert menu[:2] == [["sv", "Svenska"], ["en", "English"]] and ["de", "German"] in menu and len(menu) > 100
+        assert not chat.is_disabled("#send")
+        chat.select_option("#lang", "de")
+        assert chat.is_disabled("#send") and "Say speaks German" in chat.get_attribute("#send", "title")
+        speeches = []
+        chat.on("response", lambda r: speeches.append(r.json()) if r.url.endswith("/api/speak") else None)
+        chat.fill("#text", "Mama malt Blumen.")
+        chat.click("#say")
+        chat.wait_for_function("document.querySelector('#log .message') !== null", timeout=30_000)
+        deadline = time.monotonic() + 30
+        while not speeches and time.monotonic() < deadline:
+            chat.wait_for_timeout(100)
+        (speech,) = speeches
+        phones = speech["animation"]["phones"]
+        assert phones["language"] == "ipa"
+        nasal = next((p["start"] + p["end"]) / 2 for p in phones["phones"] if p["symbol"] == "m")
+        pose = _pose_at(chat, nasal, [c for c in speech["animation"]["channels"] if c != "tongueOut"])
+        assert _aperture(pose) <= LIP_CLOSED, pose
+        assert chat.is_disabled("#send") and chat.evaluate("document.querySelector('#status').hidden")
+        assert chat.errors == []
