@@ -160,3 +160,16 @@ def oculus_viseme_of(phone) -> str | None:
     from vispeech.motion.visemes import oculus_viseme
 
     return None if phone.is_silence else oculus_viseme(phone.symbol, "ipa")
+
+
+def test_speech_in_any_language_aligns_by_dtw():
+    """A transcript in German is aligned with German speech by DTW against espeak-ng: IPA phones."""
+    from vispeech.frontends.align import align
+
+    text = "Mein Bruder baut ein Boot am Meer."
+    speech = synthesize(text, "de", rate=0.8)  # other timing than the reference DTW warps onto
+    phones = align(speech.audio, speech.sample_rate, text, "de")
+    assert phones.language == "ipa"
+    assert [p.symbol for p in phones if not p.is_silence] == [p.symbol for p in speech.phones if not p.is_silence]
+    assert [w.text for w in phones.words] == ["Mein", "Bruder", "baut", "ein", "Boot", "am", "Meer"]
+    assert phones.duration == pytest.approx(speech.duration)

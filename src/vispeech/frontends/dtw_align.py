@@ -68,7 +68,7 @@ def dtw_align(clip: AudioClip, text: str, language: str) -> PhoneSequence:
     bounds = np.array([p.start for p in inner] + [last]) - first + MARGIN_S
     times = _increasing(start + np.interp(bounds * FRAME_RATE, np.arange(len(warp)), warp) / FRAME_RATE,
                         clip.duration)
-    return _phone_sequence(inner, times, synthetic.phones.words, clip.duration, language)
+    return _phone_sequence(inner, times, synthetic.phones.words, clip.duration, synthetic.phones.language)
 
 
 def _features(samples: np.ndarray) -> np.ndarray:
