@@ -285,10 +285,15 @@ def test_animation_clock_follows_the_audio_within_one_frame(page, speech):
 
 
 
-def test_chat_page_offers_every_language_and_says_german(server_url):
+def test_chat_page_offers_every_language_and_says_german(page, server_url):
     """The language menu lists espeak-ng's languages by name; with the rule bot, Send is off for
     German and Say speaks it, the head closing its lips on the /m/ of "Mama"."""
-    with _browser_page(f"{server_url}/") as chat:
+    chat = page.context.browser.new_page(viewport={"width": 480, "height": 480})  # the viewer's browser: one Playwright
+    chat.errors = []
+    chat.on("pageerror", lambda error: chat.errors.append(str(error)))
+    try:
+        chat.goto(f"{server_url}/")
+        chat.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
         menu = chat.evaluate("() => [...document.querySelectorAll('#lang option')].map((o) => [o.value, o.text])")
         assert menu[:2] == [["sv", "Svenska"], ["en", "English"]] and ["de", "German"] in menu and len(menu) > 100
         assert not chat.is_disabled("#send")
@@ -310,3 +315,5 @@ def test_chat_page_offers_every_language_and_says_german(server_url):
         assert _aperture(pose) <= LIP_CLOSED, pose
         assert chat.is_disabled("#send") and chat.evaluate("document.querySelector('#status').hidden")
         assert chat.errors == []
+    finally:
+        chat.close()
