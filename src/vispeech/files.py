@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -355,23 +356,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
             _fsync_tree(staging)
             os.rename(staging, complete)
             _fsync(parent, directory=True)
-            if target.is_dir():
-                _refuse_foreign(target, set(os.listdir(complete)) | set(replaces), shown)
-                os.chmod(complete, stat.S_IMODE(target.stat().st_mode))
-                if _exchange(str(complete), str(target)):
-                    old = complete  # the old folder now lies where the new one was
-                else:
-                    aside = Path(f"{key}.old")
-                    os.rename(target, aside)
-                    try:
-                        os.rename(complete, target)
-                    except OSError:
-                        os.rename(aside, target)  # put the old folder back
-                        raise
-                    old = aside
-            else:
-                os.chmod(complete, 0o777 & ~_umask())
-                os.rename(complete, target)
+            old = _swap(complete, target, Path(f"{key}.old"), replaces, shown)
             _fsync(parent, directory=True)
         except OSError as exc:
             raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
@@ -390,6 +375,32 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
                 shutil.rmtree(leftover, ignore_errors=True)
         _remove(Path(lock_name))
         os.close(lock_fd)
+
+
+def _swap(complete: Path, target: Path, aside: Path, replaces: Iterable[str], shown: Path) -> Path | None:
+    """Put the folder ``complete`` at ``target``; the old folder's path afterwards (to remove), if
+    there was one. A folder another run puts at ``target`` between the check and the rename is
+    replaced like any existing one."""
+    while True:
+        if target.is_dir():
+            _refuse_foreign(target, set(os.listdir(complete)) | set(replaces), shown)
+            os.chmod(complete, stat.S_IMODE(target.stat().st_mode))
+            if _exchange(str(complete), str(target)):
+                return complete  # the old folder now lies where the new one was
+            os.rename(target, aside)
+            try:
+                os.rename(complete, target)
+            except OSError:
+                os.rename(aside, target)  # put the old folder back
+                raise
+            return aside
+        os.chmod(complete, 0o777 & ~_umask())
+        try:
+            os.rename(complete, target)
+            return None
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST) or not target.is_dir():
+                raise
 
 
 @contextmanager
