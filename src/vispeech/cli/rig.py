@@ -97,3 +97,62 @@ def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, 
     track = space.retarget(read_track(input_path))
     write_track(track, output)
     click.echo(f"{output}: {track.n_frames} frames of {len(track.channels)} rig controls at {track.fps:g} fps")
+
+
+@rig_group.command("calibrate")
+@click.argument("head", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Calibration file to write (.json), for --scale.")
+@click.option("--corpus", "corpus_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Fit to this corpus's training split [default: the shipped sample of grid_s1's frames].")
+@click.option("--frames", "frames_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Fit to these mouth frames (from `vispeech rig mouth-frames`).")
+@language_option
+def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Path | None, language: str) -> None:
+    """Fit the gains that make HEAD's lips (a GLB with ARKit morph targets) open and spread as the
+    tracked human's do: its inner-lip gap and mouth width over its eye-corner distance follow
+    the speaker's (docs/calibration.md). --scale FILE applies the result."""
+    from vispeech.motion.calibration import HeadGeometry, fit_calibration, load_mouth_frames
+
+    if corpus_dir is not None and frames_path is not None:
+        raise VispeechError("give --corpus or --frames, not both")
+    geometry = HeadGeometry.from_glb(head)
+    if corpus_dir is not None:
+        from vispeech.corpus.articulation import mouth_frames
+
+        scores, gap, width = mouth_frames(open_corpus(corpus_dir, language).split("train"))
+        source = f"{corpus_dir.name}, training split"
+    else:
+        scores, gap, width, source = load_mouth_frames(frames_path)
+    calibration = fit_calibration(geometry, scores, gap, width, head.name)
+    calibration = type(calibration)(calibration.gains, calibration.head, {**calibration.fit, "frames_from": source})
+    calibration.save(output)
+    fit = calibration.fit
+    click.echo(f"{head.name}: eye-corner distance {geometry.eye_distance:.4g} (model units); "
+               f"{fit['frames']} frames of {source}")
+    click.echo(f"inner-lip gap, head / human over open frames: median {fit['raw']['median_ratio']:.2f} -> "
+               f"{fit['calibrated']['median_ratio']:.2f}, 90th percentile {fit['raw']['p90_ratio']:.2f} -> "
+               f"{fit['calibrated']['p90_ratio']:.2f}")
+    click.echo(f"jawOpen x{calibration.gains.get('jawOpen', 1.0):.2f} ... {len(calibration.gains)} gains -> {output}")
+
+
+@rig_group.command("mouth-frames")
+@click.option("--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Corpus with lip and eye landmarks (grid_s1).")
+@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Sample to write (.npz), for rig calibrate --frames.")
+@click.option("--frames", "n_frames", default=5000, show_default=True, type=click.IntRange(min=10),
+              help="Random tracked frames of the training split to keep.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@language_option
+def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: int, language: str) -> None:
+    """Keep a sample of a corpus's tracked frames with the speaker's lip gap and mouth width:
+    what rig calibrate fits heads to without the corpus (the shipped sample is grid_s1's)."""
+    from vispeech.corpus.articulation import mouth_frames
+    from vispeech.motion.calibration import save_mouth_frames
+
+    corpus = open_corpus(corpus_dir, language).split("train")
+    scores, gap, width = mouth_frames(corpus)
+    source = f"{corpus.name}: {min(n_frames, scores.n_frames)} random tracked frames of the training split, seed {seed}"
+    save_mouth_frames(output, scores, gap, width, frames=n_frames, seed=seed, source=source)
+    click.echo(f"{source} -> {output}")

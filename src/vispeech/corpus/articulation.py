@@ -75,3 +75,20 @@ def with_articulatory_tracks(corpus: Corpus) -> Corpus:
     (what a model with ``targets="articulatory"`` trains on)."""
     utterances = [replace(u, track=articulatory_parameters(u)) for u in corpus.utterances]
     return replace(corpus, utterances=utterances, channels=ARTICULATORY_CHANNELS)
+
+
+def mouth_frames(corpus: Corpus, frame_size: tuple[int, int] = FRAME_SIZE) -> tuple[Track, np.ndarray, np.ndarray]:
+    """Every tracked frame of ``corpus`` (frames where the tracker lost the face left out):
+    the scores, and the speaker's inner-lip gap and mouth width over the eye-corner distance
+    (``lip_aperture`` and ``lip_width`` of :func:`articulatory_parameters`), what
+    :func:`vispeech.motion.calibration.fit_calibration` fits a head to."""
+    scores, gaps, widths = [], [], []
+    for utterance in corpus:
+        tracked = np.ones(utterance.track.n_frames, bool) if utterance.frame_mask is None else utterance.frame_mask
+        parameters = articulatory_parameters(utterance, frame_size)
+        scores.append(utterance.track.values[tracked])
+        gaps.append(parameters["lip_aperture"][tracked])
+        widths.append(parameters["lip_width"][tracked])
+    if not scores:
+        raise VispeechError(f"corpus {corpus.name} has no utterances")
+    return Track(np.vstack(scores), corpus.channels, corpus.fps), np.concatenate(gaps), np.concatenate(widths)

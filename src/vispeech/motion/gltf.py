@@ -1,4 +1,5 @@
-"""glTF 2.0 export: a morph-target ``weights`` animation added to a copy of a GLB model.
+"""glTF 2.0: a morph-target ``weights`` animation added to a copy of a GLB model, and a
+model's morph geometry read back (:func:`read_morph_mesh`).
 
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
 and most exporters write it) with ARKit names; ``eyeBlink_L``-style ``_L``/``_R`` suffixes and
@@ -87,6 +88,120 @@ def write_gltf_animation(
     gltf.buffers[0].byteLength = len(blob)
     with atomic_output_file(out_path) as tmp:
         tmp.write_bytes(_glb_bytes(gltf, bytes(blob)))
+
+
+_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+
+
+class MorphMesh:
+    """One primitive of a model with ARKit morph targets: rest positions and per-target offsets.
+
+    ``positions`` (vertices × 3) and every ``targets[name]`` (the same shape) are in the model's
+    scene units (metres, for glTF), after the node transforms; ``name`` is the ARKit name.
+    """
+
+    def __init__(self, positions: np.ndarray, targets: dict[str, np.ndarray]) -> None:
+        self.positions = positions
+        self.targets = targets
+
+    def posed(self, weights: dict[str, float]) -> np.ndarray:
+        """Vertex positions at the given ARKit weights (missing ones 0)."""
+        out = self.positions.copy()
+        for name, weight in weights.items():
+            if weight and name in self.targets:
+                out += weight * self.targets[name]
+        return out
+
+
+def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
+    """The skin of a GLB head: of the primitives whose morph targets carry ARKit names, the one
+    the eyelids' ``eyeBlinkLeft`` moves furthest (the face, not teeth or tongue), with quantized
+    and meshopt-compressed data decoded. Raises :class:`VispeechError` when there is none."""
+    gltf = _load(path)
+    blob = _decompressed(gltf, path)
+    best: tuple[float, MorphMesh] | None = None
+    for index, names in _animated_meshes(gltf).items():
+        nodes = [k for k, node in enumerate(gltf.nodes) if node.mesh == index]
+        if not nodes:
+            continue
+        matrix = _world_matrix(gltf, nodes[0])
+        for primitive in gltf.meshes[index].primitives:
+            if not primitive.targets or len(primitive.targets) != len(names):
+                continue
+            base = _read_accessor(gltf, blob, primitive.attributes.POSITION, path)
+            positions = base @ matrix[:3, :3].T + matrix[:3, 3]
+            targets = {name: _read_accessor(gltf, blob, target["POSITION"], path) @ matrix[:3, :3].T
+                       for name, target in zip(names, primitive.targets) if name and "POSITION" in target}
+            blink = targets.get("eyeBlinkLeft")
+            reach = float(np.linalg.norm(blink, axis=1).max()) if blink is not None and len(blink) else 0.0
+            if best is None or reach > best[0]:
+                best = (reach, MorphMesh(positions, targets))
+    if best is None or best[0] <= 0:
+        raise VispeechError(f"{path}: no mesh with ARKit morph targets that close the eyelids (eyeBlinkLeft)")
+    return best[1]
+
+
+def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | os.PathLike) -> np.ndarray:
+    """An accessor's values as float64 (count × components), normalized integers scaled, sparse
+    entries applied."""
+    try:
+        accessor = gltf.accessors[index]
+        width = _WIDTHS[accessor.type]
+        dtype = np.dtype(_COMPONENTS[accessor.componentType]).newbyteorder("<")
+        out = np.zeros((accessor.count, width))
+        if accessor.bufferView is not None:
+            view = gltf.bufferViews[accessor.bufferView]
+            stride = view.byteStride or dtype.itemsize * width
+            start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
+            rows = np.frombuffer(blob, np.uint8, count=stride * accessor.count, offset=start).reshape(-1, stride)
+            out = rows[:, :dtype.itemsize * width].copy().view(dtype).astype(np.float64)
+        if accessor.normalized and dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            out = np.maximum(out / info.max, -1.0)
+        if accessor.sparse is not None:
+            sparse = accessor.sparse
+            spec = {"bufferView": sparse.indices.bufferView, "byteOffset": sparse.indices.byteOffset or 0,
+                    "componentType": sparse.indices.componentType}
+            idx_view = gltf.bufferViews[spec["bufferView"]]
+            idx = np.frombuffer(blob, np.dtype(_COMPONENTS[spec["componentType"]]).newbyteorder("<"), count=sparse.count,
+                                offset=(idx_view.byteOffset or 0) + spec["byteOffset"])
+            val_view = gltf.bufferViews[sparse.values.bufferView]
+            values = np.frombuffer(blob, dtype, count=sparse.count * width,
+                                   offset=(val_view.byteOffset or 0) + (sparse.values.byteOffset or 0))
+            values = values.reshape(-1, width).astype(np.float64)
+            if accessor.normalized and dtype.kind in "iu":
+                values = np.maximum(values / np.iinfo(dtype).max, -1.0)
+            out[idx.astype(np.intp)] = values
+        return out
+    except (IndexError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise VispeechError(f"{path}: cannot read accessor {index} ({exc})") from None
+
+
+def _world_matrix(gltf: pygltflib.GLTF2, node_index: int) -> np.ndarray:
+    """The 4x4 transform from node ``node_index``'s space to the scene's (its parents' included)."""
+    parents = {child: k for k, node in enumerate(gltf.nodes) for child in (node.children or [])}
+    matrix = np.eye(4)
+    k: int | None = node_index
+    while k is not None:
+        matrix = _local_matrix(gltf.nodes[k]) @ matrix
+        k = parents.get(k)
+    return matrix
+
+
+def _local_matrix(node: pygltflib.Node) -> np.ndarray:
+    if node.matrix:
+        return np.array(node.matrix, dtype=float).reshape(4, 4).T  # glTF matrices are column-major
+    x, y, z, w = node.rotation or (0.0, 0.0, 0.0, 1.0)
+    rotation = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    matrix = np.eye(4)
+    matrix[:3, :3] = rotation * np.array(node.scale or (1.0, 1.0, 1.0))
+    matrix[:3, 3] = node.translation or (0.0, 0.0, 0.0)
+    return matrix
 
 
 def _load(path: str | os.PathLike) -> pygltflib.GLTF2:
