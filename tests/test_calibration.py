@@ -3,11 +3,14 @@ targets, gains fitted to the GRID speaker's real lip gap, output scales applied 
 
 from __future__ import annotations
 
+import json
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from conftest import SHARED, require
+from vispeech.cli import main
 from vispeech.errors import VispeechError
 from vispeech.evaluation.closures import TRACKED_CLOSED
 from vispeech.motion.calibration import (
@@ -102,3 +105,33 @@ def test_bad_calibration_files_are_one_line_errors(tmp_path, content, message):
         load_scale(path)
     with pytest.raises(VispeechError, match="unknown output scale 'wide'"):
         load_scale("wide")
+
+
+def test_cli_calibrates_a_head_and_every_command_writes_in_its_scale(head, tmp_path):
+    runner = CliRunner()
+    done = runner.invoke(main, ["rig", "calibrate", str(ICT_HEAD), "-o", str(tmp_path / "ict.json")])
+    assert done.exit_code == 0, done.output
+    assert "inner-lip gap, head / human over open frames: median 0.6" in done.output
+    saved = json.loads((tmp_path / "ict.json").read_text(encoding="utf-8"))
+    assert saved["format"] == "vispeech-calibration" and saved["gains"]["jawOpen"] > 1.3
+    assert 0.9 <= saved["fit"]["calibrated"]["median_ratio"] <= 1.1 and saved["fit"]["raw"]["median_ratio"] < 0.8
+
+    from vispeech.motion.io import read_track
+
+    text = "My mom made a large map."
+    jaw = {}
+    for scale in ("tracker", "arkit", str(tmp_path / "ict.json")):
+        out = tmp_path / f"say-{len(jaw)}"
+        said = runner.invoke(main, ["say", text, "-o", str(out), "--scale", scale])
+        assert said.exit_code == 0, said.output
+        jaw[scale] = read_track(out / "animation.csv")["jawOpen"]
+    ratio = jaw["arkit"].max() / jaw["tracker"].max()
+    assert ratio == pytest.approx(load_scale("arkit").gains["jawOpen"], rel=0.01)
+    assert jaw[str(tmp_path / "ict.json")].max() > 1.3 * jaw["tracker"].max()
+    converted = runner.invoke(main, ["convert", str(tmp_path / "say-0" / "animation.csv"),
+                                     str(tmp_path / "arkit.csv"), "--scale", "arkit"])
+    assert converted.exit_code == 0, converted.output
+    np.testing.assert_allclose(read_track(tmp_path / "arkit.csv")["jawOpen"], jaw["arkit"], atol=1e-5)
+    refused = runner.invoke(main, ["say", text, "-o", str(tmp_path / "no"), "--scale", "wide"])
+    assert refused.exit_code == 2 and "unknown output scale" in refused.output
+    assert not (tmp_path / "no").exists()

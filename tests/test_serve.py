@@ -11,6 +11,7 @@ from datetime import datetime
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import require_module
 from scipy.io import wavfile
@@ -303,3 +304,33 @@ def test_serve_command_refuses_a_missing_avatar(tmp_path):
 
     result = CliRunner().invoke(main, ["serve", "--avatar", str(tmp_path / "none.glb"), "--cache", str(tmp_path / "c")])
     assert result.exit_code == 2 and "avatar file not found" in result.output
+
+
+def test_answers_and_streams_come_in_the_output_scale(tmp_path):
+    """The server writes ARKit scale by default: its answers and stream frames are the model's
+    tracks through the shipped calibration; scale="tracker" gives the model's own."""
+    from vispeech.motion.calibration import load_scale
+    from vispeech.motion.track import Track
+
+    arkit = load_scale("arkit")
+    request = {"text": "Mamma made a map.", "lang": "en", "model": "baseline"}
+    answers, frames = {}, {}
+    for scale in ("arkit", "tracker"):
+        config = ServeConfig(cache=tmp_path / f"{scale}.sqlite3", rate_limit=0, stream_model="baseline", scale=scale)
+        with TestClient(create_app(config)) as served:
+            answers[scale] = served.post("/api/speak", json=request).json()["animation"]
+            with served.websocket_connect("/api/stream") as ws:
+                ws.send_json({"type": "text", "text": request["text"], "lang": "en"})
+                messages = []
+                while not messages or messages[-1]["type"] != "end":
+                    messages.append(ws.receive_json())
+            frames[scale] = ([m for m in messages if m["type"] == "start"][0]["channels"],
+                             [row for m in messages if m["type"] == "frames" for row in m["frames"]])
+    raw = answers["tracker"]
+    scaled = arkit.apply(Track(np.array(raw["frames"]), tuple(raw["channels"]), raw["fps"]))
+    np.testing.assert_allclose(answers["arkit"]["frames"], scaled.values, atol=2e-6)  # both rounded to 1e-6
+    jaw = raw["channels"].index("jawOpen")
+    assert max(r[jaw] for r in answers["arkit"]["frames"]) > 1.3 * max(r[jaw] for r in raw["frames"])
+    channels, rows = frames["tracker"]
+    np.testing.assert_allclose(frames["arkit"][1], arkit.apply(Track(np.array(rows), tuple(channels), 30.0)).values,
+                               atol=1e-5)

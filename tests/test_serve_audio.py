@@ -60,7 +60,8 @@ def encoded(pcm: np.ndarray, fmt: str, rate: int = 16000) -> bytes:
 def client(tiny_audio_model, tmp_path_factory):
     config = ServeConfig(cache=tmp_path_factory.mktemp("audio") / "cache.sqlite3", rate_limit=0,
                          audio_model=str(tiny_audio_model), max_audio_bytes=2 * 1024 * 1024,
-                         max_chunk_bytes=CHUNK_BYTES, max_stream_seconds=5.0)
+                         max_chunk_bytes=CHUNK_BYTES, max_stream_seconds=5.0,
+                         scale="tracker")  # frames in the model's scale, compared with the library's
     with TestClient(create_app(config)) as client:
         yield client
 
@@ -327,7 +328,8 @@ def test_stream_command_replays_audio_to_a_real_server(tiny_audio_model, pcm, tm
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    app = create_app(ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, audio_model=str(tiny_audio_model)))
+    app = create_app(ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, audio_model=str(tiny_audio_model),
+                                 scale="tracker"))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error", ws_max_size=65536))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()

@@ -306,7 +306,8 @@ def test_model_stream_runs_the_models_own_streaming(tmp_path):
     assert len(frames) == 30 and np.abs(frames - reference).mean() < 0.02
 
     model.save(tmp_path / "lowlatency")
-    config = ServeConfig(cache=":memory:", stream_model=str(tmp_path / "lowlatency"), rate_limit=0)
+    config = ServeConfig(cache=":memory:", stream_model=str(tmp_path / "lowlatency"), rate_limit=0,
+                         scale="tracker")  # the model's own frames, to compare with the engine's
     with TestClient(create_app(config)) as served, served.websocket_connect("/api/stream") as ws:
         assert served.get("/api/config").json()["stream_model"] == "tdnn-lowlatency"
         ws.send_json({"type": "phones", "phones": phone_dicts(HELLO), "final": True})

@@ -5,6 +5,7 @@ The CLI (``say``, ``animate``, ``animate-phones``) and the server are thin layer
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -17,12 +18,16 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
+from vispeech.motion.calibration import load_scale
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track
 from vispeech.postprocess import PostprocessConfig, postprocess
 from vispeech.utterance import Utterance
 
 DEFAULT_FPS = 30.0
+DEFAULT_SCALE = "arkit"
+"""The output scale files are written in: ARKit's (docs/calibration.md); ``tracker`` keeps the
+models' own scale, a calibration file fits one head."""
 DEFAULT_MODEL = "grid-tdnn"
 """The shipped network trained on GRID (``vispeech/models/pretrained``), for every language."""
 DEFAULT_AUDIO_MODEL = "grid-audio-encdec"
@@ -206,8 +211,12 @@ def check_outputs(out_dir: str | Path, *, extra: Iterable[str] = ()) -> None:
 
 
 def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None,
-                  formats: Iterable[str] = DEFAULT_OUTPUTS, extra: Mapping[str, str] | None = None) -> list[Path]:
+                  formats: Iterable[str] = DEFAULT_OUTPUTS, extra: Mapping[str, str] | None = None,
+                  scale: str | os.PathLike | None = DEFAULT_SCALE) -> list[Path]:
     """Write an utterance's files as the folder ``out_dir`` and return their paths.
+
+    The track is written in the output ``scale`` (:func:`vispeech.motion.calibration.load_scale`:
+    ``arkit``, ``tracker`` or a calibration file).
 
     ``formats`` names the files (:data:`OUTPUT_FILES`); by default ``animation.csv`` (Live Link
     Face) and ``animation.json``, with audio also ``speech.wav`` and ``preview.html``, and
@@ -223,6 +232,9 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
     from vispeech.preview import render_preview
 
     formats = check_formats(formats)
+    calibration = load_scale(scale)
+    if calibration is not None and utterance.track is not None:
+        utterance = replace(utterance, track=calibration.apply(utterance.track))
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise VispeechError(f"output path {out_dir} exists and is not a folder")

@@ -40,6 +40,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
+from vispeech.motion.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, animate, spoken_text
@@ -92,6 +93,7 @@ def speech_messages(
     fps: float = DEFAULT_FPS,
     rate: float = 1.0,
     chunk_seconds: float = 0.1,
+    scale: Calibration | None = None,
 ) -> Iterator[list[dict]]:
     """The ``/api/stream`` messages for ``text``, one list per clause, computed as they are asked for.
 
@@ -99,7 +101,8 @@ def speech_messages(
     then come ``frames`` (``start_frame``, ``frames``) and ``audio`` (``seq``, ``start`` in
     seconds, ``pcm16`` base64 little-endian mono) in time order; the last list is ``[end]``
     (``n_frames``, ``duration`` in seconds). The frames cover the audio as
-    :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them.
+    :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them, in the output
+    ``scale`` (``None``: the model's own).
     """
     from vispeech.frontends.espeak import phone_set, synthesize
 
@@ -110,6 +113,8 @@ def speech_messages(
     for clause in clauses:
         speech = synthesize(clause, language, rate, reproducible=False)  # latency first: see espeak's docstring
         track = animate(speech.phones, model, fps).select(channels)
+        if scale is not None:
+            track = scale.apply(track)
         messages: list[dict] = []
         if sample_rate is None:
             sample_rate = speech.sample_rate

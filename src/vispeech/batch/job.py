@@ -39,7 +39,7 @@ from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
 from vispeech.limits import check_fps, check_text, parse_json
 from vispeech.frontends.espeak import find_voice
 from vispeech.phonetics.inventory import get_inventory
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, check_formats
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
 
 FIELDS = ("id", "text", "lang", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess")
 """The fields a manifest line may have."""
@@ -65,6 +65,8 @@ class JobDefaults:
     fps: float = DEFAULT_FPS
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
     postprocess: bool = True
+    scale: str = DEFAULT_SCALE
+    """The output scale of every line (:func:`vispeech.motion.calibration.load_scale`)."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,7 @@ class BatchLine:
     rate: float = 1.0
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
     postprocess: bool = True
+    scale: str = DEFAULT_SCALE
     error: str | None = field(default=None, compare=False)
 
     @property
@@ -234,7 +237,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         number=number, id=line_id, kind=kind, text=text, lang=lang,
         audio=None if audio is None else base / audio, alignment=None if alignment is None else base / alignment,
         model=record.get("model", defaults.model), fps=fps, rate=rate, formats=check_formats(formats),
-        postprocess=_flag(record.get("postprocess", defaults.postprocess)),
+        postprocess=_flag(record.get("postprocess", defaults.postprocess)), scale=defaults.scale,
     )
 
 

@@ -35,6 +35,7 @@ from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model, model_version, saved_folder
+from vispeech.motion.calibration import SCALES, load_scale
 from vispeech.pipeline import (
     DEFAULT_AUDIO_MODEL,
     DEFAULT_MODEL,
@@ -188,7 +189,8 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
     inputs = {"kind": line.kind, "text": line.text, "lang": line.lang,
               "source": None if line.source is None else str(line.source), "source_sha256": digest}
     settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
-                "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess}
+                "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess,
+                "scale": _scale_settings(line.scale)}
     about = {"vispeech": vispeech.__version__, **inputs, **settings, "source": None}
     key = hashlib.sha256(json.dumps(about, sort_keys=True).encode()).hexdigest()[:32]
     record = json.dumps({"format": "vispeech-batch-line", "version": 1, "id": line.id, "key": key,
@@ -292,8 +294,15 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
 def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:
     """Write a line's folder (its formats and its record) as one swap; the names written."""
     title = line.text or (line.source.name if line.source is not None else None)
-    paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record})
+    paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record},
+                          scale=line.scale)
     return tuple(sorted(p.name for p in paths))
+
+
+def _scale_settings(scale: str) -> str | dict[str, float]:
+    """What of the output scale a line's key depends on: its name, or a calibration file's gains."""
+    calibration = load_scale(scale)
+    return scale if calibration is None or scale in SCALES else calibration.gains
 
 
 def failed(line: BatchLine, key: str | None, error: BaseException | str, seconds: float = 0.0) -> LineResult:

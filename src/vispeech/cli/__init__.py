@@ -44,6 +44,14 @@ def lang_option(help: str, default: str | None = DEFAULT_LANG, name: str = "lang
     return click.option("--lang", "-l", name, default=default, show_default=default is not None, help=help)
 
 
+def scale_option(default: str):
+    """The ``--scale`` option: the output scale tracks are written in (the same in every command)."""
+    return click.option(
+        "--scale", default=default, show_default=True,
+        help="Output scale: arkit (iPhone Live Link / MetaHuman), tracker (the model's own, for evaluation) "
+             "or a calibration file from `vispeech rig calibrate HEAD.glb` (docs/calibration.md).")
+
+
 class _Group(click.Group):
     """Imports a command's module when the command is asked for; turns errors into one line and exit code 2."""
 

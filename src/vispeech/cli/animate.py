@@ -6,11 +6,14 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import lang_option, main, scale_option
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
-from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, check_outputs, listen, write_outputs
+from vispeech.motion.calibration import load_scale
+from vispeech.pipeline import (
+    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, check_outputs, listen, write_outputs,
+)
 
 
 @main.command()
@@ -24,8 +27,9 @@ from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, c
                    f"[default: {DEFAULT_AUDIO_MODEL}; {DEFAULT_MODEL} with --text].")
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+@scale_option(DEFAULT_SCALE)
 def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str | None, fps: float,
-            no_postprocess: bool) -> None:
+            no_postprocess: bool, scale: str) -> None:
     """Animate the speech in AUDIO (WAV, FLAC, MP3, OGG; at most 10 minutes).
 
     Writes speech.wav, animation.csv/.json, preview.html and, with --text, phones.TextGrid.
@@ -34,9 +38,10 @@ def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str 
     """
     check_fps(fps, "--fps")
     check_outputs(out_dir)
+    load_scale(scale)
     clip = AudioClip.read(audio)
     utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
-    paths = write_outputs(utterance, out_dir, title=text or audio.name)
+    paths = write_outputs(utterance, out_dir, title=text or audio.name, scale=scale)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")

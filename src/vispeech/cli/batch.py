@@ -8,10 +8,10 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import lang_option, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.models.registry import RUNNABLE
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
+from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPUT_FILES
 
 
 @main.command()
@@ -34,8 +34,9 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, OUTPUT_FILES
               help="With --backend ray: the cluster to join (HEAD:6379 or auto) [default: a local Ray instance].")
 @click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@scale_option(DEFAULT_SCALE)
 def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
-          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool) -> None:
+          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool, scale: str) -> None:
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
@@ -46,11 +47,13 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     """
     from vispeech.batch import JobDefaults, read_job, run_batch
     from vispeech.limits import check_fps
+    from vispeech.motion.calibration import load_scale
     from vispeech.pipeline import check_formats
 
+    load_scale(scale)
     defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),
                            formats=check_formats(f for f in formats.split(",") if f.strip()),
-                           postprocess=not no_postprocess)
+                           postprocess=not no_postprocess, scale=scale)
     lines = read_job(job, defaults)
     if address is not None and backend != "ray":
         raise VispeechError("--address is for --backend ray")

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import main, scale_option
+
 
 @main.command("convert")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
@@ -19,15 +20,18 @@ from vispeech.cli import main
               "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
 @click.option("--glb", "base_glb", type=click.Path(path_type=Path),
               help="Base model with ARKit-named morph targets (needed for gltf and fbx).")
+@scale_option("tracker")
 def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float | None,
-                    pose_table: str | None, base_glb: Path | None) -> None:
+                    pose_table: str | None, base_glb: Path | None, scale: str) -> None:
     """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
     .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb), .fbx fbx (needs
-    --glb and Blender).
+    --glb and Blender). The track is taken as it is (--scale tracker); --scale arkit or a
+    calibration file rescales a track in the models' scale on the way.
     """
     from vispeech.limits import check_fps
+    from vispeech.motion.calibration import load_scale
     from vispeech.motion.io import read_track, track_format, write_track
     from vispeech.motion.jsonformat import read_animation_json
     from vispeech.motion.retarget import PoseTable
@@ -35,6 +39,7 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
     if fps is not None:
         check_fps(fps, "--fps")
     fmt = fmt.lower() if fmt else None
+    calibration = load_scale(scale)
     phones = audio = None
     if track_format(input_path, reading=True) == "json":
         animation = read_animation_json(input_path)
@@ -43,6 +48,8 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
         track = read_track(input_path)
     if fps is not None:
         track = track.resample(fps)
+    if calibration is not None:
+        track = calibration.apply(track)
     table = PoseTable.load(pose_table) if pose_table else None
     write_track(track, output, fmt, phones=phones, audio=audio, base_glb=base_glb, pose_table=table)
     click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

@@ -6,12 +6,13 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import lang_option, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
+from vispeech.motion.calibration import load_scale
 from vispeech.pipeline import (
-    DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,
+    DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,
 )
 
 _model_option = click.option(
@@ -19,6 +20,7 @@ _model_option = click.option(
     help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder.",
 )
 _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
+
 
 
 @main.command()
@@ -31,8 +33,9 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @click.option("--text-file", type=click.Path(path_type=Path), default=None,
               help="Speak the text of this file (UTF-8; at most 10,000 characters) instead of TEXT.")
+@scale_option(DEFAULT_SCALE)
 def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool,
-        text_file: Path | None) -> None:
+        text_file: Path | None, scale: str) -> None:
     """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
 
     Without TEXT (or --text-file) a greeting in the chosen language is spoken. Markdown markup,
@@ -51,8 +54,9 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
             raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {lang!r}")
     check_text(text)
     check_outputs(out_dir)
+    load_scale(scale)  # a bad scale is refused before any work
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
-    paths = write_outputs(utterance, out_dir)
+    paths = write_outputs(utterance, out_dir, scale=scale)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")
@@ -65,7 +69,9 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 @_model_option
 @_fps_option
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
-def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str, fps: float, no_postprocess: bool) -> None:
+@scale_option(DEFAULT_SCALE)
+def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str, fps: float, no_postprocess: bool,
+                   scale: str) -> None:
     """Animate a phone alignment (TextGrid, HTK .lab, GRID .align or JSON).
 
     Writes OUTPUT/animation.csv (Live Link Face, first row at time 0 of the alignment) and
@@ -75,7 +81,8 @@ def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str,
 
     check_fps(fps, "--fps")
     check_outputs(out_dir)
+    load_scale(scale)
     phones = read_alignment(alignment, lang)
     track = animate(phones, model, fps, not no_postprocess)
-    write_outputs(Utterance(phones=phones, track=track), out_dir)
+    write_outputs(Utterance(phones=phones, track=track), out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

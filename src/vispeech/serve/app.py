@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 from fastapi import FastAPI, Query, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
@@ -52,8 +53,12 @@ from vispeech.frontends.espeak import find_voice, voices
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
+from vispeech.motion.calibration import Calibration, load_scale
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
-from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, GREETINGS, animate, listen, speak
+from vispeech.motion.track import Track
+from vispeech.pipeline import (
+    DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, animate, listen, speak,
+)
 from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
 from vispeech.serve.safety import (
@@ -211,6 +216,7 @@ class ServeConfig:
     allowed_origins: tuple[str, ...] | None = None
     token: str | None = None
     static_dir: Path | None = None
+    scale: str = DEFAULT_SCALE
 
     def to_json(self) -> str:
         """The settings as JSON, for the server's other processes (:func:`app_from_environment`).
@@ -259,6 +265,7 @@ class SpeechService:
 
     def __init__(self, config: ServeConfig) -> None:
         self.config = config
+        self.calibration = load_scale(config.scale)
         self.models: dict[str, Estimator] = {}
         self.versions: dict[str, str] = {}
         for name in RUNNABLE:
@@ -290,9 +297,18 @@ class SpeechService:
             raise RateLimited(self.bucket)
 
     def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
-        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
+        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's
+        files) and the output scale's gains, so a cached answer is never of another scale."""
         self.models[name] = model
-        self.versions[name] = model_version(model, folder)
+        gains = {} if self.calibration is None else self.calibration.gains
+        scale = hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest()[:8]
+        self.versions[name] = f"{model_version(model, folder)}+scale-{scale}"
+
+    def scaled(self, rows: np.ndarray, channels: tuple[str, ...], fps: float) -> np.ndarray:
+        """Frames of a stream (rows over ``channels``) in the server's output scale."""
+        if self.calibration is None or not len(rows):
+            return rows
+        return self.calibration.apply(Track(rows, channels, fps)).values
 
     def _choose_stream_model(self, spec: str | None) -> str:
         if spec is None:
@@ -368,7 +384,7 @@ class SpeechService:
         cached = entry is not None
         if entry is None:
             utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps)
-            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance))
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
         return self._answer(entry, text, cached)
 
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
@@ -391,7 +407,7 @@ class SpeechService:
         cached = entry is not None
         if entry is None:
             utterance = listen(read_upload(data), query.text, query.lang, model=model, fps=key.fps)
-            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance))
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
         return self._answer(entry, query.text or "", cached)
 
     @staticmethod
@@ -451,10 +467,12 @@ def read_upload(data: bytes) -> AudioClip:
     return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
 
 
-def _animation_json(utterance: Utterance) -> str:
-    """An utterance's track (and phones, when it has them) as compact vispeech animation JSON."""
+def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:
+    """An utterance's track (in ``calibration``'s scale) and phones (when it has them) as compact
+    vispeech animation JSON."""
     phones = None if utterance.phones is None else utterance.phones.to_dict()
-    animation = {"format": ANIMATION_FORMAT, "version": 1, **utterance.track.to_dict(), "phones": phones}
+    track = utterance.track if calibration is None else calibration.apply(utterance.track)
+    animation = {"format": ANIMATION_FORMAT, "version": 1, **track.to_dict(), "phones": phones}
     return json.dumps(animation, separators=(",", ":"))
 
 
@@ -821,7 +839,8 @@ class _StreamConnection(_Connection):
 
     async def _text(self, message: TextMessage) -> None:
         _, model = self.service.model(message.model, stream=True)
-        messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate)
+        messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate,
+                                   scale=self.service.calibration)
 
         def next_clause() -> tuple[list[str], float | None] | None:
             batch = next(messages, None)
@@ -877,10 +896,10 @@ class _StreamConnection(_Connection):
         for piece in _pieces(phones, begin, config.piece_seconds):
             weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
             begin = piece[-1].end if piece else begin
-            if (text := await self._run(_frames_json, stream.push, piece, weight=weight)) is not None:
+            if (text := await self._run(_frames_json, self.service, stream, stream.push, piece, weight=weight)) is not None:
                 await self.ws.send_text(text)
         if message.final:
-            if (text := await self._run(_frames_json, stream.finish)) is not None:
+            if (text := await self._run(_frames_json, self.service, stream, stream.finish)) is not None:
                 await self.ws.send_text(text)
             self.phones = None
             await _send(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
@@ -988,7 +1007,7 @@ class _ListenConnection(_Connection):
         if stream is None:
             raise VispeechError('no audio stream is open: send {"type": "start", "sample_rate": ...} first')
         self.audio = None
-        text = await self._run(_frames_json, stream.finish)
+        text = await self._run(_frames_json, self.service, stream, stream.finish)
         if text is not None:
             await self.ws.send_text(text)
         await _send(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.duration))
@@ -1017,7 +1036,7 @@ class _ListenConnection(_Connection):
                 self.service.pay(self.ip, max(added, MIN_CHUNK_SECONDS) / config.audio_seconds_per_token)
                 pcm.append(data)
                 seconds += added
-            text = await self._run(_frames_json, stream.push, b"".join(pcm),
+            text = await self._run(_frames_json, self.service, stream, stream.push, b"".join(pcm),
                                    weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND)
         except (VispeechError, RateLimited, Busy) as exc:
             stream.close()
@@ -1058,9 +1077,11 @@ def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phon
     return pieces
 
 
-def _frames_json(step, *args) -> str | None:
-    """Run a phone stream's ``push`` / ``finish``; its frames as a ``frames`` message (``None`` for none)."""
+def _frames_json(service: SpeechService, stream, step, *args) -> str | None:
+    """Run a phone or audio stream's ``push`` / ``finish``; its frames, in the server's output
+    scale, as a ``frames`` message (``None`` for none)."""
     start, rows = step(*args)
     if not len(rows):
         return None
+    rows = service.scaled(rows, stream.channels, stream.fps)
     return FramesMessage(start_frame=start, frames=rows.round(6).tolist()).model_dump_json()
