@@ -167,3 +167,47 @@ def test_short_vowels_between_bilabials_still_open_the_mouth():
             assert aperture[frames].min() <= LIP_CLOSED
         elif p.symbol in ("AY", "AA"):
             assert aperture[frames].max() >= 0.2, (p.symbol, aperture[frames])
+
+
+def test_open_vowels_opens_a_one_frame_vowel_between_bilabials_and_keeps_their_closures():
+    from vispeech.postprocess.overlays import open_vowels
+
+    # sv "mamma ja": m a(1 frame) m a ... j A: ; closed lips on the short /a/ as a network left them
+    timed = [("m", 0.0, 0.1), ("a", 0.1, 0.14), ("m", 0.14, 0.2), ("a", 0.2, 0.3), ("j", 0.3, 0.4),
+             ("A:", 0.4, 0.7), ("sil", 0.7, 0.8)]
+    phones = PhoneSequence([Phone(s, a, b, 0 if s != "sil" else None) for s, a, b in timed], "sv")
+    n, fps = 24, 30.0
+    jaw = np.full(n, 0.15)
+    close = np.full(n, 0.15)  # shut everywhere ...
+    close[14:21] = 0.0  # ... but on the long /A:/
+    track = Track(np.column_stack([jaw, close]), ("jawOpen", "mouthClose"), fps)
+    opened = open_vowels(track, phones, share=0.8)
+    aperture = lip_aperture(opened)
+    reference = np.percentile(lip_aperture(track)[[4, 8, 16]], 90)  # the vowels' anchor frames
+    assert aperture[4] == pytest.approx(0.8 * reference, abs=1e-9)  # the one-frame /a/ (frame 4)
+    assert aperture[8] >= 0.8 * reference - 1e-9  # the second /a/
+    assert aperture[[1, 2, 5]].max() <= LIP_CLOSED  # the /m/ frames keep their closure
+    np.testing.assert_array_equal(opened.values[:, 0], track.values[:, 0])  # mouthClose gave way, not the jaw
+    assert open_vowels(track, phones, share=0.0) is track
+
+
+@pytest.mark.parametrize("model", ["grid-tdnn", "baseline", "cohen-massaro", "ohman", "grid-ohman",
+                                   "grid-cohen-massaro"])
+def test_vowels_between_bilabials_open_to_half_of_an_open_a(model):
+    """Issue 10: every vowel between bilabials opens to at least half of the same model's /a/ in "Ja."."""
+    from vispeech.evaluation.closures import is_bilabial, phone_frames
+    from vispeech.phonetics.inventory import is_vowel
+    from vispeech.pipeline import speak
+
+    for lang, ja, text in (("sv", "Ja.", "Mamma plockar blåbär."), ("en", "Yeah.", "My mom made a large map of the farm.")):
+        reference = lip_aperture(speak(ja, lang, model=model).track).max()
+        said = speak(text, lang, model=model)
+        aperture = lip_aperture(said.track)
+        spoken = [p for p in said.phones if not p.is_silence]
+        checked = 0
+        for before, vowel, after in zip(spoken, spoken[1:], spoken[2:]):
+            if is_vowel(vowel.symbol, lang) and is_bilabial(before.symbol, lang) and is_bilabial(after.symbol, lang):
+                frames = phone_frames(vowel.start, vowel.end, said.track.fps, said.track.n_frames, pad=0)
+                assert aperture[frames].max() >= 0.5 * reference, (model, text, vowel)
+                checked += 1
+        assert checked >= 2

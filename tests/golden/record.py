@@ -14,6 +14,8 @@ other languages were read through IPA, issue 14) and
 30 fps: float32 values, with the channel names in ``channels/<model>``).
 First recorded at commit 7c41688, before the model-contract rework (issue 7); the fitted
 dominance models shipped by that rework (grid-cohen-massaro, grid-ohman) were added after it.
+Recorded again when post-processing began to open the vowels next to bilabials and
+labiodentals (``open_vowels``, issue 10): every change of a track there is that step's.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Post-processing of predicted tracks: jaw shift, consonant overlays, closures, ceilings.
 
 :func:`postprocess` runs, in order: the thesis's jawOpen range shift; the optional upper-lip
-overlay; the consonant overlays (bilabial closure, labiodental contact); confinement of the
-jaw's peaks to vowels; the soft ceilings; ``mouthClose ≤ jawOpen``; clipping to [0, 1].
+overlay; the consonant overlays (bilabial closure, labiodental contact); the opening of every
+vowel, however short; confinement of the jaw's peaks to vowels; the soft ceilings;
+``mouthClose ≤ jawOpen``; clipping to [0, 1].
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
-from vispeech.postprocess.overlays import anchor_frames, consonant_overlays, upper_lip_overlay
+from vispeech.postprocess.overlays import (
+    VOWEL_OPENING, anchor_frames, consonant_overlays, open_vowels, upper_lip_overlay,
+)
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
 from vispeech.targets.presets import PRESETS
 
@@ -39,6 +42,8 @@ class PostprocessConfig:
     articulatory features (``None``: all), and ``keep_jaw`` makes them leave jawOpen alone and
     reach each viseme's lip opening through mouthClose (for models that learned the jaw from
     recordings). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
+    ``vowel_opening``: the share of the utterance's open-vowel lip opening every vowel reaches
+    on its anchor frame (:func:`~vispeech.postprocess.overlays.open_vowels`; 0 = off).
     ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
     ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
     jawOpen (ARKit's lips interpenetrate beyond that).
@@ -51,6 +56,7 @@ class PostprocessConfig:
     overlay_features: Sequence[str] | None = None
     keep_jaw: bool = False
     upper_lip: float = 0.0
+    vowel_opening: float = VOWEL_OPENING
     jaw_peaks_in_vowels: bool = True
     ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
     close_within_jaw: bool = True
@@ -65,6 +71,8 @@ class PostprocessConfig:
     def __post_init__(self) -> None:
         if not (0.0 <= self.jaw_shift < 1.0 and self.fade_in >= 0.0 and 0.0 <= self.upper_lip <= 1.0):
             raise VispeechError("postprocess needs 0 <= jaw_shift < 1, fade_in >= 0 and 0 <= upper_lip <= 1")
+        if not 0.0 <= self.vowel_opening <= 1.0:
+            raise VispeechError("postprocess needs 0 <= vowel_opening <= 1")
 
 
 def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessConfig | None = None) -> Track:
@@ -79,8 +87,9 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
     """
     config = config or PostprocessConfig()
     if phones is None:
-        if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels:
-            raise VispeechError("post-processing with overlays, upper-lip lift or jaw confinement needs phones")
+        if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels or config.vowel_opening:
+            raise VispeechError("post-processing with overlays, upper-lip lift, vowel opening or jaw confinement "
+                                "needs phones")
     else:
         phones.validate()
     out = track.copy()
@@ -91,6 +100,8 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
     if config.overlays:
         out = consonant_overlays(out, phones, config.fade_in, config.fade_out, config.overlay_features,
                                  config.keep_jaw)
+    if config.vowel_opening > 0:
+        out = open_vowels(out, phones, config.vowel_opening)
     if config.jaw_peaks_in_vowels and "jawOpen" in out.channels:
         jaw = out.index("jawOpen")
         out.values[:, jaw] = confine_peaks(out.values[:, jaw], _vowel_frames(out, phones))

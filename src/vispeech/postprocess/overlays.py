@@ -221,3 +221,60 @@ def upper_lip_overlay(track: Track, phones: PhoneSequence, amount: float) -> Tra
     for channel in UPPER_LIP_CHANNELS:
         out.values[:, out.index(channel)] += amount * strength
     return out
+
+
+VOWEL_OPENING = 0.8
+"""Share of an utterance's open-vowel lip opening that every open vowel reaches (see :func:`open_vowels`)."""
+
+_OPEN = FEATURE_NAMES.index("open")
+_LIP_CLOSING = ("bilabial", "labiodental")
+
+
+def open_vowels(track: Track, phones: PhoneSequence, share: float = VOWEL_OPENING) -> Track:
+    """``track`` with the lips open on the anchor frame of every vowel next to a bilabial or
+    labiodental, however short the vowel.
+
+    A network that learned from speech at 25 fps may leave a one-frame vowel between two
+    bilabials shut (espeak-ng's Swedish "mamma" gives its stressed /a/ 44 ms). The reference
+    is the utterance's own open-vowel opening: the 90th percentile of the lip aperture
+    (:func:`vispeech.motion.arkit.lip_aperture`) on its vowels' anchor frames. Such a vowel,
+    with the ``open`` feature o (0, 0.5, 1), reaches at least ``share · (0.25 + 0.75·o)`` of it: the
+    missing opening comes from mouthClose first, then from jawOpen. A frame that is also a
+    bilabial's or labiodental's anchor frame keeps its closure. Tracks without jawOpen and
+    mouthClose, and utterances without vowels, are returned as they are.
+    """
+    if not {"jawOpen", "mouthClose"} <= set(track.channels) or share <= 0:
+        return track
+    rows = phone_rows(phones.language)
+    spoken = [p for p in phones if not p.is_silence]
+    if not spoken:
+        return track
+    index = rows.indices([p.symbol for p in spoken], [p.stress for p in spoken])
+    features = rows.features[index]
+    starts = np.array([p.start for p in spoken]) - track.start_time
+    ends = np.array([p.end for p in spoken]) - track.start_time
+    anchors = anchor_frames(starts, ends, track.fps, track.n_frames)
+    vowel = features[:, _VOWEL] > 0
+    if not vowel.any():
+        return track
+    closing = np.zeros(len(spoken), dtype=bool)
+    for name in _LIP_CLOSING:
+        closing |= features[:, FEATURE_NAMES.index(name)] > 0
+    held = set(anchors[closing].tolist())
+    beside = np.zeros(len(spoken), dtype=bool)  # next to a consonant that closes the lips
+    beside[1:] |= closing[:-1]
+    beside[:-1] |= closing[1:]
+    out = track.copy()
+    jaw, close = out.index("jawOpen"), out.index("mouthClose")
+    aperture = lip_aperture(out)
+    reference = float(np.percentile(aperture[anchors[vowel]], 90))
+    for k, openness in zip(anchors[vowel & beside], features[vowel & beside, _OPEN]):
+        if k in held:
+            continue
+        deficit = share * reference * (0.25 + 0.75 * openness) - aperture[k]
+        if deficit <= 0:
+            continue
+        cut = min(deficit, out.values[k, close])
+        out.values[k, close] -= cut
+        out.values[k, jaw] += deficit - cut
+    return out
