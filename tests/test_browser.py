@@ -317,3 +317,51 @@ def test_chat_page_offers_every_language_and_says_german(page, server_url):
         assert chat.errors == []
     finally:
         chat.close()
+
+
+def test_the_rendered_lip_gap_is_the_calibrated_heads(page):
+    """The head in the browser, posed from the ARKit-scaled tracked scores of grid_s1 test utterances,
+    has the inner-lip gap over eye distance that the calibration computed, read from its morphed
+    vertices (base + Σ influence · offset, through the mesh's world matrix)."""
+    grid = SHARED / "data" / "grid_s1"
+    require(grid.is_dir(), f"grid_s1 ({grid}, in the shared data folder)")
+    from vispeech.corpus.grid import read_grid
+    from vispeech.motion.calibration import HeadGeometry, load_scale
+
+    head = HeadGeometry.from_glb(ICT_HEAD)
+    arkit = load_scale("arkit")
+    checked = closed = 0
+    for utterance in list(read_grid(grid).split("test"))[:3]:
+        track = arkit.apply(utterance.track)
+        expected = head.gap(track)
+        frames = list(range(0, track.n_frames, 7))
+        rendered = page.evaluate(
+            """async ([animation, frames, landmarks]) => {
+              const v = window.vispeech;
+              await v.playAnimation(animation, null, { autoplay: false });
+              const mesh = v.avatar.head;
+              const base = mesh.geometry.attributes.position;
+              const offsets = mesh.geometry.morphAttributes.position;
+              const at = (i) => {  // a vertex as shown now, in world space
+                const p = [base.getX(i), base.getY(i), base.getZ(i)];
+                mesh.morphTargetInfluences.forEach((w, t) => {
+                  if (w) { p[0] += w * offsets[t].getX(i); p[1] += w * offsets[t].getY(i); p[2] += w * offsets[t].getZ(i); }
+                });
+                const e = mesh.matrixWorld.elements;
+                return [0, 1, 2].map((r) => e[r] * p[0] + e[4 + r] * p[1] + e[8 + r] * p[2] + e[12 + r]);
+              };
+              const gaps = [];
+              for (const k of frames) {
+                v.seek(k / animation.fps);
+                await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
+                const eyes = Math.hypot(...[0, 1, 2].map((c) => at(landmarks.eye_left)[c] - at(landmarks.eye_right)[c]));
+                gaps.push(Math.max(at(landmarks.upper_lip)[1] - at(landmarks.lower_lip)[1], 0) / eyes);
+              }
+              return gaps;
+            }""",
+            [{"format": "vispeech-animation", "version": 1, **track.to_dict()}, frames, head.landmarks],
+        )
+        np.testing.assert_allclose(rendered, expected[frames], atol=2e-3, err_msg=utterance.id)
+        checked += len(frames)
+        closed += int((expected[frames] < 0.02).sum())
+    assert checked > 30 and closed > 0 and page.errors == []

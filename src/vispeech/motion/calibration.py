@@ -68,6 +68,9 @@ class HeadGeometry:
     width_per: dict[str, float]
     eye_distance: float
     """The eye-corner distance in the model's units (metres for glTF)."""
+    landmarks: dict[str, int] = field(default_factory=dict)
+    """The vertices measured, by name (``upper_lip``, ``lower_lip``, ``mouth_left``,
+    ``mouth_right``, ``eye_left``, ``eye_right``), indices into the skin primitive's vertices."""
 
     @classmethod
     def from_glb(cls, path: str | os.PathLike) -> HeadGeometry:
@@ -90,9 +93,12 @@ class HeadGeometry:
         upper, lower = _inner_lips(base, targets["jawOpen"], centre, eye_distance, base[[corner_left, corner_right], 1])
         gap_per = {name: float(d[upper, 1] - d[lower, 1]) / eye_distance for name, d in targets.items()}
         width_per = {name: float(d[corner_left, 0] - d[corner_right, 0]) / eye_distance for name, d in targets.items()}
+        landmarks = {"upper_lip": upper, "lower_lip": lower, "mouth_left": corner_left, "mouth_right": corner_right,
+                     "eye_left": eye_left, "eye_right": eye_right}
         return cls(float(base[upper, 1] - base[lower, 1]) / eye_distance,
                    float(base[corner_left, 0] - base[corner_right, 0]) / eye_distance,
-                   {k: v for k, v in gap_per.items() if v}, {k: v for k, v in width_per.items() if v}, eye_distance)
+                   {k: v for k, v in gap_per.items() if v}, {k: v for k, v in width_per.items() if v}, eye_distance,
+                   landmarks)
 
     def gap(self, track: Track) -> np.ndarray:
         """Per frame, the head's inner-lip gap over its eye distance at ``track``'s weights
