@@ -101,6 +101,14 @@ def test_chat_answers_in_swedish_and_english(client):
     assert en == {"reply": "My name is Vera.", "lang": "en", "speech": None}
     other = client.post("/api/chat", json={"message": "Guten Tag!", "lang": "de"})
     assert other.status_code == 400 and "chat bot speaks sv and en, not 'de'" in other.json()["detail"]
+    # an English message on a Swedish page is answered in English, a Swedish one on an English page in Swedish
+    asked = client.post("/api/chat", json={"message": "What is your name?", "lang": "sv", "speak": True}).json()
+    assert asked["reply"] == "My name is Vera." and asked["lang"] == "en"
+    assert asked["speech"]["animation"]["phones"]["language"] == "en"
+    svar = client.post("/api/chat", json={"message": "Vad heter du?", "lang": "en", "speak": False}).json()
+    assert svar == {"reply": "Jag heter Vera.", "lang": "sv", "speech": None}
+    unsure = client.post("/api/chat", json={"message": "ok", "lang": "sv", "speak": False}).json()
+    assert unsure["lang"] == "sv"  # too short to tell: the page's language
 
 
 def test_speak_in_any_language_espeak_speaks(client):
@@ -273,6 +281,9 @@ def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
         assert answer["reply"] == "echo hej (sv)"
         german = app.post("/api/chat", json={"message": "hallo", "lang": "de"}).json()  # any language passes through
         assert german["reply"] == "echo hallo (de)" and german["speech"]["animation"]["phones"]["language"] == "ipa"
+        french = app.post("/api/chat", json={"message": "Bonjour à tous, je voudrais un grand café au lait",
+                                             "lang": "en"}).json()  # the reply is spoken in its own language
+        assert french["lang"] == "fr-fr" and french["speech"]["animation"]["phones"]["language"] == "ipa"
         assert app.get("/api/config").json()["chat_languages"] is None
         failed = app.post("/api/chat", json={"message": "fail", "speak": False})
         assert failed.status_code == 502 and "HTTP 500" in failed.json()["detail"]

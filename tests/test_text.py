@@ -47,3 +47,14 @@ def test_say_speaks_the_words_and_writes_them(tmp_path):
     assert result.exit_code == 0, result.output
     phones = read_alignment(tmp_path / "out" / "phones.TextGrid", "en")
     assert [w.text for w in phones.words] == ["Hello", "see", "our", "page"]
+
+
+def test_detect_language_names_a_language_only_when_sure():
+    from vispeech.frontends.text import detect_language
+
+    assert detect_language("What is your name?", ["sv", "en"]) == "en"
+    assert detect_language("Vad heter du?", ["sv", "en"]) == "sv"
+    assert detect_language("ok", ["sv", "en"]) is None  # too short to tell
+    assert detect_language("Guten Tag, wie geht es Ihnen heute?", ["sv", "en", "de", "fr"]) == "de"
+    assert detect_language("Guten Tag, wie geht es Ihnen heute?", ["sv", "cmn"]) in (None, "sv")
+    assert detect_language("妈妈买了一本书，我们一起去看看吧。", ["en", "cmn"]) == "cmn"  # langid's zh

@@ -26,6 +26,7 @@ _MODULES = {"animate-phones": "say"}
 EXTRAS = {
     "torch": "train", "matplotlib": "train", "tqdm": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
+    "py3langid": "serve",
     "transformers": "encoder",
     "ray": "ray",
 }

@@ -50,6 +50,7 @@ from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import find_voice, voices
+from vispeech.frontends.text import detect_language
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
@@ -415,18 +416,33 @@ class SpeechService:
         return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": json.loads(entry.animation),
                 "text": text, "cached": cached}
 
-    def reply(self, message: str, lang: str) -> str:
-        """The bot's reply to ``message``, stripped and cut to :data:`MAX_TEXT_CHARS`."""
-        reply = self.config.bot.reply(message, lang)
+    def reply(self, message: str, lang: str) -> tuple[str, str]:
+        """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
+        to speak it in: the message's or the page's (``lang``).
+
+        A bot with a list of languages (the rule bot) answers in the one the message is written
+        in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``lang``; a
+        bot that answers in any language (an HTTP chat service) is asked in ``lang`` and its
+        reply is spoken in the language the reply is written in, else in ``lang``."""
+        languages = _chat_languages(self.config.bot)
+        asked = lang
+        if languages is not None:
+            asked = detect_language(message, languages) or lang
+        reply = self.config.bot.reply(message, asked)
         if not isinstance(reply, str) or not reply.strip():
             raise ChatBotError("the chat bot gave no reply")
-        return reply.strip()[:MAX_TEXT_CHARS]
+        reply = reply.strip()[:MAX_TEXT_CHARS]
+        if languages is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
+            codes = [alias for v in voices() for alias in v.aliases] + [v.language for v in voices()]
+            said = detect_language(reply, codes)
+            asked = lang if said is None else find_voice(said).language
+        return reply, asked
 
     def chat(self, message: str, lang: str, say: bool, model_name: str | None) -> dict:
-        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say``."""
-        reply = self.reply(message, lang)
-        speech = self.speak(reply, lang, model_name, 1.0) if say else None
-        return {"reply": reply, "lang": lang, "speech": speech}
+        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say``, and its language."""
+        reply, spoken = self.reply(message, lang)
+        speech = self.speak(reply, spoken, model_name, 1.0) if say else None
+        return {"reply": reply, "lang": spoken, "speech": speech}
 
 
 MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
@@ -619,14 +635,14 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         service.pay(ip, service.text_cost(request.message))
         if request.speak:
             service.model(request.model)  # an unknown model is refused before the bot is asked
-        reply = await run_in_threadpool(service.reply, request.message, request.lang)  # may wait on a service
+        reply, spoken = await run_in_threadpool(service.reply, request.message, request.lang)  # may wait on a service
         speech = None
         if request.speak:
             service.bucket.charge(ip, service.text_cost(reply))
-            args = (reply, request.lang, request.model, 1.0)
+            args = (reply, spoken, request.model, 1.0)
             speech = (await run_in_threadpool(service.lookup, *args)
                       or await service.pool.run(ip, service.speak, *args, weight=len(reply) * TEXT_WORK_PER_CHAR))
-        return {"reply": reply, "lang": request.lang, "speech": speech}
+        return {"reply": reply, "lang": spoken, "speech": speech}
 
     @app.websocket("/api/stream")
     async def stream(websocket: WebSocket) -> None:
