@@ -79,6 +79,9 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
         {"id": "rate", "audio": "x.wav", "rate": 1.2},
         {"id": "extra", "text": "Hi.", "colour": "red"},
         {"text": "No id."},
+        {"id": "voiced", "text": "Hi.", "voice": "f3"},
+        {"id": "novoice", "text": "Hi.", "voice": "nobody"},
+        {"id": "audiovoice", "audio": "x.wav", "voice": "f3"},
     ])
     lines = read_job(job)
     errors = {x.number: x.error for x in lines}
@@ -95,6 +98,9 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     assert "rate is for text lines" in errors[11]
     assert "unknown field 'colour'" in errors[12]
     assert errors[13] is None and lines[12].id == "00013"
+    assert errors[14] is None and lines[13].voice == "f3" and lines[0].voice is None
+    assert "unknown voice variant 'nobody'" in errors[15]
+    assert "voice is for text lines" in errors[16]
 
 
 def test_folder_job_reads_texts_recordings_with_transcripts_and_alignments(tmp_path):

@@ -267,3 +267,18 @@ def test_every_espeak_phoneme_of_the_voice_maps(language, voice):
         for name, kind in phonemes + tables["en"][1]:
             if kind not in (0, 1, 9) and name:
                 assert all(symbol in symbols for symbol, _ in espeak_to_symbols(name, "sv", "en")), name
+
+
+def test_voice_variants_speak_the_same_phones_with_another_voice():
+    from vispeech.frontends.espeak import voice_variants
+
+    variants = voice_variants()
+    assert variants["f3"] == "female" and variants["m3"] == "male" and len(variants) > 50
+    plain = synthesize("Hej! Hur kan jag hjälpa dig?", "sv")
+    female = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", variant="f3")
+    assert [p.symbol for p in female.phones] == [p.symbol for p in plain.phones]
+    assert not np.array_equal(female.audio[:len(plain.audio)], plain.audio[:len(female.audio)])
+    again = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", variant="f3")
+    np.testing.assert_array_equal(again.audio, female.audio)  # reproducible with a variant too
+    with pytest.raises(VispeechError, match="unknown voice variant 'f99'"):
+        synthesize("Hej", "sv", variant="f99")

@@ -345,3 +345,18 @@ def test_answers_and_streams_come_in_the_output_scale(tmp_path):
     channels, rows = frames["tracker"]
     np.testing.assert_allclose(frames["arkit"][1], arkit.apply(Track(np.array(rows), tuple(channels), 30.0)).values,
                                atol=1e-5)
+
+
+def test_the_avatars_voice_variant(tmp_path):
+    """ServeConfig.voice speaks every answer with an espeak-ng voice variant; the cache keeps it apart."""
+    request = {"text": "Hello there.", "lang": "en", "model": "baseline"}
+    audio = {}
+    for voice in (None, "f3"):
+        config = ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, voice=voice)
+        with TestClient(create_app(config)) as served:
+            answer = served.post("/api/speak", json=request).json()
+            assert answer["cached"] is False  # the other voice's answer is not reused
+            audio[voice] = served.get(answer["audio_url"]).content
+    assert audio[None] != audio["f3"]
+    with pytest.raises(VispeechError, match="unknown voice variant"):
+        create_app(ServeConfig(cache=":memory:", voice="nobody"))

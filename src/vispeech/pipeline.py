@@ -106,25 +106,27 @@ def speak(
     rate: float = 1.0,
     fps: float = DEFAULT_FPS,
     postprocessing: PostprocessConfig | bool = True,
+    variant: str | None = None,
 ) -> Utterance:
     """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length.
 
     What is spoken is :func:`vispeech.frontends.text.speakable` of ``text`` (no Markdown markup,
-    links or emoji), and that is the utterance's ``text``.
+    links or emoji), and that is the utterance's ``text``. ``variant`` is an espeak-ng voice
+    variant (:func:`vispeech.frontends.espeak.voice_variants`: an avatar's voice).
     """
     check_fps(fps)
-    utterance = voice(text, language, rate=rate)
+    utterance = voice(text, language, rate=rate, variant=variant)
     return replace(utterance, track=animate(utterance.phones, model, fps, postprocessing))
 
 
-def voice(text: str, language: str = "en", *, rate: float = 1.0) -> Utterance:
+def voice(text: str, language: str = "en", *, rate: float = 1.0, variant: str | None = None) -> Utterance:
     """The first half of :func:`speak`: the utterance without a track, what of ``text`` is
     spoken (:func:`spoken_text`) with espeak-ng's audio and phones."""
     from vispeech.frontends.espeak import synthesize
 
     check_text(text)
     spoken = spoken_text(text)
-    speech = synthesize(spoken, language, rate=rate)
+    speech = synthesize(spoken, language, rate=rate, variant=variant)
     return Utterance(text=spoken, phones=speech.phones, audio=speech.audio, sample_rate=speech.sample_rate)
 
 

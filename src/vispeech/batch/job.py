@@ -37,11 +37,11 @@ from vispeech.errors import VispeechError
 from vispeech.files import read_text
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
 from vispeech.limits import check_fps, check_text, parse_json
-from vispeech.frontends.espeak import find_voice
+from vispeech.frontends.espeak import check_variant, find_voice
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
 
-FIELDS = ("id", "text", "lang", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess")
+FIELDS = ("id", "text", "lang", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess", "voice")
 """The fields a manifest line may have."""
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".oga", ".opus", ".aiff", ".aif")
 """Extensions a folder job reads as recordings."""
@@ -67,6 +67,8 @@ class JobDefaults:
     postprocess: bool = True
     scale: str = DEFAULT_SCALE
     """The output scale of every line (:func:`vispeech.motion.calibration.load_scale`)."""
+    voice: str | None = None
+    """The espeak-ng voice variant text lines are spoken with (``None``: each language's own)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,7 @@ class BatchLine:
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
     postprocess: bool = True
     scale: str = DEFAULT_SCALE
+    voice: str | None = None
     error: str | None = field(default=None, compare=False)
 
     @property
@@ -228,6 +231,9 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate:g}")
     if "rate" in record and kind != "text":
         raise VispeechError("rate is for text lines (espeak-ng's speaking rate)")
+    if "voice" in record and kind != "text":
+        raise VispeechError("voice is for text lines (espeak-ng's voice variant)")
+    voice = check_variant(record.get("voice", defaults.voice) or None)
     formats = record.get("formats", defaults.formats)
     if isinstance(formats, str):
         formats = [f for f in re.split(r"[\s,;]+", formats) if f]
@@ -238,6 +244,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         audio=None if audio is None else base / audio, alignment=None if alignment is None else base / alignment,
         model=record.get("model", defaults.model), fps=fps, rate=rate, formats=check_formats(formats),
         postprocess=_flag(record.get("postprocess", defaults.postprocess)), scale=defaults.scale,
+        voice=voice if kind == "text" else None,
     )
 
 

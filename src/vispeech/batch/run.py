@@ -190,7 +190,7 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
               "source": None if line.source is None else str(line.source), "source_sha256": digest}
     settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
                 "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess,
-                "scale": _scale_settings(line.scale)}
+                "scale": _scale_settings(line.scale), "voice": line.voice}
     about = {"vispeech": vispeech.__version__, **inputs, **settings, "source": None}
     key = hashlib.sha256(json.dumps(about, sort_keys=True).encode()).hexdigest()[:32]
     record = json.dumps({"format": "vispeech-batch-line", "version": 1, "id": line.id, "key": key,
@@ -271,7 +271,7 @@ def prepare(line: BatchLine) -> Prepared:
     """Read, synthesise or align what ``line`` animates (espeak-ng speech, a recording and its
     alignment, an alignment file)."""
     if line.kind == "text":
-        return Prepared(voice(line.text, line.lang, rate=line.rate))
+        return Prepared(voice(line.text, line.lang, rate=line.rate, variant=line.voice))
     if line.kind == "audio":
         clip = AudioClip.read(line.audio)
         return Prepared(hear(clip, line.text, line.lang or "en"), clip)

@@ -35,8 +35,11 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 @click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @scale_option(DEFAULT_SCALE)
+@click.option("--voice", "variant", default=None,
+              help="espeak-ng voice variant of text lines that do not say: f1-f5 female, m1-m8 male, ...")
 def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
-          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool, scale: str) -> None:
+          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool, scale: str,
+          variant: str | None) -> None:
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
@@ -53,7 +56,7 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     load_scale(scale)
     defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),
                            formats=check_formats(f for f in formats.split(",") if f.strip()),
-                           postprocess=not no_postprocess, scale=scale)
+                           postprocess=not no_postprocess, scale=scale, voice=variant)
     lines = read_job(job, defaults)
     if address is not None and backend != "ray":
         raise VispeechError("--address is for --backend ray")

@@ -11,14 +11,25 @@ from vispeech.cli import main
 
 @main.command("languages")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
-def languages_command(as_json: bool) -> None:
+@click.option("--variants", is_flag=True, help="List espeak-ng's voice variants (for --voice) instead.")
+def languages_command(as_json: bool, variants: bool) -> None:
     """List the languages espeak-ng speaks here: code, other codes, phones, name.
 
     sv and en are read into their curated phone inventories; every other language into IPA
     phones whose articulatory features come from the IPA, so every model animates them.
+    Any language speaks with any voice variant (say --voice f3, serve --voice m1).
     """
-    from vispeech.frontends.espeak import voices
+    from vispeech.frontends.espeak import voice_variants, voices
 
+    if variants:
+        found = voice_variants()
+        if as_json:
+            click.echo(json.dumps([{"variant": k, "gender": v} for k, v in found.items()], indent=1))
+            return
+        for gender in ("female", "male", ""):
+            names = [k for k, v in found.items() if v == gender]
+            click.echo(f"{gender or 'other'} ({len(names)}): {' '.join(names)}")
+        return
     listed = voices()
     if as_json:
         click.echo(json.dumps([{"language": v.language, "aliases": list(v.aliases), "phones": v.phones,

@@ -9,6 +9,7 @@ import click
 from vispeech.cli import lang_option, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.limits import check_fps, check_text
+from vispeech.frontends.espeak import check_variant
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.calibration import load_scale
 from vispeech.pipeline import (
@@ -34,8 +35,11 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @click.option("--text-file", type=click.Path(path_type=Path), default=None,
               help="Speak the text of this file (UTF-8; at most 10,000 characters) instead of TEXT.")
 @scale_option(DEFAULT_SCALE)
+@click.option("--voice", "variant", default=None,
+              help="espeak-ng voice variant, an avatar's voice: f1-f5 female, m1-m8 male, ... "
+                   "(`vispeech languages --variants`) [default: the language's own voice].")
 def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool,
-        text_file: Path | None, scale: str) -> None:
+        text_file: Path | None, scale: str, variant: str | None) -> None:
     """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
 
     Without TEXT (or --text-file) a greeting in the chosen language is spoken. Markdown markup,
@@ -54,8 +58,10 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
             raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {lang!r}")
     check_text(text)
     check_outputs(out_dir)
-    load_scale(scale)  # a bad scale is refused before any work
-    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess)
+    load_scale(scale)  # a bad scale or voice is refused before any work
+    check_variant(variant)
+    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess,
+                      variant=variant)
     paths = write_outputs(utterance, out_dir, scale=scale)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
     for path in paths:

@@ -64,12 +64,15 @@ from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_MODEL
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
 @scale_option("arkit")
+@click.option("--voice", "variant", default=None,
+              help="The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages --variants`).")
 def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, cache: Path | None,
           default_model: str, stream_model: str | None, audio_model: str, rate_limit: float, burst: int,
           chat_url: str | None, chat_reply_field: str, token: str | None, allow_host: tuple[str, ...],
           allow_origin: tuple[str, ...],
           workers: int | None, processes: int, max_queue: int, max_streams: int, max_streams_per_ip: int, idle_timeout: float,
-          stream_timeout: float, cache_mb: int, ws_deflate: bool, log_level: str, scale: str) -> None:
+          stream_timeout: float, cache_mb: int, ws_deflate: bool, log_level: str, scale: str,
+          variant: str | None) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
 
     API documentation is at /docs; docs/serve.md lists the limits. Stop with Ctrl+C.
@@ -86,7 +89,8 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
                          token=token or None, allowed_hosts=tuple(dict.fromkeys(hosts)),
                          allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))), max_queue=max_queue,
                          max_streams=max_streams, max_streams_per_ip=max_streams_per_ip, idle_timeout=idle_timeout,
-                         stream_timeout=stream_timeout, cache_bytes=cache_mb * 1024 * 1024, scale=scale, **extra)
+                         stream_timeout=stream_timeout, cache_bytes=cache_mb * 1024 * 1024, scale=scale,
+                         voice=variant, **extra)
     app = create_app(config)  # with several processes: checks the settings and models once, here
     service = app.state.service
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "

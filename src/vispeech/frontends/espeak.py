@@ -278,18 +278,49 @@ def phone_set(language: str) -> str:
     return find_voice(language).phones
 
 
-def synthesize(text: str, language: str = "en", rate: float = 1.0, *, reproducible: bool = True) -> Speech:
+@cache
+def voice_variants() -> dict[str, str]:
+    """espeak-ng's voice variants, which any language's voice can speak with (``f1``-``f5``
+    female, ``m1``-``m8`` male, ``klatt``, ``whisper`` ...): name -> gender (``female``,
+    ``male`` or ``""``), from the files of ``espeak-ng-data/voices/!v``."""
+    import espeakng_loader
+
+    folder = Path(espeakng_loader.get_data_path()) / "voices" / "!v"
+    found = {}
+    for path in sorted(folder.iterdir()) if folder.is_dir() else ():
+        if path.is_file() and " " not in path.name:
+            gender = ""
+            for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+                words = line.split()
+                if len(words) >= 2 and words[0] == "gender":
+                    gender = words[1]
+            found[path.name] = gender
+    return found
+
+
+def check_variant(variant: str | None) -> str | None:
+    """``variant`` if it is one of :func:`voice_variants` (or ``None``); :class:`VispeechError` otherwise."""
+    if variant is None or variant in voice_variants():
+        return variant
+    raise VispeechError(f"unknown voice variant {variant!r}: `vispeech languages --variants` lists them "
+                        "(f1-f5 female, m1-m8 male, ...)")
+
+
+def synthesize(text: str, language: str = "en", rate: float = 1.0, *, variant: str | None = None,
+               reproducible: bool = True) -> Speech:
     """Speak ``text`` with espeak-ng and return the audio with its phones and words.
 
     ``language`` is a code of :func:`voices`: ``"sv"`` and ``"en"`` (voice ``en-us``) give
-    phones of the curated inventories, every other language IPA phones. ``rate`` is a
-    speaking-rate factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover
-    ``[0, duration]`` exactly. ``reproducible=False`` saves about 7 ms by reusing the library
-    loaded by the last such call, at the price of samples and phone onsets that depend on
-    what was spoken before (see the module docstring).
+    phones of the curated inventories, every other language IPA phones. ``variant`` is one of
+    :func:`voice_variants` (``None``: the language's own voice). ``rate`` is a speaking-rate
+    factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover ``[0, duration]``
+    exactly. ``reproducible=False`` saves about 7 ms by reusing the library loaded by the last
+    such call, at the price of samples and phone onsets that depend on what was spoken before
+    (see the module docstring).
     """
     global _engine
     voice = find_voice(language)
+    check_variant(variant)
     ipa = voice.phones == IPA
     if not text or not text.strip():
         raise VispeechError("text is empty")
@@ -305,7 +336,8 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0, *, reproducib
             _engine = None
         engine = _engine or _Engine(ipa)
         try:
-            samples, events = engine.synthesize(text, voice.selector, round(DEFAULT_WPM * factor))
+            selector = voice.selector if variant is None else f"{voice.selector}+{variant}"
+            samples, events = engine.synthesize(text, selector, round(DEFAULT_WPM * factor))
         finally:
             if reproducible:
                 engine.close()

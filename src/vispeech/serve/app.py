@@ -49,7 +49,7 @@ import vispeech.preview
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
-from vispeech.frontends.espeak import find_voice, voices
+from vispeech.frontends.espeak import check_variant, find_voice, voices
 from vispeech.frontends.text import detect_language
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
@@ -218,6 +218,7 @@ class ServeConfig:
     token: str | None = None
     static_dir: Path | None = None
     scale: str = DEFAULT_SCALE
+    voice: str | None = None
 
     def to_json(self) -> str:
         """The settings as JSON, for the server's other processes (:func:`app_from_environment`).
@@ -267,6 +268,7 @@ class SpeechService:
     def __init__(self, config: ServeConfig) -> None:
         self.config = config
         self.calibration = load_scale(config.scale)
+        check_variant(config.voice)
         self.models: dict[str, Estimator] = {}
         self.versions: dict[str, str] = {}
         for name in RUNNABLE:
@@ -369,8 +371,8 @@ class SpeechService:
     def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
         name, model = self.model(model_name)
         voice = find_voice(lang)
-        return CacheKey(text, voice.language, voice.selector, float(rate), name, self.versions[name],
-                        self.config.fps), model
+        selector = voice.selector if self.config.voice is None else f"{voice.selector}+{self.config.voice}"
+        return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
 
     def lookup(self, text: str, lang: str, model_name: str | None, rate: float) -> dict | None:
         """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
@@ -384,7 +386,7 @@ class SpeechService:
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps)
+            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, variant=self.config.voice)
             entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
         return self._answer(entry, text, cached)
 
@@ -856,7 +858,7 @@ class _StreamConnection(_Connection):
     async def _text(self, message: TextMessage) -> None:
         _, model = self.service.model(message.model, stream=True)
         messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate,
-                                   scale=self.service.calibration)
+                                   scale=self.service.calibration, variant=self.config.voice)
 
         def next_clause() -> tuple[list[str], float | None] | None:
             batch = next(messages, None)
