@@ -109,3 +109,16 @@ def test_glb_export_opens_with_animation_channels(utterances, tmp_path, shared_d
     weights = np.frombuffer(blob[start:start + 4 * utt.track.n_frames * len(names)], dtype=np.float32)
     weights = weights.reshape(utt.track.n_frames, len(names))
     np.testing.assert_allclose(weights[:, names.index("jawOpen")], utt.track["jawOpen"], atol=1e-6)
+
+
+@pytest.mark.parametrize("model", [DEFAULT_MODEL, "baseline"])
+def test_the_mouth_is_at_rest_when_the_speech_ends(utterances, model):
+    """speak adds TRAILING_SILENCE after espeak-ng's last sound: the last frame shows closed lips,
+    which a player holding it keeps (before, "...today?" ended with the jaw at 0.38)."""
+    from vispeech.pipeline import TRAILING_SILENCE
+
+    for lang, text in SENTENCES:
+        utt = utterances[lang, text, model]
+        last = utt.phones.phones[-1]
+        assert last.is_silence and last.end - last.start >= TRAILING_SILENCE - 1e-9
+        assert lip_aperture(utt.track)[-3:].max() <= LIP_CLOSED, (text, model)

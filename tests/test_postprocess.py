@@ -183,7 +183,7 @@ def test_open_vowels_opens_a_one_frame_vowel_between_bilabials_and_keeps_their_c
     track = Track(np.column_stack([jaw, close]), ("jawOpen", "mouthClose"), fps)
     opened = open_vowels(track, phones, share=0.8)
     aperture = lip_aperture(opened)
-    reference = np.percentile(lip_aperture(track)[[4, 8, 16]], 90)  # the vowels' anchor frames
+    reference = np.percentile(lip_aperture(track)[[4, 8, 16]], 95)  # the vowels' anchor frames
     assert aperture[4] == pytest.approx(0.8 * reference, abs=1e-9)  # the one-frame /a/ (frame 4)
     assert aperture[8] >= 0.8 * reference - 1e-9  # the second /a/
     assert aperture[[1, 2, 5]].max() <= LIP_CLOSED  # the /m/ frames keep their closure

@@ -10,8 +10,10 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from vispeech.alignment.formats import write_textgrid
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.audio import AudioClip
@@ -21,6 +23,7 @@ from vispeech.models.registry import load_model
 from vispeech.motion.calibration import load_scale
 from vispeech.motion.io import write_track
 from vispeech.motion.track import Track
+from vispeech.phonetics.inventory import SILENCE
 from vispeech.postprocess import PostprocessConfig, postprocess
 from vispeech.utterance import Utterance
 
@@ -119,15 +122,31 @@ def speak(
     return replace(utterance, track=animate(utterance.phones, model, fps, postprocessing))
 
 
+TRAILING_SILENCE = 0.25
+"""Seconds of silence :func:`voice` adds after espeak-ng's speech, which ends with the last
+sound: the time the mouth takes to come back to rest, so that a player holding the last frame
+shows a closed mouth."""
+
+
 def voice(text: str, language: str = "en", *, rate: float = 1.0, variant: str | None = None) -> Utterance:
     """The first half of :func:`speak`: the utterance without a track, what of ``text`` is
-    spoken (:func:`spoken_text`) with espeak-ng's audio and phones."""
+    spoken (:func:`spoken_text`) with espeak-ng's audio and phones, and
+    :data:`TRAILING_SILENCE` of silence after them (the last silence phone lengthened)."""
     from vispeech.frontends.espeak import synthesize
 
     check_text(text)
     spoken = spoken_text(text)
     speech = synthesize(spoken, language, rate=rate, variant=variant)
-    return Utterance(text=spoken, phones=speech.phones, audio=speech.audio, sample_rate=speech.sample_rate)
+    pad = round(TRAILING_SILENCE * speech.sample_rate)
+    audio = np.concatenate([speech.audio, np.zeros(pad, dtype=speech.audio.dtype)])
+    phones = list(speech.phones.phones)
+    end = len(audio) / speech.sample_rate
+    if phones[-1].is_silence:
+        phones[-1] = replace(phones[-1], end=end)
+    else:
+        phones.append(Phone(SILENCE, phones[-1].end, end))
+    sequence = replace(speech.phones, phones=phones)
+    return Utterance(text=spoken, phones=sequence, audio=audio, sample_rate=speech.sample_rate)
 
 
 def spoken_text(text: str) -> str:

@@ -236,7 +236,7 @@ def open_vowels(track: Track, phones: PhoneSequence, share: float = VOWEL_OPENIN
 
     A network that learned from speech at 25 fps may leave a one-frame vowel between two
     bilabials shut (espeak-ng's Swedish "mamma" gives its stressed /a/ 44 ms). The reference
-    is the utterance's own open-vowel opening: the 90th percentile of the lip aperture
+    is the utterance's own open-vowel opening: the 95th percentile of the lip aperture
     (:func:`vispeech.motion.arkit.lip_aperture`) on its vowels' anchor frames. Such a vowel,
     with the ``open`` feature o (0, 0.5, 1), reaches at least ``share · (0.25 + 0.75·o)`` of it: the
     missing opening comes from mouthClose first, then from jawOpen. A frame that is also a
@@ -267,7 +267,7 @@ def open_vowels(track: Track, phones: PhoneSequence, share: float = VOWEL_OPENIN
     out = track.copy()
     jaw, close = out.index("jawOpen"), out.index("mouthClose")
     aperture = lip_aperture(out)
-    reference = float(np.percentile(aperture[anchors[vowel]], 90))
+    reference = float(np.percentile(aperture[anchors[vowel]], 95))
     for k, openness in zip(anchors[vowel & beside], features[vowel & beside, _OPEN]):
         if k in held:
             continue
