@@ -47,7 +47,7 @@ def main() -> None:
     rows = [line.split("\t") for line in SENTENCES.read_text(encoding="utf-8").splitlines()
             if line.strip() and not line.startswith("#")]
     shots, figures = [], []
-    with _server() as url, _viewer(f"{url}/viewer?idle=0") as page:
+    with serving() as url, viewer(f"{url}/viewer?idle=0") as page:
         for lang, text in rows:
             speech = page.evaluate("([t, l, m]) => window.vispeech.speak(t, l, m)", [text, lang, args.model])
             animation = speech["animation"]
@@ -110,8 +110,11 @@ def _grid(shots: list[bytes], figures: list[dict], columns: int, out: Path) -> N
     grid.save(out)
 
 
-class _server:
-    """vispeech serve with the ICT head, in a thread on a free 127.0.0.1 port."""
+class serving:
+    """vispeech serve with the ICT head (in output ``scale``), in a thread on a free 127.0.0.1 port."""
+
+    def __init__(self, scale: str = "arkit") -> None:
+        self.scale = scale
 
     def __enter__(self) -> str:
         import uvicorn
@@ -119,7 +122,7 @@ class _server:
         from vispeech.serve import ServeConfig, create_app
 
         config = ServeConfig(avatar=HEAD, avatar_credit="3D head: ICT-FaceKit (USC ICT), MIT licence",
-                             cache=":memory:", rate_limit=0)
+                             cache=":memory:", rate_limit=0, scale=self.scale)
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.server = uvicorn.Server(uvicorn.Config(create_app(config), log_level="warning"))
@@ -138,7 +141,7 @@ class _server:
         self.sock.close()
 
 
-class _viewer:
+class viewer:
     """The viewer page in headless Chromium, ready."""
 
     def __init__(self, url: str) -> None:

@@ -1,0 +1,81 @@
+"""The ICT head at an open vowel, /m/, /f/, /θ/ and at rest, in both output scales: a figure.
+
+    python benchmarks/head_poses.py [--model grid-tdnn] [--out docs/figures/head_poses.png]
+
+Speaks "Father thinks my mom is calm." through ``/api/speak`` of two servers with the ICT head
+(``--scale tracker`` and ``--scale arkit``) in headless Chromium, holds the pose at the centre of
+its /ɑ/ of "Father", its /m/ of "mom", its /f/, its /θ/ and the last frame (rest after speech),
+and puts the screenshots in two labelled rows (nose to chin). Prints the lip aperture of each
+pose. Needs Chromium, Playwright and Pillow (the test extra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+from pathlib import Path
+
+import numpy as np
+
+from languages_grid import CELL, ROOT, serving, viewer
+from vispeech.motion.arkit import lip_aperture
+from vispeech.motion.track import Track
+from vispeech.pipeline import DEFAULT_MODEL
+
+TEXT = "Father thinks my mom is calm."
+POSES = (("open vowel /ɑ/", "AA"), ("/m/", "M"), ("/f/", "F"), ("/θ/", "TH"), ("rest", None))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", default=DEFAULT_MODEL)
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "figures" / "head_poses.png")
+    args = parser.parse_args()
+    rows = []
+    for scale in ("tracker", "arkit"):
+        with serving(scale=scale) as url, viewer(f"{url}/viewer?idle=0") as page:
+            speech = page.evaluate("([t, m]) => window.vispeech.speak(t, 'en', m)", [TEXT, args.model])
+            animation = speech["animation"]
+            track = Track(np.asarray(animation["frames"]), tuple(animation["channels"]), animation["fps"])
+            aperture = lip_aperture(track)
+            phones = animation["phones"]["phones"]
+            shots = []
+            for label, symbol in POSES:
+                if symbol is None:
+                    t = (track.n_frames - 1) / track.fps
+                else:
+                    phone = next(p for p in phones if p["symbol"] == symbol)
+                    t = (phone["start"] + phone["end"]) / 2
+                page.evaluate("(t) => window.vispeech.seek(t)", t)
+                page.wait_for_timeout(300)
+                shots.append((label, page.screenshot(), float(aperture[min(round(t * track.fps), track.n_frames - 1)])))
+                print(f"{scale:8} {label:16} lip aperture {shots[-1][2]:.3f}")
+            rows.append((scale, shots))
+    _figure(rows, args.out)
+    print(f"wrote {args.out}")
+
+
+def _figure(rows: list, out: Path) -> None:
+    from PIL import Image, ImageDraw, ImageFont
+
+    try:
+        font = ImageFont.truetype("DejaVuSans.ttf", 14)
+    except OSError:
+        font = ImageFont.load_default()
+    columns = len(rows[0][1])
+    grid = Image.new("RGB", (columns * CELL, len(rows) * (CELL + 22)), "white")
+    draw = ImageDraw.Draw(grid)
+    for r, (scale, shots) in enumerate(rows):
+        for c, (label, shot, aperture) in enumerate(shots):
+            with Image.open(io.BytesIO(shot)) as image:
+                w, h = image.size
+                face = image.crop((int(0.3 * w), int(0.44 * h), int(0.7 * w), int(0.84 * h))).resize((CELL, CELL))
+            x, y = c * CELL, r * (CELL + 22)
+            grid.paste(face, (x, y))
+            draw.text((x + 4, y + CELL + 3), f"{scale}: {label}  ({aperture:.2f})", fill="black", font=font)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    grid.save(out)
+
+
+if __name__ == "__main__":
+    main()
