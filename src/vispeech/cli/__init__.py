@@ -53,6 +53,15 @@ def scale_option(default: str):
              "or a calibration file from `vispeech rig calibrate HEAD.glb` (docs/calibration.md).")
 
 
+def life_options(command):
+    """``--life LAYERS`` and ``--seed``: the non-verbal layers a command adds to its tracks."""
+    command = click.option("--seed", default=0, show_default=True, type=int,
+                           help="Seed of the non-verbal layers: the same seed, the same blinks and sway.")(command)
+    return click.option("--life", default="", metavar="LAYERS",
+                        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, or all "
+                             "(vispeech.motion.life) [default: none].")(command)
+
+
 class _Group(click.Group):
     """Imports a command's module when the command is asked for; turns errors into one line and exit code 2."""
 

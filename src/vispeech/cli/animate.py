@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main, scale_option
+from vispeech.cli import lang_option, life_options, main, scale_option
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.calibration import load_scale
+from vispeech.motion.life import check_layers, with_life
 from vispeech.pipeline import (
     DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, check_outputs, listen, write_outputs,
 )
@@ -28,8 +30,9 @@ from vispeech.pipeline import (
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)
+@life_options
 def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str | None, fps: float,
-            no_postprocess: bool, scale: str) -> None:
+            no_postprocess: bool, scale: str, life: str, seed: int) -> None:
     """Animate the speech in AUDIO (WAV, FLAC, MP3, OGG; at most 10 minutes).
 
     Writes speech.wav, animation.csv/.json, preview.html and, with --text, phones.TextGrid.
@@ -39,8 +42,10 @@ def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str 
     check_fps(fps, "--fps")
     check_outputs(out_dir)
     load_scale(scale)
+    layers = check_layers(life)
     clip = AudioClip.read(audio)
     utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
+    utterance = replace(utterance, track=with_life(utterance.track, utterance.phones, layers, seed))
     paths = write_outputs(utterance, out_dir, title=text or audio.name, scale=scale)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
     for path in paths:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main, scale_option
+from vispeech.cli import lang_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.limits import check_fps, check_text
 from vispeech.frontends.espeak import check_variant
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.calibration import load_scale
+from vispeech.motion.life import check_layers, with_life
 from vispeech.pipeline import (
     DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,
 )
@@ -38,8 +40,9 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @click.option("--voice", "variant", default=None,
               help="espeak-ng voice variant, an avatar's voice: f1-f5 female, m1-m8 male, ... "
                    "(`vispeech languages --variants`) [default: the language's own voice].")
+@life_options
 def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool,
-        text_file: Path | None, scale: str, variant: str | None) -> None:
+        text_file: Path | None, scale: str, variant: str | None, life: str, seed: int) -> None:
     """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
 
     Without TEXT (or --text-file) a greeting in the chosen language is spoken. Markdown markup,
@@ -58,10 +61,12 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
             raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {lang!r}")
     check_text(text)
     check_outputs(out_dir)
-    load_scale(scale)  # a bad scale or voice is refused before any work
+    load_scale(scale)  # a bad scale, voice or layer is refused before any work
     check_variant(variant)
+    layers = check_layers(life)
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess,
                       variant=variant)
+    utterance = replace(utterance, track=with_life(utterance.track, utterance.phones, layers, seed))
     paths = write_outputs(utterance, out_dir, scale=scale)
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
     for path in paths:
@@ -76,8 +81,9 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 @_fps_option
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)
+@life_options
 def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str, fps: float, no_postprocess: bool,
-                   scale: str) -> None:
+                   scale: str, life: str, seed: int) -> None:
     """Animate a phone alignment (TextGrid, HTK .lab, GRID .align or JSON).
 
     Writes OUTPUT/animation.csv (Live Link Face, first row at time 0 of the alignment) and
@@ -88,7 +94,8 @@ def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str,
     check_fps(fps, "--fps")
     check_outputs(out_dir)
     load_scale(scale)
+    layers = check_layers(life)
     phones = read_alignment(alignment, lang)
-    track = animate(phones, model, fps, not no_postprocess)
+    track = with_life(animate(phones, model, fps, not no_postprocess), phones, layers, seed)
     write_outputs(Utterance(phones=phones, track=track), out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

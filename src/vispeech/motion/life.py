@@ -1,0 +1,166 @@
+"""Non-verbal layers: what a face does besides speaking, as channels of a track.
+
+Each layer is optional, seeded (the same seed gives the same motion) and separable (it sets
+only its own channels, none of the speech's), so it is exported like the speech channels:
+Live Link Face CSV carries the blinks, the gaze and the head rotation.
+
+- ``blink``: ``eyeBlinkLeft``/``Right``; blinks at a human resting rate (about 17 a minute:
+  intervals of 1.5 s plus an exponential of mean 2 s), each closing in 70 ms, held 30 ms,
+  opening in 130 ms.
+- ``gaze``: ``eyeLook{In,Out,Up,Down}{Left,Right}``; small saccades (within about 7° across,
+  5° up and down) every 1 to 3 s, each taking one frame, both eyes together.
+- ``head``: ``headYaw``/``headPitch``/``headRoll`` in radians; a slow sway (within about 2°,
+  eased value noise) and, with phones, a nod on every primary-stressed vowel (the head dips
+  0.03 rad over 300 ms from the vowel's onset).
+- ``brows``: ``browInnerUp`` and ``browOuterUp{Left,Right}``; with phones, the brows rise
+  (0.3) over 500 ms on the first primary-stressed vowel of every sentence (its emphasis).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.motion.track import Track
+from vispeech.phonetics.inventory import is_vowel
+
+LAYERS = ("blink", "gaze", "head", "brows")
+"""The non-verbal layers, in the order their channels come."""
+
+CHANNELS: dict[str, tuple[str, ...]] = {
+    "blink": ("eyeBlinkLeft", "eyeBlinkRight"),
+    "gaze": ("eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeLookDownLeft",
+             "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight", "eyeLookDownRight"),
+    "head": ("headYaw", "headPitch", "headRoll"),
+    "brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"),
+}
+"""The channels each layer sets."""
+
+BLINK_CLOSE, BLINK_HOLD, BLINK_OPEN = 0.07, 0.03, 0.13
+BLINK_GAP, BLINK_MEAN_EXTRA = 1.5, 2.0
+GAZE_RANGE = (0.25, 0.2)  # ARKit eyeLook weights of the widest saccade: across, up/down
+SWAY = (0.035, 0.022, 0.014)  # radians: yaw, pitch, roll
+NOD, NOD_SECONDS = 0.03, 0.3
+BROWS, BROWS_SECONDS = 0.3, 0.5
+
+
+def check_layers(layers: str | Iterable[str]) -> tuple[str, ...]:
+    """Layer names from a comma-separated string or a list (``all`` for every layer); an unknown one
+    is a :class:`VispeechError`."""
+    names = [n.strip() for n in (layers.split(",") if isinstance(layers, str) else layers) if n.strip()]
+    if names == ["all"]:
+        return LAYERS
+    unknown = [n for n in names if n not in LAYERS]
+    if unknown:
+        raise VispeechError(f"unknown non-verbal layer {unknown[0]!r} (use {', '.join(LAYERS)} or all)")
+    return tuple(n for n in LAYERS if n in names)
+
+
+def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
+              layers: Iterable[str] = LAYERS, seed: int = 0, start_time: float = 0.0) -> Track:
+    """The channels of ``layers`` over ``n_frames`` frames at ``fps`` (see the module docstring).
+
+    ``phones`` time the nods and the brows (without them there are none). Each layer draws from
+    its own random stream of ``seed``, so a layer's motion does not depend on the others.
+    """
+    chosen = check_layers(layers)
+    times = start_time + np.arange(n_frames) / fps
+    columns: list[np.ndarray] = []
+    names: list[str] = []
+    for k, layer in enumerate(LAYERS):
+        if layer not in chosen:
+            continue
+        rng = np.random.default_rng([seed, k])
+        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows}[layer](times, rng, phones)
+        columns.append(values)
+        names += CHANNELS[layer]
+    values = np.column_stack(columns) if columns else np.zeros((n_frames, 0))
+    return Track(values, tuple(names), fps, start_time)
+
+
+def with_life(track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0) -> Track:
+    """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had)."""
+    life = nonverbal(track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time)
+    if not life.channels:
+        return track
+    keep = [c for c in track.channels if c not in life.channels]
+    values = np.column_stack([track.select(keep).values, life.values])
+    return Track(values, (*keep, *life.channels), track.fps, track.start_time)
+
+
+def _blinks(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
+    out = np.zeros(len(times))
+    if not len(times):
+        return np.column_stack([out, out])
+    start = times[0] + rng.uniform(0.3, BLINK_GAP)
+    while start < times[-1]:
+        dt = times - start
+        closing = np.clip(dt / BLINK_CLOSE, 0, 1)
+        opening = np.clip(1 - (dt - BLINK_CLOSE - BLINK_HOLD) / BLINK_OPEN, 0, 1)
+        out = np.maximum(out, np.where(dt < 0, 0, np.minimum(closing, opening)))
+        start += BLINK_CLOSE + BLINK_HOLD + BLINK_OPEN + BLINK_GAP + rng.exponential(BLINK_MEAN_EXTRA)
+    return np.column_stack([out, out])
+
+
+def _gaze(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
+    across, vertical = np.zeros(len(times)), np.zeros(len(times))
+    t = times[0] if len(times) else 0.0
+    while len(times) and t < times[-1]:
+        x, y = rng.uniform(-1, 1) * GAZE_RANGE[0], rng.uniform(-1, 1) * GAZE_RANGE[1]
+        after = times >= t
+        across[after], vertical[after] = x, y
+        t += rng.uniform(1.0, 3.0)
+    left_out, left_in = np.maximum(across, 0), np.maximum(-across, 0)  # + looks to the speaker's left
+    up, down = np.maximum(vertical, 0), np.maximum(-vertical, 0)
+    return np.column_stack([left_in, left_out, up, down, left_out, left_in, up, down])
+
+
+def _head(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
+    sway = np.column_stack([amplitude * (0.8 * _noise(times, rng, 2.6) + 0.2 * _noise(times, rng, 0.9))
+                            for amplitude in SWAY])
+    for onset in _stressed_onsets(phones):
+        dt = times - onset
+        inside = (dt >= 0) & (dt <= NOD_SECONDS)
+        sway[inside, 1] += NOD * np.sin(np.pi * dt[inside] / NOD_SECONDS)  # pitch down and back
+    return sway
+
+
+def _brows(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
+    raise_ = np.zeros(len(times))
+    for onset in _stressed_onsets(phones, first_of_sentence=True):
+        dt = times - onset + 0.1
+        inside = (dt >= 0) & (dt <= BROWS_SECONDS)
+        raise_[inside] = np.maximum(raise_[inside], BROWS * np.sin(np.pi * dt[inside] / BROWS_SECONDS))
+    return np.column_stack([raise_, raise_, raise_])
+
+
+def _stressed_onsets(phones: PhoneSequence | None, first_of_sentence: bool = False) -> list[float]:
+    """Onsets (seconds) of primary-stressed vowels; with ``first_of_sentence`` only the first after
+    each long silence (a pause of 0.2 s or more, or the start)."""
+    if phones is None:
+        return []
+    onsets, waiting = [], True
+    for p in phones:
+        if p.is_silence:
+            waiting = waiting or p.end - p.start >= 0.2
+            continue
+        if p.stress == 1 and is_vowel(p.symbol, phones.language):
+            if waiting or not first_of_sentence:
+                onsets.append(p.start)
+            waiting = False
+    return onsets
+
+
+def _noise(times: np.ndarray, rng: np.random.Generator, period: float) -> np.ndarray:
+    """Eased value noise in [-1, 1] with a knot every ``period`` seconds."""
+    if not len(times):
+        return np.zeros(0)
+    x = (times - times[0]) / period
+    knots = rng.uniform(-1, 1, int(x[-1]) + 2)
+    i = np.floor(x).astype(int)
+    w = x - i
+    s = w * w * (3 - 2 * w)
+    return knots[i] + s * (knots[i + 1] - knots[i])

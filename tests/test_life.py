@@ -1,0 +1,87 @@
+"""Non-verbal layers (issue 10, part 3): seeded, separable, at human rates, exported like speech."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import find_peaks
+
+from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.motion.life import CHANNELS, LAYERS, check_layers, nonverbal, with_life
+from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.track import Track
+
+FPS = 30.0
+
+
+def test_blinks_come_at_a_human_rate_and_close_the_eyes():
+    minute = nonverbal(int(60 * FPS), FPS, layers=["blink"], seed=3)
+    assert minute.channels == CHANNELS["blink"]
+    blinks, _ = find_peaks(minute["eyeBlinkLeft"], height=0.5)
+    assert 10 <= len(blinks) <= 30  # people blink about 15-20 times a minute at rest
+    assert minute["eyeBlinkLeft"].max() == pytest.approx(1.0, abs=0.15)
+    np.testing.assert_array_equal(minute["eyeBlinkLeft"], minute["eyeBlinkRight"])
+    closed = minute["eyeBlinkLeft"] > 0.5
+    assert closed.mean() < 0.08  # the eyes are open nearly all the time
+
+
+def test_layers_are_seeded_and_separable():
+    a = nonverbal(300, FPS, seed=1)
+    b = nonverbal(300, FPS, seed=1)
+    c = nonverbal(300, FPS, seed=2)
+    np.testing.assert_array_equal(a.values, b.values)
+    assert not np.array_equal(a.values, c.values)
+    assert a.channels == tuple(c for layer in LAYERS for c in CHANNELS[layer])
+    head_only = nonverbal(300, FPS, layers=["head"], seed=1)
+    np.testing.assert_array_equal(head_only.values, a.select(CHANNELS["head"]).values)  # independent of the others
+    assert np.abs(head_only.values).max() < 0.07  # within about 4 degrees
+    gaze = nonverbal(300, FPS, layers=["gaze"], seed=1)
+    assert 0 < gaze.values.max() <= 0.25
+
+
+def test_nods_and_brows_follow_stressed_vowels():
+    timed = [("sil", 0.0, 0.5), ("HH", 0.5, 0.6), ("AH", 0.6, 0.7, 0), ("L", 0.7, 0.8), ("OW", 0.8, 1.0, 1),
+             ("sil", 1.0, 2.0), ("K", 2.0, 2.1), ("AE", 2.1, 2.3, 1), ("T", 2.3, 2.4), ("sil", 2.4, 3.0)]
+    phones = PhoneSequence([Phone(t[0], t[1], t[2], None, t[3] if len(t) > 3 else 0) for t in timed], "en")
+    still = nonverbal(90, FPS, layers=["head", "brows"], seed=4)
+    lively = nonverbal(90, FPS, phones, layers=["head", "brows"], seed=4)
+    nod = lively["headPitch"] - still["headPitch"]
+    assert nod[int(0.95 * FPS)] > 0.02 and nod[int(2.25 * FPS)] > 0.02 and abs(nod[int(1.6 * FPS)]) < 1e-9
+    brows = lively["browInnerUp"]
+    assert brows[int(0.95 * FPS)] > 0.2 and brows[int(2.3 * FPS)] > 0.2 and brows[int(1.6 * FPS)] == 0
+    assert still["browInnerUp"].max() == 0  # no phones, no emphasis
+
+
+def test_with_life_keeps_the_speech_and_live_link_carries_the_layers(tmp_path):
+    speech = Track(np.random.default_rng(0).uniform(0, 0.5, (90, 2)), ("jawOpen", "mouthClose"), FPS)
+    lively = with_life(speech, None, ["blink", "head"], seed=5)
+    np.testing.assert_array_equal(lively.select(speech.channels).values, speech.values)
+    write_livelink_csv(lively, tmp_path / "take.csv")
+    back = read_livelink_csv(tmp_path / "take.csv")
+    np.testing.assert_allclose(back["eyeBlinkLeft"], lively["eyeBlinkLeft"], atol=1e-9)
+    np.testing.assert_allclose(back["headYaw"], lively["headYaw"], atol=1e-9)
+    assert with_life(speech, None, []) is speech
+
+
+def test_layer_names_are_checked():
+    assert check_layers("all") == LAYERS and check_layers("head, blink") == ("blink", "head") and check_layers("") == ()
+    with pytest.raises(VispeechError, match="unknown non-verbal layer 'dance'"):
+        check_layers("blink,dance")
+
+
+def test_say_adds_the_layers_it_is_asked_for(tmp_path):
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+
+    runner = CliRunner()
+    for name, extra in (("plain", []), ("lively", ["--life", "all", "--seed", "2"])):
+        done = runner.invoke(main, ["say", "Hello there, my friend.", "-o", str(tmp_path / name), *extra])
+        assert done.exit_code == 0, done.output
+    plain, lively = (read_livelink_csv(tmp_path / name / "animation.csv") for name in ("plain", "lively"))
+    np.testing.assert_allclose(lively["jawOpen"], plain["jawOpen"], atol=1e-9)  # the speech is the same
+    assert plain["eyeBlinkLeft"].max() == 0 and np.abs(plain["headYaw"]).max() == 0
+    assert np.abs(lively["headYaw"]).max() > 0 and lively["browInnerUp"].max() > 0
+    refused = runner.invoke(main, ["say", "hi", "--life", "dance", "-o", str(tmp_path / "no")])
+    assert refused.exit_code == 2 and "unknown non-verbal layer" in refused.output
