@@ -197,7 +197,7 @@ def test_viewer_loads_the_ict_head_with_its_credit(page):
 
 def test_mouth_is_open_at_open_vowels_and_closed_at_m(page, speech, screenshot_dir):
     animation = speech["animation"]
-    channels = [c for c in animation["channels"] if c != "tongueOut"]
+    channels = [c for c in animation["channels"] if not c.startswith("tongue")]  # the ICT head has no tongue morphs
     vowels, nasals = _centres(speech, OPEN_VOWELS), _centres(speech, {BILABIAL_NASAL})
     assert len(vowels) >= 3 and len(nasals) >= 5, speech["animation"]["phones"]
 

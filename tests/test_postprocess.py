@@ -118,7 +118,8 @@ def test_postprocess_jaw_peaks_stay_in_vowels_and_overlays_never_raise_the_jaw()
 def test_postprocess_steps_can_be_switched_off():
     phones = phones_sv()
     track = open_track(phones)
-    off = PostprocessConfig(jaw_shift=0.0, overlays=False, jaw_peaks_in_vowels=False, ceilings={}, close_within_jaw=False)
+    off = PostprocessConfig(jaw_shift=0.0, overlays=False, jaw_peaks_in_vowels=False, ceilings={}, close_within_jaw=False,
+                            vowel_opening=0.0, tongue=False)
     out = postprocess(track, phones, off)
     assert out.channels == track.channels
     np.testing.assert_array_equal(out.values, track.values)

@@ -15,7 +15,8 @@ other languages were read through IPA, issue 14) and
 First recorded at commit 7c41688, before the model-contract rework (issue 7); the fitted
 dominance models shipped by that rework (grid-cohen-massaro, grid-ohman) were added after it.
 Recorded again when post-processing began to open the vowels next to bilabials and
-labiodentals (``open_vowels``, issue 10): every change of a track there is that step's.
+labiodentals (``open_vowels``, issue 10): every change of a track there is that step's; and
+again when it began to add the tongue channels (``postprocess.tongue``, issue 10).
 """
 
 from __future__ import annotations

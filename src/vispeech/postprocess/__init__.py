@@ -2,8 +2,9 @@
 
 :func:`postprocess` runs, in order: the thesis's jawOpen range shift; the optional upper-lip
 overlay; the consonant overlays (bilabial closure, labiodental contact); the opening of every
-vowel, however short; confinement of the jaw's peaks to vowels; the soft ceilings;
-``mouthClose ≤ jawOpen``; clipping to [0, 1].
+vowel, however short; the tongue channels from the phones' features
+(:mod:`~vispeech.postprocess.tongue`); confinement of the jaw's peaks to vowels; the soft
+ceilings; ``mouthClose ≤ jawOpen``; clipping to [0, 1].
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from vispeech.postprocess.overlays import (
     VOWEL_OPENING, anchor_frames, consonant_overlays, open_vowels, upper_lip_overlay,
 )
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
+from vispeech.postprocess.tongue import tongue_channels
 from vispeech.targets.presets import PRESETS
 
 __all__ = ["DEFAULT_CEILINGS", "PostprocessConfig", "SoftCeiling", "postprocess"]
@@ -44,6 +46,7 @@ class PostprocessConfig:
     recordings). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
     ``vowel_opening``: the share of the utterance's open-vowel lip opening every vowel reaches
     on its anchor frame (:func:`~vispeech.postprocess.overlays.open_vowels`; 0 = off).
+    ``tongue``: add the tongue channels (:data:`~vispeech.postprocess.tongue.TONGUE_CHANNELS`).
     ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
     ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
     jawOpen (ARKit's lips interpenetrate beyond that).
@@ -57,6 +60,7 @@ class PostprocessConfig:
     keep_jaw: bool = False
     upper_lip: float = 0.0
     vowel_opening: float = VOWEL_OPENING
+    tongue: bool = True
     jaw_peaks_in_vowels: bool = True
     ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
     close_within_jaw: bool = True
@@ -87,9 +91,9 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
     """
     config = config or PostprocessConfig()
     if phones is None:
-        if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels or config.vowel_opening:
-            raise VispeechError("post-processing with overlays, upper-lip lift, vowel opening or jaw confinement "
-                                "needs phones")
+        if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels or config.vowel_opening or config.tongue:
+            raise VispeechError("post-processing with overlays, upper-lip lift, vowel opening, tongue or jaw "
+                                "confinement needs phones")
     else:
         phones.validate()
     out = track.copy()
@@ -102,6 +106,8 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
                                  config.keep_jaw)
     if config.vowel_opening > 0:
         out = open_vowels(out, phones, config.vowel_opening)
+    if config.tongue:
+        out = tongue_channels(out, phones)
     if config.jaw_peaks_in_vowels and "jawOpen" in out.channels:
         jaw = out.index("jawOpen")
         out.values[:, jaw] = confine_peaks(out.values[:, jaw], _vowel_frames(out, phones))
