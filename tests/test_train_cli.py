@@ -147,3 +147,34 @@ def test_train_errors_are_one_line(takes, tmp_path, args, message):
     assert result.exit_code == 2
     assert result.output.startswith("error: ") and message in result.output
     assert not (tmp_path / "out" / "config.json").exists()
+
+
+def test_train_from_a_shipped_network_adapts_it(takes, tmp_path):
+    """``--from grid-tdnn``: the shipped network warm-started on a new speaker's takes, scored
+    before and after, saved and loaded as any model (issue 13, part 5)."""
+    import numpy as np
+
+    from vispeech.alignment.formats import read_alignment
+
+    out = tmp_path / "adapted"
+    result = _train("--corpus", takes, "--lang", "en", "--from", "grid-tdnn", "--epochs", "2", "--quiet", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "adapting grid-tdnn on 17 utterances" in result.output
+    assert result.output.count("test split (2 utterances, no post-processing): jawOpen r ") == 2  # before, after
+    adapted, base = load_model(out), load_model("grid-tdnn")
+    assert adapted.family == base.family and adapted.history_.epochs == 2 and adapted.name == "adapted"
+    assert adapted.get_params()["warm_start"] is False and adapted.get_params()["checkpoint_dir"] is None
+    phones = read_alignment(next(takes.glob("*.TextGrid")))
+    moved = np.abs(adapted.predict(phones, 25.0).values - base.predict(phones, 25.0).values).max()
+    assert 0 < moved < 0.5  # it started from grid-tdnn's weights and learned from the takes
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--from", "grid-tdnn", "-m", "tdnn-beskow"], "give --model FAMILY to train one afresh, or --from MODEL"),
+    (["--from", "baseline"], "--from needs a trained phone network; 'baseline' is a baseline model"),
+    (["--from", "grid-tdnn", "--input", "phones"], "--from keeps the model's inputs and targets"),
+    (["--from", "grid-tdnn", "-p", "warm_start=false"], "takes no parameter 'warm_start'"),
+])
+def test_train_from_errors_are_one_line(takes, tmp_path, args, message):
+    result = _train("--corpus", takes, "--lang", "en", *args, "-o", tmp_path / "out")
+    assert result.exit_code == 2 and message in result.output, result.output

@@ -22,9 +22,12 @@ LOSS_CURVE = "loss_curve.png"
 
 @main.command("train")
 @corpus_option
-@click.option("--model", "-m", "model_name", required=True,
+@click.option("--model", "-m", "model_name", default=None,
               help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
                    "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).")
+@click.option("--from", "from_model", default=None, metavar="MODEL",
+              help="Adapt this trained phone network (a shipped name such as grid-tdnn, or a saved folder) to the "
+                   "corpus instead: it starts from its weights (speaker adaptation).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
 @click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
 @click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
@@ -42,18 +45,25 @@ LOSS_CURVE = "loss_curve.png"
 @language_option
 @cache_option
 @quiet_option
-def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: int | None, inputs: str | None,
-                  targets: str | None, params: tuple[str, ...], resume: Path | None, out_dir: Path, language: str,
-                  cache: Path | None, quiet: bool) -> None:
+def train_command(corpus_dir: Path, model_name: str | None, from_model: str | None, epochs: int | None,
+                  seed: int | None, inputs: str | None, targets: str | None, params: tuple[str, ...],
+                  resume: Path | None, out_dir: Path, language: str, cache: Path | None, quiet: bool) -> None:
     """Fit a model on the train split of a corpus (validation split for early stopping) and save it.
 
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
     interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
-    The loss curve is drawn into OUTPUT/loss_curve.png.
+    The loss curve is drawn into OUTPUT/loss_curve.png. With --from MODEL a trained phone network
+    is adapted to the corpus (a new speaker: minutes of takes), and its test-split score before
+    adaptation is printed beside the one after.
     """
     from vispeech.models.networks.network import Network
     from vispeech.models.registry import FAMILIES, family_class
 
+    if (model_name is None) == (from_model is None):
+        raise VispeechError("give --model FAMILY to train one afresh, or --from MODEL to adapt a trained one")
+    if from_model is not None:
+        _adapt(from_model, corpus_dir, epochs, seed, inputs, targets, params, resume, out_dir, language, cache, quiet)
+        return
     if model_name not in FAMILIES:
         raise VispeechError(f"unknown model family {model_name!r} (train one of: {', '.join(FAMILIES)})")
     cls = family_class(model_name)
@@ -114,6 +124,58 @@ def train_command(corpus_dir: Path, model_name: str, epochs: int | None, seed: i
     _summary(model, corpus, out_dir)
 
 
+def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | None, inputs: str | None,
+           targets: str | None, params: tuple[str, ...], resume: Path | None, out_dir: Path, language: str,
+           cache: Path | None, quiet: bool) -> None:
+    """``train --from``: the trained network, warm-started on the corpus, saved; scores before and after."""
+    from vispeech.models.networks.network import Network
+    from vispeech.models.registry import load_model
+
+    if inputs is not None or targets is not None or resume is not None:
+        raise VispeechError("--from keeps the model's inputs and targets and starts afresh: no --input, "
+                            "--targets or --resume")
+    base = load_model(from_model)
+    if not isinstance(base, Network) or base.input_kind != "phones":
+        raise VispeechError(f"--from needs a trained phone network; {from_model!r} is a {base.family} model")
+    options = {key: value for key, value in (("epochs", epochs), ("seed", seed)) if value is not None}
+    for key, value in map(_parameter, params):
+        if key not in base.get_params() or key in ("checkpoint_dir", "warm_start"):
+            raise VispeechError(f"model {base.family} takes no parameter {key!r}")
+        options[key] = value
+    checkpoint = out_dir / CHECKPOINT
+    shutil.rmtree(checkpoint, ignore_errors=True)
+    model = base.with_params(**options, warm_start=True, checkpoint_dir=str(checkpoint))
+    corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
+    if not len(corpus.split("train")):
+        raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
+    click.echo(f"{corpus.name}: adapting {base.name} on {len(corpus.split('train'))} utterances "
+               f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})")
+    click.echo(f"before: {_test_score(base, corpus)}")
+    model.fit(corpus, progress=not quiet)
+    model = model.with_params(checkpoint_dir=None, warm_start=False)
+    model.name = out_dir.name
+    model.save(out_dir)
+    shutil.rmtree(checkpoint, ignore_errors=True)
+    if model.history_.epochs:
+        from vispeech.evaluation.plots import plot_history
+
+        plot_history(model.history_, out_dir / LOSS_CURVE)
+    _summary(model, corpus, out_dir)
+
+
+def _test_score(model, corpus) -> str:
+    """The model's jawOpen score on the corpus's test split, without post-processing, as text."""
+    from vispeech.evaluation.report import available_channels, evaluate_models
+
+    test = corpus.split("test")
+    shared = [c for c in ("jawOpen", "jaw_opening") if c in model.channels and c in available_channels(test)]
+    if not len(test) or not shared:
+        return "test split: no jaw channel to score"
+    result = evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False).models[0].scores[shared[0]]
+    return (f"test split ({len(test)} utterances, no post-processing): {shared[0]} r {result['r']:.3f}, "
+            f"RMSE {result['rmse_percent']:.2f} % of range, MSE {result['mse']:.5f}")
+
+
 def _parameter(text: str) -> tuple[str, object]:
     """``KEY=VALUE`` as the key and the value read as JSON (else the text itself)."""
     key, sep, value = text.partition("=")
@@ -127,8 +189,6 @@ def _parameter(text: str) -> tuple[str, object]:
 
 def _summary(model, corpus, out_dir: Path) -> None:
     """Print what fitting did and the model's jaw scores on the test split."""
-    from vispeech.evaluation.report import available_channels, evaluate_models
-
     click.echo(f"saved {model.name} -> {out_dir}")
     history = model.history_
     if history.epochs:
@@ -141,12 +201,4 @@ def _summary(model, corpus, out_dir: Path) -> None:
                    f"{sum(history.seconds):.1f} s")
     if (out_dir / LOSS_CURVE).is_file():
         click.echo(f"loss curve -> {out_dir / LOSS_CURVE}")
-    test = corpus.split("test")
-    shared = [c for c in ("jawOpen", "jaw_opening") if c in model.channels and c in available_channels(test)]
-    if not len(test) or not shared:
-        click.echo("test split: no jaw channel to score")
-        return
-    scores = evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False).models[0].scores
-    result = scores[shared[0]]
-    click.echo(f"test split ({len(test)} utterances, no post-processing): {shared[0]} "
-               f"r {result['r']:.3f}, RMSE {result['rmse_percent']:.2f} % of range, MSE {result['mse']:.5f}")
+    click.echo(_test_score(model, corpus))

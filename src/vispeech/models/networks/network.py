@@ -79,13 +79,16 @@ TRAINING_PARAMS: dict[str, Any] = {
     "seed": 0,
     "num_threads": None,
     "checkpoint_dir": None,
+    "warm_start": False,
 }
-"""Targets, optimiser and training budget: hyper-parameters every network has."""
+"""Targets, optimiser and training budget: hyper-parameters every network has. ``warm_start``
+(scikit-learn's name): a fitted network's next :meth:`~Network.fit` starts from its weights and
+normalisation instead of afresh, with a fresh optimiser and history (speaker adaptation)."""
 
 COMMON_PARAMS: dict[str, Any] = {**PHONE_INPUT_PARAMS, **TRAINING_PARAMS}
 """Hyper-parameters every phone network has (see the module docstring and ``docs/networks.md``)."""
 
-_RUN_PARAMS = frozenset({"epochs", "patience", "num_threads", "checkpoint_dir"})
+_RUN_PARAMS = frozenset({"epochs", "patience", "num_threads", "checkpoint_dir", "warm_start"})
 """Hyper-parameters a resumed run may change."""
 
 
@@ -187,18 +190,26 @@ class Network(Estimator):
         p = self._params
         checkpoint = Path(p["checkpoint_dir"]) if p["checkpoint_dir"] is not None else None
         resume = checkpoint is not None and (checkpoint / "config.json").is_file()
+        warm = p["warm_start"] and self.is_fitted and not resume
         if resume:
             self._set_learned_state(*self._resumable(checkpoint)._learned_state())
+        elif warm:
+            missing = [c for c in self.outputs_ if c not in train_set[0].track.channels]
+            if missing:
+                raise VispeechError(f"the corpus tracks lack the channels this model predicts: {', '.join(missing)}")
+            self.encoding_.check(train_set[0].phones)
         else:
             self._prepare(train_set, corpus)
         examples = [self._example(u) for u in train_set]
-        if not resume:
+        if not resume and not warm:
             self.stats_ = self._stats(examples)
         examples = [(x, self._normalise(y)) for x, y in examples]
         held_out = [(x, self._normalise(y)) for x, y in map(self._example, validation_set)]
         torch.manual_seed(p["seed"])
         module = self._build_module(self.encoding_.size, len(self.outputs_))
         state = None
+        if warm:  # start from what the network knows; the history and the best loss are the new data's
+            module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
         if resume:
             module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
             if (checkpoint / "training_state.json").is_file():
@@ -243,13 +254,19 @@ class Network(Estimator):
         self._take_weights(module.state_dict(), state.history)
         return self
 
+    def with_params(self, **params) -> Network:
+        """A copy of this network with these hyper-parameters changed and the same learned state
+        (``warm_start=True`` to adapt a trained network to new data with :meth:`fit`)."""
+        copy_ = type(self)(**{**self.get_params(), **params})
+        if self.is_fitted:
+            copy_._set_learned_state(*self._learned_state())
+        copy_.name = self.name
+        return copy_
+
     def without_checkpoint(self) -> Network:
         """This fitted network with ``checkpoint_dir`` unset, to be saved: a loaded model that kept
         the path would checkpoint (and resume) there when fitted again."""
-        clean = type(self)(**{**self.get_params(), "checkpoint_dir": None})
-        clean._set_learned_state(*self._learned_state())
-        clean.name = self.name
-        return clean
+        return self.with_params(checkpoint_dir=None)
 
     def _take_weights(self, weights: dict, history: TrainingHistory) -> None:
         self.weights_ = {k: v.detach().numpy().copy() for k, v in weights.items()}
