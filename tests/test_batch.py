@@ -280,3 +280,26 @@ def test_export_formats_are_written_and_read_back(tmp_path):
     assert visemes[0].split(",")[:3] == ["time", "sil", "PP"] and len(visemes) == track.n_frames + 1
     cues = (folder / "mouth_cues.tsv").read_text().splitlines()
     assert len(cues) > 3 and all(len(line.split("\t")) == 2 for line in cues)
+
+
+def test_non_verbal_layers_in_a_batch_are_those_say_adds(tmp_path):
+    """--life and --seed give every line the layers say gives one text; they are part of the key."""
+    import numpy as np
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+    from vispeech.motion.livelink import read_livelink_csv
+
+    job = _csv(tmp_path / "job.csv", ["id,text,lang", 'one,"Hello there, my friend.",en'])
+    runner = CliRunner()
+    done = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head", "--seed", "4",
+                                "--quiet"])
+    assert done.exit_code == 0, done.output
+    said = runner.invoke(main, ["say", "Hello there, my friend.", "-o", str(tmp_path / "said"), "--life",
+                                "blink,head", "--seed", "4"])
+    assert said.exit_code == 0, said.output
+    _assert_same_files(tmp_path / "out" / "one", tmp_path / "said")
+    assert np.abs(read_livelink_csv(tmp_path / "said" / "animation.csv")["headYaw"]).max() > 0
+    again = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head", "--seed", "5",
+                                 "--quiet"])
+    assert again.exit_code == 0 and "1 written" in again.output, again.output  # another seed: redone

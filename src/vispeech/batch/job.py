@@ -69,6 +69,9 @@ class JobDefaults:
     """The output scale of every line (:func:`vispeech.motion.calibration.load_scale`)."""
     voice: str | None = None
     """The espeak-ng voice variant text lines are spoken with (``None``: each language's own)."""
+    life: tuple[str, ...] = ()
+    """The non-verbal layers every line gets (:mod:`vispeech.motion.life`), and their seed."""
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,8 @@ class BatchLine:
     postprocess: bool = True
     scale: str = DEFAULT_SCALE
     voice: str | None = None
+    life: tuple[str, ...] = ()
+    seed: int = 0
     error: str | None = field(default=None, compare=False)
 
     @property
@@ -244,7 +249,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         audio=None if audio is None else base / audio, alignment=None if alignment is None else base / alignment,
         model=record.get("model", defaults.model), fps=fps, rate=rate, formats=check_formats(formats),
         postprocess=_flag(record.get("postprocess", defaults.postprocess)), scale=defaults.scale,
-        voice=voice if kind == "text" else None,
+        voice=voice if kind == "text" else None, life=defaults.life, seed=defaults.seed,
     )
 
 

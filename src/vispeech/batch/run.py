@@ -36,6 +36,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model, model_version, saved_folder
 from vispeech.motion.calibration import SCALES, load_scale
+from vispeech.motion.life import with_life
 from vispeech.pipeline import (
     DEFAULT_AUDIO_MODEL,
     DEFAULT_MODEL,
@@ -190,7 +191,8 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
               "source": None if line.source is None else str(line.source), "source_sha256": digest}
     settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
                 "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess,
-                "scale": _scale_settings(line.scale), "voice": line.voice}
+                "scale": _scale_settings(line.scale), "voice": line.voice,
+                "life": list(line.life), "seed": line.seed if line.life else None}
     about = {"vispeech": vispeech.__version__, **inputs, **settings, "source": None}
     key = hashlib.sha256(json.dumps(about, sort_keys=True).encode()).hexdigest()[:32]
     record = json.dumps({"format": "vispeech-batch-line", "version": 1, "id": line.id, "key": key,
@@ -288,7 +290,7 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
         track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
     else:
         track = animate(utterance.phones, model, line.fps, line.postprocess)
-    return replace(utterance, track=track)
+    return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed))
 
 
 def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main, scale_option
+from vispeech.cli import lang_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPUT_FILES
@@ -37,9 +37,10 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 @scale_option(DEFAULT_SCALE)
 @click.option("--voice", "variant", default=None,
               help="espeak-ng voice variant of text lines that do not say: f1-f5 female, m1-m8 male, ...")
+@life_options
 def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
           jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool, scale: str,
-          variant: str | None) -> None:
+          variant: str | None, life: str, seed: int) -> None:
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
@@ -53,10 +54,13 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     from vispeech.motion.calibration import load_scale
     from vispeech.pipeline import check_formats
 
+    from vispeech.motion.life import check_layers
+
     load_scale(scale)
     defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),
                            formats=check_formats(f for f in formats.split(",") if f.strip()),
-                           postprocess=not no_postprocess, scale=scale, voice=variant)
+                           postprocess=not no_postprocess, scale=scale, voice=variant, life=check_layers(life),
+                           seed=seed)
     lines = read_job(job, defaults)
     if address is not None and backend != "ray":
         raise VispeechError("--address is for --backend ray")
