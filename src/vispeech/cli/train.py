@@ -113,15 +113,7 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     model.fit(corpus, progress=not quiet)
     if neural:
         model = model.without_checkpoint()  # the checkpoint folder goes once the model is saved
-    model.name = out_dir.name
-    model.save(out_dir)
-    if neural:
-        shutil.rmtree(checkpoint, ignore_errors=True)
-    if model.history_.epochs:
-        from vispeech.evaluation.plots import plot_history
-
-        plot_history(model.history_, out_dir / LOSS_CURVE)
-    _summary(model, corpus, out_dir)
+    _save(model, corpus, out_dir, checkpoint if neural else None)
 
 
 def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | None, inputs: str | None,
@@ -152,10 +144,16 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
                f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})")
     click.echo(f"before: {_test_score(base, corpus)}")
     model.fit(corpus, progress=not quiet)
-    model = model.with_params(checkpoint_dir=None, warm_start=False)
+    _save(model.with_params(checkpoint_dir=None, warm_start=False), corpus, out_dir, checkpoint)
+
+
+def _save(model, corpus, out_dir: Path, checkpoint: Path | None) -> None:
+    """Save a fitted model as ``out_dir`` (named after it), drop its training checkpoint, draw its
+    loss curve and print the summary."""
     model.name = out_dir.name
     model.save(out_dir)
-    shutil.rmtree(checkpoint, ignore_errors=True)
+    if checkpoint is not None:
+        shutil.rmtree(checkpoint, ignore_errors=True)
     if model.history_.epochs:
         from vispeech.evaluation.plots import plot_history
 

@@ -255,13 +255,18 @@ def voices() -> tuple[Voice, ...]:
 
 def _dictionary(data: Path, identifier: str, code: str) -> str:
     """The pronunciation dictionary a voice reads: its file's ``dictionary`` line, else its language's."""
-    path = data / "lang" / identifier
+    return _voice_setting(data / "lang" / identifier, "dictionary") or code.split("-")[0]
+
+
+def _voice_setting(path: Path, key: str) -> str:
+    """The value of the last ``key value`` line of an espeak-ng voice file ("" without one)."""
+    value = ""
     if path.is_file():
         for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
             words = line.split()
-            if len(words) >= 2 and words[0] == "dictionary":
-                return words[1]
-    return code.split("-")[0]
+            if len(words) >= 2 and words[0] == key:
+                value = words[1]
+    return value
 
 
 def find_voice(language: str) -> Voice:
@@ -286,16 +291,8 @@ def voice_variants() -> dict[str, str]:
     import espeakng_loader
 
     folder = Path(espeakng_loader.get_data_path()) / "voices" / "!v"
-    found = {}
-    for path in sorted(folder.iterdir()) if folder.is_dir() else ():
-        if path.is_file() and " " not in path.name:
-            gender = ""
-            for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-                words = line.split()
-                if len(words) >= 2 and words[0] == "gender":
-                    gender = words[1]
-            found[path.name] = gender
-    return found
+    paths = sorted(folder.iterdir()) if folder.is_dir() else []
+    return {path.name: _voice_setting(path, "gender") for path in paths if path.is_file() and " " not in path.name}
 
 
 def check_variant(variant: str | None) -> str | None:

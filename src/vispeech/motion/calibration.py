@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
+from functools import cache
 from importlib import resources
 
 import numpy as np
@@ -206,12 +207,18 @@ def load_scale(scale: str | os.PathLike | None) -> Calibration | None:
     if scale is None or str(scale) == "tracker":
         return None
     if str(scale) == "arkit":
-        text = resources.files("vispeech.motion").joinpath("data/arkit.calibration.json").read_text(encoding="utf-8")
-        return Calibration.from_dict(json.loads(text), "the shipped arkit calibration")
+        return _arkit()
     if not os.path.isfile(scale):
         raise VispeechError(f"unknown output scale {str(scale)!r}: use tracker, arkit or a calibration file "
                             "(vispeech rig calibrate HEAD.glb)")
     return Calibration.load(scale)
+
+
+@cache
+def _arkit() -> Calibration:
+    """The shipped ``arkit`` calibration, read once (every output of a batch or a server uses it)."""
+    text = resources.files("vispeech.motion").joinpath("data/arkit.calibration.json").read_text(encoding="utf-8")
+    return Calibration.from_dict(json.loads(text), "the shipped arkit calibration")
 
 
 def fit_calibration(head: HeadGeometry, scores: Track, gap: np.ndarray, width: np.ndarray,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import struct
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,7 @@ _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5
 _WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
+@dataclass(frozen=True)
 class MorphMesh:
     """One primitive of a model with ARKit morph targets: rest positions and per-target offsets.
 
@@ -101,17 +103,8 @@ class MorphMesh:
     scene units (metres, for glTF), after the node transforms; ``name`` is the ARKit name.
     """
 
-    def __init__(self, positions: np.ndarray, targets: dict[str, np.ndarray]) -> None:
-        self.positions = positions
-        self.targets = targets
-
-    def posed(self, weights: dict[str, float]) -> np.ndarray:
-        """Vertex positions at the given ARKit weights (missing ones 0)."""
-        out = self.positions.copy()
-        for name, weight in weights.items():
-            if weight and name in self.targets:
-                out += weight * self.targets[name]
-        return out
+    positions: np.ndarray
+    targets: dict[str, np.ndarray]
 
 
 def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
@@ -156,23 +149,18 @@ def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | o
             start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
             rows = np.frombuffer(blob, np.uint8, count=stride * accessor.count, offset=start).reshape(-1, stride)
             out = rows[:, :dtype.itemsize * width].copy().view(dtype).astype(np.float64)
-        if accessor.normalized and dtype.kind in "iu":
-            info = np.iinfo(dtype)
-            out = np.maximum(out / info.max, -1.0)
         if accessor.sparse is not None:
             sparse = accessor.sparse
-            spec = {"bufferView": sparse.indices.bufferView, "byteOffset": sparse.indices.byteOffset or 0,
-                    "componentType": sparse.indices.componentType}
-            idx_view = gltf.bufferViews[spec["bufferView"]]
-            idx = np.frombuffer(blob, np.dtype(_COMPONENTS[spec["componentType"]]).newbyteorder("<"), count=sparse.count,
-                                offset=(idx_view.byteOffset or 0) + spec["byteOffset"])
-            val_view = gltf.bufferViews[sparse.values.bufferView]
+            index_type = np.dtype(_COMPONENTS[sparse.indices.componentType]).newbyteorder("<")
+            index_view = gltf.bufferViews[sparse.indices.bufferView]
+            value_view = gltf.bufferViews[sparse.values.bufferView]
+            rows_at = np.frombuffer(blob, index_type, count=sparse.count,
+                                    offset=(index_view.byteOffset or 0) + (sparse.indices.byteOffset or 0))
             values = np.frombuffer(blob, dtype, count=sparse.count * width,
-                                   offset=(val_view.byteOffset or 0) + (sparse.values.byteOffset or 0))
-            values = values.reshape(-1, width).astype(np.float64)
-            if accessor.normalized and dtype.kind in "iu":
-                values = np.maximum(values / np.iinfo(dtype).max, -1.0)
-            out[idx.astype(np.intp)] = values
+                                   offset=(value_view.byteOffset or 0) + (sparse.values.byteOffset or 0))
+            out[rows_at.astype(np.intp)] = values.reshape(-1, width)
+        if accessor.normalized and dtype.kind in "iu":
+            out = np.maximum(out / np.iinfo(dtype).max, -1.0)
         return out
     except (IndexError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise VispeechError(f"{path}: cannot read accessor {index} ({exc})") from None

@@ -115,7 +115,12 @@ def _panphon() -> tuple[tuple[str, ...], dict[str, dict[str, int]]]:
 @cache
 def _letters() -> dict[str, str]:
     """Every base as written in a phone symbol (tie bars removed) -> PanPhon's spelling."""
-    return {b.replace("\u0361", "").replace("\u035c", ""): b for b in _panphon()[0]}
+    return {_untied(b): b for b in _panphon()[0]}
+
+
+def _untied(text: str) -> str:
+    """``text`` without tie bars (``t͡ʃ`` -> ``tʃ``)."""
+    return "".join(c for c in text if c not in _TIE_BARS)
 
 
 @cache
@@ -172,7 +177,7 @@ def _segments(text: str) -> list[_Segment]:
             i += 1
             continue
         for size in range(min(longest, len(chars) - i), 0, -1):  # longest base first (t̪, d̪͡z̪ ...)
-            candidate = chars[i:i + size].replace("\u0361", "").replace("\u035c", "")
+            candidate = _untied(chars[i:i + size])
             if candidate in letters:
                 break
         else:

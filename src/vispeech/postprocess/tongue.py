@@ -69,7 +69,8 @@ def tongue_channels(track: Track, phones: PhoneSequence) -> Track:
             if start - end > 2.0 / track.fps:  # a pause between the phones
                 keys += [(int(np.ceil(end * track.fps)), rest), (int(np.floor(start * track.fps)), rest)]
         first, last = int(np.floor(starts[0] * track.fps)), int(np.ceil(ends[-1] * track.fps))
-        keys += [(k, rest) for k in (0, first, last, n - 1) if 0 <= k < n and k not in set(anchors.tolist())]
+        held = set(anchors.tolist())
+        keys += [(k, rest) for k in (0, first, last, n - 1) if 0 <= k < n and k not in held]
         keys.sort(key=lambda item: item[0])
         frames = np.array([k for k, _ in keys], dtype=float)
         points = np.array([v for _, v in keys])
