@@ -64,8 +64,56 @@ def test_with_life_keeps_the_speech_and_live_link_carries_the_layers(tmp_path):
     assert with_life(speech, None, []) is speech
 
 
+def _phones(timed):
+    return PhoneSequence([Phone(t[0], t[1], t[2], None, t[3] if len(t) > 3 else 0) for t in timed], "en")
+
+
+def test_breathing_rests_at_a_human_rate():
+    for seed in range(4):
+        breath = nonverbal(int(120 * FPS), FPS, layers=["breath"], seed=seed)
+        assert breath.channels == ("breath",)
+        breaths, _ = find_peaks(breath["breath"], prominence=0.1)
+        assert 10 <= len(breaths) / 2 <= 20  # 12-15 a minute at rest
+        assert 0 <= breath["breath"].min() and breath["breath"].max() <= 1
+        assert np.abs(np.diff(breath["breath"])).max() < 0.05  # smooth
+    again = nonverbal(int(120 * FPS), FPS, layers=["breath"], seed=3)
+    np.testing.assert_array_equal(again.values, breath.values)
+    assert not np.array_equal(nonverbal(int(120 * FPS), FPS, layers=["breath"], seed=4).values, breath.values)
+
+
+def test_a_breath_is_taken_before_speech_and_let_out_while_speaking():
+    phones = _phones([("sil", 0.0, 1.0), ("HH", 1.0, 1.1), ("AH", 1.1, 1.3), ("L", 1.3, 1.5), ("sil", 1.5, 1.7),
+                      ("OW", 1.7, 2.5), ("sil", 2.5, 3.5), ("K", 3.5, 3.6), ("AE", 3.6, 4.3), ("T", 4.3, 4.4),
+                      ("sil", 4.4, 8.0)])
+    for seed in range(4):
+        breath = nonverbal(int(8 * FPS), FPS, phones, layers=["breath"], seed=seed)["breath"]
+        at = lambda t: breath[round(t * FPS)]  # noqa: E731
+        assert 0 <= breath.min() and breath.max() <= 1
+        for onset, end in ((1.0, 2.5), (3.5, 4.4)):  # the 0.2 s pause at 1.5 s takes no breath
+            assert at(onset) > at(onset - 0.5) + 0.2  # a quick inhalation just before speaking
+            assert at(onset) >= breath[round((onset - 0.6) * FPS):round((onset + 0.1) * FPS)].max() - 0.05
+            middle = (onset + end) / 2
+            assert at(onset) > at(middle) > at(end - 0.05)  # let out while speaking
+        assert at(1.5) > at(1.7) > at(1.9)  # no breath in a short pause
+        assert at(1.0) > at(3.5)  # the longer stretch takes the deeper breath
+
+
+def test_breath_goes_to_json_not_to_live_link(tmp_path):
+    from vispeech.motion.jsonformat import read_animation_json, write_animation_json
+
+    speech = Track(np.zeros((90, 1)), ("jawOpen",), FPS)
+    lively = with_life(speech, None, ["blink", "breath"], seed=1)
+    assert "breath" in lively.channels and lively["breath"].max() > 0
+    write_livelink_csv(lively, tmp_path / "take.csv")
+    header = (tmp_path / "take.csv").read_text().splitlines()[0].split(",")
+    assert "EyeBlinkLeft" in header and "Breath" not in header and "breath" not in header
+    write_animation_json(lively, tmp_path / "take.json")
+    np.testing.assert_allclose(read_animation_json(tmp_path / "take.json").track["breath"], lively["breath"], atol=1e-6)
+
+
 def test_layer_names_are_checked():
     assert check_layers("all") == LAYERS and check_layers("head, blink") == ("blink", "head") and check_layers("") == ()
+    assert check_layers("breath,brows") == ("brows", "breath")
     with pytest.raises(VispeechError, match="unknown non-verbal layer 'dance'"):
         check_layers("blink,dance")
 

@@ -58,7 +58,7 @@ def life_options(command):
     command = click.option("--seed", default=0, show_default=True, type=int,
                            help="Seed of the non-verbal layers: the same seed, the same blinks and sway.")(command)
     return click.option("--life", default="", metavar="LAYERS",
-                        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, or all "
+                        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, or all "
                              "(vispeech.motion.life) [default: none].")(command)
 
 

@@ -14,6 +14,15 @@ Live Link Face CSV carries the blinks, the gaze and the head rotation.
   0.03 rad over 300 ms from the vowel's onset).
 - ``brows``: ``browInnerUp`` and ``browOuterUp{Left,Right}``; with phones, the brows rise
   (0.3) over 500 ms on the first primary-stressed vowel of every sentence (its emphasis).
+- ``breath``: ``breath``, how full the lungs are: 0 at the resting level (the end of a quiet
+  exhalation), 1 after a deep breath before a long phrase. At rest a smooth rhythm of 12 to 15
+  breaths a minute (each cycle within ±15 % of that), inhaling over 40 % of the cycle and
+  exhaling over 60 %, up to 0.35 (the tidal volume). In speech (with phones), a quick
+  inhalation of 0.3 to 0.5 s ends at the first phone and at every phone that follows a pause
+  of 0.4 s or more, as deep as the coming stretch of speech is long (0.5 plus 0.1 a second, at
+  most 1); over the stretch the lungs empty at a steady rate (a straight line) back to 0, and
+  the resting rhythm starts again where the speech stops. ``breath`` is vispeech's own channel:
+  JSON carries it, Live Link Face CSV (ARKit shapes and head and eye rotations only) does not.
 """
 
 from __future__ import annotations
@@ -27,7 +36,7 @@ from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 
-LAYERS = ("blink", "gaze", "head", "brows")
+LAYERS = ("blink", "gaze", "head", "brows", "breath")
 """The non-verbal layers, in the order their channels come."""
 
 CHANNELS: dict[str, tuple[str, ...]] = {
@@ -36,6 +45,7 @@ CHANNELS: dict[str, tuple[str, ...]] = {
              "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight", "eyeLookDownRight"),
     "head": ("headYaw", "headPitch", "headRoll"),
     "brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"),
+    "breath": ("breath",),
 }
 """The channels each layer sets."""
 
@@ -45,6 +55,13 @@ GAZE_RANGE = (0.25, 0.2)  # ARKit eyeLook weights of the widest saccade: across,
 SWAY = (0.035, 0.022, 0.014)  # radians: yaw, pitch, roll
 NOD, NOD_SECONDS = 0.03, 0.3
 BROWS, BROWS_SECONDS = 0.3, 0.5
+REST_RATE = (12.0, 15.0)  # breaths a minute at rest
+REST_JITTER = 0.15  # each resting cycle within this share of the rate's period
+REST_INHALE = 0.4  # share of a resting cycle spent inhaling
+REST_DEPTH = 0.35  # lungs' fill at the top of a resting breath
+SPEECH_INHALE = (0.3, 0.5)  # seconds of the quick inhalation before speech
+SPEECH_PAUSE = 0.4  # seconds of silence after which speech resumes with a new breath
+SPEECH_DEPTH, SPEECH_DEPTH_PER_S = 0.5, 0.1  # fill after that inhalation: this plus so much per second of speech
 
 
 def check_layers(layers: str | Iterable[str]) -> tuple[str, ...]:
@@ -63,7 +80,8 @@ def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
               layers: Iterable[str] = LAYERS, seed: int = 0, start_time: float = 0.0) -> Track:
     """The channels of ``layers`` over ``n_frames`` frames at ``fps`` (see the module docstring).
 
-    ``phones`` time the nods and the brows (without them there are none). Each layer draws from
+    ``phones`` time the nods, the brows and the breaths taken for speech (without them there are
+    no nods or brows, and the breathing is the resting rhythm). Each layer draws from
     its own random stream of ``seed``, so a layer's motion does not depend on the others.
     """
     chosen = check_layers(layers)
@@ -74,7 +92,8 @@ def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
         if layer not in chosen:
             continue
         rng = np.random.default_rng([seed, k])
-        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows}[layer](times, rng, phones)
+        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows,
+                  "breath": _breath}[layer](times, rng, phones)
         columns.append(values)
         names += CHANNELS[layer]
     values = np.column_stack(columns) if columns else np.zeros((n_frames, 0))
@@ -135,6 +154,60 @@ def _brows(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
         inside = (dt >= 0) & (dt <= BROWS_SECONDS)
         raise_[inside] = np.maximum(raise_[inside], BROWS * np.sin(np.pi * dt[inside] / BROWS_SECONDS))
     return np.column_stack([raise_, raise_, raise_])
+
+
+def _breath(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
+    out = np.zeros(len(times))
+    if not len(times):
+        return out
+    period = 60.0 / rng.uniform(*REST_RATE)
+
+    def resting(origin: float, until: float):
+        """The resting rhythm from ``origin`` (a cycle starting at 0 there), as a function of time."""
+        n = int((until - origin) / (period * (1 - REST_JITTER))) + 2
+        ends = origin + np.cumsum(period * rng.uniform(1 - REST_JITTER, 1 + REST_JITTER, n))
+        starts = np.concatenate([[origin], ends[:-1]])
+
+        def at(t: np.ndarray) -> np.ndarray:
+            k = np.clip(np.searchsorted(ends, t, side="right"), 0, n - 1)
+            u = np.clip((t - starts[k]) / (ends[k] - starts[k]), 0, 1)
+            inhaling = u < REST_INHALE
+            w = np.where(inhaling, u / REST_INHALE, (u - REST_INHALE) / (1 - REST_INHALE))
+            return REST_DEPTH * np.where(inhaling, 0.5 - 0.5 * np.cos(np.pi * w), 0.5 + 0.5 * np.cos(np.pi * w))
+        return at
+
+    end = times[-1]
+    rest = resting(times[0] - rng.uniform(0, period), end)  # a random phase at the start
+    since = -np.inf  # where the current resting stretch began
+    for onset, finish in _speech_stretches(phones):
+        begin = max(onset - rng.uniform(*SPEECH_INHALE), since)
+        before = (times >= since) & (times < begin)
+        out[before] = rest(times[before])
+        low = float(rest(np.array([begin]))[0])
+        top = min(1.0, SPEECH_DEPTH + SPEECH_DEPTH_PER_S * (finish - onset))
+        inhaling = (times >= begin) & (times < onset)
+        w = (times[inhaling] - begin) / (onset - begin)
+        out[inhaling] = low + (top - low) * (0.5 - 0.5 * np.cos(np.pi * w))
+        speaking = (times >= onset) & (times < finish)
+        out[speaking] = top * (1 - (times[speaking] - onset) / (finish - onset))
+        rest, since = resting(finish, max(end, finish)), finish
+    after = times >= since
+    out[after] = rest(times[after])
+    return out
+
+
+def _speech_stretches(phones: PhoneSequence | None) -> list[tuple[float, float]]:
+    """(start, end) seconds of the stretches of speech: phones with no pause of
+    :data:`SPEECH_PAUSE` or more between them."""
+    stretches: list[list[float]] = []
+    for p in phones or ():
+        if p.is_silence or p.end <= p.start:
+            continue
+        if stretches and p.start - stretches[-1][1] < SPEECH_PAUSE:
+            stretches[-1][1] = max(stretches[-1][1], p.end)
+        else:
+            stretches.append([p.start, p.end])
+    return [(a, b) for a, b in stretches]
 
 
 def _stressed_onsets(phones: PhoneSequence | None, first_of_sentence: bool = False) -> list[float]:
