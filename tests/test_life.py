@@ -116,6 +116,8 @@ def test_layer_names_are_checked():
     assert check_layers("breath,brows") == ("brows", "breath")
     with pytest.raises(VispeechError, match="unknown non-verbal layer 'dance'"):
         check_layers("blink,dance")
+    with pytest.raises(VispeechError, match="must be 0 or more"):
+        nonverbal(10, FPS, seed=-1)
 
 
 def test_say_adds_the_layers_it_is_asked_for(tmp_path):

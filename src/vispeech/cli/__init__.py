@@ -55,7 +55,7 @@ def scale_option(default: str):
 
 def life_options(command):
     """``--life LAYERS`` and ``--seed``: the non-verbal layers a command adds to its tracks."""
-    command = click.option("--seed", default=0, show_default=True, type=int,
+    command = click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
                            help="Seed of the non-verbal layers: the same seed, the same blinks and sway.")(command)
     return click.option("--life", default="", metavar="LAYERS",
                         help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, or all "

@@ -82,9 +82,11 @@ def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
 
     ``phones`` time the nods, the brows and the breaths taken for speech (without them there are
     no nods or brows, and the breathing is the resting rhythm). Each layer draws from
-    its own random stream of ``seed``, so a layer's motion does not depend on the others.
+    its own random stream of ``seed`` (0 or more), so a layer's motion does not depend on the others.
     """
     chosen = check_layers(layers)
+    if seed < 0:
+        raise VispeechError(f"the seed of the non-verbal layers must be 0 or more, got {seed}")
     times = start_time + np.arange(n_frames) / fps
     columns: list[np.ndarray] = []
     names: list[str] = []
