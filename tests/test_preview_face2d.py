@@ -1,6 +1,7 @@
 """The 2D face script's mouth geometry and drawing, run in Node (skipped where Node is missing, failed under CI)."""
 
 import json
+import re
 import shutil
 import subprocess
 from importlib import resources
@@ -18,11 +19,30 @@ def _needs_node():
 
 # Loads face2d.js as a browser would (a global scope, no modules), evaluates mouthShape on the
 # cases read from stdin and draws each case on a fake canvas that rejects what a browser rejects.
+# Each fill in a plain colour is kept as [colour, x0, y0, x1, y1]: the box around its path's
+# points (curve control points included, ellipses without rotation), in drawing units.
 HARNESS = r"""
 const fs = require("fs");
 const vm = require("vm");
 const [script, cases] = JSON.parse(fs.readFileSync(0, "utf8"));
 const calls = [];
+const fills = [];
+let points = [];
+function trace(name, args, style) {
+  if (name === "beginPath") points = [];
+  else if (["moveTo", "lineTo", "quadraticCurveTo", "bezierCurveTo"].includes(name))
+    for (let k = 0; k + 1 < args.length; k += 2) points.push([args[k], args[k + 1]]);
+  else if (name === "ellipse" || name === "arc") {
+    const [x, y, rx] = args, ry = name === "ellipse" ? args[3] : rx;
+    points.push([x - rx, y - ry], [x + rx, y + ry]);
+  } else if (name === "rect") points.push([args[0], args[1]], [args[0] + args[2], args[1] + args[3]]);
+  else if (name === "fillRect" && typeof style === "string")
+    fills.push([style, args[0], args[1], args[0] + args[2], args[1] + args[3]]);
+  else if (name === "fill" && typeof style === "string" && points.length) {
+    const xs = points.map((p) => p[0]), ys = points.map((p) => p[1]);
+    fills.push([style, Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)]);
+  }
+}
 function context2d() {
   const target = {};
   return new Proxy(target, {
@@ -34,6 +54,7 @@ function context2d() {
         if ((name === "arc" && args[2] < 0) || (name === "ellipse" && (args[2] < 0 || args[3] < 0)))
           throw new Error(`${name}: negative radius`);
         calls.push(name);
+        trace(name, args, obj.fillStyle);
       };
     },
     set(obj, name, value) { obj[name] = value; return true; },
@@ -49,8 +70,9 @@ const face = new lib.Face2D(canvas);
 const out = {};
 for (const [name, weights] of Object.entries(cases)) {
   calls.length = 0;
+  fills.length = 0;
   face.setWeights(weights, 0.5);
-  out[name] = { shape: lib.mouthShape(weights), drawCalls: calls.length };
+  out[name] = { shape: lib.mouthShape(weights), drawCalls: calls.length, fills: fills.slice() };
 }
 out.canvas = [canvas.width, canvas.height];
 process.stdout.write(JSON.stringify(out));
@@ -71,17 +93,26 @@ CASES = {
     "lower_down": {"mouthLowerDownLeft": 1, "mouthLowerDownRight": 1},
     "tongue_out": {"jawOpen": 0.3, "tongueOut": 1},
     "tongue_out_sealed": {"jawOpen": 0.3, "mouthClose": 0.3, "tongueOut": 1},
-    "t": {"jawOpen": 0.15},
+    "t": {"jawOpen": 0.15, "tongueTipUp": 1},
+    "jaw_only": {"jawOpen": 0.15},
+    "tongue_rest": {"jawOpen": 0.2},
+    "tip_up": {"jawOpen": 0.2, "tongueTipUp": 1},
+    "body_up": {"jawOpen": 0.2, "tongueBodyUp": 1},
+    "tongue_back": {"jawOpen": 0.2, "tongueBack": 1},
+    "tongue_sealed": {"jawOpen": 0.2, "mouthClose": 0.2, "tongueTipUp": 1, "tongueBodyUp": 1, "tongueBack": 1},
     "everything": {"jawOpen": 1, "jawForward": 1, "jawLeft": 1, "mouthFunnel": 1, "mouthPucker": 1,
                    "mouthStretchLeft": 1, "eyeBlinkLeft": 1, "cheekPuff": 1, "tongueOut": 1},
     "junk": {"jawOpen": "wide", "mouthClose": None, "mouthPucker": -3, "mouthSmileLeft": 7},
 }
 
 
+def script():
+    return resources.files("vispeech.preview").joinpath("face2d.js").read_text(encoding="utf-8")
+
+
 @pytest.fixture(scope="module")
 def run():
-    script = resources.files("vispeech.preview").joinpath("face2d.js").read_text(encoding="utf-8")
-    done = subprocess.run([NODE, "-e", HARNESS], input=json.dumps([script, CASES]), capture_output=True,
+    done = subprocess.run([NODE, "-e", HARNESS], input=json.dumps([script(), CASES]), capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
@@ -100,7 +131,7 @@ def test_every_case_draws(run):
     assert all(run[name]["drawCalls"] > 100 for name in CASES)
 
 
-@pytest.mark.parametrize("name", ["rest", "m", "m_wide_jaw", "press", "tongue_out_sealed"])
+@pytest.mark.parametrize("name", ["rest", "m", "m_wide_jaw", "press", "tongue_out_sealed", "tongue_sealed"])
 def test_closed_lips_meet_without_a_gap(run, name):
     shape = run[name]["shape"]
     assert shape["opening"] == 0
@@ -140,10 +171,70 @@ def test_lip_raisers_and_roll(run):
 
 
 def test_tongue(run):
-    assert run["t"]["shape"]["tipRaise"] > 0.5
-    assert run["a"]["shape"]["tipRaise"] < 0.01
+    assert run["t"]["shape"]["tipRaise"] == 1
+    assert run["a"]["shape"]["tipRaise"] == 0
+    assert run["jaw_only"]["shape"]["tipRaise"] == 0  # no guess from the jaw: only tongueTipUp raises the tip
     assert run["tongue_out"]["shape"]["tongueOut"] == 1
     assert run["tongue_out_sealed"]["shape"]["tongueOut"] == 0
+
+
+def tongue_fills(case, part=None):
+    """The tongue's fills (``part``: "tongue" the front part, "tongueBody" the body; all if None) drawn in ``case``."""
+    colours = dict(re.findall(r'\b(tongue\w*): "(#[0-9a-f]{6})"', script()))
+    wanted = {colours[part]} if part else set(colours.values())
+    return [f[1:] for f in case["fills"] if f[0] in wanted]
+
+
+def tongue_box(case):
+    """[x0, y0, x1, y1] around all the tongue's fills in ``case``."""
+    boxes = tongue_fills(case)
+    assert boxes
+    return [min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes)]
+
+
+def test_tongue_tip_follows_tongue_tip_up(run):
+    rest, up = run["tongue_rest"], run["tip_up"]
+    assert rest["shape"]["tipRaise"] == 0 and up["shape"]["tipRaise"] == 1
+    assert up["shape"]["tongue"]["tipY"] < rest["shape"]["tongue"]["tipY"] - 4  # drawing units, y down
+    assert up["shape"]["tongue"]["top"] == rest["shape"]["tongue"]["top"]  # the front part stays on the jaw
+    # drawn: the tongue reaches higher, inside the opening between the lips
+    assert tongue_box(up)[1] < tongue_box(rest)[1] - 4
+    assert mid(up["shape"]["upperInner"]) < tongue_box(up)[1] < mid(up["shape"]["lowerInner"])
+
+
+def test_tongue_body_follows_tongue_body_up(run):
+    rest, up = run["tongue_rest"], run["body_up"]
+    assert rest["shape"]["bodyRaise"] == 0 and up["shape"]["bodyRaise"] == 1
+    assert up["shape"]["tongue"]["bodyY"] < rest["shape"]["tongue"]["bodyY"] - 4
+    assert up["shape"]["tongue"]["tipY"] == rest["shape"]["tongue"]["tipY"]
+    # drawn: a body behind the front part, rising above it, broader than the tip
+    assert tongue_fills(rest, "tongueBody") == []
+    (body,) = tongue_fills(up, "tongueBody")
+    (front,) = tongue_fills(up, "tongue")
+    assert body[1] < front[1] - 4
+    assert body[1] < tongue_box(rest)[1] - 4
+    tip = [b for b in tongue_fills(run["tip_up"], "tongue") if b[1] < front[1]]
+    assert tip and body[2] - body[0] > 1.5 * (tip[0][2] - tip[0][0])
+
+
+def test_tongue_back_draws_the_tongue_back(run):
+    rest, back = run["tongue_rest"]["shape"]["tongue"], run["tongue_back"]["shape"]["tongue"]
+    assert run["tongue_back"]["shape"]["tongueBack"] == 1
+    assert back["halfWidth"] < 0.8 * rest["halfWidth"]
+    assert back["top"] > rest["top"] + 3
+    assert back["tipY"] > rest["tipY"] + 3
+    # drawn: a smaller front part, lower down
+    before, after = tongue_box(run["tongue_rest"]), tongue_box(run["tongue_back"])
+    assert after[2] - after[0] < 0.8 * (before[2] - before[0])
+    assert after[1] > before[1] + 3
+
+
+def test_sealed_lips_hide_the_tongue(run):
+    assert tongue_fills(run["tongue_rest"])  # the same jaw with the lips apart shows it
+    sealed = run["tongue_sealed"]
+    assert sealed["shape"]["opening"] == 0
+    assert tongue_fills(sealed) == []
+    assert sealed["shape"]["tongueOut"] == 0
 
 
 def test_out_of_range_weights_are_clamped(run):

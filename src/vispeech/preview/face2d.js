@@ -9,9 +9,10 @@
  *               face.draw([timeSeconds])    redraw with the current weights
  *               face.resize()               re-read the canvas' CSS size (call on window resize)
  *   mouthShape  mouthShape(weights) -> lip contours, opening and jaw drop (drawing units)
- *   CHANNELS    the ARKit channels the face reads
+ *   CHANNELS    the channels the face reads: ARKit's, and vispeech's own tongue channels
+ *               tongueTipUp, tongueBodyUp and tongueBack (see vispeech.postprocess.tongue)
  *
- * Weights are ARKit channel values in [0, 1]; a missing channel is 0. `timeSeconds` drives
+ * Weights are channel values in [0, 1]; a missing channel is 0. `timeSeconds` drives
  * idle blinks (a fixed pseudo-random schedule, so a given time always looks the same); when it
  * is left out the page clock (performance.now) is used. "Left" channels move the subject's
  * left side, which is the viewer's right. The drawing lives in a 400 x 500 unit box scaled to
@@ -37,6 +38,7 @@
     "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
     "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft", "mouthLowerDownRight",
     "mouthUpperUpLeft", "mouthUpperUpRight", "cheekPuff", "tongueOut",
+    "tongueTipUp", "tongueBodyUp", "tongueBack",
     "eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight",
     "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight",
     "eyeLookUpLeft", "eyeLookUpRight", "eyeLookDownLeft", "eyeLookDownRight",
@@ -48,13 +50,13 @@
     skin: "#eec19f", skinEdge: "#dca27e", skinLine: "rgba(150, 88, 62, 0.55)",
     hair: "#4b3427", hairLight: "#6a4a37", lipUpper: "#b4545b", lipLower: "#c4656b",
     lipLine: "#6b2429", cavity: "#3b1116", cavityDeep: "#1d0608", gum: "#c9646c",
-    tooth: "#f7f3ea", toothEdge: "#c8bfae", tongue: "#dc7480", tongueDark: "#b04c5a",
+    tooth: "#f7f3ea", toothEdge: "#c8bfae", tongue: "#dc7480", tongueBody: "#c4606d",
+    tongueDark: "#b04c5a",
     eyeWhite: "#fbfaf7", iris: "#4f7a8f", pupil: "#1b2328", lash: "#2d1f18", brow: "#4b3427"
   };
 
   function clamp01(x) { return x < 0 ? 0 : x > 1 ? 1 : x; }
   function lerp(a, b, t) { return a + (b - a) * t; }
-  function smoothstep(a, b, x) { var t = clamp01((x - a) / (b - a)); return t * t * (3 - 2 * t); }
   function bump(x, centre, width) { var d = (x - centre) / width; return Math.exp(-d * d); }
 
   /* One weight, clamped to [0, 1]; missing or non-numeric values are 0. */
@@ -83,8 +85,14 @@
    * numbers from the viewer's left corner to the right one; the outer contours reach a little
    * past the corners), `opening` (gap
    * between the inner contours at the centre; exactly 0 when the lips are sealed), `seal`
-   * (0 open .. 1 closed by mouthClose / mouthPress), `jawDrop`, `jawShift`, `tipRaise`,
-   * `tongueOut`, `jawForward`, `corners` and `cheekPuff`.
+   * (0 open .. 1 closed by mouthClose / mouthPress), `jawDrop`, `jawShift`, `tongueOut`,
+   * `jawForward`, `corners` and `cheekPuff`; for the tongue inside the mouth `tipRaise`
+   * (tongueTipUp, 0 while the tongue is out), `bodyRaise` (tongueBodyUp), `tongueBack`
+   * (tongueBack) and `tongue` = {x, top, halfWidth, tipY, bodyY, bodyHalfWidth}: the centre
+   * line, the upper edge and half width of its front part (which rides on the jaw and goes
+   * lower and narrower as it is drawn back), the height its tip reaches (`top` at rest, up to
+   * just behind the upper teeth's edge) and the height and half width of its body (hidden
+   * behind the front part at rest, up to the palate line just above the upper teeth's edge).
    */
   function mouthShape(weights) {
     var g = function (n) { return weight(weights, n); };
@@ -93,6 +101,7 @@
     var rollLower = g("mouthRollLower"), rollUpper = g("mouthRollUpper");
     var shrugLower = g("mouthShrugLower"), shrugUpper = g("mouthShrugUpper");
     var tongueOut = g("tongueOut");
+    var tipUp = g("tongueTipUp"), bodyUp = g("tongueBodyUp"), back = g("tongueBack");
     var press = 0.5 * (g("mouthPressLeft") + g("mouthPressRight"));
     // mouthClose counts relative to the jaw (ARKit: mouthClose = jawOpen seals the lips).
     var seal = clamp01(Math.max(close / Math.max(jaw, 0.02), press));
@@ -145,8 +154,18 @@
     out.jawShift = jawShift;
     out.jawForward = g("jawForward");
     out.tongueOut = tongueOut * open;
-    // The tongue tip rises to the teeth ridge when the jaw is only slightly open (t, d, n, l).
-    out.tipRaise = smoothstep(0.03, 0.12, jaw) * (1 - smoothstep(0.25, 0.4, jaw)) * (1 - round) * (1 - tongueOut);
+    // The tongue inside the mouth: the tip rises to the ridge behind the upper teeth (t d n l),
+    // the body to the palate (k g), and a tongue drawn back shows less of its front.
+    out.tipRaise = tipUp * (1 - tongueOut);
+    out.bodyRaise = bodyUp;
+    out.tongueBack = back;
+    var tongueTop = MOUTH_Y + 0.75 * jawDrop - 3 + 6 * back;
+    var ridge = Math.min(tongueTop, UPPER_TEETH_EDGE - 2), palate = Math.min(tongueTop, UPPER_TEETH_EDGE - 3);
+    out.tongue = {
+      x: CX + jawShift, top: tongueTop, halfWidth: 34 * (1 - 0.3 * back),
+      tipY: lerp(tongueTop, ridge, out.tipRaise),
+      bodyY: lerp(tongueTop + 6, palate, bodyUp), bodyHalfWidth: 28 * (1 - 0.2 * back)
+    };
     out.corners = [left, right];
     out.cheekPuff = g("cheekPuff");
     out.rollLower = rollLower;
@@ -496,14 +515,24 @@
   }
 
   function drawTongue(ctx, m) {
-    var d = m.jawDrop, x = CX + m.jawShift;
-    var top = MOUTH_Y + 0.75 * d - 3;
+    var t = m.tongue, x = t.x, top = t.top, back = m.tongueBack;
+    if (m.bodyRaise > 0.01) {   // the body, behind the front part: a broad hump up to the palate
+      var body = t.bodyY, bw = t.bodyHalfWidth;
+      ctx.beginPath();
+      ctx.moveTo(x - bw, top + 14);
+      ctx.bezierCurveTo(x - bw, body + 2, x - 0.6 * bw, body, x, body);
+      ctx.bezierCurveTo(x + 0.6 * bw, body, x + bw, body + 2, x + bw, top + 14);
+      ctx.closePath();
+      ctx.fillStyle = COLORS.tongueBody;
+      ctx.fill();
+    }
+    var ry = 16 * (1 - 0.2 * back);
     ctx.beginPath();
-    ctx.ellipse(x, top + 16, 34, 16, 0, 0, 2 * Math.PI);
+    ctx.ellipse(x, top + ry, t.halfWidth, ry, 0, 0, 2 * Math.PI);
     ctx.fillStyle = COLORS.tongue;
     ctx.fill();
     if (m.tipRaise > 0.01) {
-      var tip = lerp(top + 4, UPPER_TEETH_EDGE - 2, m.tipRaise);
+      var tip = t.tipY;
       ctx.beginPath();
       ctx.moveTo(x - 15, top + 12);
       ctx.bezierCurveTo(x - 14, tip + 6, x - 8, tip, x, tip);
