@@ -93,6 +93,50 @@ def test_repeated_request_comes_from_the_cache_file(client, site):
         assert again["cached"] is True and fresh.get(again["audio_url"]).status_code == 200
 
 
+def test_speak_adds_the_non_verbal_layers_asked_for(client):
+    request = {"text": "Hello there. How are you today?", "lang": "en"}
+    plain = client.post("/api/speak", json=request).json()
+    assert not {"eyeBlinkLeft", "headYaw", "breath"} & set(plain["animation"]["channels"])
+    lively = client.post("/api/speak", json={**request, "life": ["head", "blink"], "seed": 7}).json()
+    again = client.post("/api/speak", json={**request, "life": ["blink", "head"], "seed": 7}).json()
+    other = client.post("/api/speak", json={**request, "life": ["blink", "head"], "seed": 8}).json()
+    channels = lively["animation"]["channels"]
+    assert channels[-5:] == ["eyeBlinkLeft", "eyeBlinkRight", "headYaw", "headPitch", "headRoll"]
+    assert again["animation"] == lively["animation"]  # the same seed, the same frames
+    assert other["animation"]["frames"] != lively["animation"]["frames"]
+    # the speech is the cached one, the same audio, with the layers added
+    assert lively["cached"] and lively["audio_url"] == plain["audio_url"]
+    frames, speech = np.array(lively["animation"]["frames"]), np.array(plain["animation"]["frames"])
+    np.testing.assert_array_equal(frames[:, :len(plain["animation"]["channels"])], speech)
+    assert np.abs(frames[:, channels.index("headYaw")]).max() > 0
+    assert frames[:, channels.index("eyeBlinkLeft")].max() > 0.5
+    breathing = client.post("/api/speak", json={**request, "life": ["breath"]}).json()["animation"]
+    assert breathing["channels"][-1] == "breath" and max(row[-1] for row in breathing["frames"]) > 0.4
+    chat = client.post("/api/chat", json={"message": "Hi!", "lang": "en", "life": ["gaze"], "seed": 1}).json()
+    assert "eyeLookInLeft" in chat["speech"]["animation"]["channels"]
+
+
+@pytest.mark.parametrize(("body", "words"), [
+    ({"life": ["blink", "dance"]}, "life.1: Input should be 'blink', 'gaze', 'head', 'brows' or 'breath'"),
+    ({"life": "blink"}, "life"),
+    ({"seed": -1}, "seed"),
+])
+def test_bad_layers_get_a_422(client, body, words):
+    response = client.post("/api/speak", json={"text": "hello", **body})
+    assert response.status_code == 422 and words in response.json()["detail"]
+    chat = client.post("/api/chat", json={"message": "hello", **body})
+    assert chat.status_code == 422 and words in chat.json()["detail"]
+
+
+def test_the_layers_offered_are_the_motion_layers():
+    from typing import get_args
+
+    from vispeech.motion.life import LAYERS
+    from vispeech.serve.schemas import Layer
+
+    assert get_args(Layer) == LAYERS
+
+
 def test_chat_answers_in_swedish_and_english(client):
     sv = client.post("/api/chat", json={"message": "Hej!", "lang": "sv"}).json()
     assert sv["reply"] == GREETINGS["sv"] and sv["lang"] == "sv"

@@ -139,3 +139,59 @@ def test_streamed_pcm16_decodes_little_endian():
         "console.log(JSON.stringify([...decodePcm16(b)]));"
     )
     assert got == pytest.approx([0.0, 0.5, -1.0, 32767 / 32768])
+
+
+def test_an_utterances_layers_take_over_the_head_and_blinks_without_a_jump():
+    script = """
+    import { Performer } from './performer.js';
+    import { Animation } from './animation.js';
+    import { ARKIT_INDEX } from './arkit.js';
+    let clock = 0;  // seconds: the page's and the audio's clock, ticked at 60 Hz
+    const context = { get currentTime() { return clock; }, state: 'running', resume: async () => {} };
+    globalThis.AudioContext = class { constructor() { return context; } };
+    Object.defineProperty(globalThis, 'performance', { value: { now: () => clock * 1000 }, configurable: true });
+    const fps = 30, n = 20 * fps;  // 20 s: idle motion would blink several times
+    const channels = ['jawOpen', 'eyeBlinkLeft', 'eyeBlinkRight', 'headYaw', 'headPitch', 'headRoll', 'breath'];
+    const frames = [...Array(n).keys()].map((k) => {
+      const t = k / fps, blink = Math.abs(t - 10) < 0.1 ? 1 : 0;
+      return [0.3, blink, blink, 0.05 * Math.sin(t), 0.03, -0.02, 0.5 + 0.5 * Math.sin(t / 3)];
+    });
+    const run = (idle, animation) => {
+      const heads = [], blinks = [], times = [], clocks = [];
+      const avatar = { blinks: false, render() {}, setHeadRotation: (...pose) => heads.push(pose),
+        setWeights: (w) => blinks.push(w[ARKIT_INDEX.get('eyeBlinkLeft')]) };
+      clock = 0;
+      const performer = new Performer(avatar, { idle });
+      for (let i = 0; i < 60 * 25; i++) {
+        clock = i / 60;
+        if (i === 60) {  // after a second of idle motion
+          performer.load(animation);
+          performer.play(0);
+        }
+        performer.tick();
+        times.push(performer.time());
+        clocks.push(clock);
+      }
+      return { heads, blinks: blinks.slice(-times.length), times, clocks };
+    };
+    const anim = () => new Animation({ fps, channels, frames });
+    const plain = new Animation({ fps, channels: ['jawOpen'], frames: frames.map((f) => [f[0]]) });
+    console.log(JSON.stringify({ lively: run(true, anim()), still: run(false, plain), bare: run(false, anim()) }));
+    """
+    got = run_node(script)
+    lively = got["lively"]
+    heads = np.array(lively["heads"])
+    assert np.abs(np.diff(heads, axis=0)).max() < 0.006  # never a jump, also where the utterance starts and ends
+    times, blinks, clocks = np.array(lively["times"]), np.array(lively["blinks"]), np.array(lively["clocks"])
+    during = (times > 1) & (times < 19) & (clocks < 21)
+    t = times[during]
+    pose = heads[-len(times):][during]  # [pitch, yaw, roll]: the track's head, tilted up by the breath
+    np.testing.assert_allclose(pose[:, 1], 0.05 * np.sin(t), atol=2e-3)
+    np.testing.assert_allclose(pose[:, 0], 0.03 - 0.01 * (0.5 + 0.5 * np.sin(t / 3)), atol=1e-3)
+    np.testing.assert_allclose(pose[:, 2], -0.02, atol=1e-6)
+    assert blinks[during].max() == pytest.approx(1, abs=0.01)  # the track's one blink at 10 s...
+    assert blinks[during & (np.abs(times - 10) > 0.2)].max() == 0  # ...and no idle blinks
+    assert blinks[clocks > 22].max() > 0.5  # idle blinks are back after it
+    assert got["still"]["heads"] == []  # idle=0 and no layers: the head is never moved
+    bare = np.array(got["bare"]["heads"])
+    assert np.abs(bare[-1]).max() == 0 and np.abs(np.diff(bare, axis=0)).max() < 0.006

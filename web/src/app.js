@@ -6,6 +6,7 @@ import { Performer } from './performer.js';
 import { fetchConfig, listenLive, requestSpeech } from './server.js';
 
 const FACE2D_SRC = 'static/face2d.js';
+const LIFE = ['blink', 'gaze', 'head', 'brows', 'breath']; // the non-verbal layers the pages ask the server for
 
 /** An Animation from an Animation, a parsed JSON object, or a file's text. */
 export function toAnimation(data, name = 'animation') {
@@ -56,7 +57,8 @@ function addOverlay(stage, performer) {
  * ready.
  *
  * Page URL options: `avatar=URL` (a GLB; empty for the 2D face) overrides the server's
- * avatar, `idle=0` turns idle blinks and head sway off.
+ * avatar, `idle=0` turns idle blinks and head sway off, and the non-verbal layers the page
+ * asks the server for with each utterance.
  */
 export async function startApp({ stage, setup = async () => {}, onstate = () => {}, report = console.warn }) {
   const params = new URLSearchParams(window.location.search);
@@ -72,8 +74,10 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
   }
 
   let overlay = null;
+  const lively = params.get('idle') !== '0';
+  let utterances = 0;
   const performer = new Performer(avatar, {
-    idle: params.get('idle') !== '0',
+    idle: lively,
     onstate: (state) => {
       if (overlay) overlay.hidden = state !== 'waiting';
       onstate(state);
@@ -95,6 +99,10 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
     config,
     avatar,
     performer,
+    /** The non-verbal layers the page asks the server for (none with `idle=0`). */
+    life: lively ? LIFE : [],
+    /** `{life, seed}` for the next utterance's request: the page's layers, a new seed each time. */
+    lifeOptions: () => ({ life: app.life, seed: utterances++ }),
     /** Utterance time (seconds) of the pose on screen. */
     clock: () => performer.shownTime,
     /** Animation frame on screen (-1 when none). */
@@ -117,7 +125,7 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
     },
     /** Ask the server to speak `text` in `lang`, play it, and return its answer. */
     async speak(text, lang = config.languages[0], model = config.default_model) {
-      const speech = await requestSpeech({ text, lang, model });
+      const speech = await requestSpeech({ text, lang, model, ...app.lifeOptions() });
       await app.playSpeech(speech);
       return speech;
     },

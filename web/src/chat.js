@@ -105,7 +105,9 @@ async function setup(app) {
       }
       addMessage('user', text);
       $('text').value = '';
-      const answer = await requestChat({ message: text, lang: options.lang, speak: !options.stream });
+      const answer = await requestChat({
+        message: text, lang: options.lang, speak: !options.stream, ...app.lifeOptions(),
+      });
       addMessage('bot', answer.reply);
       const lang = answer.lang || options.lang;
       if (options.stream || !answer.speech) await say(answer.reply, { ...options, lang });

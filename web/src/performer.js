@@ -9,6 +9,9 @@ const LEAD = 0.08; // seconds between scheduling and the first sample sounding
 const STREAM_BUFFER = 0.25; // seconds of streamed audio buffered before playback starts
 const FADE = 0.2; // seconds to ease into and out of an animation's first and last frame
 const LIVE_SLACK = 0.02; // seconds added when a live frame came late, beyond its lateness
+const LAYER_BLEND = 0.4; // seconds to hand the head and the blinks from idle motion to an utterance's layers and back
+const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
+const HEAD_CHANNELS = ['headpitch', 'headyaw', 'headroll']; // lower-cased, in setHeadRotation's order
 
 /** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
 export function decodePcm16(base64) {
@@ -19,11 +22,20 @@ export function decodePcm16(base64) {
   return out;
 }
 
+/** Smooth step from 0 to 1 as `x` goes from 0 to 1. */
+const ease = (x) => x * x * (3 - 2 * x);
+
 /**
  * Drives an avatar from an Animation and its audio. States: `idle` (nothing loaded or
  * finished: blinks and head sway only), `buffering` (a stream began, its clock has not),
  * `playing`, `paused` (frozen at a time, idle motion included) and `waiting` (the browser
  * holds audio back until a user gesture).
+ *
+ * An animation that carries non-verbal layers (vispeech.motion.life: any of them not all 0)
+ * drives the face in their place while it is loaded: `headPitch`/`headYaw`/`headRoll` (radians)
+ * the head instead of the idle sway, `eyeBlinkLeft`/`Right` the blinks instead of the idle ones
+ * (the 2D face keeps its own), and `breath` (0..1) tilts the head up a little. The head and the
+ * blinks pass from idle motion to the layers and back over LAYER_BLEND seconds, never in a jump.
  */
 export class Performer {
   constructor(avatar, { idle = true, onstate = () => {} } = {}) {
@@ -44,6 +56,10 @@ export class Performer {
     this.values = null;
     this.shownTime = 0;
     this.shownFrame = -1;
+    this.layers = { head: null, breath: -1, blinks: false }; // the loaded animation's layer channels
+    this.blend = { head: 0, blinks: 0 }; // 0: idle motion drives them, 1: the layers do
+    this.headOffset = [0, 0, 0]; // [pitch, yaw, roll] the layers last added to idle motion's head
+    this.headMoved = false;
     this.state = 'idle';
     this.context.onstatechange = () => this.updateState();
   }
@@ -185,6 +201,32 @@ export class Performer {
       return name === null ? -1 : ARKIT_INDEX.get(name);
     });
     this.values = new Float32Array(animation.channels.length);
+    const moving = (c) => c >= 0 && animation.frames.some((row) => row && row[c] !== 0);
+    const find = (name) => animation.channels.findIndex((c) => c.toLowerCase() === name);
+    const head = HEAD_CHANNELS.map(find);
+    const breath = find('breath');
+    const blinks = ['eyeBlinkLeft', 'eyeBlinkRight'].map((name) => this.channelIndex.indexOf(ARKIT_INDEX.get(name)));
+    this.layers = {
+      head: head.some(moving) ? head : null,
+      breath: moving(breath) ? breath : -1,
+      blinks: blinks.some(moving),
+    };
+  }
+
+  /**
+   * The head [pitch, yaw, roll] (radians): idle motion's `idleHead` (null when it is off), moved
+   * towards the layers' pose while they drive the head (their last offset is held while blending out).
+   */
+  headPose(idleHead, showing) {
+    const base = idleHead || [0, 0, 0];
+    const { head, breath } = this.layers;
+    if (showing && (head || breath >= 0)) {
+      // head channels replace the idle sway; the breath's lift adds to whichever drives the head
+      this.headOffset = head ? head.map((c, i) => (c >= 0 ? this.values[c] : 0) - base[i]) : [0, 0, 0];
+      if (breath >= 0) this.headOffset[0] -= BREATH_LIFT * this.values[breath];
+    }
+    const blend = ease(this.blend.head);
+    return base.map((v, i) => v + blend * this.headOffset[i]);
   }
 
   schedule(start, buffer, from) {
@@ -238,9 +280,10 @@ export class Performer {
     const weights = this.weights.fill(0);
     const anim = this.animation;
     const running = this.t0 !== null || this.pausedAt !== null;
+    const showing = Boolean(anim && anim.length && running); // a frame of the animation is on screen
     this.shownTime = t;
     this.shownFrame = -1;
-    if (anim && anim.length && running) {
+    if (showing) {
       const fadeIn = 1 - (anim.startTime - t) / FADE;
       const fadeOut = anim.complete ? 1 - (t - anim.endTime) / FADE : 1;
       const fade = Math.min(1, Math.max(0, Math.min(fadeIn, fadeOut)));
@@ -252,15 +295,20 @@ export class Performer {
       this.shownFrame = Math.round(anim.position(t));
     }
 
-    if (this.idle) {
-      if (!this.avatar.blinks) {
-        const blink = this.idle.blink(this.idleClock);
-        for (const name of ['eyeBlinkLeft', 'eyeBlinkRight']) {
-          const k = ARKIT_INDEX.get(name);
-          weights[k] = Math.max(weights[k], blink);
-        }
+    const step = elapsed / LAYER_BLEND;
+    const toward = (blend, on) => Math.min(1, Math.max(0, blend + (on ? step : -step)));
+    this.blend.head = toward(this.blend.head, showing && (this.layers.head || this.layers.breath >= 0));
+    this.blend.blinks = toward(this.blend.blinks, showing && this.layers.blinks);
+    if (this.idle && !this.avatar.blinks) {
+      const blink = this.idle.blink(this.idleClock) * (1 - ease(this.blend.blinks));
+      for (const name of ['eyeBlinkLeft', 'eyeBlinkRight']) {
+        const k = ARKIT_INDEX.get(name);
+        weights[k] = Math.max(weights[k], blink);
       }
-      this.avatar.setHeadRotation(...this.idle.head(this.idleClock));
+    }
+    if (this.idle || this.blend.head > 0 || this.headMoved) {
+      this.avatar.setHeadRotation(...this.headPose(this.idle && this.idle.head(this.idleClock), showing));
+      this.headMoved = this.blend.head > 0;
     }
     this.avatar.setWeights(weights);
     this.avatar.render(this.idleClock);

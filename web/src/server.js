@@ -32,14 +32,17 @@ export async function fetchConfig() {
   }
 }
 
-/** POST api/speak: `{audio_url, animation, text, cached}` for `text`. */
-export function requestSpeech({ text, lang, model = null, rate = 1.0 }) {
-  return postJson('api/speak', { text, lang, model, rate });
+/**
+ * POST api/speak: `{audio_url, animation, text, cached}` for `text`, the animation with the
+ * channels of the non-verbal layers `life` (blink, gaze, head, brows, breath) drawn with `seed`.
+ */
+export function requestSpeech({ text, lang, model = null, rate = 1.0, life = [], seed = 0 }) {
+  return postJson('api/speak', { text, lang, model, rate, life, seed });
 }
 
 /** POST api/chat: `{reply, lang, speech}`; `speak: false` asks for the reply text only. */
-export function requestChat({ message, lang, speak = true }) {
-  return postJson('api/chat', { message, lang, speak });
+export function requestChat({ message, lang, speak = true, life = [], seed = 0 }) {
+  return postJson('api/chat', { message, lang, speak, life, seed });
 }
 
 /**

@@ -46,7 +46,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketDisconnected
 
 import vispeech
 import vispeech.preview
-from vispeech.alignment.phones import Phone
+from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import check_variant, find_voice, voices
@@ -56,6 +56,7 @@ from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.calibration import Calibration, load_scale
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
+from vispeech.motion.life import check_layers, nonverbal
 from vispeech.motion.track import Track
 from vispeech.pipeline import (
     DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, animate, listen, speak,
@@ -374,21 +375,26 @@ class SpeechService:
         selector = voice.selector if self.config.voice is None else f"{voice.selector}+{self.config.voice}"
         return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
 
-    def lookup(self, text: str, lang: str, model_name: str | None, rate: float) -> dict | None:
+    def lookup(self, text: str, lang: str, model_name: str | None, rate: float,
+               life: tuple[str, ...] = (), seed: int = 0) -> dict | None:
         """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
         key, _ = self._key(text, lang, model_name, rate)
         entry = self.cache.get(key)
-        return None if entry is None else self._answer(entry, text, cached=True)
+        return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
 
-    def speak(self, text: str, lang: str, model_name: str | None, rate: float) -> dict:
-        """A :class:`SpeakResponse` as a dict, from the cache when the same request was answered before."""
+    def speak(self, text: str, lang: str, model_name: str | None, rate: float,
+              life: tuple[str, ...] = (), seed: int = 0) -> dict:
+        """A :class:`SpeakResponse` as a dict, from the cache when the same request was answered before.
+
+        The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
+        added to each answer, so every seed shares the speech's entry and its audio."""
         key, model = self._key(text, lang, model_name, rate)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
             utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, variant=self.config.voice)
             entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
-        return self._answer(entry, text, cached)
+        return self._answer(entry, text, cached, life=life, seed=seed)
 
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
         """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
@@ -413,10 +419,23 @@ class SpeechService:
             entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
         return self._answer(entry, query.text or "", cached)
 
-    @staticmethod
-    def _answer(entry, text: str, cached: bool) -> dict:
-        return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": json.loads(entry.animation),
-                "text": text, "cached": cached}
+    def _answer(self, entry, text: str, cached: bool, life: tuple[str, ...] = (), seed: int = 0) -> dict:
+        animation = json.loads(entry.animation)
+        if life:
+            animation = self._with_life(animation, life, seed)
+        return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": animation, "text": text, "cached": cached}
+
+    def _with_life(self, animation: dict, life: tuple[str, ...], seed: int) -> dict:
+        """Animation JSON (a dict) with the channels of the non-verbal layers ``life`` added (replacing
+        any it had), timed by its phones and in the server's output scale."""
+        track = Track.from_dict(animation)
+        phones = PhoneSequence.from_dict(animation["phones"]) if animation.get("phones") else None
+        extra = nonverbal(track.n_frames, track.fps, phones, layers=life, seed=seed, start_time=track.start_time)
+        if self.calibration is not None:
+            extra = self.calibration.apply(extra)
+        keep = [c for c in track.channels if c not in extra.channels]
+        values = np.column_stack([track.select(keep).values, extra.values])
+        return {**animation, **Track(values, (*keep, *extra.channels), track.fps, track.start_time).to_dict()}
 
     def reply(self, message: str, lang: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
@@ -440,10 +459,12 @@ class SpeechService:
             asked = lang if said is None else find_voice(said).language
         return reply, asked
 
-    def chat(self, message: str, lang: str, say: bool, model_name: str | None) -> dict:
-        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say``, and its language."""
+    def chat(self, message: str, lang: str, say: bool, model_name: str | None,
+             life: tuple[str, ...] = (), seed: int = 0) -> dict:
+        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say`` (with the non-verbal
+        layers ``life``), and its language."""
         reply, spoken = self.reply(message, lang)
-        speech = self.speak(reply, spoken, model_name, 1.0) if say else None
+        speech = self.speak(reply, spoken, model_name, 1.0, life, seed) if say else None
         return {"reply": reply, "lang": spoken, "speech": speech}
 
 
@@ -597,7 +618,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
         ip = client_key(http.scope)
         service.pay(ip, service.text_cost(request.text))
-        args = (request.text, request.lang, request.model, request.rate)
+        args = (request.text, request.lang, request.model, request.rate, check_layers(request.life), request.seed)
         return (await run_in_threadpool(service.lookup, *args)
                 or await service.pool.run(ip, service.speak, *args, weight=len(request.text) * TEXT_WORK_PER_CHAR))
 
@@ -641,7 +662,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         speech = None
         if request.speak:
             service.bucket.charge(ip, service.text_cost(reply))
-            args = (reply, spoken, request.model, 1.0)
+            args = (reply, spoken, request.model, 1.0, check_layers(request.life), request.seed)
             speech = (await run_in_threadpool(service.lookup, *args)
                       or await service.pool.run(ip, service.speak, *args, weight=len(reply) * TEXT_WORK_PER_CHAR))
         return {"reply": reply, "lang": spoken, "speech": speech}

@@ -53,15 +53,22 @@ Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=Fa
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
 Fps = Annotated[float, Field(ge=MIN_FPS, le=MAX_FPS, allow_inf_nan=False)]
 SampleRate = Annotated[int, Field(ge=MIN_SAMPLE_RATE, le=MAX_SAMPLE_RATE)]
+Layer = Literal["blink", "gaze", "head", "brows", "breath"]
+"""A non-verbal layer (:data:`vispeech.motion.life.LAYERS`)."""
+Layers = Annotated[list[Layer], Field(max_length=10)]
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 
 
 class SpeakRequest(BaseModel):
-    """Text to speak; ``model`` ``null`` means the server's default model."""
+    """Text to speak; ``model`` ``null`` means the server's default model. ``life`` names the
+    non-verbal layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``."""
 
     text: Text
     lang: Language = "en"
     model: ModelName | None = None
     rate: Rate = 1.0
+    life: Layers = []
+    seed: Seed = 0
 
 
 class AnimateQuery(BaseModel):
@@ -123,12 +130,15 @@ class SpeakResponse(BaseModel):
 
 
 class ChatRequest(BaseModel):
-    """A chat message; with ``speak`` the reply comes spoken (``speech``) as well."""
+    """A chat message; with ``speak`` the reply comes spoken (``speech``) as well, with the
+    non-verbal layers ``life`` drawn with ``seed`` (as in :class:`SpeakRequest`)."""
 
     message: Text
     lang: Language = "en"
     speak: bool = True
     model: ModelName | None = None
+    life: Layers = []
+    seed: Seed = 0
 
 
 class ChatResponse(BaseModel):
