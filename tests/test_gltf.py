@@ -6,7 +6,7 @@ import pytest
 
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.gltf import arkit_target_name, write_gltf_animation
+from vispeech.motion.gltf import target_channel, write_gltf_animation
 
 
 def accessor_data(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
@@ -44,9 +44,10 @@ def tiny_glb(path, target_names, n_nodes=2):
 @pytest.mark.parametrize("name,arkit", [
     ("jawOpen", "jawOpen"), ("JAWOPEN", "jawOpen"), ("blendShape1.mouthClose", "mouthClose"),
     ("eyeBlink_L", "eyeBlinkLeft"), ("mouthSmile_R", "mouthSmileRight"), ("Basis", None), ("viseme_aa", None),
+    ("tongueTipUp", "tongueTipUp"), ("Tongue_Back", None),
 ])
 def test_target_names(name, arkit):
-    assert arkit_target_name(name) == arkit
+    assert target_channel(name) == arkit
 
 
 def test_ict_head_animation(tmp_path, shared_dir):

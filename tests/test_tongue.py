@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.postprocess.overlays import anchor_frames
-from vispeech.postprocess.tongue import TONGUE_CHANNELS
 from vispeech.pipeline import DEFAULT_MODEL, speak
 
 CASES = [

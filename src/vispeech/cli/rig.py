@@ -136,6 +136,26 @@ def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Pa
     click.echo(f"jawOpen x{calibration.gains.get('jawOpen', 1.0):.2f} ... {len(calibration.gains)} gains -> {output}")
 
 
+@rig_group.command("prepare")
+@click.argument("head", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="The prepared head to write (.glb).")
+def prepare(head: Path, output: Path) -> None:
+    """Give HEAD (a GLB with ARKit morph targets) the tongue morph targets it lacks, built from its own
+    tongue geometry, and paint lips, brows, lash line and the mouth's depth on flat materials
+    (docs/avatar.md). vispeech serve --avatar does this by itself."""
+    from vispeech.motion.head import prepare_head
+
+    if output.resolve() == head.resolve():
+        raise VispeechError(f"{output}: write the prepared head to another file than {head.name}")
+    report = prepare_head(head, output)
+    click.echo(f"{head.name}: tongue morph targets {', '.join(report.targets) or 'none added'}; "
+               f"painted {', '.join(report.painted) or 'nothing'}")
+    for note in report.notes:
+        click.echo(f"note: {note}")
+    click.echo(f"-> {output}")
+
+
 @rig_group.command("mouth-frames")
 @click.option("--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Corpus with lip and eye landmarks (grid_s1).")

@@ -21,6 +21,14 @@ ARKIT_NAMES: tuple[str, ...] = (
 )
 """The 52 ARKit face blend shapes (Apple's order; key by name, never by position)."""
 
+TONGUE_CHANNELS: tuple[str, ...] = ("tongueOut", "tongueTipUp", "tongueBodyUp", "tongueBack")
+"""The tongue: ARKit's ``tongueOut`` and vispeech's own tip raise, body raise and backing (0..1 each;
+:mod:`vispeech.postprocess.tongue` sets them, :mod:`vispeech.motion.tongue_rig` gives a head their
+morph targets)."""
+
+MORPH_NAMES: tuple[str, ...] = ARKIT_NAMES + TONGUE_CHANNELS[1:]
+"""Every channel a head's morph target can carry: the ARKit shapes and vispeech's tongue channels."""
+
 MOUTH_CHANNELS: tuple[str, ...] = (
     "jawForward", "jawLeft", "jawRight", "jawOpen",
     "mouthClose", "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight",

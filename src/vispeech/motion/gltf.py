@@ -1,14 +1,17 @@
-"""glTF 2.0: a morph-target ``weights`` animation added to a copy of a GLB model, and a
-model's morph geometry read back (:func:`read_morph_mesh`).
+"""glTF 2.0: a morph-target ``weights`` animation added to a copy of a GLB model
+(:func:`write_gltf_animation`), a model's primitives and morph geometry read back
+(:func:`read_primitives`, :func:`read_morph_mesh`), and morph targets and vertex colours added
+to a copy of a head (:func:`write_head`).
 
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
-and most exporters write it) with ARKit names; ``eyeBlink_L``-style ``_L``/``_R`` suffixes and
+and most exporters write it) with ARKit names (or vispeech's tongue channels,
+:data:`~vispeech.motion.arkit.MORPH_NAMES`); ``eyeBlink_L``-style ``_L``/``_R`` suffixes and
 ``blendShape1.jawOpen``-style prefixes are accepted, case-insensitively. The existing binary
-data is kept byte for byte, except that meshoptimizer-compressed buffer views
-(``EXT_meshopt_compression``, as gltfpack writes them) are decoded (the ``meshopt``
+data is kept byte for byte, except that an animation's copy decodes meshoptimizer-compressed
+buffer views (``EXT_meshopt_compression``, as gltfpack writes them; the ``meshopt``
 package), so that Blender, Maya and other importers without that extension open the file;
-quantized attributes (``KHR_mesh_quantization``) stay as they are. The animation's times and
-weights are appended. pygltflib reads and writes the JSON.
+quantized attributes (``KHR_mesh_quantization``) stay as they are. New data is appended.
+pygltflib reads and writes the JSON.
 """
 
 from __future__ import annotations
@@ -25,21 +28,22 @@ import pygltflib
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_bytes
 from vispeech.limits import MAX_GLB_BYTES, parse_json
-from vispeech.motion.arkit import ARKIT_NAMES
+from vispeech.motion.arkit import MORPH_NAMES
 from vispeech.motion.track import Track
 
-_ARKIT_BY_KEY = {name.lower(): name for name in ARKIT_NAMES}
+_CHANNEL_BY_KEY = {name.lower(): name for name in MORPH_NAMES}
 _FLOAT = 5126
 
 
-def arkit_target_name(target: str) -> str | None:
-    """The ARKit name a morph target stands for (``"blendShape1.eyeBlink_L"`` -> ``"eyeBlinkLeft"``)."""
+def target_channel(target: str) -> str | None:
+    """The channel a morph target stands for (``"blendShape1.eyeBlink_L"`` -> ``"eyeBlinkLeft"``), one of
+    :data:`~vispeech.motion.arkit.MORPH_NAMES`, or None."""
     key = target.rsplit(".", 1)[-1].strip().lower()
     if key.endswith("_l"):
         key = key[:-2] + "left"
     elif key.endswith("_r"):
         key = key[:-2] + "right"
-    return _ARKIT_BY_KEY.get(key)
+    return _CHANNEL_BY_KEY.get(key)
 
 
 def write_gltf_animation(
@@ -100,39 +104,137 @@ class MorphMesh:
     """One primitive of a model with ARKit morph targets: rest positions and per-target offsets.
 
     ``positions`` (vertices × 3) and every ``targets[name]`` (the same shape) are in the model's
-    scene units (metres, for glTF), after the node transforms; ``name`` is the ARKit name.
+    scene units (metres, for glTF), after the node transforms; ``name`` is the channel name
+    (:data:`~vispeech.motion.arkit.MORPH_NAMES`).
     """
 
     positions: np.ndarray
     targets: dict[str, np.ndarray]
 
 
-def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
-    """The skin of a GLB head: of the primitives whose morph targets carry ARKit names, the one
-    the eyelids' ``eyeBlinkLeft`` moves furthest (the face, not teeth or tongue), with quantized
-    and meshopt-compressed data decoded. Raises :class:`VispeechError` when there is none."""
+@dataclass(frozen=True)
+class Primitive(MorphMesh):
+    """A :class:`MorphMesh` with where it is in the file and what it is made of: ``mesh`` and
+    ``index`` (the primitive's place in that mesh), ``name`` (its material's name, else its
+    mesh's), ``triangles`` (faces × 3 vertex indices; empty for points and lines), ``matrix``
+    (the 4 × 4 transform of its node, applied to ``positions`` and ``targets``) and ``coloured``
+    (whether it has vertex colours or a base-colour texture already)."""
+
+    mesh: int
+    index: int
+    name: str
+    triangles: np.ndarray
+    matrix: np.ndarray
+    coloured: bool
+
+
+def read_primitives(path: str | os.PathLike) -> list[Primitive]:
+    """Every primitive of the meshes whose morph targets carry channel names, with quantized and
+    meshopt-compressed data decoded, in the order of the file."""
     gltf = _load(path)
     blob = _decompressed(gltf, path)
-    best: tuple[float, MorphMesh] | None = None
+    found = []
     for index, names in _animated_meshes(gltf).items():
         nodes = [k for k, node in enumerate(gltf.nodes) if node.mesh == index]
         if not nodes:
             continue
         matrix = _world_matrix(gltf, nodes[0])
-        for primitive in gltf.meshes[index].primitives:
+        mesh = gltf.meshes[index]
+        for k, primitive in enumerate(mesh.primitives):
             if not primitive.targets or len(primitive.targets) != len(names):
                 continue
             base = _read_accessor(gltf, blob, primitive.attributes.POSITION, path)
-            positions = base @ matrix[:3, :3].T + matrix[:3, 3]
             targets = {name: _read_accessor(gltf, blob, target["POSITION"], path) @ matrix[:3, :3].T
                        for name, target in zip(names, primitive.targets) if name and "POSITION" in target}
-            blink = targets.get("eyeBlinkLeft")
-            reach = float(np.linalg.norm(blink, axis=1).max()) if blink is not None and len(blink) else 0.0
-            if best is None or reach > best[0]:
-                best = (reach, MorphMesh(positions, targets))
-    if best is None or best[0] <= 0:
-        raise VispeechError(f"{path}: no mesh with ARKit morph targets that close the eyelids (eyeBlinkLeft)")
-    return best[1]
+            if primitive.mode in (None, 4):
+                faces = (_read_accessor(gltf, blob, primitive.indices, path) if primitive.indices is not None
+                         else np.arange(len(base), dtype=float))
+                triangles = faces.astype(np.int64).reshape(-1, 3)
+            else:
+                triangles = np.zeros((0, 3), dtype=np.int64)
+            material = gltf.materials[primitive.material] if primitive.material is not None else None
+            textured = material is not None and material.pbrMetallicRoughness is not None and (
+                material.pbrMetallicRoughness.baseColorTexture is not None)
+            found.append(Primitive(base @ matrix[:3, :3].T + matrix[:3, 3], targets, index, k,
+                                   (material.name if material else None) or mesh.name or f"mesh {index}", triangles,
+                                   matrix, textured or primitive.attributes.COLOR_0 is not None))
+    return found
+
+
+def skin_primitive(primitives: list[Primitive], source: str | os.PathLike = "the head") -> Primitive:
+    """The skin of a head: of its ``primitives``, the one the eyelids' ``eyeBlinkLeft`` moves furthest
+    (the face, not teeth or tongue). Raises :class:`VispeechError` when none moves."""
+
+    def reach(primitive: Primitive) -> float:
+        blink = primitive.targets.get("eyeBlinkLeft")
+        return float(np.linalg.norm(blink, axis=1).max()) if blink is not None and len(blink) else 0.0
+
+    best = max(primitives, key=reach, default=None)
+    if best is None or reach(best) <= 0:
+        raise VispeechError(f"{source}: no mesh with ARKit morph targets that close the eyelids (eyeBlinkLeft)")
+    return best
+
+
+def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
+    """The skin of a GLB head (:func:`skin_primitive`), with quantized and meshopt-compressed data
+    decoded."""
+    skin = skin_primitive(read_primitives(path), path)
+    return MorphMesh(skin.positions, skin.targets)
+
+
+def write_head(base_glb: str | os.PathLike, out_path: str | os.PathLike, *,
+               targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
+               colours: dict[tuple[int, int], np.ndarray] | None = None) -> None:
+    """Write a copy of ``base_glb`` with morph targets and vertex colours added to its primitives.
+
+    ``targets[(mesh, primitive)][name]``: a new morph target's offsets (vertices × 3, scene units,
+    as :func:`read_primitives` gives them); every other primitive of that mesh gets the same
+    target with no offsets (an accessor without data, zeros by the glTF rules), and the name is
+    appended to ``mesh.extras.targetNames``. ``colours[(mesh, primitive)]``: ``COLOR_0`` (vertices ×
+    3, linear RGB 0..1, multiplying the material's base colour). Compressed data stays compressed;
+    the new data is appended uncompressed. Written atomically.
+    """
+    gltf = _load(base_glb)
+    if gltf.buffers and gltf.buffers[0].uri is not None:
+        raise VispeechError(f"{base_glb}: its first buffer is an external file; use a .glb with its data embedded")
+    blob = bytearray(gltf.binary_blob() or b"")
+    if not gltf.buffers:
+        gltf.buffers.append(pygltflib.Buffer(byteLength=0))
+    names_of = _animated_meshes(gltf)
+    by_mesh: dict[int, dict[int, dict[str, np.ndarray]]] = {}
+    for (mesh, primitive), offsets in (targets or {}).items():
+        by_mesh.setdefault(mesh, {})[primitive] = offsets
+    for mesh, per_primitive in by_mesh.items():
+        names = [n for offsets in per_primitive.values() for n in offsets]
+        new = list(dict.fromkeys(names))
+        clash = [n for n in new if n in names_of.get(mesh, [])]
+        if clash:
+            raise VispeechError(f"{base_glb}: mesh {mesh} already has a morph target {clash[0]!r}")
+        matrix = _world_matrix(gltf, next(k for k, node in enumerate(gltf.nodes) if node.mesh == mesh))
+        to_local = np.linalg.inv(matrix[:3, :3])
+        for k, primitive in enumerate(gltf.meshes[mesh].primitives):
+            count = gltf.accessors[primitive.attributes.POSITION].count
+            for name in new:
+                offsets = per_primitive.get(k, {}).get(name)
+                if offsets is None:
+                    gltf.accessors.append(pygltflib.Accessor(componentType=_FLOAT, count=count, type="VEC3",
+                                                             min=[0.0] * 3, max=[0.0] * 3))
+                    accessor = len(gltf.accessors) - 1
+                else:
+                    accessor = _append_accessor(gltf, blob, np.asarray(offsets, float) @ to_local.T)
+                primitive.targets.append({"POSITION": accessor})
+        extras = gltf.meshes[mesh].extras if gltf.meshes[mesh].extras else {}
+        extras["targetNames"] = [*extras.get("targetNames", []), *new]
+        gltf.meshes[mesh].extras = extras
+        if gltf.meshes[mesh].weights:
+            gltf.meshes[mesh].weights = [*gltf.meshes[mesh].weights, *[0.0] * len(new)]
+    for (mesh, primitive), rgb in (colours or {}).items():
+        setattr(gltf.meshes[mesh].primitives[primitive].attributes, "COLOR_0",
+                _append_accessor(gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0)))
+    blob.extend(b"\x00" * (-len(blob) % 4))
+    gltf.buffers[0].byteLength = len(blob)
+    with atomic_output_file(out_path) as tmp:
+        tmp.write_bytes(_glb_bytes(gltf, bytes(blob)))
 
 
 def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | os.PathLike) -> np.ndarray:
@@ -338,7 +440,7 @@ def _glb_bytes(gltf: pygltflib.GLTF2, blob: bytes) -> bytes:
 
 
 def _animated_meshes(gltf: pygltflib.GLTF2) -> dict[int, list[str | None]]:
-    """Mesh index -> ARKit name (or None) of each morph target, for meshes with any ARKit target."""
+    """Mesh index -> channel name (or None) of each morph target, for meshes with any named channel target."""
     found = {}
     for index, mesh in enumerate(gltf.meshes):
         if not mesh.primitives or not mesh.primitives[0].targets:
@@ -346,19 +448,23 @@ def _animated_meshes(gltf: pygltflib.GLTF2) -> dict[int, list[str | None]]:
         names = (mesh.extras or {}).get("targetNames") or (mesh.primitives[0].extras or {}).get("targetNames")
         if not isinstance(names, list) or len(names) != len(mesh.primitives[0].targets):
             continue
-        arkit = [arkit_target_name(str(n)) for n in names]
-        if any(arkit):
-            found[index] = arkit
+        channels = [target_channel(str(n)) for n in names]
+        if any(channels):
+            found[index] = channels
     return found
 
 
 def _append_accessor(gltf: pygltflib.GLTF2, blob: bytearray, data: np.ndarray) -> int:
-    """Append float32 scalars as a new buffer view and accessor in buffer 0; return the accessor index."""
+    """Append float32 data (a vector of scalars, or rows of 2-4 components) as a new buffer view and
+    accessor in buffer 0; return the accessor index."""
+    data = np.asarray(data, dtype=np.float32)
+    rows = data.reshape(len(data), -1)
     blob.extend(b"\x00" * (-len(blob) % 4))
-    raw = np.ascontiguousarray(data, dtype="<f4").tobytes()
+    raw = np.ascontiguousarray(rows, dtype="<f4").tobytes()
     gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(raw)))
     blob.extend(raw)
+    kind = "SCALAR" if data.ndim == 1 else f"VEC{rows.shape[1]}"
     gltf.accessors.append(pygltflib.Accessor(
-        bufferView=len(gltf.bufferViews) - 1, componentType=_FLOAT, count=int(data.size), type="SCALAR",
-        min=[float(data.min())], max=[float(data.max())]))
+        bufferView=len(gltf.bufferViews) - 1, componentType=_FLOAT, count=len(rows), type=kind,
+        min=[float(v) for v in rows.min(axis=0)], max=[float(v) for v in rows.max(axis=0)]))
     return len(gltf.accessors) - 1

@@ -46,7 +46,7 @@ class PostprocessConfig:
     recordings). ``upper_lip``: lift of mouthUpperUp during speech (0 = off).
     ``vowel_opening``: the share of the utterance's open-vowel lip opening every vowel reaches
     on its anchor frame (:func:`~vispeech.postprocess.overlays.open_vowels`; 0 = off).
-    ``tongue``: add the tongue channels (:data:`~vispeech.postprocess.tongue.TONGUE_CHANNELS`).
+    ``tongue``: add the tongue channels (:data:`~vispeech.motion.arkit.TONGUE_CHANNELS`).
     ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
     ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
     jawOpen (ARKit's lips interpenetrate beyond that).

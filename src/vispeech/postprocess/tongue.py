@@ -24,13 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
+from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES, phone_rows
 from vispeech.postprocess.overlays import anchor_frames
-
-TONGUE_CHANNELS = ("tongueOut", "tongueTipUp", "tongueBodyUp", "tongueBack")
-"""The tongue channels :func:`tongue_channels` sets."""
-
 
 def tongue_targets(features: np.ndarray) -> np.ndarray:
     """Per phone (rows of feature vectors, :data:`~vispeech.phonetics.features.FEATURE_NAMES`), its

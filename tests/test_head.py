@@ -1,0 +1,199 @@
+"""A head made ready for vispeech (``vispeech rig prepare``): tongue morph targets from the ICT
+head's own tongue geometry, painted looks, and the file they are written to."""
+
+from __future__ import annotations
+
+import numpy as np
+import pygltflib
+import pytest
+from click.testing import CliRunner
+
+from conftest import SHARED, require
+from vispeech import VispeechError
+from vispeech.cli import main
+from vispeech.motion.arkit import TONGUE_CHANNELS
+from vispeech.motion.gltf import read_primitives, skin_primitive
+from vispeech.motion.head import prepare_head
+from vispeech.motion.tongue_rig import find_tongue
+
+
+ICT_HEAD = SHARED / "assets" / "ict_head.glb"
+
+
+@pytest.fixture(scope="module")
+def ict_head():
+    require(ICT_HEAD.is_file(), f"the ICT head ({ICT_HEAD}, in the shared data folder)")
+    return ICT_HEAD
+
+
+@pytest.fixture(scope="module")
+def prepared(ict_head, tmp_path_factory):
+    out = tmp_path_factory.mktemp("head") / "ict_ready.glb"
+    report = prepare_head(ict_head, out)
+    return out, report, read_primitives(out)
+
+
+def by_name(primitives, name):
+    return next(p for p in primitives if p.name == name)
+
+
+def test_the_tongue_is_told_from_gums_palate_and_throat(ict_head):
+    primitives = read_primitives(ict_head)
+    tongue = find_tongue(primitives, ict_head)
+    assert tongue.primitive.name == "M_GumsTongue"
+    pos, w = tongue.primitive.positions, tongue.weights
+    teeth = tongue.teeth.positions
+    # the core sits between the lower teeth, behind the incisors, below the upper teeth
+    core = pos[tongue.core]
+    assert 300 < len(core) < len(pos) / 2
+    assert core[:, 2].max() < teeth[:, 2].max() and np.abs(np.median(core[:, 0])) < 1e-3
+    # the gums hug the teeth: nothing within 2.5 mm of a tooth is tongue
+    from scipy.spatial import cKDTree
+
+    near_teeth = cKDTree(teeth).query(pos)[0] < 0.0025
+    assert near_teeth.sum() > 500 and np.all(w[near_teeth] == 0)
+    # the palate and the throat do not move with the jaw and are not tongue
+    assert tongue.fixed.sum() > 300 and np.all(w[tongue.fixed] == 0)
+
+
+def test_prepared_head_has_tongue_targets_that_move_only_the_tongue(prepared, ict_head):
+    out, report, primitives = prepared
+    assert report.targets == list(TONGUE_CHANNELS)  # the ICT head has none of them, not even tongueOut
+    tongue = find_tongue(read_primitives(ict_head), ict_head)
+    gums = by_name(primitives, "M_GumsTongue")
+    for primitive in primitives:
+        assert set(TONGUE_CHANNELS) <= set(primitive.targets)
+        if primitive is not gums:
+            assert all(not np.any(primitive.targets[name]) for name in TONGUE_CHANNELS), primitive.name
+    for name in TONGUE_CHANNELS:
+        assert not np.any(gums.targets[name][tongue.weights == 0]), name  # gums, palate, throat stay
+    pos, core = gums.positions, tongue.core
+    tip = core[pos[core, 2] > pos[core, 2].max() - 0.005]
+    middle = core[np.abs(pos[core, 2] - np.percentile(pos[core, 2], 35)) < 0.004]
+    up, body = gums.targets["tongueTipUp"][:, 1], gums.targets["tongueBodyUp"][:, 1]
+    assert up[tip].mean() > 0.008 and up[tip].mean() > 3 * up[middle].mean()  # the tip rises, not the body
+    assert body[middle].mean() > 0.008 and body[middle].mean() > 3 * body[tip].mean()
+    assert np.all(gums.targets["tongueBack"][core, 2] <= 0) and gums.targets["tongueBack"][tip, 2].mean() < -0.004
+    out_z = pos[tip, 2] + gums.targets["tongueOut"][tip, 2]
+    teeth = by_name(primitives, "M_Teeth").positions
+    assert out_z.max() > teeth[:, 2].max()  # out past the front teeth
+
+
+def test_raised_tongue_stays_below_the_roof(prepared, ict_head):
+    """At full tongueTipUp or tongueBodyUp (jaw closed) the midline of the tongue stays under the
+    palate and upper teeth above it."""
+    _, _, primitives = prepared
+    tongue = find_tongue(read_primitives(ict_head), ict_head)
+    gums = by_name(primitives, "M_GumsTongue")
+    teeth = by_name(primitives, "M_Teeth")
+    roof = np.concatenate([gums.positions[tongue.fixed], teeth.positions[tongue.fixed_teeth]])
+    roof = roof[np.abs(roof[:, 0]) < 0.004]
+    core = tongue.core[np.abs(gums.positions[tongue.core, 0]) < 0.004]
+    for name in ("tongueTipUp", "tongueBodyUp"):
+        raised = gums.positions[core] + gums.targets[name][core]
+        for point, rest in zip(raised, gums.positions[core]):
+            above = roof[(np.abs(roof[:, 2] - rest[2]) < 0.002) & (roof[:, 1] > rest[1])]
+            if len(above):
+                assert point[1] <= above[:, 1].min() + 1e-6, (name, rest, point)
+
+
+def test_paint(prepared):
+    _, report, primitives = prepared
+    assert report.painted == ["M_Face", "M_GumsTongue", "M_Teeth"]
+    skin = skin_primitive(primitives)
+    pygltf = pygltflib.GLTF2.load(str(prepared[0]))
+    colours = {}
+    for primitive in pygltf.meshes[0].primitives:
+        name = pygltf.materials[primitive.material].name
+        if primitive.attributes.COLOR_0 is not None:
+            colours[name] = primitive.attributes.COLOR_0
+    assert set(colours) == {"M_Face", "M_GumsTongue", "M_Teeth", "M_IrisLeft", "M_IrisRight"}
+    face = _colour(prepared[0], "M_Face")
+    pos = skin.positions
+    lips = (np.abs(pos[:, 0]) < 0.01) & (np.abs(pos[:, 1] + 0.034) < 0.006) & (pos[:, 2] > 0.1)
+    cheeks = (np.abs(np.abs(pos[:, 0]) - 0.045) < 0.005) & (np.abs(pos[:, 1] + 0.01) < 0.005)
+    brows = (np.abs(np.abs(pos[:, 0]) - 0.03) < 0.008) & (np.abs(pos[:, 1] - 0.05) < 0.004) & (pos[:, 2] > 0.08)
+    assert lips.sum() > 5 and cheeks.sum() > 5 and brows.sum() > 5
+    redness = face[:, 0] - face[:, 1]
+    assert redness[lips].mean() > 0.15 and np.allclose(face[cheeks], 1.0)  # lips red, cheeks as they were
+    assert face[brows].mean() < 0.6
+    mouth = _colour(prepared[0], "M_GumsTongue")
+    gums = by_name(primitives, "M_GumsTongue").positions
+    front, back = gums[:, 2] > np.percentile(gums[:, 2], 90), gums[:, 2] < np.percentile(gums[:, 2], 10)
+    assert mouth[front].mean() > 1.8 * mouth[back].mean()  # the throat is darker than the front of the mouth
+
+
+def _colour(path, material):
+    """COLOR_0 of the primitive with ``material``, read with pygltflib alone."""
+    gltf = pygltflib.GLTF2.load(str(path))
+    blob = gltf.binary_blob()
+    for primitive in gltf.meshes[0].primitives:
+        if gltf.materials[primitive.material].name == material:
+            accessor = gltf.accessors[primitive.attributes.COLOR_0]
+            view = gltf.bufferViews[accessor.bufferView]
+            start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
+            return np.frombuffer(blob, "<f4", count=3 * accessor.count, offset=start).reshape(-1, 3)
+    raise AssertionError(material)
+
+
+def test_the_prepared_file_stays_compressed_and_small(prepared, ict_head):
+    out, _, _ = prepared
+    gltf = pygltflib.GLTF2.load(str(out))
+    assert "EXT_meshopt_compression" in gltf.extensionsUsed
+    assert out.stat().st_size < 1.5 * ict_head.stat().st_size
+    assert gltf.meshes[0].extras["targetNames"][-4:] == list(TONGUE_CHANNELS)
+    assert len(gltf.meshes[0].weights) == len(gltf.meshes[0].extras["targetNames"]) == 55
+
+
+def test_cli_prepares_once_and_explains(prepared, ict_head, tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(main, ["rig", "prepare", str(ict_head), "-o", str(tmp_path / "a.glb")])
+    assert result.exit_code == 0, result.output
+    assert "tongueTipUp" in result.output and "M_Face" in result.output
+    again = runner.invoke(main, ["rig", "prepare", str(tmp_path / "a.glb"), "-o", str(tmp_path / "b.glb")])
+    assert again.exit_code == 0 and "none added" in again.output and "already coloured" in again.output
+    same = runner.invoke(main, ["rig", "prepare", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.glb")])
+    assert same.exit_code != 0 and same.output.count("\n") == 1 and "another file" in same.output
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(b"not a glb")
+    result = runner.invoke(main, ["rig", "prepare", str(bad), "-o", str(tmp_path / "c.glb")])
+    assert result.exit_code != 0 and result.output.count("\n") == 1 and "not a binary glTF" in result.output
+    assert not (tmp_path / "c.glb").exists()
+
+
+def test_a_head_without_a_tongue_or_features_is_copied_with_notes(tmp_path):
+    """A head whose meshes name no tongue and whose skin has no lips or eyes to paint by: copied
+    unchanged, with a note for each; find_tongue's error."""
+    from test_gltf import tiny_glb
+
+    path = tmp_path / "tiny.glb"
+    tiny_glb(path, ["jawOpen", "eyeBlinkLeft"])
+    with pytest.raises(VispeechError, match="named for the tongue"):
+        find_tongue(read_primitives(path), path)
+    report = prepare_head(path, tmp_path / "out.glb")
+    assert report.targets == [] and report.painted == []
+    assert any("named for the tongue" in note for note in report.notes)
+    assert any("mouth hole and two eye holes" in note for note in report.notes)
+    assert read_primitives(tmp_path / "out.glb")[0].targets.keys() == {"jawOpen", "eyeBlinkLeft"}
+
+
+def test_a_gltf_export_onto_the_prepared_head_animates_the_tongue(prepared, tmp_path):
+    from vispeech import Track
+    from vispeech.motion.gltf import write_gltf_animation
+
+    out, _, _ = prepared
+    values = np.zeros((10, 3))
+    values[:, 0] = np.linspace(0, 0.3, 10)
+    values[4, 1] = 1.0
+    track = Track(values, ("jawOpen", "tongueTipUp", "tongueBack"), 25.0)
+    write_gltf_animation(track, out, tmp_path / "anim.glb")
+    gltf = pygltflib.GLTF2.load(str(tmp_path / "anim.glb"))
+    names = gltf.meshes[0].extras["targetNames"]
+    sampler = gltf.animations[0].samplers[0]
+    accessor = gltf.accessors[sampler.output]
+    view = gltf.bufferViews[accessor.bufferView]
+    weights = np.frombuffer(gltf.binary_blob(), "<f4", count=accessor.count,
+                            offset=(view.byteOffset or 0) + (accessor.byteOffset or 0)).reshape(10, len(names))
+    assert weights[4, names.index("tongueTipUp")] == 1.0 and weights[:, names.index("tongueTipUp")].sum() == 1.0
+    np.testing.assert_allclose(weights[:, names.index("jawOpen")], values[:, 0], rtol=1e-6)
+    assert not weights[:, names.index("tongueBodyUp")].any()
