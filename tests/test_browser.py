@@ -188,7 +188,7 @@ def test_viewer_loads_the_ict_head_with_its_credit(page):
                   audio: v.performer.context.state};
         }"""
     )
-    assert head["driven"] == 51  # the ICT head carries every ARKit shape but tongueOut
+    assert head["driven"] == 55  # every ARKit shape (the ICT head's 51, tongueOut added) and the 3 tongue channels
     assert head["jawOpen"] == 0 and head["canvas"]
     assert head["credit"] == "3D head: ICT-FaceKit (USC ICT), MIT licence"
     assert head["audio"] == "running"  # autoplay allowed: the AudioContext's clock runs
@@ -197,7 +197,7 @@ def test_viewer_loads_the_ict_head_with_its_credit(page):
 
 def test_mouth_is_open_at_open_vowels_and_closed_at_m(page, speech, screenshot_dir):
     animation = speech["animation"]
-    channels = [c for c in animation["channels"] if not c.startswith("tongue")]  # the ICT head has no tongue morphs
+    channels = animation["channels"]
     vowels, nasals = _centres(speech, OPEN_VOWELS), _centres(speech, {BILABIAL_NASAL})
     assert len(vowels) >= 3 and len(nasals) >= 5, speech["animation"]["phones"]
 
@@ -333,6 +333,7 @@ def test_the_rendered_lip_gap_is_the_calibrated_heads(page):
     checked = closed = 0
     for utterance in list(read_grid(grid).split("test"))[:3]:
         track = arkit.apply(utterance.track)
+        track = track.select([c for c in track.channels if not c.startswith("head")])  # lips, not the head's turn
         expected = head.gap(track)
         frames = list(range(0, track.n_frames, 7))
         rendered = page.evaluate(
@@ -365,3 +366,66 @@ def test_the_rendered_lip_gap_is_the_calibrated_heads(page):
         checked += len(frames)
         closed += int((expected[frames] < 0.02).sum())
     assert checked > 30 and closed > 0 and page.errors == []
+
+
+TONGUE_TEXT = "Ten good cats thank Linda."
+"""/t d n l/ (tip), /k g/ (body) and /θ/ (out), with open vowels between them."""
+TONGUE_PROBE = """
+async ([times]) => {
+  // The tongue's own morph offsets, summed at the shown weights, at the vertex each tongue target
+  // moves furthest (the tip for tongueTipUp and tongueOut, the dorsum for tongueBodyUp), in metres.
+  const v = window.vispeech;
+  let mesh = null;
+  v.avatar.scene.traverse((o) => {
+    if (o.isMesh && o.morphTargetDictionary && 'tongueTipUp' in o.morphTargetDictionary) {
+      const a = o.geometry.morphAttributes.position[o.morphTargetDictionary.tongueTipUp];
+      for (let i = 0; i < a.count; i++) if (a.getY(i) > 0) { mesh = o; break; }
+    }
+  });
+  if (!mesh) return null;
+  const offsets = mesh.geometry.morphAttributes.position, e = mesh.matrixWorld.elements;
+  const world = (a, i) => [0, 1, 2].map((r) => e[r] * a.getX(i) + e[4 + r] * a.getY(i) + e[8 + r] * a.getZ(i));
+  const furthest = (name, axis) => {
+    const a = offsets[mesh.morphTargetDictionary[name]];
+    let best = 0;
+    for (let i = 0; i < a.count; i++) if (world(a, i)[axis] > world(a, best)[axis]) best = i;
+    return best;
+  };
+  const names = ['tongueOut', 'tongueTipUp', 'tongueBodyUp', 'tongueBack'];
+  const probes = {tip: [furthest('tongueTipUp', 1), 1], body: [furthest('tongueBodyUp', 1), 1],
+                  out: [furthest('tongueOut', 2), 2]};
+  const full = Object.fromEntries(Object.entries(probes).map(([k, [i, axis]]) =>
+    [k, world(offsets[mesh.morphTargetDictionary[{tip: 'tongueTipUp', body: 'tongueBodyUp', out: 'tongueOut'}[k]]], i)[axis]]));
+  const shown = [];
+  for (const t of times) {
+    v.seek(t);
+    await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
+    shown.push(Object.fromEntries(Object.entries(probes).map(([k, [i, axis]]) => [k, names.reduce((sum, name) => {
+      const index = mesh.morphTargetDictionary[name];
+      return sum + mesh.morphTargetInfluences[index] * world(offsets[index], i)[axis];
+    }, 0)])));
+  }
+  return {full, shown};
+}
+"""
+
+
+def test_the_head_shows_the_tongue(page):
+    """The served head has tongue morph targets (vispeech rig prepare): the rendered tip rises at
+    /t d n l/, the body at /k g/, the tip comes forward at /θ/, and none of them at open vowels."""
+    speech = page.evaluate("([text, lang]) => window.vispeech.speak(text, lang)", [TONGUE_TEXT, "en"])
+    groups = {"tip": {"T", "D", "N", "L"}, "body": {"K", "G"}, "out": {"TH"}, "vowel": set(OPEN_VOWELS)}
+    centres = {name: _centres(speech, symbols) for name, symbols in groups.items()}
+    assert all(centres.values()), centres
+    times = [t for name in groups for t in centres[name]]
+    probe = page.evaluate(TONGUE_PROBE, [times])
+    assert probe is not None, "no tongue morph targets on the served head"
+    full = probe["full"]
+    assert full["tip"] > 0.008 and full["body"] > 0.008 and full["out"] > 0.008, full  # metres, the ICT head's mouth
+    shown = dict(zip(times, probe["shown"]))
+    for name, probe_name in (("tip", "tip"), ("body", "body"), ("out", "out")):
+        reached = [shown[t][probe_name] / full[probe_name] for t in centres[name]]
+        at_vowels = [shown[t][probe_name] / full[probe_name] for t in centres["vowel"]]
+        assert min(reached) > 0.5, (name, reached)
+        assert max(at_vowels) < 0.3, (name, at_vowels)
+    assert page.errors == []

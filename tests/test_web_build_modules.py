@@ -35,13 +35,22 @@ def run_node(script: str):
     return json.loads(result.stdout)
 
 
-def test_morph_target_names_match_arkit():
+def test_morph_target_names_match_arkit_and_the_tongue_channels():
     names = ["jawOpen", "JawOpen", "blendShape1.jawOpen", "eyeBlink_L", "EYEBLINK_R", "mouth_L",
-             "browInnerUp_R", "cheekPuffLeft", "blendShape1.MouthSmile_R", "viseme_aa", "HeadYaw", "jaw"]
-    got = run_node(f"import {{ arkitName }} from './arkit.js'; "
-                   f"console.log(JSON.stringify({json.dumps(names)}.map(arkitName)))")
+             "browInnerUp_R", "cheekPuffLeft", "blendShape1.MouthSmile_R", "viseme_aa", "HeadYaw", "jaw",
+             "tongueTipUp", "TongueBack", "tongue"]
+    got = run_node(f"import {{ morphName }} from './arkit.js'; "
+                   f"console.log(JSON.stringify({json.dumps(names)}.map(morphName)))")
     assert got == ["jawOpen", "jawOpen", "jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthLeft",
-                   "browInnerUp", "cheekPuff", "mouthSmileRight", None, None, None]
+                   "browInnerUp", "cheekPuff", "mouthSmileRight", None, None, None,
+                   "tongueTipUp", "tongueBack", None]
+
+
+def test_the_page_knows_every_morph_channel_python_does():
+    from vispeech.motion.arkit import MORPH_NAMES
+
+    assert run_node("import { MORPH_NAMES } from './arkit.js'; console.log(JSON.stringify(MORPH_NAMES))") == list(
+        MORPH_NAMES)
 
 
 def sample_script(text: str, times: list[float]) -> str:
@@ -95,10 +104,10 @@ def test_files_vispeech_writes_read_back_frame_for_frame(tmp_path, suffix):
     path = tmp_path / f"take{suffix}"
     write_track(track, path)
     script = (
-        "import { parseAnimation } from './animation.js'; import { arkitName } from './arkit.js';"
+        "import { parseAnimation } from './animation.js'; import { morphName } from './arkit.js';"
         f"const a = parseAnimation({json.dumps(path.read_text(encoding='utf-8'))}, 'take');"
         f"const want = {json.dumps(channels)};"
-        "const cols = want.map((n) => a.channels.findIndex((c) => arkitName(c) === n));"
+        "const cols = want.map((n) => a.channels.findIndex((c) => morphName(c) === n));"
         "const rows = [...Array(a.length).keys()].map((k) => [...a.sample(a.startTime + k / a.fps)]);"
         "console.log(JSON.stringify({fps: a.fps, start: a.startTime, rows: rows.map((r) => cols.map((c) => r[c]))}));"
     )
@@ -145,7 +154,7 @@ def test_an_utterances_layers_take_over_the_head_and_blinks_without_a_jump():
     script = """
     import { Performer } from './performer.js';
     import { Animation } from './animation.js';
-    import { ARKIT_INDEX } from './arkit.js';
+    import { MORPH_INDEX } from './arkit.js';
     let clock = 0;  // seconds: the page's and the audio's clock, ticked at 60 Hz
     const context = { get currentTime() { return clock; }, state: 'running', resume: async () => {} };
     globalThis.AudioContext = class { constructor() { return context; } };
@@ -154,12 +163,12 @@ def test_an_utterances_layers_take_over_the_head_and_blinks_without_a_jump():
     const channels = ['jawOpen', 'eyeBlinkLeft', 'eyeBlinkRight', 'headYaw', 'headPitch', 'headRoll', 'breath'];
     const frames = [...Array(n).keys()].map((k) => {
       const t = k / fps, blink = Math.abs(t - 10) < 0.1 ? 1 : 0;
-      return [0.3, blink, blink, 0.05 * Math.sin(t), 0.03, -0.02, 0.5 + 0.5 * Math.sin(t / 3)];
+      return [0.3, blink, blink, 3 * Math.sin(t), 1.7, -1.1, 0.5 + 0.5 * Math.sin(t / 3)];  // head in degrees
     });
     const run = (idle, animation) => {
       const heads = [], blinks = [], times = [], clocks = [];
       const avatar = { blinks: false, render() {}, setHeadRotation: (...pose) => heads.push(pose),
-        setWeights: (w) => blinks.push(w[ARKIT_INDEX.get('eyeBlinkLeft')]) };
+        setWeights: (w) => blinks.push(w[MORPH_INDEX.get('eyeBlinkLeft')]) };
       clock = 0;
       const performer = new Performer(avatar, { idle });
       for (let i = 0; i < 60 * 25; i++) {
@@ -185,10 +194,10 @@ def test_an_utterances_layers_take_over_the_head_and_blinks_without_a_jump():
     times, blinks, clocks = np.array(lively["times"]), np.array(lively["blinks"]), np.array(lively["clocks"])
     during = (times > 1) & (times < 19) & (clocks < 21)
     t = times[during]
-    pose = heads[-len(times):][during]  # [pitch, yaw, roll]: the track's head, tilted up by the breath
-    np.testing.assert_allclose(pose[:, 1], 0.05 * np.sin(t), atol=2e-3)
-    np.testing.assert_allclose(pose[:, 0], 0.03 - 0.01 * (0.5 + 0.5 * np.sin(t / 3)), atol=1e-3)
-    np.testing.assert_allclose(pose[:, 2], -0.02, atol=1e-6)
+    pose = heads[-len(times):][during]  # [pitch, yaw, roll] in radians: the track's head, tilted up by the breath
+    np.testing.assert_allclose(pose[:, 1], np.radians(3 * np.sin(t)), atol=2e-3)
+    np.testing.assert_allclose(pose[:, 0], np.radians(1.7) - 0.01 * (0.5 + 0.5 * np.sin(t / 3)), atol=1e-3)
+    np.testing.assert_allclose(pose[:, 2], np.radians(-1.1), atol=1e-6)
     assert blinks[during].max() == pytest.approx(1, abs=0.01)  # the track's one blink at 10 s...
     assert blinks[during & (np.abs(times - 10) > 0.2)].max() == 0  # ...and no idle blinks
     assert blinks[clocks > 22].max() > 0.5  # idle blinks are back after it

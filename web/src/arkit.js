@@ -1,4 +1,5 @@
-// ARKit blend-shape names and matching of morph-target and channel names onto them.
+// ARKit blend-shape names, vispeech's tongue channels, and matching of morph-target and channel
+// names onto them.
 
 /** The 52 ARKit face blend shapes (Apple's order; key by name, never by position). */
 export const ARKIT_NAMES = [
@@ -17,19 +18,25 @@ export const ARKIT_NAMES = [
   'tongueOut',
 ];
 
-/** Position of each ARKit name in ARKIT_NAMES. */
-export const ARKIT_INDEX = new Map(ARKIT_NAMES.map((name, i) => [name, i]));
+/**
+ * Every channel a head's morph target can carry: the ARKit shapes and vispeech's tongue tip
+ * raise, body raise and backing (vispeech.motion.arkit.MORPH_NAMES).
+ */
+export const MORPH_NAMES = [...ARKIT_NAMES, 'tongueTipUp', 'tongueBodyUp', 'tongueBack'];
 
-const BY_KEY = new Map(ARKIT_NAMES.map((name) => [name.toLowerCase(), name]));
+/** Position of each name in MORPH_NAMES. */
+export const MORPH_INDEX = new Map(MORPH_NAMES.map((name, i) => [name, i]));
+
+const BY_KEY = new Map(MORPH_NAMES.map((name) => [name.toLowerCase(), name]));
 
 /**
- * The ARKit name that a morph-target or channel name stands for, or null.
+ * The name in MORPH_NAMES that a morph-target or channel name stands for, or null.
  *
  * Matching ignores case and anything up to the last dot (`blendShape1.jawOpen`), reads
  * `_L` / `_R` suffixes as Left / Right (`eyeBlink_L`), and maps one side of a shape ARKit
  * keeps whole (`browInnerUp_L`, `cheekPuffRight`) onto that shape.
  */
-export function arkitName(name) {
+export function morphName(name) {
   const key = String(name).split('.').pop().trim().toLowerCase()
     .replace(/_l$/, 'left').replace(/_r$/, 'right');
   if (BY_KEY.has(key)) return BY_KEY.get(key);

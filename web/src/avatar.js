@@ -3,11 +3,11 @@
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { MeshoptDecoder } from 'three/examples/jsm/libs/meshopt_decoder.module.js';
-import { ARKIT_NAMES, arkitName } from './arkit.js';
+import { MORPH_NAMES, morphName } from './arkit.js';
 
 /**
- * A GLB head in a three.js scene. Every mesh primitive whose morph targets match ARKit
- * names is driven; `weights` are indexed like ARKIT_NAMES.
+ * A GLB head in a three.js scene. Every mesh primitive whose morph targets match ARKit names
+ * (or vispeech's tongue channels) is driven; `weights` are indexed like MORPH_NAMES.
  */
 export class Avatar3D {
   /** Load the GLB at `url` into a canvas appended to `container`. */
@@ -22,7 +22,7 @@ export class Avatar3D {
     this.container = container;
     this.credit = (gltf.asset && gltf.asset.copyright) || null;
     this.blinks = false;
-    this.targets = ARKIT_NAMES.map(() => []); // per ARKit name: [{mesh, index}]
+    this.targets = MORPH_NAMES.map(() => []); // per channel name: [{mesh, index}]
     this.head = null; // the mesh whose influences `influence()` reports
     let best = -1;
     gltf.scene.updateMatrixWorld(true);
@@ -30,9 +30,9 @@ export class Avatar3D {
       if (!obj.isMesh || !obj.morphTargetDictionary) return;
       let matched = 0;
       for (const [targetName, index] of Object.entries(obj.morphTargetDictionary)) {
-        const name = arkitName(targetName);
+        const name = morphName(targetName);
         if (name === null) continue;
-        this.targets[ARKIT_NAMES.indexOf(name)].push({ mesh: obj, index });
+        this.targets[MORPH_NAMES.indexOf(name)].push({ mesh: obj, index });
         matched++;
       }
       const score = matched * 1e7 + obj.geometry.attributes.position.count;
@@ -45,7 +45,7 @@ export class Avatar3D {
     this.headIndex = new Map();
     this.targets.forEach((list, k) => {
       const own = list.find((t) => t.mesh === this.head);
-      if (own) this.headIndex.set(ARKIT_NAMES[k], own.index);
+      if (own) this.headIndex.set(MORPH_NAMES[k], own.index);
     });
 
     // Frame the face: the largest driven mesh's box, looking down -Z at its front.
@@ -91,7 +91,7 @@ export class Avatar3D {
     this.camera.updateProjectionMatrix();
   }
 
-  /** Set every driven morph target from `weights` (indexed like ARKIT_NAMES, 0..1). */
+  /** Set every driven morph target from `weights` (indexed like MORPH_NAMES, 0..1). */
   setWeights(weights) {
     for (let k = 0; k < weights.length; k++) {
       for (const { mesh, index } of this.targets[k]) mesh.morphTargetInfluences[index] = weights[k];
@@ -105,7 +105,7 @@ export class Avatar3D {
 
   /** Current morph influence of ARKit channel `name` on the head mesh (0 when absent). */
   influence(name) {
-    const index = this.headIndex.get(arkitName(name));
+    const index = this.headIndex.get(morphName(name));
     return index === undefined ? 0 : this.head.morphTargetInfluences[index];
   }
 
@@ -148,7 +148,7 @@ export class Face2DAvatar {
 
   setWeights(weights) {
     const values = {};
-    for (let k = 0; k < weights.length; k++) values[ARKIT_NAMES[k]] = weights[k];
+    for (let k = 0; k < weights.length; k++) values[MORPH_NAMES[k]] = weights[k];
     this.values = values;
   }
 
@@ -159,7 +159,7 @@ export class Face2DAvatar {
   }
 
   influence(name) {
-    return this.values[arkitName(name)] || 0;
+    return this.values[morphName(name)] || 0;
   }
 
   /** Draw; `idleSeconds` drives the face's own blinks. */

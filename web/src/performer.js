@@ -1,7 +1,7 @@
 // Plays audio and animation on one clock: the AudioContext's. The frame shown is the track
 // interpolated at `audioContext.currentTime - outputLatency - t0`, where t0 is the context
 // time at which utterance time 0 sounds.
-import { ARKIT_INDEX, ARKIT_NAMES, arkitName } from './arkit.js';
+import { MORPH_INDEX, MORPH_NAMES, morphName } from './arkit.js';
 import { Animation } from './animation.js';
 import { IdleMotion } from './idle.js';
 
@@ -12,6 +12,7 @@ const LIVE_SLACK = 0.02; // seconds added when a live frame came late, beyond it
 const LAYER_BLEND = 0.4; // seconds to hand the head and the blinks from idle motion to an utterance's layers and back
 const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
 const HEAD_CHANNELS = ['headpitch', 'headyaw', 'headroll']; // lower-cased, in setHeadRotation's order
+const RADIANS_PER_DEGREE = Math.PI / 180; // tracks carry head rotation in degrees (vispeech.Utterance)
 
 /** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
 export function decodePcm16(base64) {
@@ -32,7 +33,7 @@ const ease = (x) => x * x * (3 - 2 * x);
  * holds audio back until a user gesture).
  *
  * An animation that carries non-verbal layers (vispeech.motion.life: any of them not all 0)
- * drives the face in their place while it is loaded: `headPitch`/`headYaw`/`headRoll` (radians)
+ * drives the face in their place while it is loaded: `headPitch`/`headYaw`/`headRoll` (degrees)
  * the head instead of the idle sway, `eyeBlinkLeft`/`Right` the blinks instead of the idle ones
  * (the 2D face keeps its own), and `breath` (0..1) tilts the head up a little. The head and the
  * blinks pass from idle motion to the layers and back over LAYER_BLEND seconds, never in a jump.
@@ -52,7 +53,7 @@ export class Performer {
     this.live = null; // live audio: {lag} (seconds from capturing audio to showing its frame)
     this.idleClock = 0;
     this.lastTick = null;
-    this.weights = new Float32Array(ARKIT_NAMES.length);
+    this.weights = new Float32Array(MORPH_NAMES.length);
     this.values = null;
     this.shownTime = 0;
     this.shownFrame = -1;
@@ -197,15 +198,15 @@ export class Performer {
   setAnimation(animation) {
     this.animation = animation;
     this.channelIndex = animation.channels.map((c) => {
-      const name = arkitName(c);
-      return name === null ? -1 : ARKIT_INDEX.get(name);
+      const name = morphName(c);
+      return name === null ? -1 : MORPH_INDEX.get(name);
     });
     this.values = new Float32Array(animation.channels.length);
     const moving = (c) => c >= 0 && animation.frames.some((row) => row && row[c] !== 0);
     const find = (name) => animation.channels.findIndex((c) => c.toLowerCase() === name);
     const head = HEAD_CHANNELS.map(find);
     const breath = find('breath');
-    const blinks = ['eyeBlinkLeft', 'eyeBlinkRight'].map((name) => this.channelIndex.indexOf(ARKIT_INDEX.get(name)));
+    const blinks = ['eyeBlinkLeft', 'eyeBlinkRight'].map((name) => this.channelIndex.indexOf(MORPH_INDEX.get(name)));
     this.layers = {
       head: head.some(moving) ? head : null,
       breath: moving(breath) ? breath : -1,
@@ -222,7 +223,7 @@ export class Performer {
     const { head, breath } = this.layers;
     if (showing && (head || breath >= 0)) {
       // head channels replace the idle sway; the breath's lift adds to whichever drives the head
-      this.headOffset = head ? head.map((c, i) => (c >= 0 ? this.values[c] : 0) - base[i]) : [0, 0, 0];
+      this.headOffset = head ? head.map((c, i) => (c >= 0 ? this.values[c] * RADIANS_PER_DEGREE : 0) - base[i]) : [0, 0, 0];
       if (breath >= 0) this.headOffset[0] -= BREATH_LIFT * this.values[breath];
     }
     const blend = ease(this.blend.head);
@@ -302,7 +303,7 @@ export class Performer {
     if (this.idle && !this.avatar.blinks) {
       const blink = this.idle.blink(this.idleClock) * (1 - ease(this.blend.blinks));
       for (const name of ['eyeBlinkLeft', 'eyeBlinkRight']) {
-        const k = ARKIT_INDEX.get(name);
+        const k = MORPH_INDEX.get(name);
         weights[k] = Math.max(weights[k], blink);
       }
     }

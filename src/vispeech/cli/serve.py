@@ -14,7 +14,9 @@ from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_MODEL
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (0.0.0.0: every interface).")
 @click.option("--port", default=8000, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
 @click.option("--avatar", type=click.Path(path_type=Path, dir_okay=False),
-              help="glTF binary head served as /avatar.glb.")
+              help="glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
+              "lacks (vispeech rig prepare).")
+@click.option("--avatar-as-is", is_flag=True, help="Serve --avatar untouched (no tongue targets or paint added).")
 @click.option("--avatar-credit",
               help='Credit line shown under the head, e.g. "3D head: ICT-FaceKit (USC ICT), MIT licence".')
 @click.option("--cache", type=click.Path(path_type=Path, dir_okay=False),
@@ -66,7 +68,7 @@ from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_MODEL
 @scale_option("arkit")
 @click.option("--voice", "variant", default=None,
               help="The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages --variants`).")
-def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, cache: Path | None,
+def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, avatar_as_is: bool, cache: Path | None,
           default_model: str, stream_model: str | None, audio_model: str, rate_limit: float, burst: int,
           chat_url: str | None, chat_reply_field: str, token: str | None, allow_host: tuple[str, ...],
           allow_origin: tuple[str, ...],
@@ -84,8 +86,9 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
     bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
     hosts = ("localhost", "127.0.0.1", "::1", *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)
     extra = {} if workers is None else {"workers": workers}
-    config = ServeConfig(avatar=avatar, avatar_credit=avatar_credit, cache=cache, bot=bot, default_model=default_model,
-                         stream_model=stream_model, audio_model=audio_model, rate_limit=rate_limit, burst=burst,
+    config = ServeConfig(avatar=avatar, avatar_credit=avatar_credit, prepare_avatar=not avatar_as_is, cache=cache,
+                         bot=bot, default_model=default_model, stream_model=stream_model, audio_model=audio_model,
+                         rate_limit=rate_limit, burst=burst,
                          token=token or None, allowed_hosts=tuple(dict.fromkeys(hosts)),
                          allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))), max_queue=max_queue,
                          max_streams=max_streams, max_streams_per_ip=max_streams_per_ip, idle_timeout=idle_timeout,

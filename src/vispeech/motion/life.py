@@ -9,9 +9,10 @@ Live Link Face CSV carries the blinks, the gaze and the head rotation.
   opening in 130 ms.
 - ``gaze``: ``eyeLook{In,Out,Up,Down}{Left,Right}``; small saccades (within about 7° across,
   5° up and down) every 1 to 3 s, each taking one frame, both eyes together.
-- ``head``: ``headYaw``/``headPitch``/``headRoll`` in radians; a slow sway (within about 2°,
+- ``head``: ``headYaw``/``headPitch``/``headRoll`` in degrees (as tracked head pose is in a
+  corpus, :class:`vispeech.Utterance`); a slow sway (within about 2°,
   eased value noise) and, with phones, a nod on every primary-stressed vowel (the head dips
-  0.03 rad over 300 ms from the vowel's onset).
+  1.7° over 300 ms from the vowel's onset).
 - ``brows``: ``browInnerUp`` and ``browOuterUp{Left,Right}``; with phones, the brows rise
   (0.3) over 500 ms on the first primary-stressed vowel of every sentence (its emphasis).
 - ``breath``: ``breath``, how full the lungs are: 0 at the resting level (the end of a quiet
@@ -52,8 +53,8 @@ CHANNELS: dict[str, tuple[str, ...]] = {
 BLINK_CLOSE, BLINK_HOLD, BLINK_OPEN = 0.07, 0.03, 0.13
 BLINK_GAP, BLINK_MEAN_EXTRA = 1.5, 2.0
 GAZE_RANGE = (0.25, 0.2)  # ARKit eyeLook weights of the widest saccade: across, up/down
-SWAY = (0.035, 0.022, 0.014)  # radians: yaw, pitch, roll
-NOD, NOD_SECONDS = 0.03, 0.3
+SWAY = (2.0, 1.25, 0.8)  # degrees: yaw, pitch, roll
+NOD, NOD_SECONDS = 1.7, 0.3
 BROWS, BROWS_SECONDS = 0.3, 0.5
 REST_RATE = (12.0, 15.0)  # breaths a minute at rest
 REST_JITTER = 0.15  # each resting cycle within this share of the rate's period

@@ -28,6 +28,7 @@ import logging
 import os
 import re
 import sys
+import tempfile
 import threading
 import time
 from contextlib import asynccontextmanager
@@ -161,7 +162,9 @@ class ServeConfig:
     least :data:`MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
     bytes. ``static_dir``: the built web app (default
     :data:`STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
-    and licence).
+    and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
+    looks it lacks (:func:`vispeech.motion.head.prepare_head`, done once when the app is made);
+    ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
     in pieces of ``piece_seconds``) with at most ``max_queue`` jobs waiting (503 / stream
@@ -183,6 +186,7 @@ class ServeConfig:
 
     avatar: Path | None = None
     avatar_credit: str | None = None
+    prepare_avatar: bool = True
     cache: str | os.PathLike | None = None
     cache_entries: int = 10_000
     cache_bytes: int = 512 * 1024 * 1024
@@ -538,11 +542,29 @@ def describe_errors(errors, skip: int = 0, what: str = "body", kinds: tuple[str,
     return "; ".join(dict.fromkeys(parts))[:500] or "invalid request"
 
 
+def _avatar_bytes(path: Path) -> bytes | None:
+    """The head at ``path`` prepared for the page (:func:`~vispeech.motion.head.prepare_head`), or None
+    (served as it is) when it cannot be: the reason is logged."""
+    from vispeech.motion.head import prepare_head
+
+    with tempfile.TemporaryDirectory(prefix="vispeech-avatar-") as folder:
+        out = Path(folder) / path.name
+        try:
+            report = prepare_head(path, out)
+        except VispeechError as exc:
+            log.warning("serving %s as it is: %s", path, exc)
+            return None
+        for note in report.notes:
+            log.info("avatar %s: %s", path.name, note)
+        return out.read_bytes()
+
+
 def create_app(config: ServeConfig | None = None) -> FastAPI:
     """The FastAPI application serving ``config`` (defaults: see :class:`ServeConfig`)."""
     config = config or ServeConfig()
     if config.avatar is not None and not Path(config.avatar).is_file():
         raise VispeechError(f"avatar file not found: {config.avatar}")
+    avatar_bytes = _avatar_bytes(Path(config.avatar)) if config.avatar is not None and config.prepare_avatar else None
     service = SpeechService(config)
     static_dir = Path(config.static_dir or STATIC_DIR)
 
@@ -681,6 +703,8 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     def avatar() -> Response:
         if config.avatar is None or not Path(config.avatar).is_file():
             return JSONResponse({"detail": "no avatar: start the server with --avatar HEAD.glb"}, status_code=404)
+        if avatar_bytes is not None:
+            return Response(avatar_bytes, media_type="model/gltf-binary")
         return FileResponse(config.avatar, media_type="model/gltf-binary")
 
     face2d = Path(vispeech.preview.__file__).parent / "face2d.js"
