@@ -1,12 +1,15 @@
-"""The ICT head at an open vowel, /m/, /f/, /θ/ and at rest, in both output scales: a figure.
+"""The ICT head at an open vowel, /m/, /f/, /θ/, /t/, /k/ and at rest, in both output scales: a figure.
 
     python benchmarks/head_poses.py [--model grid-tdnn] [--out docs/figures/head_poses.png]
 
-Speaks "Father thinks my mom is calm." through ``/api/speak`` of two servers with the ICT head
-(``--scale tracker`` and ``--scale arkit``) in headless Chromium, holds the pose at the centre of
-its /ɑ/ of "Father", its /m/ of "mom", its /f/, its /θ/ and the last frame (rest after speech),
-and puts the screenshots in two labelled rows (nose to chin). Prints the lip aperture of each
-pose. Needs Chromium, Playwright and Pillow (the test extra).
+Speaks "Father thinks my mom took the calm cat." through ``/api/speak`` of two servers with the
+ICT head (prepared as ``vispeech serve --avatar`` serves it: tongue morph targets, painted looks;
+``--scale tracker`` and ``--scale arkit``) in headless Chromium, holds the pose at the centre of
+its /ɑ/ of "Father", its /m/ of "my", its /f/, its /θ/, its /t/ (tongue tip up), its /k/ (tongue
+body up) and the last frame (rest after speech), and puts the screenshots in two labelled rows
+(nose to chin). Also writes the whole head at rest (arkit scale) beside the figure as
+``head_rest.png``. Prints the lip aperture of each pose. Needs Chromium, Playwright and Pillow
+(the test extra).
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_MODEL
 
-TEXT = "Father thinks my mom is calm."
-POSES = (("open vowel /ɑ/", "AA"), ("/m/", "M"), ("/f/", "F"), ("/θ/", "TH"), ("rest", None))
+TEXT = "Father thinks my mom took the calm cat."
+POSES = (("open vowel /ɑ/", "AA"), ("/m/", "M"), ("/f/", "F"), ("/θ/", "TH"), ("/t/", "T"), ("/k/", "K"),
+         ("rest", None))
 
 
 def main() -> None:
@@ -49,6 +53,8 @@ def main() -> None:
                 page.evaluate("(t) => window.vispeech.seek(t)", t)
                 page.wait_for_timeout(300)
                 shots.append((label, page.screenshot(), float(aperture[min(round(t * track.fps), track.n_frames - 1)])))
+                if scale == "arkit" and symbol is None:
+                    (args.out.parent / "head_rest.png").write_bytes(shots[-1][1])
                 print(f"{scale:8} {label:16} lip aperture {shots[-1][2]:.3f}")
             rows.append((scale, shots))
     _figure(rows, args.out)

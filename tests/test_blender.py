@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from conftest import require
+from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.gltf import write_gltf_animation
 from vispeech.pipeline import speak, write_outputs
 
@@ -41,6 +42,27 @@ def test_blender_imports_the_animated_head(tmp_path, shared_dir):
         np.testing.assert_allclose(keys[:, 0], frames, atol=1e-3)
         np.testing.assert_allclose(keys[:, 1], track[channel], atol=1e-6)
     assert np.ptp(np.array(head["fcurves"]['key_blocks["jawOpen"].value'])[:, 1]) > 0.1  # the mouth moves
+
+
+def test_blender_imports_the_prepared_head_with_its_tongue(tmp_path, shared_dir):
+    """The head `vispeech rig prepare` writes (tongue targets on one primitive, data-less zero
+    targets on the others, vertex colours) animated: Blender reads the tongue shape keys and curves."""
+    from vispeech.motion.head import prepare_head
+
+    blender = shutil.which("blender")
+    require(blender, "Blender (apt-get install blender python3-numpy)")
+    track = speak("Ten good cats thank Linda.", "en").track
+    prepare_head(shared_dir / "assets" / "ict_head.glb", tmp_path / "ready.glb")
+    glb = tmp_path / "take.glb"
+    write_gltf_animation(track, tmp_path / "ready.glb", glb)
+    found = _read_in_blender(blender, glb, tmp_path / "blender.json")
+
+    (head,) = [o for o in found["objects"] if o["shape_keys"]]
+    assert len(head["shape_keys"]) == 56 and head["shape_keys"][-4:] == list(TONGUE_CHANNELS)
+    for channel in ("tongueTipUp", "tongueBodyUp", "tongueOut", "jawOpen"):
+        keys = np.array(head["fcurves"][f'key_blocks["{channel}"].value'])
+        np.testing.assert_allclose(keys[:, 1], track[channel], atol=1e-6)
+        assert keys[:, 1].max() > 0.2, channel  # it moves
 
 
 def test_fbx_made_by_blender_carries_the_animation(tmp_path, shared_dir):
