@@ -174,6 +174,24 @@ def test_pages_static_files_and_the_2d_face(client, site):
     assert client.get("/docs").status_code == 200
 
 
+def test_the_avatar_is_served_prepared_unless_asked_as_is(tmp_path):
+    """A head with a tongue is served with its tongue morph targets and paint added (the same bytes
+    `vispeech rig prepare` writes); --avatar-as-is, or a file that cannot be prepared (the site fixture's fake GLB,
+    test_config), is served as it is."""
+    from conftest import SHARED, require
+    from vispeech.motion.head import prepare_head
+
+    head = SHARED / "assets" / "ict_head.glb"
+    require(head.is_file(), f"the ICT head ({head})")
+    prepare_head(head, tmp_path / "ready.glb")
+    with TestClient(create_app(ServeConfig(avatar=head, cache=":memory:"))) as served:
+        body = served.get("/avatar.glb")
+        assert body.status_code == 200 and body.headers["content-type"] == "model/gltf-binary"
+        assert body.content == (tmp_path / "ready.glb").read_bytes() and b"tongueTipUp" in body.content
+    with TestClient(create_app(ServeConfig(avatar=head, cache=":memory:", prepare_avatar=False))) as served:
+        assert served.get("/avatar.glb").content == head.read_bytes()
+
+
 def test_without_avatar_or_built_web_app(tmp_path):
     with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", static_dir=tmp_path / "none"))) as bare:
         assert bare.get("/api/config").json()["avatar_url"] is None
