@@ -12,8 +12,9 @@ from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator
 from vispeech.models.rules.baseline import Baseline
 from vispeech.models.rules.cohen_massaro import CohenMassaro
-from vispeech.models.rules.ohman import Ohman, smoothstep
+from vispeech.models.rules.ohman import Ohman
 from vispeech.models.registry import create_model, load_folder, load_model
+from vispeech.targets.easing import smoothstep
 from vispeech.targets.tables import TARGET_CHANNELS, target_matrix
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.phonetics.inventory import get_inventory, is_silence, is_vowel
@@ -325,6 +326,7 @@ def test_ohman_without_coarticulation_is_the_vowel_track():
 
 def test_smoothstep_endpoints():
     assert smoothstep(np.array([-1.0, 0.0, 0.5, 1.0, 2.0])).tolist() == [0.0, 0.0, 0.5, 1.0, 1.0]
+    np.testing.assert_allclose(smoothstep(np.array([0.0025, 0.00425, 0.006, 0.01]), (0.0025, 0.006)), [0, 0.5, 1, 1])
 
 
 def test_beskow_rules_interpolate_undefined_targets_linearly():

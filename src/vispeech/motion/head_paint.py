@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.gltf import Primitive
+from vispeech.targets.easing import smoothstep
 
 LIPS = np.array([0.86, 0.58, 0.6])
 LIP_DEPTH = (0.09, 0.11)  # upper, lower: × ED
@@ -38,11 +39,6 @@ LASHES = np.array([0.15, 0.12, 0.12])
 LASH_WIDTH = 0.06  # × W
 TONGUE = np.array([1.0, 0.85, 0.85])
 MOUTH_DEPTH = (0.25, 1.0)
-
-
-def _smoothstep(edges: tuple[float, float], x: np.ndarray) -> np.ndarray:
-    t = np.clip((x - edges[0]) / (edges[1] - edges[0]), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
 
 
 def _mix(colours: np.ndarray, tint: np.ndarray, amount: np.ndarray) -> np.ndarray:
@@ -87,7 +83,7 @@ def paint_skin(skin: Primitive) -> np.ndarray:
     u = np.clip((pos[:, 0] - (left + right) / 2) / ((right - left) / 2), -1.0, 1.0)
     upper = pos[:, 1] >= pos[mouth][nearest, 1]
     depth = np.where(upper, LIP_DEPTH[0], LIP_DEPTH[1]) * ed * np.maximum(1 - u * u, 0.0) ** 0.4
-    lips = (1 - _smoothstep((0.75, 1.0), distance / np.maximum(depth, 1e-9))) * (pos[:, 2] > pos[mouth, 2].min() - 0.05 * ed)
+    lips = (1 - smoothstep(distance / np.maximum(depth, 1e-9), (0.75, 1.0))) * (pos[:, 2] > pos[mouth, 2].min() - 0.05 * ed)
     colours = _mix(colours, LIPS, lips)
     for rim in eyes:
         eye = pos[rim]
@@ -103,12 +99,12 @@ def paint_skin(skin: Primitive) -> np.ndarray:
             1 - 0.5 * np.clip((tc - 0.67) / 0.33, 0.0, 1.0))
         thick = (0.4 - 0.24 * tc) * w
         off = np.abs(pos[:, 1] - line) / (thick / 2)
-        ends = _smoothstep((0.0, 0.08), tc) * (1 - _smoothstep((0.9, 1.0), tc))
-        brow = along * (1 - _smoothstep((0.6, 1.0), off)) * ends * (pos[:, 2] > centre[2] - 0.3 * w)
+        ends = smoothstep(tc, (0.0, 0.08)) * (1 - smoothstep(tc, (0.9, 1.0)))
+        brow = along * (1 - smoothstep(off, (0.6, 1.0))) * ends * (pos[:, 2] > centre[2] - 0.3 * w)
         colours = _mix(colours, BROWS, 0.85 * brow)
         lid = rim[pos[rim, 1] > centre[1]]
         lash_distance, _ = cKDTree(pos[lid]).query(pos)
-        colours = _mix(colours, LASHES, 1 - _smoothstep((0.0, LASH_WIDTH * w), lash_distance))
+        colours = _mix(colours, LASHES, 1 - smoothstep(lash_distance, (0.0, LASH_WIDTH * w)))
     return colours
 
 

@@ -36,6 +36,7 @@ from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
+from vispeech.targets.easing import smoothstep
 
 LAYERS = ("blink", "gaze", "head", "brows", "breath")
 """The non-verbal layers, in the order their channels come."""
@@ -237,6 +238,5 @@ def _noise(times: np.ndarray, rng: np.random.Generator, period: float) -> np.nda
     x = (times - times[0]) / period
     knots = rng.uniform(-1, 1, int(x[-1]) + 2)
     i = np.floor(x).astype(int)
-    w = x - i
-    s = w * w * (3 - 2 * w)
+    s = smoothstep(x - i)
     return knots[i] + s * (knots[i + 1] - knots[i])

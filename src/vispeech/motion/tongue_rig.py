@@ -51,7 +51,8 @@ from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.arkit import TONGUE_CHANNELS
-from vispeech.motion.gltf import Primitive, read_primitives
+from vispeech.motion.gltf import Primitive
+from vispeech.targets.easing import smoothstep
 
 GUMS = (0.0025, 0.006)
 """Metres from the nearest tooth over which a vertex goes from gum (weight 0) to tongue (1)."""
@@ -77,11 +78,6 @@ class Tongue:
     fixed_teeth: np.ndarray
 
 
-def _smoothstep(edges: tuple[float, float], x: np.ndarray) -> np.ndarray:
-    t = np.clip((x - edges[0]) / (edges[1] - edges[0]), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
-
-
 def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the head") -> Tongue:
     """The tongue among a head's ``primitives`` (see the module docstring, step 1). Raises
     :class:`VispeechError` when there is no primitive named for the tongue, none for the teeth,
@@ -102,7 +98,7 @@ def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the he
     carried = np.linalg.norm(primitive.targets["jawOpen"], axis=1) / np.median(teeth_drop[lower])
     fixed, fixed_teeth = carried < 0.1 * JAW_CARRIED[0], teeth_drop < 0.1 * JAW_CARRIED[0] * np.median(teeth_drop[lower])
     distance, _ = cKDTree(teeth_mesh.positions).query(primitive.positions)
-    weights = _smoothstep(GUMS, distance) * _smoothstep(JAW_CARRIED, carried)
+    weights = smoothstep(distance, GUMS) * smoothstep(carried, JAW_CARRIED)
     inside = weights > 0.5
     edges = np.concatenate([primitive.triangles[:, [0, 1]], primitive.triangles[:, [1, 2]],
                             primitive.triangles[:, [2, 0]]])
@@ -144,7 +140,7 @@ def tongue_targets(primitives: list[Primitive], source: str | os.PathLike = "the
     w = tongue.weights
     up = np.zeros_like(positions)
     offsets: dict[str, np.ndarray] = {}
-    tip = 1 - _smoothstep((0.15, 0.5), s)
+    tip = 1 - smoothstep(s, (0.15, 0.5))
     up[:, 1] = w * tip_lift * tip * (1 - 0.5 * x * x)
     offsets["tongueTipUp"] = up.copy()
     body = np.where(np.abs(s - 0.65) < 0.4, np.cos(np.pi / 2 * (s - 0.65) / 0.4) ** 2, 0.0)
@@ -159,7 +155,7 @@ def tongue_targets(primitives: list[Primitive], source: str | os.PathLike = "the
         tip_y = float(core[core[:, 2] > tip_z - 0.005, 1].mean())
         upper, lower = teeth[front & tongue.fixed_teeth, 1], teeth[front & ~tongue.fixed_teeth, 1]
         between = 0.5 * (upper.min() + lower.max()) if len(upper) and len(lower) else tip_y
-        reach = 1 - _smoothstep((0.0, 0.6), s)
+        reach = 1 - smoothstep(s, (0.0, 0.6))
         out = np.zeros_like(positions)
         out[:, 2] = w * (teeth[:, 2].max() + OUT_REACH - tip_z) * reach
         out[:, 1] = w * (between - tip_y) * reach

@@ -1,4 +1,4 @@
-"""The thesis's cubic Bézier ease curve, evaluated as a function of time.
+"""Ease curves: the thesis's cubic Bézier ease as a function of time, and the smoothstep cubic.
 
 The curve runs from (0, 0) to (a, 1) with control points (c1·a, 0) and (c2·a, 1):
 
@@ -67,3 +67,10 @@ def _solve(u: np.ndarray, c1: float, c2: float) -> np.ndarray:
         inside = (slope > 0) & (newton > lo) & (newton < hi)
         t = np.where(done, t, np.where(inside, newton, 0.5 * (lo + hi)))
     return t
+
+
+def smoothstep(x, edges: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+    """3s² − 2s³ of ``s = (x − edges[0]) / (edges[1] − edges[0])`` clipped to [0, 1]: 0 at and below
+    the first edge, 1 at and above the second, with zero slope at both."""
+    s = np.clip((np.asarray(x, dtype=float) - edges[0]) / (edges[1] - edges[0]), 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)

@@ -27,15 +27,10 @@ from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, 
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.phonetics.features import phone_rows
+from vispeech.targets.easing import smoothstep
 from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
-
-
-def smoothstep(s: np.ndarray) -> np.ndarray:
-    """3s² − 2s³ on s clipped to [0, 1]: 0 → 0 and 1 → 1 with zero slope at both ends."""
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
 
 
 class Ohman(PhoneTargetModel):
