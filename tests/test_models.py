@@ -14,12 +14,12 @@ from vispeech.models.rules.baseline import Baseline
 from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.ohman import Ohman
 from vispeech.models.registry import create_model, load_folder, load_model
-from vispeech.targets.easing import smoothstep
+from vispeech.motion.easing import smoothstep
 from vispeech.targets.tables import TARGET_CHANNELS, target_matrix
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.phonetics.inventory import get_inventory, is_silence, is_vowel
 from vispeech.postprocess import postprocess
-from vispeech.targets.easing import bezier_ease
+from vispeech.motion.easing import bezier_ease
 
 DATA_FREE = ("baseline", "beskow-rules", "cohen-massaro", "ohman")
 BILABIALS = {"sv": {"p", "b", "m"}, "en": {"P", "B", "M"}}

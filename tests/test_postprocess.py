@@ -10,7 +10,7 @@ from vispeech.targets.tables import phone_targets
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.motion.track import Track
 from vispeech.postprocess import PostprocessConfig, SoftCeiling, postprocess
-from vispeech.targets.easing import bezier_ease
+from vispeech.motion.easing import bezier_ease
 from vispeech.postprocess.overlays import consonant_overlays
 from vispeech.postprocess.shaping import confine_peaks, shift_range
 

@@ -29,8 +29,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
+from vispeech.motion.easing import smoothstep
 from vispeech.motion.gltf import Primitive
-from vispeech.targets.easing import smoothstep
 
 LIPS = np.array([0.86, 0.58, 0.6])
 LIP_DEPTH = (0.09, 0.11)  # upper, lower: × ED

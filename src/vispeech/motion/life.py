@@ -34,9 +34,9 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.motion.easing import smoothstep
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
-from vispeech.targets.easing import smoothstep
 
 LAYERS = ("blink", "gaze", "head", "brows", "breath")
 """The non-verbal layers, in the order their channels come."""

@@ -51,8 +51,8 @@ from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.arkit import TONGUE_CHANNELS
+from vispeech.motion.easing import smoothstep
 from vispeech.motion.gltf import Primitive
-from vispeech.targets.easing import smoothstep
 
 GUMS = (0.0025, 0.006)
 """Metres from the nearest tooth over which a vertex goes from gum (weight 0) to tongue (1)."""

@@ -37,7 +37,7 @@ from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES
 from vispeech.phonetics.inventory import is_vowel
-from vispeech.targets.easing import bezier_ease
+from vispeech.motion.easing import bezier_ease
 
 DEFAULT_FADE_OUT: Mapping = {
     "default": 1.5,

@@ -19,7 +19,7 @@ from vispeech.models.rules.phone_targets import PhoneTargetModel, family_default
 from vispeech.phonetics.features import phone_rows
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
-from vispeech.targets.easing import bezier_ease
+from vispeech.motion.easing import bezier_ease
 
 
 class Baseline(PhoneTargetModel):

@@ -27,7 +27,7 @@ from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, 
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
 from vispeech.phonetics.features import phone_rows
-from vispeech.targets.easing import smoothstep
+from vispeech.motion.easing import smoothstep
 from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
