@@ -29,6 +29,7 @@ EXTRAS = {
     "py3langid": "serve",
     "transformers": "encoder",
     "ray": "ray",
+    "mediapipe": "capture", "av": "capture",
 }
 """Optional top-level modules → the extra that installs them."""
 

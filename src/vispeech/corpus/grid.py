@@ -1,4 +1,5 @@
-"""Reader for the GRID audio-visual corpus layout (one speaker) with MediaPipe face tracks.
+"""Reader for the GRID audio-visual corpus layout (one speaker) with MediaPipe face tracks, and
+the face-track CSV's reader and writer (captured takes keep their tracks in it too).
 
 Layout (see ``shared/data/grid_s1/README.md``)::
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import io
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,7 @@ from vispeech.alignment.formats import read_word_alignment
 from vispeech.corpus.cache import CorpusCache, content_hash
 from vispeech.corpus.corpus import Corpus, Utterance, check_durations, report_problem
 from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import audio_duration
 from vispeech.motion.track import Track
 
@@ -161,6 +164,23 @@ def read_face_csv(path: str | os.PathLike) -> tuple[Track, dict[str, np.ndarray]
             landmarks[key] = values[:, cols]
     track = Track(values[:, channel_idx], tuple(names[j] for j in channel_idx), fps, float(times[0]))
     return track, landmarks, mask
+
+
+def write_face_csv(path: str | os.PathLike, values: np.ndarray, channels: Sequence[str],
+                   landmarks: Mapping[str, np.ndarray], fps: float) -> None:
+    """Write a face track in GRID's layout (what :func:`read_face_csv` reads): ``frame``, ``time``
+    (frame / ``fps``), the ``channels`` of ``values`` (frames × channels), then ``<name>_x``,
+    ``_y``, ``_z`` of each landmark (frames × 3). A frame with any NaN is untracked: its row holds
+    ``frame`` and ``time`` and empty fields. Written atomically."""
+    header = ["frame", "time", *channels, *(f"{name}_{axis}" for name in landmarks for axis in "xyz")]
+    data = np.concatenate([np.asarray(values, float), *(np.asarray(v, float) for v in landmarks.values())], axis=1)
+    lines = [",".join(header)]
+    empty = "," * (len(header) - 3)
+    for k, row in enumerate(data):
+        fields = f"{k},{k / fps:.4f}"
+        lines.append(fields + "," + (",".join(f"{v:.6g}" for v in row) if np.isfinite(row).all() else empty))
+    with atomic_output_file(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 def fill_missing_frames(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,9 @@
 
 Each take ``<name>`` is ``<name>.csv`` (Live Link Face CSV), ``<name>.wav`` (or ``.flac``)
 and its transcript: ``<name>.TextGrid`` (words and phones, e.g. from the Montreal Forced
-Aligner) or ``<name>.txt`` (plain text).
+Aligner) or ``<name>.txt`` (plain text). A take captured from video
+(:mod:`vispeech.corpus.capture`) also has ``<name>.face.csv``: its face track in GRID's layout,
+read instead of the CSV for its landmarks and its untracked frames (the frame mask).
 """
 
 from __future__ import annotations
@@ -13,12 +15,14 @@ from pathlib import Path
 from vispeech.alignment.formats import read_alignment
 from vispeech.corpus.cache import CorpusCache, content_hash
 from vispeech.corpus.corpus import Corpus, Utterance, check_durations, report_problem
+from vispeech.corpus.grid import read_face_csv
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import audio_duration
 from vispeech.motion.livelink import read_livelink_csv
 from vispeech.motion.track import Track
 
 AUDIO_SUFFIXES = (".wav", ".flac")
+FACE_SUFFIX = ".face.csv"
 TAKE_SUFFIXES = (".csv", *AUDIO_SUFFIXES, ".txt", ".textgrid")
 
 
@@ -43,7 +47,7 @@ def read_takes(
     if not root.is_dir():
         raise VispeechError(f"takes folder not found: {root}")
     files = sorted(p for p in root.iterdir() if p.is_file() and p.suffix.lower() in TAKE_SUFFIXES)
-    names = sorted({p.stem for p in files})
+    names = sorted({p.stem for p in files} - {p.stem for p in files if p.name.lower().endswith(FACE_SUFFIX)})
     if not names:
         raise VispeechError(f"{root} holds no takes (<name>.csv, <name>.wav, <name>.txt or .TextGrid)")
 
@@ -112,12 +116,17 @@ def _read_take(root: Path, name: str, language: str) -> Utterance:
         if not text:
             raise VispeechError(f"empty transcript {text_path.name}")
 
-    track = read_livelink_csv(csv_path)
+    landmarks = mask = None
+    face_path = _find(root, name, (FACE_SUFFIX,))
+    if face_path is not None:
+        track, landmarks, mask = read_face_csv(face_path)
+    else:
+        track = read_livelink_csv(csv_path)
     if track.start_time:  # takes keep wall-clock timecodes; the audio starts at the first frame
         track = Track(track.values, track.channels, track.fps)
     duration = audio_duration(audio_path)
     check_durations(track, duration)
     return Utterance(
         id=name, text=text, audio_path=audio_path, duration=duration, track=track,
-        words=list(phones.words) if phones is not None else [], phones=phones,
+        words=list(phones.words) if phones is not None else [], phones=phones, landmarks=landmarks, frame_mask=mask,
     )

@@ -1,0 +1,61 @@
+"""``vispeech capture VIDEO``: a take (sound, face track, Live Link CSV, phones) from talking-face video."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from vispeech.cli import lang_option, main
+from vispeech.errors import VispeechError
+from vispeech.frontends.video import FACE_MODEL_VARIABLE
+
+
+@main.command()
+@click.argument("video", type=click.Path(path_type=Path))
+@click.option("--text", "-t", default=None, help="The transcript: aligned with the sound into a phone TextGrid.")
+@lang_option("Language of the transcript (alignment: pocketsphinx for en, DTW on espeak-ng speech otherwise).")
+@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="The take's folder (with --batch: the corpus folder).")
+@click.option("--face-model", type=click.Path(path_type=Path, dir_okay=False), envvar=FACE_MODEL_VARIABLE,
+              show_envvar=True, help="MediaPipe's face_landmarker.task (never downloaded).")
+@click.option("--batch", is_flag=True,
+              help="VIDEO is a folder of videos, each with its transcript beside it (<name>.txt): capture them all "
+                   "into one corpus folder, in parallel; a rerun skips the takes already there.")
+@click.option("--jobs", "-j", default=None, type=click.IntRange(min=1), help="Videos at once with --batch [default: cores].")
+def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model: Path | None, batch: bool,
+            jobs: int | None) -> None:
+    """Track the face in VIDEO with MediaPipe and write the take train and evaluate read.
+
+    The take holds <name>.wav (16 kHz), <name>.face.csv (blend shapes, head pose and lip, jaw and
+    eye landmarks per video frame; frames without a face left empty), <name>.csv (Live Link Face)
+    and, with --text, <name>.TextGrid (docs/capture.md). Needs the capture extra.
+    """
+    from vispeech.corpus.capture import capture_corpus, capture_take
+
+    if batch:
+        if text is not None:
+            raise VispeechError("--batch reads each video's transcript from <name>.txt beside it: leave out --text")
+        with click.progressbar(length=1, label="capturing", show_eta=True, show_pos=True, file=sys.stderr) as bar:
+            def advance(done: int, total: int) -> None:
+                bar.length = total
+                bar.update(done - bar.pos)
+
+            report = capture_corpus(video, out_dir, language=lang, face_model=face_model, jobs=jobs, progress=advance)
+        click.echo(f"{report.captured} captured, {report.skipped} already there, {len(report.failed)} failed -> {out_dir}/")
+        for name, reason in report.failed:
+            click.echo(f"  failed {name}: {reason}")
+        if report.failed:
+            raise SystemExit(1)
+        return
+    with click.progressbar(length=1, label="tracking", show_eta=True, file=sys.stderr) as bar:
+        def advance(done: int, total: int) -> None:
+            bar.length = total
+            bar.update(done - bar.pos)
+
+        report = capture_take(video, out_dir, text=text, language=lang, face_model=face_model, progress=advance)
+    missing = f", {report.missing} without a face (left empty in {report.name}.face.csv)" if report.missing else ""
+    phones = f", {report.phones} phones aligned" if text is not None else ""
+    click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} "
+               f"-> {out_dir}/")

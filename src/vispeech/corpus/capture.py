@@ -1,0 +1,166 @@
+"""Takes from talking-face video (``vispeech capture``): the corpus a camera gives.
+
+:func:`capture_take` tracks the face in a video (:func:`vispeech.frontends.video.track_face`)
+and writes a take that :func:`~vispeech.corpus.takes.read_takes` (and so ``train`` and
+``evaluate``) reads, named for the video (``<name>``):
+
+- ``<name>.wav``: the video's sound, 16 kHz mono;
+- ``<name>.face.csv``: the face track in GRID's layout (:func:`~vispeech.corpus.grid.write_face_csv`):
+  the 51 blend-shape scores, head pose and 19 lip, jaw and eye landmarks at the video's frame
+  rate; a frame without a face is an empty row (marked, never invented);
+- ``<name>.csv``: the same blend shapes and head rotation as a Live Link Face CSV, for the tools
+  that read those (Unreal, Blender add-ons); frames without a face hold values interpolated
+  from their neighbours there, since the format has no gaps;
+- with a transcript, ``<name>.TextGrid``: words and phones by forced alignment of the sound
+  (pocketsphinx for English, DTW on espeak-ng speech otherwise, :func:`vispeech.frontends.align.align`).
+
+:func:`capture_corpus` does this for a folder of videos, each with its transcript beside it
+(``<name>.txt``), into one corpus folder, in parallel; a take is moved into the folder file by
+file with its ``.face.csv`` last, so a rerun skips exactly the takes that are complete.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vispeech.alignment.formats import write_textgrid
+from vispeech.errors import VispeechError
+from vispeech.corpus.grid import fill_missing_frames, write_face_csv
+from vispeech.files import atomic_output_dir, check_output_dir
+from vispeech.frontends.align import align
+from vispeech.frontends.audio import wav_bytes
+from vispeech.frontends.video import LANDMARKS, check_installed, face_model_path, track_face, video_audio
+from vispeech.motion.livelink import write_livelink_csv
+from vispeech.motion.track import Track
+
+TAKE_FILES = ("{name}.wav", "{name}.face.csv", "{name}.csv", "{name}.TextGrid")
+"""The files of a captured take, by the video's name."""
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".mpg", ".mpeg")
+"""The files :func:`capture_corpus` takes for videos."""
+
+
+@dataclass(frozen=True)
+class CaptureReport:
+    """What :func:`capture_take` wrote: the take's ``name``, its ``frames`` at ``fps``, the
+    ``missing`` ones (no face), the sound's ``duration`` (s) and the aligned ``phones`` (0
+    without a transcript)."""
+
+    name: str
+    frames: int
+    missing: int
+    fps: float
+    duration: float
+    phones: int
+
+
+def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: str | None = None,
+                 language: str = "en", face_model: str | os.PathLike | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> CaptureReport:
+    """Write the take of ``video`` into ``out_dir`` (see the module docstring); the folder is
+    written whole or not at all (:func:`vispeech.files.atomic_output_dir`) and may already hold
+    only this take's files. Raises :class:`VispeechError` for an unreadable video, one with no
+    audio track or no face in any frame, or a transcript that cannot be aligned."""
+    name = Path(video).stem
+    files = [f.format(name=name) for f in TAKE_FILES]
+    check_output_dir(out_dir, replaces=files)
+    check_installed()
+    face_model = face_model_path(face_model)  # before any decoding
+    clip = video_audio(video)
+    phones = align(clip.samples, clip.sample_rate, text, language) if text is not None else None
+    face = track_face(video, face_model, progress)
+    found = face.found
+    blend = [c for c in face.channels if not c.startswith("head")]
+    filled, _ = fill_missing_frames(face.values)
+    livelink = Track(filled, face.channels, face.fps).select([*blend, "headYaw", "headPitch", "headRoll"])
+    landmarks = {f"lm{k}": face.landmarks[:, i] for i, k in enumerate(LANDMARKS)}
+    with atomic_output_dir(out_dir, replaces=files) as staging:
+        (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
+        write_face_csv(staging / files[1], face.values, face.channels, landmarks, face.fps)
+        write_livelink_csv(livelink, staging / files[2])
+        if phones is not None:
+            write_textgrid(phones, staging / files[3])
+    duration = len(clip.samples) / clip.sample_rate
+    return CaptureReport(name, len(found), int((~found).sum()), face.fps, duration,
+                         0 if phones is None else sum(1 for p in phones if not p.is_silence))
+
+
+
+@dataclass
+class CorpusCaptureReport:
+    """What :func:`capture_corpus` did: takes ``captured`` now, ``skipped`` (complete already) and
+    ``failed`` (name, one-line reason)."""
+
+    captured: int = 0
+    skipped: int = 0
+    failed: list[tuple[str, str]] = field(default_factory=list)
+
+
+def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, language: str = "en",
+                   face_model: str | os.PathLike | None = None, jobs: int | None = None,
+                   progress: Callable[[int, int], None] | None = None) -> CorpusCaptureReport:
+    """Capture every video in ``folder`` (:data:`VIDEO_SUFFIXES`, with ``<name>.txt`` beside it when
+    there is a transcript) into the corpus folder ``out_dir``, ``jobs`` at a time (default: the
+    cores). A video whose take is complete in ``out_dir`` is skipped; one that fails is reported
+    and stops nothing. ``progress(done, total)`` after each video."""
+    root, out = Path(folder), Path(out_dir)
+    if not root.is_dir():
+        raise VispeechError(f"video folder not found: {root}")
+    videos = sorted(p for p in root.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES)
+    if not videos:
+        raise VispeechError(f"{root} holds no videos ({', '.join(VIDEO_SUFFIXES)})")
+    names = [v.stem for v in videos]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise VispeechError(f"two videos are named {twice[0]!r} (one take per name)")
+    check_installed()
+    face_model_path(face_model)
+    out.mkdir(parents=True, exist_ok=True)
+    report = CorpusCaptureReport()
+    todo = []
+    for video in videos:
+        if (out / f"{video.stem}.face.csv").is_file():
+            report.skipped += 1
+        else:
+            todo.append(video)
+    done = report.skipped
+    if progress is not None:
+        progress(done, len(videos))
+    face_model = str(face_model) if face_model is not None else None
+    with ProcessPoolExecutor(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1))) as pool:
+        futures = {pool.submit(_capture_into, video, out, language, face_model): video for video in todo}
+        for future in as_completed(futures):
+            failure = future.result()
+            if failure is None:
+                report.captured += 1
+            else:
+                report.failed.append((futures[future].stem, failure))
+            done += 1
+            if progress is not None:
+                progress(done, len(videos))
+    report.failed.sort()
+    return report
+
+
+def _capture_into(video: Path, out: Path, language: str, face_model: str | None) -> str | None:
+    """Capture one video into the corpus folder ``out`` (staged beside it, then moved in with its
+    ``.face.csv`` last); None, or why it failed."""
+    transcript = video.with_suffix(".txt")
+    try:
+        text = " ".join(transcript.read_text(encoding="utf-8-sig").split()) if transcript.is_file() else None
+        with tempfile.TemporaryDirectory(prefix=f".vispeech-capture-{video.stem}-", dir=out) as staging:
+            take = Path(staging) / "take"
+            capture_take(video, take, text=text or None, language=language, face_model=face_model)
+            written = [take / f.format(name=video.stem) for f in TAKE_FILES]
+            for path in sorted((p for p in written if p.is_file()), key=lambda p: p.name.endswith(".face.csv")):
+                os.replace(path, out / path.name)
+        return None
+    except VispeechError as exc:
+        return str(exc)
+    except (OSError, UnicodeDecodeError) as exc:
+        return f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,214 @@
+"""``vispeech capture``: takes from talking-face video with MediaPipe Face Landmarker (the capture
+extra), checked against the GRID corpus's own tracks of the 10 videos in the shared folder."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import SHARED, require, require_module
+from vispeech.cli import main
+from vispeech.errors import VispeechError
+
+GRID = SHARED / "data" / "grid_s1"
+FACE_MODEL = SHARED / "models" / "face_landmarker.task"
+
+
+@pytest.fixture(scope="module")
+def videos() -> list[Path]:
+    require_module("mediapipe", "MediaPipe (the capture extra)")
+    require_module("av", "PyAV (the capture extra)")
+    require(FACE_MODEL.is_file(), f"the face landmarker model ({FACE_MODEL})")
+    require((GRID / "video").is_dir(), f"grid_s1's videos ({GRID / 'video'})")
+    found = sorted((GRID / "video").glob("*.mpg"))
+    assert len(found) == 10
+    return found
+
+
+@pytest.fixture(scope="module")
+def face_model_env():
+    before = os.environ.get("VISPEECH_FACE_MODEL")
+    os.environ["VISPEECH_FACE_MODEL"] = str(FACE_MODEL)
+    yield
+    if before is None:
+        del os.environ["VISPEECH_FACE_MODEL"]
+    else:
+        os.environ["VISPEECH_FACE_MODEL"] = before
+
+
+@pytest.fixture(scope="module")
+def captured(videos, face_model_env, tmp_path_factory) -> Path:
+    """The 10 videos captured with their transcripts into one corpus folder (capture --batch)."""
+    folder = tmp_path_factory.mktemp("videos")
+    sentences = dict(line.split("\t") for line in (GRID / "sentences.tsv").read_text().splitlines())
+    for video in videos:
+        (folder / video.name).symlink_to(video)
+        (folder / f"{video.stem}.txt").write_text(sentences[video.stem] + "\n")
+    out = tmp_path_factory.mktemp("corpus")
+    result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(out), "-j", "2"])
+    assert result.exit_code == 0, result.output
+    assert "10 captured, 0 already there, 0 failed" in result.output
+    return out
+
+
+def test_captured_tracks_are_the_corpus_tracks(captured, videos):
+    """Same tracker, same video: the blend shapes, head pose and landmarks of every frame match the
+    corpus's (jawOpen r ≥ 0.99 is the acceptance; they agree far closer)."""
+    from vispeech.corpus.grid import read_face_csv
+
+    for video in videos:
+        got, got_landmarks, got_mask = read_face_csv(captured / f"{video.stem}.face.csv")
+        want, want_landmarks, want_mask = read_face_csv(GRID / "utterances" / f"{video.stem}.csv")
+        assert got.n_frames == want.n_frames and got.fps == want.fps == 25.0
+        assert got.channels == want.channels  # the corpus's columns, in its order
+        assert np.array_equal(got_mask, want_mask)
+        both = got_mask & want_mask
+        r = np.corrcoef(got["jawOpen"][both], want["jawOpen"][both])[0, 1]
+        assert r >= 0.999, (video.stem, r)
+        blend = [c for c in got.channels if not c.startswith("head")]
+        assert np.abs(got.select(blend).values - want.select(blend).values)[both].max() < 0.02, video.stem
+        head = got.select(["headYaw", "headPitch", "headRoll"]).values - want.select(["headYaw", "headPitch", "headRoll"]).values
+        assert np.abs(head[both]).max() < 0.5, video.stem  # degrees
+        for name, points in want_landmarks.items():
+            assert np.abs(got_landmarks[name] - points)[both].max() < 2e-3, (video.stem, name)
+
+
+def test_a_captured_corpus_trains_a_model_that_loads_and_predicts(captured, tmp_path):
+    require_module("torch", "torch (the train extra)")
+    from test_contract import TINY_NETWORKS
+
+    from vispeech.corpus.takes import read_takes
+    from vispeech.models.registry import create_model, load_model
+
+    corpus = read_takes(captured, language="en", strict=True)
+    utterances = list(corpus)
+    assert len(utterances) == 10 and all(u.phones is not None and u.landmarks for u in utterances)
+    assert {"lm13", "lm14", "lm33", "lm263"} <= set(utterances[0].landmarks)
+    sentences = dict(line.split("\t") for line in (GRID / "sentences.tsv").read_text().splitlines())
+    for utterance in utterances:
+        assert [w.text for w in utterance.words] == sentences[utterance.id].split()
+    model = create_model("tdnn-beskow", **TINY_NETWORKS["tdnn-beskow"], targets=["jawOpen", "mouthClose"],
+                         epochs=2, num_threads=1).fit(utterances, progress=False)
+    model.save(tmp_path / "model")
+    again = load_model(tmp_path / "model")
+    track = again.predict(utterances[0].phones, 25.0)
+    assert track.n_frames == utterances[0].track.n_frames and track.channels == ("jawOpen", "mouthClose")
+    np.testing.assert_allclose(track.values, model.predict(utterances[0].phones, 25.0).values)
+
+
+def test_a_rerun_skips_complete_takes(captured, videos, tmp_path):
+    folder = tmp_path / "again"
+    folder.mkdir()
+    (folder / videos[0].name).symlink_to(videos[0])
+    (folder / videos[1].name).symlink_to(videos[1])
+    result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(captured)])
+    assert result.exit_code == 0 and "0 captured, 2 already there, 0 failed" in result.output, result.output
+
+
+def _write_video(path: Path, frames: list[np.ndarray], fps: int = 25, audio: np.ndarray | None = None,
+                 rate: int = 16000) -> None:
+    """An MP4 (MPEG-4 video, AAC sound when ``audio`` is given) of RGB ``frames``."""
+    import av
+
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=fps)
+        stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
+        stream.pix_fmt, stream.bit_rate = "yuv420p", 4_000_000
+        sound = container.add_stream("aac", rate=rate, layout="mono") if audio is not None else None
+        for image in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
+        container.mux(stream.encode())
+        if sound is not None:
+            pcm = (np.clip(audio, -1, 1) * 32767).astype(np.int16)
+            for start in range(0, len(pcm), 1024):
+                chunk = av.AudioFrame.from_ndarray(pcm[None, start:start + 1024], format="s16", layout="mono")
+                chunk.sample_rate = rate
+                container.mux(sound.encode(chunk))
+            container.mux(sound.encode())
+
+
+def _grid_frames(video: Path) -> list[np.ndarray]:
+    import av
+
+    with av.open(str(video)) as container:
+        return [np.ascontiguousarray(f.to_ndarray(format="rgb24")) for f in container.decode(video=0)]
+
+
+def test_frames_where_the_face_leaves_are_marked_not_invented(videos, face_model_env, tmp_path):
+    from vispeech.corpus.capture import capture_take
+    from vispeech.corpus.takes import read_takes
+    from vispeech.frontends.audio import read_audio
+
+    frames = _grid_frames(videos[0])
+    gone = range(30, 45)
+    for k in gone:
+        frames[k] = np.zeros_like(frames[k])  # the face is out of the picture
+    audio, rate = read_audio(GRID / "utterances" / f"{videos[0].stem}.flac")
+    video = tmp_path / "walks_off.mp4"
+    _write_video(video, frames, audio=audio, rate=rate)
+    report = capture_take(video, tmp_path / "take", text="bin blue at f two now")
+    assert report.frames == 75 and report.missing == len(gone)
+    rows = (tmp_path / "take" / "walks_off.face.csv").read_text().splitlines()[1:]
+    assert all(rows[k].rstrip(",").count(",") == 1 for k in gone)  # frame and time only
+    assert all(rows[k].count(",") > 100 and ",," not in rows[k] for k in range(75) if k not in gone)
+    (utterance,) = list(read_takes(tmp_path / "take", language="en", strict=True))
+    assert np.flatnonzero(~utterance.frame_mask).tolist() == list(gone)
+
+
+@pytest.mark.parametrize("kind", ["no face", "no audio", "unreadable", "no face model"])
+def test_bad_videos_are_one_line_errors(kind, videos, face_model_env, tmp_path):
+    video = tmp_path / "bad.mp4"
+    noise = np.random.default_rng(0).uniform(-0.1, 0.1, 16000)
+    grey = [np.full((288, 360, 3), 128, np.uint8) for _ in range(25)]
+    if kind == "no face":
+        _write_video(video, grey, audio=noise)
+    elif kind == "no audio":
+        _write_video(video, _grid_frames(videos[0])[:25])
+    elif kind == "unreadable":
+        video.write_bytes(b"\x00\x01 not a video" * 50)
+    else:
+        _write_video(video, grey, audio=noise)
+    env = {"VISPEECH_FACE_MODEL": str(tmp_path / "missing.task")} if kind == "no face model" else {}
+    result = CliRunner().invoke(main, ["capture", str(video), "-o", str(tmp_path / "take")], env=env)
+    expected = {"no face": "no face found in any of its 25 frames", "no audio": "has no audio track",
+                "unreadable": "not a video file vispeech can read", "no face model": "face model not found"}[kind]
+    assert result.exit_code == 2, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and expected in errors[0], result.output
+    assert not (tmp_path / "take").exists()
+
+
+def test_everything_but_capture_works_without_mediapipe(tmp_path):
+    """With mediapipe and PyAV unimportable, capture says which extra to install and the rest of
+    the package (say, the take reader, the server's modules) imports and runs."""
+    script = f"""
+import sys
+sys.modules["mediapipe"] = None
+sys.modules["av"] = None
+from click.testing import CliRunner
+from vispeech.cli import main
+result = CliRunner().invoke(main, ["capture", "x.mp4", "-o", r"{tmp_path / 'take'}"])
+print(result.exit_code, [line for line in result.output.splitlines() if line.startswith("error:")])
+import vispeech.corpus.capture, vispeech.corpus.takes, vispeech.pipeline, vispeech.streaming
+said = CliRunner().invoke(main, ["say", "Hello.", "-o", r"{tmp_path / 'said'}"])
+print(said.exit_code)
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    lines = out.stdout.strip().splitlines()
+    assert lines[0].startswith("2 ['error: vispeech capture needs") and 'pip install "vispeech[capture]"' in lines[0], out
+    assert lines[-1] == "0", out.stderr[-2000:]
+    assert (tmp_path / "said" / "animation.csv").is_file()
+
+
+def test_face_model_is_asked_for_not_downloaded(monkeypatch):
+    from vispeech.frontends.video import face_model_path
+
+    monkeypatch.delenv("VISPEECH_FACE_MODEL", raising=False)
+    with pytest.raises(VispeechError, match="--face-model .* VISPEECH_FACE_MODEL"):
+        face_model_path()
