@@ -112,15 +112,16 @@ def test_a_rerun_skips_complete_takes(captured, videos, tmp_path):
 
 
 def _write_video(path: Path, frames: list[np.ndarray], fps: int = 25, audio: np.ndarray | None = None,
-                 rate: int = 16000) -> None:
-    """An MP4 (MPEG-4 video, AAC sound when ``audio`` is given) of RGB ``frames``."""
+                 rate: int = 16000, codec: str = "aac") -> None:
+    """A video (MPEG-4) of RGB ``frames``, with ``audio`` in ``codec`` when given (``pcm_s16le``, with
+    no encoder delay, in a Matroska file)."""
     import av
 
     with av.open(str(path), "w") as container:
         stream = container.add_stream("mpeg4", rate=fps)
         stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
         stream.pix_fmt, stream.bit_rate = "yuv420p", 4_000_000
-        sound = container.add_stream("aac", rate=rate, layout="mono") if audio is not None else None
+        sound = container.add_stream(codec, rate=rate, layout="mono") if audio is not None else None
         for image in frames:
             container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
         container.mux(stream.encode())
@@ -212,3 +213,88 @@ def test_face_model_is_asked_for_not_downloaded(monkeypatch):
     monkeypatch.delenv("VISPEECH_FACE_MODEL", raising=False)
     with pytest.raises(VispeechError, match="--face-model .* VISPEECH_FACE_MODEL"):
         face_model_path()
+
+
+def _joined_corpus_takes(start: int, count: int = 10):
+    """``count`` grid_s1 utterances from ``start`` joined into one take: lip gap per frame (NaN
+    where untracked), sound fitted to the frames, as the corpus holds them."""
+    from vispeech.corpus.av_sync import lip_gap
+    from vispeech.corpus.grid import read_face_csv
+    from vispeech.frontends.audio import read_audio
+
+    require(GRID.is_dir(), f"grid_s1 ({GRID})")
+    ids = sorted(p.stem for p in (GRID / "utterances").glob("*.csv"))[start:start + count]
+    gaps, sounds = [], []
+    for name in ids:
+        _, landmarks, mask = read_face_csv(GRID / "utterances" / f"{name}.csv")
+        samples, rate = read_audio(GRID / "utterances" / f"{name}.flac")
+        gap = lip_gap(landmarks, (360, 288))
+        gaps.append(np.where(mask, gap, np.nan))
+        n = round(len(gap) / 25 * rate)
+        sounds.append(np.concatenate([samples, np.zeros(max(0, n - len(samples)))])[:n])
+    return np.concatenate(gaps), np.concatenate(sounds), rate
+
+
+@pytest.mark.parametrize("late", [0.0, 0.2, -0.15])
+def test_the_offset_of_sound_and_picture_is_measured(late):
+    """30 s of grid_s1 (in sync, utterances 300-319: not those NATURAL_LAG was measured on), and
+    the same with the sound moved: the estimate finds the picture ``late`` within 45 ms."""
+    from vispeech.corpus.av_sync import estimate_offset
+
+    for start in (300, 310):
+        gap, sound, rate = _joined_corpus_takes(start)
+        shift = round(late * rate)  # picture late = sound early: drop the sound's start
+        moved = np.concatenate([sound[shift:], np.zeros(shift)]) if shift >= 0 else np.concatenate(
+            [np.zeros(-shift), sound[:shift]])
+        offset = estimate_offset(gap, 25.0, moved, rate)
+        assert abs(offset - late) < 0.045, (start, late, offset)
+    assert np.isnan(estimate_offset(gap[:200], 25.0, sound[:200 * rate // 25], rate))  # 8 s: too short to tell
+
+
+def test_sync_puts_a_late_picture_back_in_time(videos, face_model_env, tmp_path):
+    """Four grid_s1 videos joined (12 s) with the picture 200 ms late: capture measures it, and
+    with sync the face track lines up with the corpus's own track of the same frames again."""
+    from vispeech.corpus.capture import capture_take
+    from vispeech.corpus.grid import read_face_csv
+    from vispeech.frontends.audio import read_audio
+
+    frames, sounds, wanted = [], [], []
+    for video in videos[:4]:
+        frames += _grid_frames(video)
+        samples, rate = read_audio(GRID / "utterances" / f"{video.stem}.flac")
+        n = round(75 / 25 * rate)
+        sounds.append(np.concatenate([samples, np.zeros(max(0, n - len(samples)))])[:n])
+        wanted.append(read_face_csv(GRID / "utterances" / f"{video.stem}.csv")[0]["jawOpen"])
+    late = [frames[0]] * 5 + frames[:-5]  # every picture 5 frames (200 ms) after its sound
+    video = tmp_path / "late.mkv"
+    _write_video(video, late, audio=np.concatenate(sounds), rate=rate, codec="pcm_s16le")
+    plain = capture_take(video, tmp_path / "plain")
+    synced = capture_take(video, tmp_path / "synced", sync=True, smooth=True)
+    assert abs(plain.offset - 0.2) < 0.045 and not plain.synced and synced.synced, plain
+    want = np.concatenate(wanted)
+    for folder, best in ((tmp_path / "plain", 5), (tmp_path / "synced", 0)):
+        got = read_face_csv(folder / f"late.face.csv")[0]["jawOpen"]
+        r = [np.corrcoef(got[lag:lag + 250], want[:250])[0, 1] for lag in range(8)]
+        assert int(np.argmax(r)) == best, (folder.name, np.round(r, 3))
+
+
+def test_smoothing_takes_jitter_and_keeps_speech():
+    """On 20 grid_s1 tracks the Savitzky–Golay filter cuts jawOpen's frame-to-frame jitter (mean
+    absolute second difference) by a quarter or more and keeps its movements (r > 0.98); frames
+    without a face stay empty."""
+    from vispeech.corpus.av_sync import smooth_frames
+    from vispeech.corpus.grid import read_face_csv
+
+    require(GRID.is_dir(), f"grid_s1 ({GRID})")
+    ratios = []
+    for path in sorted((GRID / "utterances").glob("*.csv"))[:20]:
+        track = read_face_csv(path)[0]
+        raw = track["jawOpen"]
+        smoothed = smooth_frames(track.values, 25.0)[:, track.channels.index("jawOpen")]
+        ratios.append(np.abs(np.diff(smoothed, 2)).mean() / np.abs(np.diff(raw, 2)).mean())
+        assert np.corrcoef(smoothed, raw)[0, 1] > 0.98, path.stem
+    assert np.median(ratios) < 0.75, ratios
+    values = track.values.copy()
+    values[40:43] = np.nan
+    smoothed = smooth_frames(values, 25.0)
+    assert np.isnan(smoothed[40:43]).all() and np.isfinite(np.delete(smoothed, range(40, 43), axis=0)).all()

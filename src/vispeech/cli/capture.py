@@ -23,9 +23,12 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
 @click.option("--batch", is_flag=True,
               help="VIDEO is a folder of videos, each with its transcript beside it (<name>.txt): capture them all "
                    "into one corpus folder, in parallel; a rerun skips the takes already there.")
+@click.option("--sync", is_flag=True,
+              help="Move the face track by the estimated audio-video offset (always measured and reported).")
+@click.option("--smooth", is_flag=True, help="Filter tracker jitter (Savitzky-Golay, 0.2 s window).")
 @click.option("--jobs", "-j", default=None, type=click.IntRange(min=1), help="Videos at once with --batch [default: cores].")
 def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model: Path | None, batch: bool,
-            jobs: int | None) -> None:
+            sync: bool, smooth: bool, jobs: int | None) -> None:
     """Track the face in VIDEO with MediaPipe and write the take train and evaluate read.
 
     The take holds <name>.wav (16 kHz), <name>.face.csv (blend shapes, head pose and lip, jaw and
@@ -42,7 +45,8 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
                 bar.length = total
                 bar.update(done - bar.pos)
 
-            report = capture_corpus(video, out_dir, language=lang, face_model=face_model, jobs=jobs, progress=advance)
+            report = capture_corpus(video, out_dir, language=lang, face_model=face_model, sync=sync, smooth=smooth,
+                                    jobs=jobs, progress=advance)
         click.echo(f"{report.captured} captured, {report.skipped} already there, {len(report.failed)} failed -> {out_dir}/")
         for name, reason in report.failed:
             click.echo(f"  failed {name}: {reason}")
@@ -54,8 +58,15 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
             bar.length = total
             bar.update(done - bar.pos)
 
-        report = capture_take(video, out_dir, text=text, language=lang, face_model=face_model, progress=advance)
+        report = capture_take(video, out_dir, text=text, language=lang, face_model=face_model, sync=sync,
+                              smooth=smooth, progress=advance)
     missing = f", {report.missing} without a face (left empty in {report.name}.face.csv)" if report.missing else ""
     phones = f", {report.phones} phones aligned" if text is not None else ""
     click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} "
                f"-> {out_dir}/")
+    if report.offset != report.offset:
+        click.echo("audio-video offset: cannot be told (too short, or the mouth does not move)")
+    else:
+        late = "late" if report.offset >= 0 else "early"
+        done = "moved back in time with the sound" if report.synced else "--sync moves it"
+        click.echo(f"audio-video offset: the picture is {abs(report.offset) * 1000:.0f} ms {late} ({done})")

@@ -14,6 +14,10 @@ and writes a take that :func:`~vispeech.corpus.takes.read_takes` (and so ``train
 - with a transcript, ``<name>.TextGrid``: words and phones by forced alignment of the sound
   (pocketsphinx for English, DTW on espeak-ng speech otherwise, :func:`vispeech.frontends.align.align`).
 
+Every capture estimates how late the picture is against the sound
+(:mod:`vispeech.corpus.av_sync`) and reports it; ``sync`` moves the face track by it, ``smooth``
+filters tracker jitter (both off by default).
+
 :func:`capture_corpus` does this for a folder of videos, each with its transcript beside it
 (``<name>.txt``), into one corpus folder, in parallel; a take is moved into the folder file by
 file with its ``.face.csv`` last, so a rerun skips exactly the takes that are complete.
@@ -28,9 +32,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from vispeech.alignment.formats import write_textgrid
-from vispeech.errors import VispeechError
+from vispeech.corpus.av_sync import MIN_SECONDS, estimate_offset, lip_gap, shift_frames, smooth_frames
 from vispeech.corpus.grid import fill_missing_frames, write_face_csv
+from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.align import align
 from vispeech.frontends.audio import wav_bytes
@@ -40,6 +47,8 @@ from vispeech.motion.track import Track
 
 TAKE_FILES = ("{name}.wav", "{name}.face.csv", "{name}.csv", "{name}.TextGrid")
 """The files of a captured take, by the video's name."""
+
+
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".mpg", ".mpeg")
 """The files :func:`capture_corpus` takes for videos."""
@@ -57,15 +66,22 @@ class CaptureReport:
     fps: float
     duration: float
     phones: int
+    offset: float
+    """Seconds the picture is late against the sound (:func:`~vispeech.corpus.av_sync.estimate_offset`;
+    NaN when it cannot be told), before any correction."""
+    synced: bool
+    """Whether the face track was moved by ``offset``."""
 
 
 def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: str | None = None,
-                 language: str = "en", face_model: str | os.PathLike | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> CaptureReport:
+                 language: str = "en", face_model: str | os.PathLike | None = None, sync: bool = False,
+                 smooth: bool = False, progress: Callable[[int, int], None] | None = None) -> CaptureReport:
     """Write the take of ``video`` into ``out_dir`` (see the module docstring); the folder is
     written whole or not at all (:func:`vispeech.files.atomic_output_dir`) and may already hold
-    only this take's files. Raises :class:`VispeechError` for an unreadable video, one with no
-    audio track or no face in any frame, or a transcript that cannot be aligned."""
+    only this take's files. The audio–video offset is always estimated and reported; ``sync``
+    moves the face track by it, ``smooth`` filters tracker jitter (:mod:`vispeech.corpus.av_sync`).
+    Raises :class:`VispeechError` for an unreadable video, one with no audio track or no face in
+    any frame, or a transcript that cannot be aligned."""
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
     check_output_dir(out_dir, replaces=files)
@@ -75,19 +91,32 @@ def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: 
     phones = align(clip.samples, clip.sample_rate, text, language) if text is not None else None
     face = track_face(video, face_model, progress)
     found = face.found
-    blend = [c for c in face.channels if not c.startswith("head")]
-    filled, _ = fill_missing_frames(face.values)
-    livelink = Track(filled, face.channels, face.fps).select([*blend, "headYaw", "headPitch", "headRoll"])
     landmarks = {f"lm{k}": face.landmarks[:, i] for i, k in enumerate(LANDMARKS)}
+    offset = estimate_offset(lip_gap(landmarks, face.size), face.fps, clip.samples, clip.sample_rate, mask=found)
+    width = face.values.shape[1]
+    frames = np.concatenate([face.values, face.landmarks.reshape(len(found), -1)], axis=1)
+    if sync:
+        if not np.isfinite(offset):
+            raise VispeechError(f"{video}: cannot tell the sound's offset from the picture (it needs "
+                                f"{MIN_SECONDS:g} s of speech): capture it without --sync")
+        frames = shift_frames(frames, offset, face.fps)
+    if smooth:
+        frames = smooth_frames(frames, face.fps)
+    values = frames[:, :width]
+    landmarks = {name: frames[:, width + 3 * i:width + 3 * i + 3] for i, name in enumerate(landmarks)}
+    found = np.isfinite(values).all(axis=1)
+    blend = [c for c in face.channels if not c.startswith("head")]
+    filled, _ = fill_missing_frames(values)
+    livelink = Track(filled, face.channels, face.fps).select([*blend, "headYaw", "headPitch", "headRoll"])
     with atomic_output_dir(out_dir, replaces=files) as staging:
         (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
-        write_face_csv(staging / files[1], face.values, face.channels, landmarks, face.fps)
+        write_face_csv(staging / files[1], values, face.channels, landmarks, face.fps)
         write_livelink_csv(livelink, staging / files[2])
         if phones is not None:
             write_textgrid(phones, staging / files[3])
     duration = len(clip.samples) / clip.sample_rate
     return CaptureReport(name, len(found), int((~found).sum()), face.fps, duration,
-                         0 if phones is None else sum(1 for p in phones if not p.is_silence))
+                         0 if phones is None else sum(1 for p in phones if not p.is_silence), offset, sync)
 
 
 
@@ -102,12 +131,13 @@ class CorpusCaptureReport:
 
 
 def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, language: str = "en",
-                   face_model: str | os.PathLike | None = None, jobs: int | None = None,
-                   progress: Callable[[int, int], None] | None = None) -> CorpusCaptureReport:
+                   face_model: str | os.PathLike | None = None, sync: bool = False, smooth: bool = False,
+                   jobs: int | None = None, progress: Callable[[int, int], None] | None = None) -> CorpusCaptureReport:
     """Capture every video in ``folder`` (:data:`VIDEO_SUFFIXES`, with ``<name>.txt`` beside it when
     there is a transcript) into the corpus folder ``out_dir``, ``jobs`` at a time (default: the
-    cores). A video whose take is complete in ``out_dir`` is skipped; one that fails is reported
-    and stops nothing. ``progress(done, total)`` after each video."""
+    cores), with ``sync`` and ``smooth`` as :func:`capture_take` takes them. A video whose take is
+    complete in ``out_dir`` is skipped; one that fails is reported and stops nothing.
+    ``progress(done, total)`` after each video."""
     root, out = Path(folder), Path(out_dir)
     if not root.is_dir():
         raise VispeechError(f"video folder not found: {root}")
@@ -133,7 +163,8 @@ def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, lan
         progress(done, len(videos))
     face_model = str(face_model) if face_model is not None else None
     with ProcessPoolExecutor(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1))) as pool:
-        futures = {pool.submit(_capture_into, video, out, language, face_model): video for video in todo}
+        futures = {pool.submit(_capture_into, video, out, language, face_model, sync, smooth): video
+                   for video in todo}
         for future in as_completed(futures):
             failure = future.result()
             if failure is None:
@@ -147,7 +178,8 @@ def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, lan
     return report
 
 
-def _capture_into(video: Path, out: Path, language: str, face_model: str | None) -> str | None:
+def _capture_into(video: Path, out: Path, language: str, face_model: str | None, sync: bool,
+                  smooth: bool) -> str | None:
     """Capture one video into the corpus folder ``out`` (staged beside it, then moved in with its
     ``.face.csv`` last); None, or why it failed."""
     transcript = video.with_suffix(".txt")
@@ -155,7 +187,8 @@ def _capture_into(video: Path, out: Path, language: str, face_model: str | None)
         text = " ".join(transcript.read_text(encoding="utf-8-sig").split()) if transcript.is_file() else None
         with tempfile.TemporaryDirectory(prefix=f".vispeech-capture-{video.stem}-", dir=out) as staging:
             take = Path(staging) / "take"
-            capture_take(video, take, text=text or None, language=language, face_model=face_model)
+            capture_take(video, take, text=text or None, language=language, face_model=face_model, sync=sync,
+                         smooth=smooth)
             written = [take / f.format(name=video.stem) for f in TAKE_FILES]
             for path in sorted((p for p in written if p.is_file()), key=lambda p: p.name.endswith(".face.csv")):
                 os.replace(path, out / path.name)

@@ -1,0 +1,108 @@
+"""Audio–video sync of a captured take, and optional smoothing of tracker jitter.
+
+A camera's sound can lead or trail its picture (a phone's or a webcam's capture pipeline, a
+re-encoded file). :func:`estimate_offset` measures it from the take itself. At 100 Hz, the
+rate of change of the inner-lip gap (landmarks 13 and 14 over the eye-corner distance, 33 to
+263; :func:`lip_gap`) is cross-correlated with that of the sound's log energy (low-passed at
+10 Hz) over lags of up to ``max_lag``; the peak, refined by a parabola, less what synchronous
+recordings show (:data:`NATURAL_LAG`, measured on grid_s1), is the offset. Positive: the picture
+is late (the mouth moves after the sound). It needs :data:`MIN_SECONDS` of the take: on 3-s
+takes a fifth of the estimates are wrong by more than 80 ms, on 30 s of speech none of 30 were.
+:func:`shift_frames` moves a track by an offset (linear interpolation, ends held).
+
+:func:`smooth_frames` is a Savitzky–Golay filter (scipy) over the frames, off unless asked:
+on grid_s1 it cuts jawOpen's frame-to-frame jitter (mean absolute second difference) by 29 %
+(median of 50 tracks) and keeps its movements (r ≥ 0.99 with the raw track).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import butter, savgol_filter, sosfiltfilt
+
+ANALYSIS_RATE = 100
+"""Hz at which the lip gap and the sound's energy are compared."""
+MIN_SECONDS = 10.0
+"""The shortest take whose offset :func:`estimate_offset` tells (NaN below)."""
+NATURAL_LAG = 0.025
+"""Seconds by which the lip gap's changes seem to follow the sound's in a synchronous recording
+(frame times taken at their middles): the median over 30 stretches of 30 s of grid_s1 (its first
+300 utterances joined ten at a time; all 30 within -3 and 63 ms)."""
+SMOOTHING_WINDOW = 0.2
+"""Seconds of the Savitzky–Golay window (5 frames at 25 fps), polynomial order 2."""
+
+
+def lip_gap(landmarks: dict[str, np.ndarray], size: tuple[int, int]) -> np.ndarray:
+    """Per frame, the inner-lip gap over the eye-corner distance, from image-normalised landmarks
+    of a frame of ``size`` (width, height) pixels."""
+    scale = np.array(size, dtype=float)
+
+    def distance(a: str, b: str) -> np.ndarray:
+        return np.linalg.norm((landmarks[a][:, :2] - landmarks[b][:, :2]) * scale, axis=1)
+
+    return distance("lm13", "lm14") / distance("lm33", "lm263")
+
+
+def estimate_offset(gap: np.ndarray, fps: float, samples: np.ndarray, sample_rate: int,
+                    mask: np.ndarray | None = None, max_lag: float = 0.3) -> float:
+    """Seconds by which the picture is late against the sound (see the module docstring), from a
+    take's per-frame lip ``gap`` at ``fps`` and its sound; ``mask`` marks the frames with a face
+    (the others do not count). NaN for a take shorter than :data:`MIN_SECONDS` or one whose
+    mouth or sound does not change."""
+    gap = np.asarray(gap, dtype=float)
+    known = np.isfinite(gap) if mask is None else (np.asarray(mask, bool) & np.isfinite(gap))
+    n = len(gap)
+    if n / fps < MIN_SECONDS or known.sum() < 2:
+        return float("nan")
+    m = int(n / fps * ANALYSIS_RATE)
+    times = np.arange(m) / ANALYSIS_RATE
+    frames = np.flatnonzero(known)
+    g = np.gradient(np.interp(times, (frames + 0.5) / fps, gap[frames]))
+    edges = np.clip(np.round(np.arange(m + 1) * sample_rate / ANALYSIS_RATE).astype(int), 0, len(samples))
+    squares = np.concatenate([[0.0], np.cumsum(np.asarray(samples, dtype=float) ** 2)])
+    rms = np.sqrt((squares[edges[1:]] - squares[edges[:-1]]) / np.maximum(np.diff(edges), 1))
+    e = np.gradient(sosfiltfilt(butter(2, 10, fs=ANALYSIS_RATE, output="sos"), np.log(rms + 1e-6)))
+    use = known[np.minimum((times * fps).astype(int), n - 1)]
+    if np.std(g[use]) == 0 or np.std(e[use]) == 0:
+        return float("nan")
+    g = np.where(use, (g - g[use].mean()) / g[use].std(), 0.0)
+    e = np.where(use, (e - e[use].mean()) / e[use].std(), 0.0)
+    reach = int(round(max_lag * ANALYSIS_RATE))
+    lags = np.arange(-reach, reach + 1)
+    scores = np.array([np.mean(g[max(0, -lag):m - max(0, lag)] * e[max(0, lag):m - max(0, -lag)]) for lag in lags])
+    k = int(np.argmax(scores))
+    shift = 0.0
+    if 0 < k < len(lags) - 1:
+        curve = scores[k - 1] - 2 * scores[k] + scores[k + 1]
+        shift = 0.5 * (scores[k - 1] - scores[k + 1]) / curve if curve < 0 else 0.0
+    return float(-(lags[k] + shift) / ANALYSIS_RATE - NATURAL_LAG)
+
+
+def shift_frames(values: np.ndarray, offset: float, fps: float) -> np.ndarray:
+    """``values`` (frames × channels) moved ``offset`` seconds earlier (a late picture put back in
+    time with the sound): frame k takes the values at ``k + offset · fps``, interpolated linearly,
+    the first and last frames held beyond the ends; NaN rows stay NaN where they land."""
+    values = np.asarray(values, dtype=float)
+    frames = np.arange(len(values))
+    source = frames + offset * fps
+    out = np.empty_like(values)
+    found = np.isfinite(values).all(axis=1)
+    for j in range(values.shape[1]):
+        out[:, j] = np.interp(source, frames[found], values[found, j])
+    nearest = np.clip(np.round(source).astype(int), 0, len(values) - 1)
+    out[~found[nearest]] = np.nan
+    return out
+
+
+def smooth_frames(values: np.ndarray, fps: float) -> np.ndarray:
+    """``values`` (frames × channels) through a Savitzky–Golay filter of :data:`SMOOTHING_WINDOW`
+    seconds (at least 5 frames, odd), order 2, over each run of frames with a face; NaN rows stay."""
+    values = np.asarray(values, dtype=float)
+    window = max(5, int(round(SMOOTHING_WINDOW * fps)) | 1)
+    out = values.copy()
+    found = np.isfinite(values).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], found.astype(int), [0]])))
+    for start, end in zip(edges[::2], edges[1::2]):
+        if end - start >= window:
+            out[start:end] = savgol_filter(values[start:end], window, 2, axis=0)
+    return out
