@@ -298,3 +298,44 @@ def test_smoothing_takes_jitter_and_keeps_speech():
     values[40:43] = np.nan
     smoothed = smooth_frames(values, 25.0)
     assert np.isnan(smoothed[40:43]).all() and np.isfinite(np.delete(smoothed, range(40, 43), axis=0)).all()
+
+
+def test_an_iphone_recording_is_imported_with_its_timecodes_lined_up(videos, tmp_path):
+    """A Live Link Face recording: the app's CSV (a grid_s1 track, its first row at timecode
+    10:00:00:10) and its .mov (timecode 10:00:00:00, with the sound). The take starts with the
+    sound: the CSV's rows land 10 frames in, the 10 frames before them are marked empty."""
+    import av
+
+    from vispeech.corpus.grid import read_face_csv
+    from vispeech.corpus.takes import read_takes
+    from vispeech.frontends.audio import read_audio
+    from vispeech.motion.livelink import write_livelink_csv
+
+    recorded = read_face_csv(GRID / "utterances" / f"{videos[0].stem}.csv")[0]
+    csv = tmp_path / "take01_iPhone.csv"
+    write_livelink_csv(recorded, csv, start_timecode="10:00:00:10")
+    samples, rate = read_audio(GRID / "utterances" / f"{videos[0].stem}.flac")
+    mov = tmp_path / "take01_iPhone.mov"
+    with av.open(str(mov), "w", format="mov") as container:
+        picture = container.add_stream("mpeg4", rate=25)
+        picture.width, picture.height, picture.pix_fmt = 64, 48, "yuv420p"
+        picture.metadata["timecode"] = "10:00:00:00"
+        sound = container.add_stream("pcm_s16le", rate=rate, layout="mono")
+        for _ in range(75):
+            container.mux(picture.encode(av.VideoFrame.from_ndarray(np.zeros((48, 64, 3), np.uint8), format="rgb24")))
+        container.mux(picture.encode())
+        frame = av.AudioFrame.from_ndarray((samples * 32767).astype(np.int16)[None], format="s16", layout="mono")
+        frame.sample_rate = rate
+        container.mux(sound.encode(frame))
+        container.mux(sound.encode())
+    out = tmp_path / "take"
+    result = CliRunner().invoke(main, ["capture", str(mov), "--livelink", str(csv), "--text", "bin blue at f two now",
+                                       "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "first row at +0.400 s of the sound" in result.output and "10 not covered" in result.output
+    (take,) = list(read_takes(out, language="en", strict=True))
+    assert take.track.n_frames == 75 and np.flatnonzero(~take.frame_mask).tolist() == list(range(10))
+    np.testing.assert_allclose(take.track["jawOpen"][10:], recorded["jawOpen"][:65], atol=1e-4)
+    assert [w.text for w in take.words] == ["bin", "blue", "at", "f", "two", "now"]
+    livelink = (out / "take01_iPhone.csv").read_text().splitlines()
+    assert len(livelink) == 76 and livelink[1].startswith("00:00:00:00")

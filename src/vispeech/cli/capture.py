@@ -20,6 +20,9 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
               help="The take's folder (with --batch: the corpus folder).")
 @click.option("--face-model", type=click.Path(path_type=Path, dir_okay=False), envvar=FACE_MODEL_VARIABLE,
               show_envvar=True, help="MediaPipe's face_landmarker.task (never downloaded).")
+@click.option("--livelink", "livelink_csv", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="An iPhone Live Link Face recording: the app's CSV of this VIDEO; its blend shapes are kept "
+                   "(no tracking) and its timecodes lined up with the video's.")
 @click.option("--batch", is_flag=True,
               help="VIDEO is a folder of videos, each with its transcript beside it (<name>.txt): capture them all "
                    "into one corpus folder, in parallel; a rerun skips the takes already there.")
@@ -27,16 +30,26 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
               help="Move the face track by the estimated audio-video offset (always measured and reported).")
 @click.option("--smooth", is_flag=True, help="Filter tracker jitter (Savitzky-Golay, 0.2 s window).")
 @click.option("--jobs", "-j", default=None, type=click.IntRange(min=1), help="Videos at once with --batch [default: cores].")
-def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model: Path | None, batch: bool,
-            sync: bool, smooth: bool, jobs: int | None) -> None:
+def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model: Path | None,
+            livelink_csv: Path | None, batch: bool, sync: bool, smooth: bool, jobs: int | None) -> None:
     """Track the face in VIDEO with MediaPipe and write the take train and evaluate read.
 
     The take holds <name>.wav (16 kHz), <name>.face.csv (blend shapes, head pose and lip, jaw and
     eye landmarks per video frame; frames without a face left empty), <name>.csv (Live Link Face)
     and, with --text, <name>.TextGrid (docs/capture.md). Needs the capture extra.
     """
-    from vispeech.corpus.capture import capture_corpus, capture_take
+    from vispeech.corpus.capture import capture_corpus, capture_take, import_livelink_take
 
+    if livelink_csv is not None:
+        if batch or sync or smooth:
+            raise VispeechError("--livelink imports one recording as it is: leave out --batch, --sync and --smooth")
+        report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=lang)
+        offset = report.timecode_offset
+        where = ("the video has no timecode: taken to start with the sound" if offset != offset
+                 else f"its first row at {offset:+.3f} s of the sound (timecodes)")
+        missing = f", {report.missing} not covered by the CSV (left empty)" if report.missing else ""
+        click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}; {where} -> {out_dir}/")
+        return
     if batch:
         if text is not None:
             raise VispeechError("--batch reads each video's transcript from <name>.txt beside it: leave out --text")

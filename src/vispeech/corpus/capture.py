@@ -71,6 +71,9 @@ class CaptureReport:
     NaN when it cannot be told), before any correction."""
     synced: bool
     """Whether the face track was moved by ``offset``."""
+    timecode_offset: float | None = None
+    """For a Live Link Face import: seconds into the sound at which the CSV's first row falls (NaN
+    when the video has no timecode); None for a video capture."""
 
 
 def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: str | None = None,
@@ -197,3 +200,51 @@ def _capture_into(video: Path, out: Path, language: str, face_model: str | None,
         return str(exc)
     except (OSError, UnicodeDecodeError) as exc:
         return f"{type(exc).__name__}: {exc}"
+
+
+def import_livelink_take(csv: str | os.PathLike, video: str | os.PathLike, out_dir: str | os.PathLike, *,
+                         text: str | None = None, language: str = "en") -> CaptureReport:
+    """Write a Live Link Face recording (the app's ``csv`` and its ``video`` with the sound) as a take
+    in ``out_dir``, in the layout :func:`capture_take` writes, the iPhone's blend shapes kept as
+    they are (no MediaPipe).
+
+    The CSV's rows carry timecodes and the video a start timecode: the CSV's first row is at
+    ``csv start − video start`` seconds of the sound. The take's frames start with the sound
+    (frame k at k / fps); frames the CSV does not cover are left empty in ``<name>.face.csv``
+    (and held from the nearest row in the Live Link CSV). Without a timecode in the video the two
+    are taken to start together (the report's ``timecode_offset`` is then NaN). Raises
+    :class:`VispeechError` for a CSV that starts more than 10 s away from the sound."""
+    from vispeech.frontends.video import video_timecode
+    from vispeech.motion.livelink import parse_timecode, read_livelink_csv
+
+    name = Path(video).stem
+    files = [f.format(name=name) for f in TAKE_FILES]
+    check_output_dir(out_dir, replaces=files)
+    track = read_livelink_csv(csv)
+    clip = video_audio(video)
+    stamp = video_timecode(video)
+    offset = float("nan")
+    if stamp is not None:
+        timecode, rate = stamp
+        offset = track.start_time - parse_timecode(timecode, max(1, round(rate or track.fps)), "video timecode")
+        if abs(offset) > 10.0:
+            raise VispeechError(f"{csv}: its first timecode is {offset:+.2f} s from the video's ({timecode}): "
+                                "not the same take?")
+    duration = len(clip.samples) / clip.sample_rate
+    n = int(np.ceil(duration * track.fps - 1e-6))
+    source = (np.arange(n) - (0.0 if offset != offset else offset) * track.fps)  # row of the CSV at frame k
+    values = np.empty((n, len(track.channels)))
+    rows = np.arange(track.n_frames)
+    for j in range(len(track.channels)):
+        values[:, j] = np.interp(source, rows, track.values[:, j])
+    covered = (source > -0.5) & (source < track.n_frames - 0.5)
+    phones = align(clip.samples, clip.sample_rate, text, language) if text is not None else None
+    marked = np.where(covered[:, None], values, np.nan)
+    with atomic_output_dir(out_dir, replaces=files) as staging:
+        (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
+        write_face_csv(staging / files[1], marked, track.channels, {}, track.fps)
+        write_livelink_csv(Track(values, track.channels, track.fps), staging / files[2])
+        if phones is not None:
+            write_textgrid(phones, staging / files[3])
+    return CaptureReport(name, n, int((~covered).sum()), track.fps, duration,
+                         0 if phones is None else sum(1 for p in phones if not p.is_silence), float("nan"), False, offset)

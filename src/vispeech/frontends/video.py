@@ -116,6 +116,18 @@ def video_audio(path: str | os.PathLike) -> AudioClip:
     return AudioClip.from_array(np.concatenate(chunks), SAMPLE_RATE, where=f"{path}'s audio")
 
 
+def video_timecode(path: str | os.PathLike) -> tuple[str, float] | None:
+    """The video's start timecode (``HH:MM:SS:FF``, as QuickTime's timecode track or the
+    container's metadata holds it) and its video frame rate, or None when it has none."""
+    with _open(path) as container:
+        video = container.streams.video[0] if container.streams.video else None
+        for metadata in [*(s.metadata for s in container.streams), container.metadata]:
+            if metadata.get("timecode"):
+                rate = float(video.average_rate or 0) if video is not None else 0.0
+                return metadata["timecode"], rate
+    return None
+
+
 def track_face(path: str | os.PathLike, face_model: str | os.PathLike | None = None,
                progress: Callable[[int, int], None] | None = None) -> FaceTrack:
     """Track the face in every frame of the video at ``path`` (see the module docstring).

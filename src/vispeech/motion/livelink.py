@@ -64,7 +64,7 @@ def write_livelink_csv(track: Track, path: str | os.PathLike, start_timecode: st
     Values are printed with 10 decimals and ``BlendshapeCount`` is 61, as the app writes them.
     """
     rate = math.ceil(track.fps - 1e-9)
-    origin = _parse_timecode(start_timecode, rate, "start timecode")
+    origin = parse_timecode(start_timecode, rate, "start timecode")
     if origin + track.start_time < 0:
         raise VispeechError(f"the first frame would have a negative timecode (start time {track.start_time} s)")
     values = track.select(LIVELINK_CHANNELS).values.tolist()  # Python floats format 3x faster than numpy's
@@ -156,7 +156,9 @@ def _timecode_seconds(groups: tuple, rate: int) -> float:
     return int(hours) * 3600 + int(minutes) * 60 + int(seconds) + frames / rate
 
 
-def _parse_timecode(text: str, rate: int, what: str) -> float:
+def parse_timecode(text: str, rate: int, what: str = "timecode") -> float:
+    """Seconds of a timecode ``HH:MM:SS:FF`` (or ``;FF``, or ``:FF.mmm``) with ``rate`` frames a
+    second; a :class:`VispeechError` naming ``what`` when it is not one."""
     match = _TIMECODE.match(text.strip())
     if match is None:
         raise VispeechError(f"bad {what} {text!r}: use HH:MM:SS:FF or HH:MM:SS:FF.mmm")
