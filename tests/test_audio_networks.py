@@ -206,3 +206,34 @@ def test_short_and_silent_audio(cnn):
         stream = cnn.stream(None, 25)
         frames = [stream.push(clip.samples)[1], stream.finish()[1]]
         np.testing.assert_allclose(np.concatenate(frames), track.values, atol=1e-5)
+
+
+def _new_speaker(utterances) -> list:
+    """The utterances as a speaker whose jaw opens half as far from a lower rest would say them."""
+    from dataclasses import replace
+
+    return [replace(u, track=Track(0.15 + 0.5 * u.track.values, u.track.channels, u.track.fps)) for u in utterances]
+
+
+def test_an_audio_network_adapts_to_a_new_speaker(cnn, corpus, held_out):
+    """train --from for an audio network: warm-started on a few of a new speaker's utterances it
+    predicts that speaker's held-out jaw better than before. How it compares with training from
+    scratch on real speech: benchmarks/adapt_speaker.py --model grid-audio-cnn."""
+    few = Splits(_new_speaker(corpus.train[:4]), _new_speaker(corpus.validation))
+    target = _new_speaker(held_out)
+
+    def error(model) -> float:
+        return float(np.mean([np.mean((model.predict(clip_of(u), 25).select(["jawOpen"]).values[:, 0]
+                                       - u.track["jawOpen"]) ** 2) for u in target]))
+
+    adapted = cnn.with_params(warm_start=True, epochs=8, patience=8).fit(few, progress=False)
+    assert error(adapted) < 0.8 * error(cnn), (error(adapted), error(cnn))
+    assert cnn.history_.epochs == 25  # the shipped model is untouched
+
+
+def test_a_warm_start_refuses_phones_its_ctc_head_does_not_know(encdec, corpus):
+    from dataclasses import replace
+
+    swedish = [replace(u, phones=PhoneSequence([Phone("sj", 0.0, 0.5)], "sv")) for u in corpus.train[:2]]
+    with pytest.raises(VispeechError, match="CTC head does not know: sj"):
+        encdec.with_params(warm_start=True, epochs=1).fit(Splits(swedish), progress=False)

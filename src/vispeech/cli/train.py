@@ -26,8 +26,8 @@ LOSS_CURVE = "loss_curve.png"
               help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
                    "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).")
 @click.option("--from", "from_model", default=None, metavar="MODEL",
-              help="Adapt this trained phone network (a shipped name such as grid-tdnn, or a saved folder) to the "
-                   "corpus instead: it starts from its weights (speaker adaptation).")
+              help="Adapt this trained network (a shipped name such as grid-tdnn or grid-audio-cnn, or a saved folder) "
+                   "to the corpus instead: it starts from its weights (speaker adaptation).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
 @click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
 @click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
@@ -52,8 +52,8 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
 
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
     interrupted run goes on with --resume OUTPUT; the folder is removed once the model is saved.
-    The loss curve is drawn into OUTPUT/loss_curve.png. With --from MODEL a trained phone network
-    is adapted to the corpus (a new speaker: minutes of takes), and its test-split score before
+    The loss curve is drawn into OUTPUT/loss_curve.png. With --from MODEL a trained network (phones
+    or audio in) is adapted to the corpus (a new speaker: minutes of takes), and its test-split score before
     adaptation is printed beside the one after.
     """
     from vispeech.models.networks.network import Network
@@ -127,8 +127,8 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
         raise VispeechError("--from keeps the model's inputs and targets and starts afresh: no --input, "
                             "--targets or --resume")
     base = load_model(from_model)
-    if not isinstance(base, Network) or base.input_kind != "phones":
-        raise VispeechError(f"--from needs a trained phone network; {from_model!r} is a {base.family} model")
+    if not isinstance(base, Network):
+        raise VispeechError(f"--from needs a trained network (phones or audio); {from_model!r} is a {base.family} model")
     options = {key: value for key, value in (("epochs", epochs), ("seed", seed)) if value is not None}
     for key, value in map(_parameter, params):
         if key not in base.get_params() or key in ("checkpoint_dir", "warm_start"):

@@ -162,6 +162,18 @@ class AudioNetwork(Network):
                 powers.append(power_spectrogram(shifted))
         return powers
 
+    def _check_warm(self, train_set: list) -> None:
+        """A warm start keeps the features' statistics and the CTC head's phones: the corpus's phones
+        must be among them (silence aside)."""
+        if self.phones_:
+            known = set(self.phones_)
+            for utterance in train_set:
+                unknown = sorted({p.symbol for p in utterance.phones if p.symbol not in known and not p.is_silence})
+                if unknown:
+                    raise VispeechError(f"utterance {getattr(utterance, 'id', '?')} has phones this model's CTC head "
+                                        f"does not know: {', '.join(unknown[:5])} (it was trained on "
+                                        f"{len(self.phones_)} phones)")
+
     def _phone_vocabulary(self, train_set: list) -> tuple[str, ...]:
         """The phone labels of the CTC head: the language's inventory without silence (none without CTC)."""
         if not self._params["ctc_weight"]:

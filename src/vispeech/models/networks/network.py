@@ -197,7 +197,7 @@ class Network(Estimator):
             missing = [c for c in self.outputs_ if c not in train_set[0].track.channels]
             if missing:
                 raise VispeechError(f"the corpus tracks lack the channels this model predicts: {', '.join(missing)}")
-            self.encoding_.check(train_set[0].phones)
+            self._check_warm(train_set)
         else:
             self._prepare(train_set, corpus)
         examples = [self._example(u) for u in train_set]
@@ -291,6 +291,10 @@ class Network(Estimator):
             changed = sorted(k for k in mine if mine[k] != theirs.get(k))
             raise VispeechError(f"cannot resume from {folder}: parameters differ ({', '.join(changed)})")
         return saved
+
+    def _check_warm(self, train_set: list) -> None:
+        """Raise :class:`VispeechError` when the fitted encoding cannot take ``train_set`` (a warm start)."""
+        self.encoding_.check(train_set[0].phones)
 
     def _prepare(self, train_set: list, corpus) -> None:
         """Fix frame rate, output channels and input encoding from the training data
