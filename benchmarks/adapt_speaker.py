@@ -1,14 +1,15 @@
-"""Speaker adaptation on a simulated new speaker: grid-tdnn adapted on 50 utterances.
+"""Speaker adaptation on a simulated new speaker: a shipped network adapted on 50 utterances.
 
-    python benchmarks/adapt_speaker.py [--train 50] [--width 1.6] [--jaw 0.06] [--epochs 60]
+    python benchmarks/adapt_speaker.py [--model grid-tdnn|grid-audio-cnn] [--train 50] [--width 1.6]
+                                       [--jaw 0.06] [--epochs 60]
 
 No second speaker's tracks are at hand, so one is simulated: every grid_s1 track has its mouth
 widened (mouthStretch and mouthSmile times ``--width``) and its jaw lowered (jawOpen plus
 ``--jaw``, clipped to 1). Three models then predict the transformed test split (83 utterances,
 no post-processing):
-- the shipped grid-tdnn as it is;
-- grid-tdnn adapted on the first ``--train`` transformed training utterances
-  (``vispeech train --from grid-tdnn``: warm start, early stopping on 15 validation utterances);
+- the shipped ``--model`` (a phone or an audio network) as it is;
+- that model adapted on the first ``--train`` transformed training utterances
+  (``vispeech train --from MODEL``: warm start, early stopping on 15 validation utterances);
 - the same architecture trained from scratch on those utterances.
 
 Prints RMSE (% of each channel's range) and Pearson r per channel.
@@ -46,6 +47,7 @@ def new_speaker(track: Track, width: float, jaw: float) -> Track:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", default="grid-tdnn")
     parser.add_argument("--train", type=int, default=50)
     parser.add_argument("--validation", type=int, default=15)
     parser.add_argument("--width", type=float, default=1.6)
@@ -62,7 +64,7 @@ def main() -> None:
                                         for u in train + validation + test])
     align_corpus(small, jobs=2, progress=False)
 
-    base = load_model("grid-tdnn")
+    base = load_model(args.model)
     started = time.perf_counter()
     adapted = base.with_params(warm_start=True, epochs=args.epochs, patience=8).fit(small, progress=False)
     adapted_s = time.perf_counter() - started
@@ -70,15 +72,16 @@ def main() -> None:
     scratch = create_model(base.family, **{**base.get_params(), "epochs": args.epochs, "patience": 8,
                                           "checkpoint_dir": None}).fit(small, progress=False)
     scratch_s = time.perf_counter() - started
-    models = {"grid-tdnn (unadapted)": base, "adapted on the new speaker": adapted, "from scratch": scratch}
-    report = evaluate_models(small.split("test"), models, channels=list(CHANNELS), postprocessing=False)
+    models = {f"{args.model} (unadapted)": base, "adapted on the new speaker": adapted, "from scratch": scratch}
+    channels = [c for c in CHANNELS if c in base.channels]
+    report = evaluate_models(small.split("test"), models, channels=channels, postprocessing=False)
     print(f"new speaker: stretch/smile x{args.width}, jawOpen +{args.jaw}; {len(train)} training, "
           f"{len(validation)} validation, {len(test)} test utterances")
     print(f"adaptation {adapted_s:.0f} s ({adapted.history_.epochs} epochs), from scratch {scratch_s:.0f} s "
           f"({scratch.history_.epochs} epochs)")
-    print(f"{'model':28}" + "".join(f"{c + ' RMSE %':>24}{'r':>7}" for c in CHANNELS))
+    print(f"{'model':28}" + "".join(f"{c + ' RMSE %':>24}{'r':>7}" for c in channels))
     for result in report.models:
-        row = "".join(f"{result.scores[c]['rmse_percent']:>24.2f}{result.scores[c]['r']:>7.3f}" for c in CHANNELS)
+        row = "".join(f"{result.scores[c]['rmse_percent']:>24.2f}{result.scores[c]['r']:>7.3f}" for c in channels)
         print(f"{result.label:28}{row}")
 
 

@@ -51,10 +51,36 @@ def test_frame_by_frame_step_equals_torch(name):
     kernel, state, frames = model.kernel, model.kernel.initial_state(), []
     for t in range(len(inputs)):
         index = np.clip(np.arange(t - p["look_back"], t + p["look_ahead"] + 1), 0, len(inputs) - 1)
-        out, state = kernel.step(inputs[index], state)
-        frames.append(out)
+        out, state = kernel.step(inputs[index][None], [s[None] for s in state])
+        frames.append(out[0])
+        state = [s[0] for s in state]
     reference = torch_outputs(model, inputs)
     np.testing.assert_allclose(model._denormalise(np.array(frames)), model._denormalise(reference), atol=1e-5)
+
+
+@pytest.mark.parametrize("name", NETWORKS)
+def test_several_streams_step_together_as_each_alone(name):
+    """One kernel step for several streams (what the server does for concurrent sessions) gives
+    each stream the frames it gets alone."""
+    model = load_model(name)
+    kernel, p = model.kernel, model.get_params()
+    inputs = [model.encoding_.encode(PhoneSequence.from_dict(entry), model.fps_) for entry in GOLDEN_PHONES[:4]]
+    n = min(len(x) for x in inputs)
+
+    def window(x, t):
+        return x[np.clip(np.arange(t - p["look_back"], t + p["look_ahead"] + 1), 0, len(x) - 1)]
+
+    states = [np.stack(parts) for parts in zip(*(kernel.initial_state() for _ in inputs))]
+    together = []
+    for t in range(n):
+        out, states = kernel.step(np.stack([window(x, t) for x in inputs]), states)
+        together.append(out)
+    for b, x in enumerate(inputs):
+        state, alone = [s[None] for s in kernel.initial_state()], []
+        for t in range(n):
+            out, state = kernel.step(window(x, t)[None], state)
+            alone.append(out[0])
+        np.testing.assert_allclose(np.array(together)[:, b], np.array(alone), atol=1e-6)
 
 
 @pytest.mark.parametrize("family", ["sliding-window-thesis", "sliding-window-taylor"])

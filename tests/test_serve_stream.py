@@ -20,7 +20,7 @@ from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.models.contract import WindowStream  # noqa: E402
 from vispeech.models.registry import create_model  # noqa: E402
 from vispeech.models.rules.cohen_massaro import CohenMassaro  # noqa: E402
-from vispeech.pipeline import animate  # noqa: E402
+from vispeech.pipeline import animate, speak  # noqa: E402
 from vispeech.serve import PhoneStream, ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
 from vispeech.streaming import POSTPROCESS_LOOKAHEAD  # noqa: E402
 
@@ -374,3 +374,73 @@ def test_streams_use_the_shipped_low_latency_network_by_default(tmp_path):
     assert len(frames) == messages[-1]["n_frames"] == 30
     reference = animate(offline(HELLO), "grid-tdnn-lowlatency").select(start["channels"]).values
     assert np.abs(np.array(frames) - reference).mean() < 0.02
+
+
+@pytest.mark.parametrize("model_name", ["grid-tdnn-lowlatency", "baseline"])
+def test_streams_pushed_together_give_what_each_gives_alone(model_name):
+    """push_together (what the server runs for the sessions due in one tick) gives every stream the
+    frames it gets pushed alone; a stream whose phones are refused gets its error and is left as it
+    was, the others go on."""
+    from vispeech.models.registry import load_model
+    from vispeech.streaming import open_phone_stream, push_together
+
+    model = load_model(model_name)
+    texts = ["My mom made a large map.", "Bin blue at F two now.", "Hello there, how are you?"]
+    sequences = [list(speak(t, "en", model=model).phones) for t in texts]
+    alone = []
+    for phones in sequences:
+        stream, rows = open_phone_stream(model, "en"), []
+        for phone in phones:
+            rows.append(stream.push([phone])[1])
+        rows.append(stream.finish()[1])
+        alone.append(np.concatenate(rows))
+    streams = [open_phone_stream(model, "en") for _ in sequences]
+    together = [[] for _ in sequences]
+    for k in range(max(len(p) for p in sequences)):
+        pushes = [(s, [p[k]]) for s, p in zip(streams, sequences) if k < len(p)]
+        if k == 3:
+            pushes.append((streams[0], [Phone("AA", 0.0, 0.1)]))  # before the phones already given: refused
+        results = push_together(pushes)
+        if k == 3:
+            assert isinstance(results[-1], VispeechError) and "before the previous one ends" in str(results[-1])
+            results = results[:-1]
+        for (stream, _), (start, rows) in zip(pushes, results):
+            together[streams.index(stream)].append(rows)
+    for b, stream in enumerate(streams):
+        together[b].append(stream.finish()[1])
+        np.testing.assert_allclose(np.concatenate(together[b]), alone[b], atol=1e-6)
+
+
+def test_the_server_pushes_the_sessions_of_one_tick_together():
+    """Phone-stream pushes made at once by several sessions run as one pool job (one network step
+    per frame for all of them), each session getting the frames message it gets alone; while that
+    job runs, newer pushes wait for the next one."""
+    import asyncio
+    import json
+
+    from vispeech.serve.app import SpeechService
+
+    service = SpeechService(ServeConfig(cache=":memory:", workers=1))
+    model = service.models["grid-tdnn-lowlatency"]
+    phones = [list(speak(t, "en", model=model).phones) for t in ("My mom made a map.", "Bin blue at F two now.",
+                                                                 "Hello there.")]
+
+    async def run():
+        streams = [open_phone_stream(model, "en") for _ in phones]
+        first = await asyncio.gather(*(service.pushes.push(s, p[:6], 1.0) for s, p in zip(streams, phones)))
+        assert (service.pushes.batches, service.pushes.pushes, service.pushes.largest) == (1, 3, 3)
+        second = [asyncio.ensure_future(service.pushes.push(s, p[6:9], 1.0)) for s, p in zip(streams, phones)]
+        await asyncio.sleep(0)  # the second batch is under way...
+        late = asyncio.ensure_future(service.pushes.push(streams[0], phones[0][9:10], 1.0))  # ...this waits for it
+        await asyncio.gather(*second, late)
+        assert service.pushes.batches == 3 and service.pushes.largest == 3
+        return first
+
+    first = asyncio.run(run())
+    for rows, p in zip(first, phones):
+        alone = open_phone_stream(model, "en")
+        start, expected = alone.push(p[:6])
+        got = json.loads(rows)
+        assert got["start_frame"] == start
+        np.testing.assert_allclose(got["frames"], service.scaled(expected, alone.channels, alone.fps).round(6), atol=2e-6)
+    service.pool.close()

@@ -30,7 +30,7 @@ import base64
 import functools
 import math
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -193,11 +193,21 @@ class PhoneStream:
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
         """Add phones; the frames that became ready."""
+        self.feed(phones)
+        return self.collect()
+
+    def feed(self, phones: Iterable[Phone]) -> None:
+        """:meth:`push`'s first half: check and add the phones, leaving the model's work to
+        :func:`push_together` or :meth:`collect`."""
         new = self._checked(phones)
         if new:
             self._phones += new
             self.end = new[-1].end
-        self._raw.extend(self._inner.push(new)[1])
+        self._inner.feed(new)
+
+    def collect(self) -> tuple[int, np.ndarray]:
+        """:meth:`push`'s second half: the frames that became ready since :meth:`feed`."""
+        self._raw.extend(self._inner.collect()[1])
         return self._emit(final=False)
 
     def finish(self) -> tuple[int, np.ndarray]:
@@ -255,6 +265,29 @@ class PhoneStream:
             out.append(Phone(symbol, float(p.start), float(p.end), None, p.stress or stress))
             end = p.end
         return out
+
+
+def push_together(pushes: Sequence[tuple[PhoneStream, Iterable[Phone]]]) -> list[tuple[int, np.ndarray] | VispeechError]:
+    """:meth:`PhoneStream.push` of several streams at once (concurrent sessions of a server): each
+    stream's phones are checked and fed, the model work of all of them is done together where the
+    model can share it (:meth:`~vispeech.models.contract.ModelStream.advance_together`: one network
+    step per frame for every stream of the same network), then each stream's frames are
+    post-processed. In the place of a stream whose phones are refused is its :class:`VispeechError`
+    (that stream is left as it was); the others go on."""
+    fed: list[PhoneStream | VispeechError] = []
+    for stream, phones in pushes:
+        try:
+            stream.feed(phones)
+            fed.append(stream)
+        except VispeechError as exc:
+            fed.append(exc)
+    groups: dict[type, list] = {}
+    for stream in fed:
+        if isinstance(stream, PhoneStream):
+            groups.setdefault(type(stream._inner), []).append(stream._inner)
+    for kind, inner in groups.items():
+        kind.advance_together(inner)
+    return [stream.collect() if isinstance(stream, PhoneStream) else stream for stream in fed]
 
 
 def open_phone_stream(model: Estimator, language: str, fps: float = DEFAULT_FPS) -> PhoneStream:

@@ -363,6 +363,24 @@ class ModelStream(ABC):
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed."""
 
+    def feed(self, phones: Iterable[Phone]) -> None:
+        """Add phones, their frames to be taken with :meth:`collect`: :meth:`push` in two halves,
+        so that the model work of several streams can be done together in between
+        (:meth:`advance_together`). By default the work is done here."""
+        start, rows = self.push(phones)
+        fed = getattr(self, "_fed", None)
+        self._fed = (start, rows) if fed is None or not len(fed[1]) else (fed[0], np.concatenate([fed[1], rows]))
+
+    def collect(self) -> tuple[int, np.ndarray]:
+        """The frames that became ready since the last :meth:`feed`."""
+        fed, self._fed = getattr(self, "_fed", None), None
+        return fed if fed is not None else self._empty()
+
+    @classmethod
+    def advance_together(cls, streams: Sequence[ModelStream]) -> None:
+        """Do the model work that :meth:`feed` left in ``streams`` (all of this class), sharing
+        model calls where the class can; by default there is none left."""
+
     def close(self) -> None:
         """Drop the stream (a client went away); safe to call more than once."""
         self.closed = True

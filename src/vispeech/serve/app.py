@@ -103,6 +103,7 @@ from vispeech.streaming import (
     LiveAudioStream,
     PhoneStream,
     open_phone_stream,
+    push_together,
     speech_messages,
     split_clauses,
 )
@@ -267,6 +268,59 @@ def app_from_environment() -> FastAPI:
     return create_app(ServeConfig.from_json(text))
 
 
+class PushBatcher:
+    """Phone-stream pushes of every session, batched: those made in one turn of the event loop, and
+    all that come while a batch runs, go to the pool as one job (:func:`vispeech.streaming.push_together`:
+    one network step per frame for all of the sessions of a model, instead of one each).
+
+    ``batches`` and ``pushes`` count what it ran, ``largest`` is the most pushes one batch held.
+    """
+
+    def __init__(self, service: SpeechService) -> None:
+        self.service = service
+        self._waiting: list[tuple[PhoneStream, list[Phone], float, asyncio.Future]] = []
+        self._scheduled = self._running = False
+        self.batches = self.pushes = self.largest = 0
+
+    async def push(self, stream: PhoneStream, phones: list[Phone], weight: float) -> str | None:
+        """The ``frames`` message (server scale) of ``stream.push(phones)``, or None for no frames."""
+        loop = asyncio.get_running_loop()
+        future = loop.create_future()
+        self._waiting.append((stream, phones, weight, future))
+        if not self._scheduled:
+            self._scheduled = True
+            loop.call_soon(self._flush)  # the pushes of this turn of the loop go together
+        return await future
+
+    def _flush(self) -> None:
+        self._scheduled = False
+        if self._running or not self._waiting:
+            return  # the running batch flushes what waits when it ends
+        batch, self._waiting = self._waiting, []
+        self._running = True
+        asyncio.ensure_future(self._run(batch))
+
+    async def _run(self, batch: list) -> None:
+        try:
+            results = await self.service.pool.run("phone streams", _pushed_frames_json, self.service,
+                                                  [(stream, phones) for stream, phones, _, _ in batch],
+                                                  weight=sum(weight for _, _, weight, _ in batch))
+        except BaseException as exc:  # Busy, shutting down: every session of the batch is told
+            results = [exc] * len(batch)
+        self.batches += 1
+        self.pushes += len(batch)
+        self.largest = max(self.largest, len(batch))
+        for (_, _, _, future), result in zip(batch, results):
+            if future.done():
+                continue
+            if isinstance(result, BaseException):
+                future.set_exception(result)
+            else:
+                future.set_result(result)
+        self._running = False
+        self._flush()
+
+
 class SpeechService:
     """The models, cache and bot behind the routes (the library calls, without HTTP)."""
 
@@ -285,6 +339,7 @@ class SpeechService:
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue)
+        self.pushes = PushBatcher(self)
         self.connections = ConnectionCounter(config.max_streams, config.max_streams_per_ip)
 
     @property
@@ -959,7 +1014,7 @@ class _StreamConnection(_Connection):
         for piece in _pieces(phones, begin, config.piece_seconds):
             weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
             begin = piece[-1].end if piece else begin
-            if (text := await self._run(_frames_json, self.service, stream, stream.push, piece, weight=weight)) is not None:
+            if (text := await self.service.pushes.push(stream, piece, weight)) is not None:
                 await self.ws.send_text(text)
         if message.final:
             if (text := await self._run(_frames_json, self.service, stream, stream.finish)) is not None:
@@ -1143,7 +1198,18 @@ def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phon
 def _frames_json(service: SpeechService, stream, step, *args) -> str | None:
     """Run a phone or audio stream's ``push`` / ``finish``; its frames, in the server's output
     scale, as a ``frames`` message (``None`` for none)."""
-    start, rows = step(*args)
+    return _frames_message(service, stream, *step(*args))
+
+
+def _pushed_frames_json(service: SpeechService, pushes: list) -> list[str | None | VispeechError]:
+    """:func:`~vispeech.streaming.push_together` of ``(stream, phones)`` pairs: each one's ``frames``
+    message (``None`` for none), or its error."""
+    return [result if isinstance(result, VispeechError) else _frames_message(service, stream, *result)
+            for (stream, _), result in zip(pushes, push_together(pushes))]
+
+
+def _frames_message(service: SpeechService, stream, start: int, rows: np.ndarray) -> str | None:
+    """Frames of a stream from ``start``, in the server's output scale, as a ``frames`` message (``None`` for none)."""
     if not len(rows):
         return None
     rows = service.scaled(rows, stream.channels, stream.fps)

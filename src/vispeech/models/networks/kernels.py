@@ -171,16 +171,19 @@ class RecurrentKernel:
         """Hidden states before the first frame, one (delays × hidden) buffer per network, oldest first."""
         return [np.zeros((net["delays"], net["hidden"]), dtype=np.float32) for net in self.nets]
 
-    def step(self, window: np.ndarray, state: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
-        """The outputs of one frame from its input window (window × inputs) and the states before it."""
-        flat = np.asarray(window, dtype=np.float64).reshape(-1)
-        outputs, new_state = [], []
-        for net, past in zip(self.nets, state):
+    def step(self, windows: np.ndarray, states: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The outputs (streams × outputs) of one frame of each of several streams, from their input
+        windows (streams × window × inputs) and their states before it, stacked (per network:
+        streams × delays × hidden; :meth:`initial_state` is one stream's). Several streams cost one
+        product per layer instead of one each: the window weights are read once."""
+        flat = np.asarray(windows, dtype=np.float64).reshape(len(windows), -1)
+        outputs, new_states = [], []
+        for net, past in zip(self.nets, states):
             drive = (flat @ net["conv"] + net["bias"]).astype(np.float32)
-            h = np.tanh(net["recurrent"] @ past.reshape(-1) + drive)
-            new_state.append(np.concatenate([past[1:], h[None]]))
+            h = np.tanh(past.reshape(len(past), -1) @ net["recurrent"].T + drive)
+            new_states.append(np.concatenate([past[:, 1:], h[:, None]], axis=1))
             outputs.append(h.astype(np.float64) @ net["out_weight"] + net["out_bias"])
-        return np.concatenate(outputs)[self.order], new_state
+        return np.concatenate(outputs, axis=1)[:, self.order], new_states
 
 
 class WindowKernel:

@@ -28,7 +28,7 @@ frame t as soon as the inputs up to ``t + look_ahead`` are known (:class:`Recurr
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -165,11 +165,18 @@ class RecurrentStream(ModelStream):
         self.lookahead = stream_lookahead(model.lookahead, model.fps_, self.fps)
         self._kernel = model.kernel
         self._state = self._kernel.initial_state()
+        self._due = 0  # model frames the phones so far make computable
         self._rows: list[np.ndarray] = []  # encoded input frames so far
         self._recent: list[Phone] = []  # the phones still needed to encode the next frames
         self._frames = ResampledFrames(model.fps_, self.fps)  # model outputs, denormalised
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
+        self.feed(phones)
+        return self.collect()
+
+    def feed(self, phones: Iterable[Phone]) -> None:
+        """Encode the phones' input frames; the model frames they make computable are left to
+        :meth:`advance_together` (or :meth:`collect`)."""
         if self.closed:
             raise VispeechError("this phone stream has ended")
         model = self.model
@@ -187,26 +194,49 @@ class RecurrentStream(ModelStream):
                 # encode, so a silence gap after it starts where it ends (as offline).
                 keep = np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right")
                 self._recent = self._recent[max(keep - 1, 0):]
-        self._advance(len(self._rows) - model.lookahead)
+        self._due = len(self._rows) - model.lookahead
+
+    def collect(self) -> tuple[int, np.ndarray]:
+        self.advance_together([self])
         return self._give(min(self._frames.ready(), n_frames_for(self.end, self.fps)))
 
     def finish(self) -> tuple[int, np.ndarray]:
         if self.closed:
             raise VispeechError("this phone stream has ended")
-        self._advance(len(self._rows))
+        self._due = len(self._rows)
+        self.advance_together([self])
         out = self._give(n_frames_for(self.end, self.fps)) if self._rows else self._empty()
         self.close()
         return out
 
-    def _advance(self, upto: int) -> None:
-        """Compute model frames up to (not including) ``upto``."""
+    @classmethod
+    def advance_together(cls, streams: Sequence[RecurrentStream]) -> None:
+        """Compute the model frames due in ``streams``: those sharing a network take one kernel
+        step (:meth:`RecurrentKernel.step`) for all of them per frame."""
+        groups: dict[int, list[RecurrentStream]] = {}
+        for stream in streams:
+            if stream._frames.computed < stream._due:
+                groups.setdefault(id(stream._kernel), []).append(stream)
+        for group in groups.values():
+            group.sort(key=lambda s: s._due - s._frames.computed, reverse=True)
+            kernel, model = group[0]._kernel, group[0].model
+            states = [np.stack(parts) for parts in zip(*(s._state for s in group))]
+            for i in range(group[0]._due - group[0]._frames.computed):
+                active = sum(1 for s in group if s._due - s._frames.computed > 0)
+                windows = np.stack([s._window() for s in group[:active]])
+                out, stepped = kernel.step(windows, [state[:active] for state in states])
+                for state, new in zip(states, stepped):
+                    state[:active] = new
+                for stream, row in zip(group[:active], model._denormalise(out)):
+                    stream._frames.add(row)
+            for b, stream in enumerate(group):
+                stream._state = [state[b] for state in states]
+
+    def _window(self) -> np.ndarray:
+        """The input window (window × inputs) of the next model frame to compute."""
         back, ahead = self.model.get_params()["look_back"], self.model.lookahead
-        n = len(self._rows)
-        while self._frames.computed < upto:
-            t = self._frames.computed
-            index = np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)
-            out, self._state = self._kernel.step(np.stack([self._rows[i] for i in index]), self._state)
-            self._frames.add(self.model._denormalise(out))
+        t, n = self._frames.computed, len(self._rows)
+        return np.stack([self._rows[i] for i in np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)])
 
     def _give(self, upto: int) -> tuple[int, np.ndarray]:
         """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.contract.ResampledFrames`)."""
