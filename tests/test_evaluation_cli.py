@@ -108,3 +108,39 @@ def test_evaluate_on_five_grid_utterances(grid5, tmp_path, monkeypatch):
     monkeypatch.setattr("vispeech.corpus.alignment.align", no_alignment)
     again = _evaluate(*args)
     assert again.exit_code == 0 and again.output == result.output
+
+
+def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
+    """--report writes the HTML page with the ANOVA, the CSV and JSON of every score and the
+    figures (PNG and SVG); its numbers are those printed, its ANOVA that of utterances.csv."""
+    import csv
+    import json
+
+    from vispeech.evaluation.statistics import compare_models
+
+    out = tmp_path / "report"
+    result = _evaluate("--corpus", grid5, "-m", "shipped", "-m", "baseline", "--channels", "jawOpen,mouthClose",
+                       "--report", out, "-q")
+    assert result.exit_code == 0, result.output
+    names = {p.name for p in out.iterdir()}
+    assert {"report.html", "scores.csv", "utterances.csv", "anova.csv", "pairs.csv", "scores.json"} <= names
+    for stem in ("correlation", "utterance_rmse", "trajectory"):
+        assert (out / f"{stem}.png").read_bytes()[:4] == b"\x89PNG" and b"<svg" in (out / f"{stem}.svg").read_bytes()
+    scores = json.loads((out / "scores.json").read_text())
+    labels = [m["label"] for m in scores["models"]]
+    assert labels == ["grid-tdnn", "grid-tdnn-lowlatency", "grid-cohen-massaro", "grid-ohman", "grid-audio-cnn",
+                      "grid-audio-encdec", "baseline"]
+    printed = next(line.split() for line in result.output.splitlines() if line.split()[:2] == ["grid-tdnn", "jawOpen"])
+    tdnn = scores["models"][0]["scores"]["jawOpen"]
+    assert f"{tdnn['r']:.3f}" == printed[4]
+    rows = list(csv.DictReader((out / "utterances.csv").open()))
+    assert [r["utterance"] for r in rows] == GRID_TEST_IDS
+    per_model = {label: [float(r[f"{label} jawOpen_rmse_percent"]) for r in rows] for label in labels}
+    again = compare_models(per_model)
+    assert scores["comparison"]["anova"]["f"] == pytest.approx(again.anova.f, rel=1e-4)  # the CSV keeps 6 digits
+    assert scores["comparison"]["anova"]["df_model"] == 6 and len(scores["comparison"]["pairs"]) == 21
+    page = (out / "report.html").read_text()
+    assert "Repeated-measures ANOVA" in page
+    assert 'src="trajectory.png"' in page and "Lip closures" in page and "How jawOpen moves" in page
+    dynamics = scores["models"][0]["jawOpen_dynamics"]
+    assert abs(dynamics["lag_s"]) <= 0.2 and 0 < dynamics["high_frequency_share"] < 1

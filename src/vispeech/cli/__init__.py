@@ -24,7 +24,7 @@ _MODULES = {"animate-phones": "say"}
 """Commands that do not live in a module of their own name: command → module of this package."""
 
 EXTRAS = {
-    "torch": "train", "matplotlib": "train", "tqdm": "train",
+    "torch": "train", "matplotlib": "train", "tqdm": "train", "statsmodels": "train", "pandas": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
     "py3langid": "serve",
     "transformers": "encoder",

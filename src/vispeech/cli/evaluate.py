@@ -9,7 +9,7 @@ import click
 from vispeech.cli import lang_option, main
 from vispeech.corpus.corpus import SPLITS, Corpus
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, check_output_dir
 
 corpus_option = click.option(
     "--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -67,7 +67,7 @@ def read_aligned_corpus(directory: Path, language: str, cache: Path | None, prog
               help="Utterances to score.")
 @click.option("--model", "-m", "model_specs", multiple=True, required=True,
               help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a trained model "
-                   "folder; repeat to compare.")
+                   "folder; repeat to compare; `shipped` for every shipped trained model.")
 @click.option("--channels", default=None,
               help="Comma-separated channels to score [default: the mouth/jaw channels model and corpus share]; "
                    "jawOpen is always scored when both have it.")
@@ -78,22 +78,31 @@ def read_aligned_corpus(directory: Path, language: str, cache: Path | None, prog
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG of jawOpen, recorded and predicted, on one utterance of the split.")
 @click.option("--plot-utterance", default=None, help="Utterance id to plot [default: the split's first].")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also write a report folder: report.html with the tables, a repeated-measures ANOVA of "
+                   "per-utterance jawOpen RMSE with pairwise tests and the figures (PNG and SVG), and every "
+                   "score as CSV and JSON (docs/evaluation.md).")
 @language_option
 @cache_option
 @quiet_option
 def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...], channels: str | None,
                      postprocess: bool, markdown: Path | None, plot: Path | None, plot_utterance: str | None,
-                     language: str, cache: Path | None, quiet: bool) -> None:
+                     report_dir: Path | None, language: str, cache: Path | None, quiet: bool) -> None:
     """Score models against the recorded tracks of a corpus split.
 
     Prints, per model and channel, MSE, RMSE as % of the target's range and Pearson r over
     the speech span of each utterance, and per model the lip-closure figures.
     """
     from vispeech.evaluation.report import evaluate_models, predict_on_frames
-    from vispeech.models.registry import load_model
+    from vispeech.models.registry import PRETRAINED, load_model
 
     models = {}
-    for spec in model_specs:
+    specs = [name for spec in model_specs for name in (PRETRAINED if spec == "shipped" else [spec])]
+    if report_dir is not None:
+        from vispeech.evaluation.report_folder import REPORT_FILES
+
+        check_output_dir(report_dir, replaces=REPORT_FILES)
+    for spec in specs:
         if spec in models:
             raise VispeechError(f"model {spec!r} given twice")
         models[spec] = load_model(spec)
@@ -117,3 +126,13 @@ def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...],
         predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
         draw(example, predictions, plot, channel)
         click.echo(f"{channel} of {example.id} -> {plot}")
+    if report_dir is not None:
+        import shlex
+        import sys
+
+        from vispeech.evaluation.report_folder import write_report
+
+        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
+        command = shlex.join(["vispeech", *sys.argv[1:]]) if sys.argv[1:2] == ["evaluate"] else ""
+        write_report(evaluation, report_dir, example=example, predictions=predictions, command=command)
+        click.echo(f"report -> {report_dir}/report.html")

@@ -90,7 +90,9 @@ class ChannelScores:
     the ``utterance_*`` arrays are means over utterances of the per-utterance scores
     (utterances where r is undefined are left out of ``utterance_r``). ``range`` is the
     target's range over all frames that ``rmse_percent`` divides by; ``frames`` and
-    ``utterances`` count what was scored.
+    ``utterances`` count what was scored; ``per_utterance_rmse_percent`` and ``per_utterance_r``
+    (utterances × channels) are each scored utterance's own, in order (for statistics over
+    utterances, :mod:`vispeech.evaluation.statistics`).
     """
 
     channels: tuple[str, ...]
@@ -103,6 +105,8 @@ class ChannelScores:
     range: np.ndarray
     frames: int
     utterances: int
+    per_utterance_rmse_percent: np.ndarray
+    per_utterance_r: np.ndarray
 
     def __getitem__(self, channel: str) -> dict[str, float]:
         """The scores of one channel as a dict."""
@@ -156,5 +160,50 @@ def score_channels(
         range=span,
         frames=len(target),
         utterances=len(pairs),
+        per_utterance_rmse_percent=per_utterance[:, 1],
+        per_utterance_r=per_utterance[:, 2],
     )
 
+
+
+def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], fps: float,
+             max_seconds: float = 0.2) -> float:
+    """Seconds by which the predictions trail the targets where they correlate best (negative:
+    they lead), from per-utterance 1-D arrays pooled: Pearson r of target frame t with predicted
+    frame t + lag, for lags up to ``max_seconds`` either way."""
+    reach = int(round(max_seconds * fps))
+    best, best_r = 0, -np.inf
+    for lag in range(-reach, reach + 1):
+        t = np.concatenate([x[max(0, -lag):len(x) - max(0, lag)] for x in targets])
+        p = np.concatenate([y[max(0, lag):len(y) - max(0, -lag)] for y in predictions])
+        if len(t) > 2 and np.std(t) > 0 and np.std(p) > 0:
+            r = float(np.corrcoef(t, p)[0, 1])
+            if r > best_r:
+                best, best_r = lag, r
+    return best / fps
+
+
+HIGH_FREQUENCY = 8.0
+"""Hz above which a curve's motion counts as jitter (speech articulation moves at 2–7 Hz)."""
+
+
+def motion_profile(curves: Sequence[np.ndarray], fps: float) -> dict[str, float]:
+    """How a channel moves, from per-utterance 1-D arrays at ``fps``: the root mean square of its
+    velocity, acceleration and jerk (units per second, per second², per second³), and the share of
+    its energy (mean removed, per utterance, pooled) above :data:`HIGH_FREQUENCY` Hz. Jitter
+    shows as more jerk and high-frequency energy than the recorded curve has, over-smoothing as
+    less."""
+    out = {}
+    for order, name in ((1, "velocity"), (2, "acceleration"), (3, "jerk")):
+        steps = [np.diff(c, order) * fps ** order for c in curves if len(c) > order]
+        out[f"{name}_rms"] = float(np.sqrt(np.mean(np.concatenate(steps) ** 2))) if steps else float("nan")
+    high = total = 0.0
+    for c in curves:
+        if len(c) < 4:
+            continue
+        power = np.abs(np.fft.rfft(c - c.mean())) ** 2
+        freqs = np.fft.rfftfreq(len(c), 1.0 / fps)
+        high += float(power[freqs > HIGH_FREQUENCY].sum())
+        total += float(power.sum())
+    out["high_frequency_share"] = high / total if total > 0 else float("nan")
+    return out

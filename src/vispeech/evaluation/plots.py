@@ -27,7 +27,7 @@ def plot_utterance(
     ``predictions`` are tracks on the utterance's frames (see
     :func:`vispeech.evaluation.report.predict_on_frames`); those without ``channel`` are
     left out. The scored frames (speech span) are shaded and the phones labelled along the
-    top. Writes a PNG at ``path`` atomically and returns the path.
+    top. Writes a PNG (an SVG when ``path`` ends in ``.svg``) at ``path`` atomically and returns the path.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -62,7 +62,7 @@ def plot_utterance(
     axes.legend(fontsize=8, loc="upper right")
     figure.tight_layout()
     with atomic_output_file(path) as tmp:
-        figure.savefig(tmp, format="png")
+        figure.savefig(tmp, format="svg" if str(path).lower().endswith(".svg") else "png")
     return Path(path)
 
 

@@ -24,7 +24,9 @@ from vispeech.evaluation.closures import (
     BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, TRACKED_CLOSED, ClosureCounts, count_closures,
     lip_opening, model_closed, tracked_closed,
 )
-from vispeech.evaluation.metrics import SPEECH_MARGIN, ChannelScores, score_channels, speech_frames
+from vispeech.evaluation.metrics import (
+    SPEECH_MARGIN, ChannelScores, best_lag, motion_profile, score_channels, speech_frames,
+)
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import ARTICULATORY_CHANNELS, MOUTH_CHANNELS
 from vispeech.motion.track import Track
@@ -42,6 +44,9 @@ class ModelEvaluation:
     model: str
     scores: ChannelScores
     closures: ClosureCounts | None
+    dynamics: dict[str, float] | None = None
+    """jawOpen's motion (:func:`~vispeech.evaluation.metrics.motion_profile`) and ``lag_s``
+    (:func:`~vispeech.evaluation.metrics.best_lag`), when the model predicts it and the corpus has it."""
 
 
 @dataclass
@@ -53,6 +58,10 @@ class Evaluation:
     utterances: int
     postprocessing: bool
     models: list[ModelEvaluation]
+    utterance_ids: list[str] | None = None
+    """The scored utterances, in the order of the per-utterance scores."""
+    recorded_dynamics: dict[str, float] | None = None
+    """The recorded jawOpen's motion, to compare the models' with."""
 
     def __getitem__(self, label: str) -> ModelEvaluation:
         for result in self.models:
@@ -289,10 +298,20 @@ def evaluate_models(
                     closures = None
                 bar.update(1)
             scores = score_channels(chosen, target_arrays, predicted_arrays)
-            results.append(ModelEvaluation(label, model.name, scores, closures))
+            dynamics = None
+            if "jawOpen" in chosen:
+                jaw = chosen.index("jawOpen")
+                target_jaw = [t[:, jaw] for t in target_arrays if len(t)]
+                predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
+                dynamics = {**motion_profile(predicted_jaw, corpus.fps),
+                            "lag_s": best_lag(target_jaw, predicted_jaw, corpus.fps)}
+                recorded = motion_profile(target_jaw, corpus.fps)
+            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics))
     finally:
         bar.close()
-    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results)
+    ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]
+    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results, ids,
+                      recorded if any(r.dynamics for r in results) else None)
 
 
 def _has_lip_landmarks(utterance: Utterance) -> bool:

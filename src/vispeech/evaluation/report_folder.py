@@ -1,0 +1,273 @@
+"""The evaluation report as a folder (``vispeech evaluate --report OUT``): an HTML page with the
+tables and figures, and every score as CSV and JSON, so that nothing has to be copied off a
+screen and the page can be rebuilt from the command line it shows.
+
+:func:`write_report` writes, for an :class:`~vispeech.evaluation.report.Evaluation`:
+
+- ``report.html``: the models' scores per channel, the repeated-measures ANOVA of per-utterance
+  jawOpen RMSE with its pairwise comparisons (:mod:`vispeech.evaluation.statistics`), jawOpen's
+  motion (lag, velocity, jerk, energy above 8 Hz) against the recording's, the lip closures, and
+  the figures;
+- ``scores.csv`` (one row per model and channel), ``utterances.csv`` (per utterance and model:
+  jawOpen RMSE % and r), ``anova.csv``, ``pairs.csv`` and ``scores.json`` (all of it);
+- figures, each as PNG and SVG: ``correlation`` (r per channel and model), ``utterance_rmse``
+  (the spread of per-utterance jawOpen RMSE per model: what the ANOVA compares) and
+  ``trajectory`` (one utterance's jawOpen, recorded and predicted, phones along the top).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.corpus.corpus import Utterance
+from vispeech.evaluation.report import Evaluation
+from vispeech.evaluation.statistics import Comparison, compare_models
+from vispeech.files import atomic_output_dir
+from vispeech.motion.track import Track
+
+REPORT_FILES = (
+    "report.html", "scores.csv", "utterances.csv", "anova.csv", "pairs.csv", "scores.json",
+    *(f"{name}.{kind}" for name in ("correlation", "utterance_rmse", "trajectory") for kind in ("png", "svg")),
+)
+"""What a report folder holds."""
+
+
+def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example: Utterance | None = None,
+                 predictions: Mapping[str, Track] | None = None, command: str = "") -> Path:
+    """Write the report folder of ``evaluation`` (see the module docstring); ``example`` and its
+    ``predictions`` (tracks on its frames, by model label) make the trajectory figure, and
+    ``command`` is shown as how to rebuild the report. Written whole or not at all."""
+    comparison = _comparison(evaluation)
+    with atomic_output_dir(out_dir, replaces=REPORT_FILES) as staging:
+        _write_csv(staging / "scores.csv", ["model", "channel", "mse", "rmse_percent", "r", "utterance_mse",
+                                            "utterance_rmse_percent", "utterance_r"], _score_rows(evaluation))
+        _write_csv(staging / "utterances.csv", *_utterance_table(evaluation))
+        if comparison is not None:
+            a = comparison.anova
+            _write_csv(staging / "anova.csv", ["score", "F", "df_model", "df_error", "p", "partial_eta_squared",
+                                               "mse", "utterances"],
+                       [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]])
+            _write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
+                       [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs])
+        (staging / "scores.json").write_text(json.dumps(_as_json(evaluation, comparison), indent=2, allow_nan=False,
+                                                        default=_finite), encoding="utf-8")
+        figures = _figures(evaluation, staging, example, predictions or {})
+        (staging / "report.html").write_text(_html(evaluation, comparison, figures, command), encoding="utf-8")
+    return Path(out_dir)
+
+
+def _comparison(evaluation: Evaluation) -> Comparison | None:
+    """The ANOVA of per-utterance jawOpen RMSE over the models that predict jawOpen (two or more)."""
+    scores = {m.label: m.scores.per_utterance_rmse_percent[:, m.scores.channels.index("jawOpen")]
+              for m in evaluation.models if "jawOpen" in m.scores.channels}
+    if len(scores) < 2 or len(next(iter(scores.values()))) < 3:
+        return None
+    return compare_models(scores, "jawOpen RMSE % (per utterance)")
+
+
+def _score_rows(evaluation: Evaluation) -> list[list]:
+    rows = []
+    for m in evaluation.models:
+        for channel in m.scores.channels:
+            s = m.scores[channel]
+            rows.append([m.label, channel, s["mse"], s["rmse_percent"], s["r"], s["utterance_mse"],
+                         s["utterance_rmse_percent"], s["utterance_r"]])
+    return rows
+
+
+def _utterance_table(evaluation: Evaluation) -> tuple[list[str], list[list]]:
+    models = [m for m in evaluation.models if "jawOpen" in m.scores.channels]
+    header = ["utterance", *(f"{m.label} {kind}" for m in models for kind in ("jawOpen_rmse_percent", "jawOpen_r"))]
+    ids = evaluation.utterance_ids or [str(k) for k in range(len(models[0].scores.per_utterance_r) if models else 0)]
+    rows = []
+    for k, utterance in enumerate(ids):
+        row: list = [utterance]
+        for m in models:
+            j = m.scores.channels.index("jawOpen")
+            row += [m.scores.per_utterance_rmse_percent[k, j], m.scores.per_utterance_r[k, j]]
+        rows.append(row)
+    return header, rows
+
+
+def _write_csv(path: Path, header: Sequence[str], rows: list[list]) -> None:
+    with path.open("w", newline="", encoding="utf-8") as out:
+        writer = csv.writer(out)
+        writer.writerow(header)
+        writer.writerows([[_cell(v) for v in row] for row in rows])
+
+
+def _cell(value) -> str:
+    if isinstance(value, float | np.floating):
+        return "" if not math.isfinite(value) else f"{float(value):.6g}"
+    return str(value)
+
+
+def _finite(value):
+    """JSON for NumPy values; NaN becomes null."""
+    if isinstance(value, np.ndarray):
+        return [None if not math.isfinite(v) else float(v) for v in value.tolist()]
+    if isinstance(value, np.floating | np.integer):
+        return None if not math.isfinite(float(value)) else value.item()
+    raise TypeError(type(value).__name__)
+
+
+def _clean(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_clean(v) for v in value]
+    return value
+
+
+def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
+    models = []
+    for m in evaluation.models:
+        closures = None
+        if m.closures is not None:
+            c = m.closures
+            closures = {"bilabials": c.bilabials, "tracked_closures": c.tracked_closures,
+                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate, "passed": c.passed}
+        models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
+                       "closures": closures, "jawOpen_dynamics": m.dynamics})
+    out = {"corpus": evaluation.corpus, "fps": evaluation.fps, "utterances": evaluation.utterances,
+           "postprocessing": evaluation.postprocessing, "models": models,
+           "recorded_jawOpen_dynamics": evaluation.recorded_dynamics}
+    if comparison is not None:
+        out["comparison"] = {"means": comparison.means, "anova": vars(comparison.anova),
+                             "pairs": [vars(p) for p in comparison.pairs]}
+    return _clean(out)
+
+
+def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
+             predictions: Mapping[str, Track]) -> list[tuple[str, str]]:
+    """Draw the figures into ``folder`` (PNG and SVG); (file stem, caption) of each."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    drawn = []
+    channels = list(dict.fromkeys(c for m in evaluation.models for c in m.scores.channels))
+    figure = Figure(figsize=(min(18, max(7, 0.35 * len(channels) + 5)), 4.5), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    width = 0.8 / len(evaluation.models)
+    for i, m in enumerate(evaluation.models):
+        values = [m.scores[c]["r"] if c in m.scores.channels else np.nan for c in channels]
+        axes.bar(np.arange(len(channels)) + (i - (len(evaluation.models) - 1) / 2) * width, values, width, label=m.label)
+    axes.set_xticks(np.arange(len(channels)), channels, rotation=60, ha="right", fontsize=7)
+    axes.set_ylabel("Pearson r (frames pooled)")
+    axes.axhline(0, color="black", linewidth=0.6)
+    axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    figure.tight_layout()
+    _save(figure, folder / "correlation")
+    drawn.append(("correlation", "Correlation with the recording, per channel and model"))
+
+    models = [m for m in evaluation.models if "jawOpen" in m.scores.channels]
+    if models:
+        figure = Figure(figsize=(max(5, 1.1 * len(models) + 2), 4.5), dpi=100)
+        FigureCanvasAgg(figure)
+        axes = figure.add_subplot()
+        data = [m.scores.per_utterance_rmse_percent[:, m.scores.channels.index("jawOpen")] for m in models]
+        axes.boxplot([d[np.isfinite(d)] for d in data], showmeans=True)
+        axes.set_xticks(np.arange(1, len(models) + 1), [m.label for m in models], rotation=30, ha="right", fontsize=8)
+        axes.set_ylabel("jawOpen RMSE, % of range (per utterance)")
+        figure.tight_layout()
+        _save(figure, folder / "utterance_rmse")
+        drawn.append(("utterance_rmse", "Per-utterance jawOpen RMSE: what the ANOVA compares (triangles: means)"))
+
+    if example is not None and any("jawOpen" in t.channels for t in predictions.values()):
+        from vispeech.evaluation.plots import plot_utterance
+
+        for kind in ("png", "svg"):
+            plot_utterance(example, predictions, folder / f"trajectory.{kind}", "jawOpen")
+        drawn.append(("trajectory", f"jawOpen of {example.id}, recorded and predicted, phones along the top"))
+    return drawn
+
+
+def _save(figure, stem: Path) -> None:
+    for kind in ("png", "svg"):
+        figure.savefig(stem.with_suffix(f".{kind}"), format=kind)
+
+
+def _table(header: Sequence[str], rows: list[list]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_shown(v))}</td>" for v in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _shown(value) -> str:
+    if isinstance(value, float | np.floating):
+        if not math.isfinite(value):
+            return "–"
+        return f"{value:.3g}" if abs(value) < 1e-3 and value else f"{value:.3f}"
+    return str(value)
+
+
+def _p(value: float) -> str:
+    """A p value as papers print it."""
+    return "< 0.0001" if value < 1e-4 else f"{value:.4f}"
+
+
+def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[tuple[str, str]], command: str) -> str:
+    parts = [f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
+             f"<p>{evaluation.utterances} utterances at {evaluation.fps:g} fps, "
+             f"{'with' if evaluation.postprocessing else 'without'} post-processing. "
+             "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>"]
+    if command:
+        parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
+    parts.append("<h2>Scores</h2>")
+    parts.append(_table(["model", "channel", "MSE", "RMSE %", "r", "utt. RMSE %", "utt. r"],
+                        [[r[0], r[1], r[2], r[3], r[4], r[6], r[7]] for r in _score_rows(evaluation)]))
+    if comparison is not None:
+        a = comparison.anova
+        parts.append(f"<h2>Do the models differ? {html.escape(a.score)}</h2>")
+        parts.append(_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]))
+        parts.append("<p>Repeated-measures ANOVA, the model as the within-utterance factor:</p>")
+        parts.append(_table(["F", "df", "p", "partial η²"],
+                            [[a.f, f"{a.df_model}, {a.df_error}", _p(a.p), a.partial_eta_squared]]))
+        parts.append("<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
+                     "mean paired difference over its standard deviation):</p>")
+        parts.append(_table(["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
+                            [[p.a, p.b, p.difference, p.t, _p(p.p_lsd), _p(p.p_tukey), p.d_z]
+                             for p in comparison.pairs]))
+    dynamic = [m for m in evaluation.models if m.dynamics]
+    if dynamic and evaluation.recorded_dynamics:
+        parts.append("<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
+                     "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
+                     "over-smoothing as less.</p>")
+        rec = evaluation.recorded_dynamics
+        rows = [["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"],
+                 rec["high_frequency_share"]]]
+        rows += [[m.label, m.dynamics["lag_s"], m.dynamics["velocity_rms"], m.dynamics["acceleration_rms"],
+                  m.dynamics["jerk_rms"], m.dynamics["high_frequency_share"]] for m in dynamic]
+        parts.append(_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
+                             "energy above 8 Hz"], rows))
+    closing = [m for m in evaluation.models if m.closures is not None]
+    if closing:
+        parts.append("<h2>Lip closures</h2>")
+        parts.append(_table(["model", "/p b m/ the speaker closes", "closed by the model too", "passed"],
+                            [[m.label, f"{m.closures.tracked_closures}/{m.closures.bilabials}",
+                              f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
+                              "yes" if m.closures.passed else "no"] for m in closing]))
+    for stem, caption in figures:
+        parts.append(f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>'
+                     f'{html.escape(caption)} (<a href="{stem}.svg">SVG</a>)</figcaption></figure>')
+    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
+             "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;padding:.2em .5em;"
+             "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}")
+    buffer = io.StringIO()
+    buffer.write(f"<!doctype html><html><head><meta charset='utf-8'><title>vispeech evaluation: "
+                 f"{html.escape(evaluation.corpus)}</title><style>{style}</style></head><body>")
+    buffer.write("\n".join(parts))
+    buffer.write("</body></html>\n")
+    return buffer.getvalue()
