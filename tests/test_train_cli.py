@@ -171,7 +171,7 @@ def test_train_from_a_shipped_network_adapts_it(takes, tmp_path):
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--from", "grid-tdnn", "-m", "tdnn-beskow"], "give --model FAMILY to train one afresh, or --from MODEL"),
-    (["--from", "baseline"], "--from needs a trained phone network; 'baseline' is a baseline model"),
+    (["--from", "baseline"], "--from needs a trained network (phones or audio); 'baseline' is a baseline model"),
     (["--from", "grid-tdnn", "--input", "phones"], "--from keeps the model's inputs and targets"),
     (["--from", "grid-tdnn", "-p", "warm_start=false"], "takes no parameter 'warm_start'"),
 ])
