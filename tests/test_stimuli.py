@@ -70,3 +70,45 @@ def test_cli_vocodes_a_file(speech, tmp_path):
     assert out_rate == rate and len(y) == len(x)
     bad = CliRunner().invoke(main, ["stimuli", "vocode", str(tmp_path / "missing.wav"), "-o", str(tmp_path / "x.wav")])
     assert bad.exit_code == 2 and bad.output.startswith("error:")
+
+
+def test_faces_render_side_by_side_with_their_sound(tmp_path):
+    """Two animations of one sentence, shuffled: the MP4 has a frame per track frame, two faces
+    side by side in the key's order, the sound; the mouth is open at an open vowel and shut at /m/."""
+    import json
+
+    import av
+
+    from conftest import require, require_module
+    from vispeech.frontends.audio import wav_bytes
+    from vispeech.models.registry import load_model
+    from vispeech.motion.io import write_track
+
+    require_module("playwright.sync_api", "Playwright (the test extra)")
+    from pathlib import Path
+
+    require(Path("/usr/bin/chromium").is_file(), "Chromium (/usr/bin/chromium)")
+    tdnn = speak("Father made a map.", "en")
+    shut = speak("Father made a map.", "en", model=load_model("baseline"))  # its frames, for the rest pose
+    write_track(tdnn.track, tmp_path / "tdnn.json")
+    rest = type(shut.track)(np.zeros_like(shut.track.values), shut.track.channels, shut.track.fps)  # never moves
+    write_track(rest, tmp_path / "rest.json")
+    (tmp_path / "speech.wav").write_bytes(wav_bytes(tdnn.audio, tdnn.sample_rate))
+    out = tmp_path / "clip.mp4"
+    result = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "tdnn.json"), str(tmp_path / "rest.json"),
+                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "1", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    key = json.loads((tmp_path / "clip.json").read_text())
+    assert sorted(Path(p).name for p in key["left_to_right"]) == ["rest.json", "tdnn.json"] and key["seed"] == 1
+    with av.open(str(out)) as container:
+        assert {s.type for s in container.streams} == {"video", "audio"}
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    assert len(frames) == tdnn.track.n_frames and frames[0].shape[1] == 2 * frames[0].shape[0] * 4 // 5
+    speaking = [Path(p).name for p in key["left_to_right"]].index("tdnn.json")
+    vowel = next(p for p in tdnn.phones if p.symbol == "AA")
+    k = round((vowel.start + vowel.end) / 2 * tdnn.track.fps)
+    width = frames[0].shape[1] // 2
+    mouth = lambda frame, side: frame[int(0.6 * len(frame)):int(0.72 * len(frame)),  # noqa: E731
+                                      side * width + width // 3:side * width + 2 * width // 3].mean()
+    assert mouth(frames[k], speaking) < mouth(frames[k], 1 - speaking) - 5  # the open mouth is darker
+    assert abs(mouth(frames[0], speaking) - mouth(frames[0], 1 - speaking)) < 3  # both at rest at first

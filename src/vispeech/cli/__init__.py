@@ -30,6 +30,7 @@ EXTRAS = {
     "transformers": "encoder",
     "ray": "ray",
     "mediapipe": "capture", "av": "capture",
+    "playwright": "test", "PIL": "test",
 }
 """Optional top-level modules → the extra that installs them."""
 

@@ -36,3 +36,41 @@ def vocode(audio: Path, output: Path, bands: int, low: float, high: float, seed:
         tmp.write_bytes(wav_bytes(degraded, clip.sample_rate))
     edges = ", ".join(f"{e:.0f}" for e in band_edges(bands, low, high))
     click.echo(f"{clip.duration:.2f} s, {bands} bands (edges {edges} Hz) -> {output}")
+
+
+@stimuli_group.command("render")
+@click.argument("animations", nargs=-1, required=True, type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--audio", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="The sound of the clip (e.g. speech.wav, or one vocoded by `stimuli vocode`).")
+@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, dir_okay=False),
+              help="The clip (.mp4); beside it OUTPUT.json says which animation is where.")
+@click.option("--shuffle", "seed", type=click.IntRange(min=0), default=None,
+              help="Place the animations in a random order from this seed (a trial's; default: as given).")
+def render(animations: tuple[Path, ...], audio: Path | None, output: Path, seed: int | None) -> None:
+    """Render ANIMATIONS (Live Link CSV or vispeech JSON, the same frame rate) on the 2D face, side
+    by side, with AUDIO, to an MP4 (H.264 + AAC) for a perceptual test. Needs Chromium
+    (/usr/bin/chromium, or VISPEECH_CHROMIUM), Playwright and Pillow (the test extra)."""
+    import json
+
+    import numpy as np
+
+    from vispeech.evaluation.stimuli import render_faces
+    from vispeech.files import atomic_output_file
+    from vispeech.frontends.audio import AudioClip
+    from vispeech.motion.io import read_track
+
+    if output.suffix.lower() != ".mp4":
+        raise click.UsageError("the clip is an .mp4 file")
+    tracks = [read_track(path) for path in animations]
+    clip = AudioClip.read(audio) if audio is not None else None
+    order = list(range(len(tracks))) if seed is None else np.random.default_rng(seed).permutation(len(tracks)).tolist()
+    render_faces(tracks, output, audio=None if clip is None else clip.samples,
+                 sample_rate=None if clip is None else clip.sample_rate, order=order)
+    key = output.with_suffix(".json")
+    with atomic_output_file(key) as tmp:
+        tmp.write_text(json.dumps({"clip": output.name, "seed": seed, "audio": None if audio is None else str(audio),
+                                   "left_to_right": [str(animations[i]) for i in order]}, indent=2) + "\n",
+                       encoding="utf-8")
+    frames = max(t.n_frames for t in tracks)
+    click.echo(f"{frames} frames at {tracks[0].fps:g} fps, left to right: "
+               f"{', '.join(animations[i].name for i in order)} -> {output} (key: {key.name})")

@@ -88,6 +88,11 @@ def _script_json(data: dict) -> str:
     return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
 
 
+def face2d_source() -> str:
+    """The 2D face's browser script (``face2d.js``, global ``VispeechFace2D``), as text."""
+    return _resource("face2d.js")
+
+
 @cache
 def _resource(name: str) -> str:
     return resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
