@@ -25,6 +25,7 @@ _MODULES = {"animate-phones": "say"}
 
 EXTRAS = {
     "torch": "train", "matplotlib": "train", "tqdm": "train", "statsmodels": "train", "pandas": "train",
+    "sklearn": "train",
     "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
     "py3langid": "serve",
     "transformers": "encoder",

@@ -195,24 +195,35 @@ class WindowKernel:
                         np.asarray(weights[f"layers.{i}.bias"], dtype=np.float64)) for i in layers]
         self.input_window, self.output_window = input_window, output_window
         self.activation = activation
-        self.pad = (input_window + output_window) // 2 - 1
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
         """Outputs (frames × outputs) for one utterance's input rows: every window, overlap-averaged."""
-        padded = np.pad(np.asarray(inputs, dtype=np.float64), ((self.pad, self.pad), (0, 0)), mode="edge")
-        windows = np.lib.stride_tricks.sliding_window_view(padded, self.input_window, axis=0)
-        h = windows.transpose(0, 2, 1).reshape(len(windows), -1)
+        windows = padded_windows(np.asarray(inputs, dtype=np.float64), self.input_window, self.output_window)
+        h = windows.reshape(len(windows), -1)
         for i, (weight, bias) in enumerate(self.layers):
             h = h @ weight + bias
             if i < len(self.layers) - 1:
                 h = np.tanh(h) if self.activation == "tanh" else np.where(h > 0, h, 0.1 * h)
-        ky = self.output_window
-        out = h.reshape(len(h), ky, -1)
-        n = len(inputs)
-        total = np.zeros((len(out) + ky - 1, out.shape[2]))
-        for k in range(ky):  # window w predicts frames w - ky + 1 .. w
-            total[k:k + len(out)] += out[:, k]
-        return total[ky - 1:ky - 1 + n] / ky
+        return overlap_average(h.reshape(len(h), self.output_window, -1), len(inputs))
+
+
+def padded_windows(inputs: np.ndarray, input_window: int, output_window: int) -> np.ndarray:
+    """The sliding windows (windows × input_window × features) of a sliding-window model: the
+    rows padded at both ends with ``(Kx + Ky) / 2 − 1`` copies of the first and last, so that
+    every frame lies in ``output_window`` windows' predictions."""
+    pad = (input_window + output_window) // 2 - 1
+    padded = np.pad(inputs, ((pad, pad), (0, 0)), mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(padded, input_window, axis=0).transpose(0, 2, 1)
+
+
+def overlap_average(out: np.ndarray, n: int) -> np.ndarray:
+    """Frames (n × outputs) from the windows' predictions (windows × Ky × outputs): window w
+    predicts frames w − Ky + 1 .. w, and each frame is the mean of its Ky predictions."""
+    ky = out.shape[1]
+    total = np.zeros((len(out) + ky - 1, out.shape[2]))
+    for k in range(ky):
+        total[k:k + len(out)] += out[:, k]
+    return total[ky - 1:ky - 1 + n] / ky
 
 
 class ConvStackKernel:
