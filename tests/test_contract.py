@@ -38,6 +38,7 @@ TINY_NETWORKS = {
                               "batch_size": 16},
     "tdnn-beskow": {"look_back": 3, "look_ahead": 3, "hidden": 4, "delays": 2, "fps": None, "batch_size": 2},
     "tdnn-lowlatency": {"look_back": 4, "look_ahead": 1, "hidden": 4, "delays": 2, "fps": None, "batch_size": 2},
+    "lstm-taylor": {"dense": 6, "hidden": 5, "batch_size": 2, "dropout": 0.0},
 }
 """Small hyper-parameters for a quick fit of each network family on :func:`tiny_corpus`."""
 

@@ -104,3 +104,24 @@ def test_window_kernel_equals_torch(family):
             padded = edge_pad(inputs, (p["input_window"] + p["output_window"]) // 2 - 1).double()
             reference = overlap_average(module(windows(padded, p["input_window"])), len(inputs)).numpy()
         np.testing.assert_allclose(model.kernel.forward(inputs), reference, atol=1e-9)
+
+
+@pytest.mark.parametrize("bidirectional", [True, False])
+def test_lstm_kernel_equals_torch(bidirectional):
+    """Taylor's LSTM baseline: the NumPy forward pass equals the torch module's, with and without
+    the backward direction, on an utterance it was not trained on."""
+    torch = require_module("torch", "torch (the train extra)")
+    from test_contract import TINY_NETWORKS, sentence, tiny_corpus
+
+    from vispeech.models.registry import create_model
+
+    model = create_model("lstm-taylor", **{**TINY_NETWORKS["lstm-taylor"], "bidirectional": bidirectional},
+                         epochs=3, num_threads=1, targets=["jawOpen", "mouthPucker"]).fit(tiny_corpus(), progress=False)
+    module = model._build_module(model.encoding_.size, len(model.outputs_))
+    module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
+    module.eval()
+    inputs = model.encoding_.encode(sentence(70), model.fps_)
+    with torch.no_grad():
+        reference = module(torch.from_numpy(inputs[None]).float())[0].double().numpy()
+    np.testing.assert_allclose(model.kernel.forward(inputs), reference, atol=1e-5)
+    assert model.kernel.forward(inputs).shape == (len(inputs), 2)

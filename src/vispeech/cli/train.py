@@ -24,7 +24,7 @@ LOSS_CURVE = "loss_curve.png"
 @corpus_option
 @click.option("--model", "-m", "model_name", default=None,
               help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
-                   "sliding-window-dtree, "
+                   "sliding-window-dtree, lstm-taylor, "
                    "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).")
 @click.option("--from", "from_model", default=None, metavar="MODEL",
               help="Adapt this trained network (a shipped name such as grid-tdnn or grid-audio-cnn, or a saved folder) "

@@ -28,6 +28,7 @@ FAMILIES: dict[str, str] = {
     "ohman": "vispeech.models.rules.ohman:Ohman",
     "sliding-window-thesis": "vispeech.models.networks.sliding_window:SlidingWindowNetwork",
     "sliding-window-taylor": "vispeech.models.networks.sliding_window:TaylorNetwork",
+    "lstm-taylor": "vispeech.models.networks.lstm:LSTMNetwork",
     "sliding-window-dtree": "vispeech.models.networks.decision_tree:DecisionTreeRegression",
     "tdnn-beskow": "vispeech.models.networks.tdnn:TimeDelayNetwork",
     "tdnn-lowlatency": "vispeech.models.networks.tdnn:LowLatencyNetwork",

@@ -392,3 +392,46 @@ def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_
         h = (1.0 - rz[hidden:]) * n + rz[hidden:] * h
         out[t] = h
     return out
+
+
+class LSTMKernel:
+    """The NumPy forward pass of ``DeepLSTM``: dense tanh layer, ``layers`` LSTM layers (each
+    direction run over the utterance, torch's gate order i, f, g, o), linear output."""
+
+    def __init__(self, weights: Mapping[str, np.ndarray], layers: int, bidirectional: bool):
+        w = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
+        self.dense = (w["dense.weight"].T, w["dense.bias"])
+        self.output = (w["output.weight"].T, w["output.bias"])
+        self.layers = []
+        for k in range(layers):
+            directions = []
+            for suffix in ("", "_reverse") if bidirectional else ("",):
+                directions.append((w[f"lstm.weight_ih_l{k}{suffix}"].T, w[f"lstm.weight_hh_l{k}{suffix}"].T,
+                                   w[f"lstm.bias_ih_l{k}{suffix}"] + w[f"lstm.bias_hh_l{k}{suffix}"]))
+            self.layers.append(directions)
+
+    def forward(self, inputs: np.ndarray) -> np.ndarray:
+        """Outputs (frames × outputs) for one utterance's input rows."""
+        h = np.tanh(np.asarray(inputs, dtype=np.float64) @ self.dense[0] + self.dense[1])
+        for directions in self.layers:
+            runs = [_lstm_run(h, *directions[0])]
+            if len(directions) > 1:
+                runs.append(_lstm_run(h[::-1], *directions[1])[::-1])
+            h = np.concatenate(runs, axis=1)
+        return h @ self.output[0] + self.output[1]
+
+
+def _lstm_run(x: np.ndarray, w_in: np.ndarray, w_hidden: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """One LSTM direction over ``x`` (frames × inputs): the hidden state at every frame."""
+    n_hidden = w_hidden.shape[0]
+    drive = x @ w_in + bias
+    h, c = np.zeros(n_hidden), np.zeros(n_hidden)
+    out = np.empty((len(x), n_hidden))
+    for t in range(len(x)):
+        gates = drive[t] + h @ w_hidden
+        i, f = 1 / (1 + np.exp(-gates[:n_hidden])), 1 / (1 + np.exp(-gates[n_hidden:2 * n_hidden]))
+        g, o = np.tanh(gates[2 * n_hidden:3 * n_hidden]), 1 / (1 + np.exp(-gates[3 * n_hidden:]))
+        c = f * c + i * g
+        h = o * np.tanh(c)
+        out[t] = h
+    return out

@@ -197,3 +197,28 @@ class AudioEncoderDecoder(nn.Module):
         q, _ = self.decoder(packed)
         q, _ = nn.utils.rnn.pad_packed_sequence(q, batch_first=True, total_length=x.shape[1])
         return self.output(q), None if self.ctc is None else self.ctc(q)
+
+
+class DeepLSTM(nn.Module):
+    """``(batch, frames, inputs)`` to ``(batch, frames, outputs)``: a dense tanh layer, ``layers``
+    (bidirectional) LSTM layers of ``hidden`` units, a linear output (Fan et al. 2015 as Taylor
+    et al. 2017 ran it). ``lengths`` (batch) marks each sequence's real frames."""
+
+    def __init__(self, n_inputs: int, n_outputs: int, dense: int, hidden: int, layers: int, bidirectional: bool,
+                 dropout: float) -> None:
+        super().__init__()
+        self.dense = nn.Linear(n_inputs, dense)
+        self.dropout = nn.Dropout(dropout)
+        self.lstm = nn.LSTM(dense, hidden, num_layers=layers, batch_first=True, bidirectional=bidirectional,
+                            dropout=dropout if layers > 1 else 0.0)
+        self.output = nn.Linear(hidden * (2 if bidirectional else 1), n_outputs)
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor | None = None) -> torch.Tensor:
+        h = self.dropout(torch.tanh(self.dense(x)))
+        if lengths is not None:
+            packed = nn.utils.rnn.pack_padded_sequence(h, lengths.cpu(), batch_first=True, enforce_sorted=False)
+            h, _ = self.lstm(packed)
+            h, _ = nn.utils.rnn.pad_packed_sequence(h, batch_first=True, total_length=x.shape[1])
+        else:
+            h, _ = self.lstm(h)
+        return self.output(self.dropout(h))
