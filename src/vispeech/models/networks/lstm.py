@@ -11,11 +11,9 @@ Taylor et al. found it "significantly worse" than the sliding window.
 
 from __future__ import annotations
 
-import numpy as np
-
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import LSTMKernel
-from vispeech.models.networks.network import COMMON_PARAMS, Network
+from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
 
 FAN: dict = {
     **COMMON_PARAMS,
@@ -64,19 +62,7 @@ class LSTMNetwork(Network):
     def _batches(self, examples, rng):
         import torch
 
-        order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
-        size = self._params["batch_size"]
-        batches = []
-        for start in range(0, len(order), size):
-            chosen = [examples[i] for i in order[start:start + size]]
-            longest = max(len(y) for _, y in chosen)
-            inputs = np.stack([np.pad(x, ((0, longest - len(x)), (0, 0))) for x, _ in chosen])
-            targets = np.stack([np.pad(y, ((0, longest - len(y)), (0, 0))) for _, y in chosen])
-            lengths = np.array([len(y) for _, y in chosen])
-            mask = np.arange(longest)[None, :] < lengths[:, None]
-            batches.append((torch.from_numpy(inputs), torch.from_numpy(targets), torch.from_numpy(lengths),
-                            torch.from_numpy(mask)))
-        return batches
+        return [tuple(map(torch.from_numpy, batch)) for batch in sequence_batches(examples, rng, self._params["batch_size"])]
 
     def _data_loss(self, module, batch):
         from vispeech.models.networks.training import sequence_loss

@@ -92,6 +92,24 @@ _RUN_PARAMS = frozenset({"epochs", "patience", "num_threads", "checkpoint_dir", 
 """Hyper-parameters a resumed run may change."""
 
 
+def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator | None, size: int,
+                     prepare=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Utterance batches of ``size`` (shuffled with ``rng``; in order when it is ``None``): inputs
+    (each through ``prepare`` first, e.g. padded for a window) and targets padded at the end to
+    the batch's longest, with each utterance's frame count and the mask of its real frames."""
+    order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
+    batches = []
+    for start in range(0, len(order), size):
+        chosen = [examples[i] for i in order[start:start + size]]
+        longest = max(len(y) for _, y in chosen)
+        inputs = [x if prepare is None else prepare(x) for x, _ in chosen]
+        inputs = np.stack([np.pad(x, ((0, longest - len(y)), (0, 0))) for x, (_, y) in zip(inputs, chosen)])
+        targets = np.stack([np.pad(y, ((0, longest - len(y)), (0, 0))) for _, y in chosen])
+        lengths = np.array([len(y) for _, y in chosen])
+        batches.append((inputs, targets, lengths, np.arange(longest)[None, :] < lengths[:, None]))
+    return batches
+
+
 class Network(Estimator):
     """Base of the networks; families define the torch module, batches, loss and NumPy forward pass."""
 

@@ -36,7 +36,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_fr
 from vispeech.errors import VispeechError
 from vispeech.models.contract import ModelStream, ResampledFrames, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
-from vispeech.models.networks.network import COMMON_PARAMS, Network
+from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
 
 BESKOW: dict = {
     **COMMON_PARAMS,
@@ -118,17 +118,8 @@ class TimeDelayNetwork(Network):
     def _batches(self, examples, rng):
         import torch
 
-        order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
-        size = self._params["batch_size"]
-        batches = []
-        for start in range(0, len(order), size):
-            chosen = [examples[i] for i in order[start:start + size]]
-            longest = max(len(y) for _, y in chosen)
-            inputs = np.stack([np.pad(self._pad(x), ((0, longest - len(x)), (0, 0))) for x, _ in chosen])
-            targets = np.stack([np.pad(y, ((0, longest - len(y)), (0, 0))) for _, y in chosen])
-            mask = np.arange(longest)[None, :] < np.array([len(y) for _, y in chosen])[:, None]
-            batches.append((torch.from_numpy(inputs), torch.from_numpy(targets), torch.from_numpy(mask)))
-        return batches
+        return [(torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(mask))
+                for x, y, _, mask in sequence_batches(examples, rng, self._params["batch_size"], self._pad)]
 
     def _data_loss(self, module, batch):
         from vispeech.models.networks.training import sequence_loss
