@@ -124,12 +124,25 @@ def test_count_closures_on_bilabials_and_speech_frames():
     model[[4, 15]] = True  # P (in the -1 frame); M, which the tracked lips do not close on
     counts = count_closures(phones, FPS, tracked, model, speech)
     assert counts == ClosureCounts(bilabials=3, tracked_closures=2, model_closures=1, speech_frames=14,
-                                   tracked_closed_frames=2, model_closed_frames=2)
+                                   tracked_closed_frames=2, model_closed_frames=2, onset_ms=(-300.0,),
+                                   release_ms=(-300.0,))  # the model closes P 3 frames before the lips do
     assert counts.bilabial_rate == 50.0 and counts.tracked_closed_share == pytest.approx(100 * 2 / 14)
     assert not counts.passed
     total = counts + counts
-    assert total.tracked_closures == 4 and total.bilabial_rate == 50.0
+    assert total.tracked_closures == 4 and total.bilabial_rate == 50.0 and total.onset_ms == (-300.0, -300.0)
+    assert total.timing()["onset_median_ms"] == -300.0 and total.timing()["release_mean_abs_ms"] == 300.0
+    assert np.isnan(ClosureCounts().timing()["onset_median_ms"])
     assert np.isnan(ClosureCounts().bilabial_rate)
+
+
+def test_frames_are_classed_by_what_their_phone_does_to_the_lips():
+    from vispeech.evaluation.closures import PHONE_CLASSES, frame_classes, phone_class
+
+    assert [phone_class(s, "en") for s in ("AA", "M", "F", "T", "sil")] == list(PHONE_CLASSES)
+    assert phone_class("v", "sv") == "labiodental" and phone_class("b", "sv") == "bilabial"
+    phones = PhoneSequence([Phone("sil", 0.0, 0.2), Phone("M", 0.2, 0.4), Phone("AA", 0.4, 0.7)], "en")
+    classes = frame_classes(phones, 10.0, 9)
+    assert [PHONE_CLASSES[k] for k in classes] == ["silence"] * 2 + ["bilabial"] * 2 + ["vowel"] * 3 + ["silence"] * 2
 
 
 # -- the report ----------------------------------------------------------------------------

@@ -144,3 +144,9 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     assert 'src="trajectory.png"' in page and "Lip closures" in page and "How jawOpen moves" in page
     dynamics = scores["models"][0]["jawOpen_dynamics"]
     assert abs(dynamics["lag_s"]) <= 0.2 and 0 < dynamics["high_frequency_share"] < 1
+    by_phone = scores["models"][0]["jawOpen_rmse_by_phone_class"]
+    assert list(by_phone) == ["vowel", "bilabial", "labiodental", "other consonant", "silence"]
+    assert all(v is None or 0 <= v < 100 for v in by_phone.values()) and by_phone["vowel"] is not None
+    closures = scores["models"][0]["closures"]
+    assert closures["onset_median_ms"] is not None and abs(closures["onset_median_ms"]) <= 200
+    assert "jawOpen RMSE by phone class" in page and "onset median (ms)" in page

@@ -93,6 +93,34 @@ def is_bilabial(symbol: str, language: str) -> bool:
         return False
 
 
+PHONE_CLASSES = ("vowel", "bilabial", "labiodental", "other consonant", "silence")
+"""The classes :func:`phone_class` puts phones in, for errors per class."""
+
+
+def phone_class(symbol: str, language: str) -> str:
+    """One of :data:`PHONE_CLASSES`: what a phone does to the lips."""
+    if is_silence(symbol):
+        return "silence"
+    try:
+        features = phone_features(symbol, language)
+    except VispeechError:
+        return "other consonant"
+    for name in ("vowel", "bilabial", "labiodental"):
+        if features[FEATURE_NAMES.index(name)] > 0:
+            return name
+    return "other consonant"
+
+
+def frame_classes(phones: PhoneSequence, fps: float, n_frames: int, start_time: float = 0.0) -> np.ndarray:
+    """Per frame, the index in :data:`PHONE_CLASSES` of the phone it falls in (silence outside them)."""
+    out = np.full(n_frames, PHONE_CLASSES.index("silence"))
+    times = start_time + np.arange(n_frames) / fps
+    for phone in phones:
+        inside = (times >= phone.start) & (times < phone.end)
+        out[inside] = PHONE_CLASSES.index(phone_class(phone.symbol, phones.language))
+    return out
+
+
 def phone_frames(
     start: float, end: float, fps: float, n_frames: int, start_time: float = 0.0, pad: int = 1
 ) -> np.ndarray:
@@ -113,6 +141,9 @@ class ClosureCounts:
     lips close (in a frame of the phone ± 1 frame); ``model_closures``: those of the tracked
     closures on which the model closes too. ``speech_frames``: tracked frames in the speech
     span; ``tracked_closed_frames`` and ``model_closed_frames``: those with closed lips.
+    ``onset_ms`` and ``release_ms``: for each closure both make, milliseconds from the start (end)
+    of the tracked lips' closed run over the phone to the start (end) of the model's (positive:
+    the model is late).
     """
 
     bilabials: int = 0
@@ -121,6 +152,8 @@ class ClosureCounts:
     speech_frames: int = 0
     tracked_closed_frames: int = 0
     model_closed_frames: int = 0
+    onset_ms: tuple[float, ...] = ()
+    release_ms: tuple[float, ...] = ()
 
     def __add__(self, other: ClosureCounts) -> ClosureCounts:
         return ClosureCounts(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -139,6 +172,15 @@ class ClosureCounts:
     def model_closed_share(self) -> float:
         """Percentage of speech frames with the model's lips closed."""
         return 100.0 * self.model_closed_frames / self.speech_frames if self.speech_frames else float("nan")
+
+    def timing(self) -> dict[str, float]:
+        """Median and mean absolute closure onset and release offsets (ms; NaN with none)."""
+        out = {}
+        for name, values in (("onset", self.onset_ms), ("release", self.release_ms)):
+            v = np.asarray(values, dtype=float)
+            out[f"{name}_median_ms"] = float(np.median(v)) if len(v) else float("nan")
+            out[f"{name}_mean_abs_ms"] = float(np.abs(v).mean()) if len(v) else float("nan")
+        return out
 
     @property
     def passed(self) -> bool:
@@ -183,4 +225,18 @@ def count_closures(
         if tracked[frames].any():
             counts.tracked_closures += 1
             counts.model_closures += int(model[frames].any())
+            if model[frames].any():
+                (t0, t1), (m0, m1) = (_run(mask, frames[mask[frames]][0]) for mask in (tracked, model))
+                counts.onset_ms += ((m0 - t0) * 1000.0 / fps,)
+                counts.release_ms += ((m1 - t1) * 1000.0 / fps,)
     return counts
+
+
+def _run(mask: np.ndarray, k: int) -> tuple[int, int]:
+    """First and last frame of the run of True in ``mask`` that holds frame ``k``."""
+    first, last = k, k
+    while first > 0 and mask[first - 1]:
+        first -= 1
+    while last < len(mask) - 1 and mask[last + 1]:
+        last += 1
+    return first, last

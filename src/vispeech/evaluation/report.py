@@ -21,8 +21,8 @@ from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.evaluation.closures import (
-    BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, TRACKED_CLOSED, ClosureCounts, count_closures,
-    lip_opening, model_closed, tracked_closed,
+    BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, PHONE_CLASSES, TRACKED_CLOSED, ClosureCounts,
+    count_closures, frame_classes, lip_opening, model_closed, tracked_closed,
 )
 from vispeech.evaluation.metrics import (
     SPEECH_MARGIN, ChannelScores, best_lag, motion_profile, score_channels, speech_frames,
@@ -47,6 +47,9 @@ class ModelEvaluation:
     dynamics: dict[str, float] | None = None
     """jawOpen's motion (:func:`~vispeech.evaluation.metrics.motion_profile`) and ``lag_s``
     (:func:`~vispeech.evaluation.metrics.best_lag`), when the model predicts it and the corpus has it."""
+    by_phone: dict[str, float] | None = None
+    """jawOpen's RMSE (% of its range) over the scored frames of each phone class
+    (:data:`~vispeech.evaluation.closures.PHONE_CLASSES`; NaN for a class with no frames)."""
 
 
 @dataclass
@@ -285,12 +288,14 @@ def evaluate_models(
         for label, model in models.items():
             chosen = plans[label]
             columns = [needed.index(c) for c in chosen]
-            target_arrays, predicted_arrays = [], []
+            target_arrays, predicted_arrays, class_arrays = [], [], []
             closures: ClosureCounts | None = ClosureCounts()
             for utterance, mask, target, tracked in zip(corpus, masks, targets, closed):
                 predicted = predict_on_frames(model, utterance, postprocessing)
                 target_arrays.append(target.values[mask][:, columns])
                 predicted_arrays.append(predicted.select(chosen).values[mask])
+                class_arrays.append(frame_classes(utterance.phones, utterance.track.fps, len(mask),
+                                                  utterance.track.start_time)[mask])
                 if closures is not None and tracked is not None and lip_opening(predicted) is not None:
                     closures += count_closures(utterance.phones, utterance.track.fps, tracked,
                                                model_closed(predicted), mask, utterance.track.start_time)
@@ -298,7 +303,7 @@ def evaluate_models(
                     closures = None
                 bar.update(1)
             scores = score_channels(chosen, target_arrays, predicted_arrays)
-            dynamics = None
+            dynamics = by_phone = None
             if "jawOpen" in chosen:
                 jaw = chosen.index("jawOpen")
                 target_jaw = [t[:, jaw] for t in target_arrays if len(t)]
@@ -306,7 +311,13 @@ def evaluate_models(
                 dynamics = {**motion_profile(predicted_jaw, corpus.fps),
                             "lag_s": best_lag(target_jaw, predicted_jaw, corpus.fps)}
                 recorded = motion_profile(target_jaw, corpus.fps)
-            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics))
+                errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
+                classes = np.concatenate(class_arrays)
+                span = scores.range[jaw]
+                by_phone = {name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
+                            if (classes == k).any() and span > 0 else float("nan")
+                            for k, name in enumerate(PHONE_CLASSES)}
+            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics, by_phone))
     finally:
         bar.close()
     ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]

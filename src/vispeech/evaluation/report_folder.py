@@ -6,8 +6,8 @@ screen and the page can be rebuilt from the command line it shows.
 
 - ``report.html``: the models' scores per channel, the repeated-measures ANOVA of per-utterance
   jawOpen RMSE with its pairwise comparisons (:mod:`vispeech.evaluation.statistics`), jawOpen's
-  motion (lag, velocity, jerk, energy above 8 Hz) against the recording's, the lip closures, and
-  the figures;
+  motion (lag, velocity, jerk, energy above 8 Hz) against the recording's, jawOpen's RMSE by
+  phone class, the lip closures with their timing, and the figures;
 - ``scores.csv`` (one row per model and channel), ``utterances.csv`` (per utterance and model:
   jawOpen RMSE % and r), ``anova.csv``, ``pairs.csv`` and ``scores.json`` (all of it);
 - figures, each as PNG and SVG: ``correlation`` (r per channel and model), ``utterance_rmse``
@@ -137,9 +137,10 @@ def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
         if m.closures is not None:
             c = m.closures
             closures = {"bilabials": c.bilabials, "tracked_closures": c.tracked_closures,
-                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate, "passed": c.passed}
+                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate, "passed": c.passed,
+                        **c.timing()}
         models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
-                       "closures": closures, "jawOpen_dynamics": m.dynamics})
+                       "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone})
     out = {"corpus": evaluation.corpus, "fps": evaluation.fps, "utterances": evaluation.utterances,
            "postprocessing": evaluation.postprocessing, "models": models,
            "recorded_jawOpen_dynamics": evaluation.recorded_dynamics}
@@ -252,13 +253,25 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                   m.dynamics["jerk_rms"], m.dynamics["high_frequency_share"]] for m in dynamic]
         parts.append(_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
                              "energy above 8 Hz"], rows))
+    classed = [m for m in evaluation.models if m.by_phone]
+    if classed:
+        parts.append("<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
+                     "that fall in phones of each class.</p>")
+        names = list(classed[0].by_phone)
+        parts.append(_table(["model", *names], [[m.label, *(m.by_phone[n] for n in names)] for m in classed]))
     closing = [m for m in evaluation.models if m.closures is not None]
     if closing:
-        parts.append("<h2>Lip closures</h2>")
-        parts.append(_table(["model", "/p b m/ the speaker closes", "closed by the model too", "passed"],
-                            [[m.label, f"{m.closures.tracked_closures}/{m.closures.bilabials}",
-                              f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
-                              "yes" if m.closures.passed else "no"] for m in closing]))
+        parts.append("<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
+                     "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>")
+        rows = []
+        for m in closing:
+            timing = m.closures.timing()
+            rows.append([m.label, f"{m.closures.tracked_closures}/{m.closures.bilabials}",
+                         f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
+                         timing["onset_median_ms"], timing["onset_mean_abs_ms"], timing["release_median_ms"],
+                         timing["release_mean_abs_ms"], "yes" if m.closures.passed else "no"])
+        parts.append(_table(["model", "/p b m/ the speaker closes", "closed by the model too", "onset median (ms)",
+                             "onset mean |ms|", "release median (ms)", "release mean |ms|", "passed"], rows))
     for stem, caption in figures:
         parts.append(f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>'
                      f'{html.escape(caption)} (<a href="{stem}.svg">SVG</a>)</figcaption></figure>')
