@@ -218,7 +218,7 @@ def test_face_model_is_asked_for_not_downloaded(monkeypatch):
 def _joined_corpus_takes(start: int, count: int = 10):
     """``count`` grid_s1 utterances from ``start`` joined into one take: lip gap per frame (NaN
     where untracked), sound fitted to the frames, as the corpus holds them."""
-    from vispeech.corpus.av_sync import lip_gap
+    from vispeech.corpus.articulation import lip_gap
     from vispeech.corpus.grid import read_face_csv
     from vispeech.frontends.audio import read_audio
 

@@ -8,9 +8,10 @@ import pytest
 from vispeech import PhoneSequence, Track, VispeechError
 from vispeech.alignment.phones import Phone, Word
 from vispeech.corpus import Corpus, Utterance
+from vispeech.corpus.articulation import lip_gap
 from vispeech.evaluation import (
     ClosureCounts, count_closures, evaluate_models, model_channels, model_closed, mse, pearson_r, rmse_percent,
-    score_channels, speech_frames, tracked_closed, tracked_lip_gap, value_range,
+    score_channels, speech_frames, tracked_closed, value_range,
 )
 from vispeech.evaluation.closures import phone_frames
 from vispeech.evaluation.plots import plot_utterance
@@ -80,16 +81,16 @@ def _landmarks(gaps: np.ndarray) -> dict[str, np.ndarray]:
     return {"lm33": at(0.4, 0.3), "lm263": at(0.6, 0.3), "lm13": at(0.5, 0.6), "lm14": lower}
 
 
-def test_tracked_lip_gap_is_measured_in_pixels_over_eye_distance():
+def test_the_lip_gap_is_measured_in_pixels_over_eye_distance():
     gaps = np.array([0.0, 0.0049, 0.0051, 0.02])
-    ratio = tracked_lip_gap(_landmarks(gaps))
+    ratio = lip_gap(_landmarks(gaps))
     np.testing.assert_allclose(ratio, gaps * 288 / 72)
     assert tracked_closed(_landmarks(gaps)).tolist() == [True, True, False, False]
     landmarks = _landmarks(gaps)
     landmarks["lm13"] = landmarks["lm13"] + [0.01, 0.0, 0.5]  # x counts (scaled by 360), z does not
-    np.testing.assert_allclose(tracked_lip_gap(landmarks), np.hypot(3.6, gaps * 288) / 72)
+    np.testing.assert_allclose(lip_gap(landmarks), np.hypot(3.6, gaps * 288) / 72)
     with pytest.raises(VispeechError, match="lm263"):
-        tracked_lip_gap({k: v for k, v in _landmarks(gaps).items() if k != "lm263"})
+        lip_gap({k: v for k, v in _landmarks(gaps).items() if k != "lm263"})
 
 
 def test_model_closure_is_relative_to_the_utterance_maximum():

@@ -25,6 +25,27 @@ FRAME_SIZE = (360, 288)
 _NEEDED = (1, 10, 33, 263, 152, 13, 14, 61, 291, 0, 17)
 
 
+def lip_gap(landmarks: dict[str, np.ndarray], frame_size: tuple[int, int] = FRAME_SIZE) -> np.ndarray:
+    """Per frame, the inner-lip gap (landmarks 13 to 14) over the eye-corner distance (33 to 263),
+    in the image plane.
+
+    ``landmarks`` maps ``"lm<K>"`` to ``(frames, 3)`` image-normalised coordinates; x and y
+    are scaled to pixels by ``frame_size`` (width, height) and only they are used.
+    """
+    absent = [k for k in ("lm13", "lm14", "lm33", "lm263") if k not in landmarks]
+    if absent:
+        raise VispeechError(f"landmarks {', '.join(absent)} are missing")
+    scale = np.array(frame_size, dtype=float)
+
+    def distance(a: str, b: str) -> np.ndarray:
+        return np.linalg.norm((np.asarray(landmarks[a])[:, :2] - np.asarray(landmarks[b])[:, :2]) * scale, axis=1)
+
+    eyes = distance("lm33", "lm263")
+    if np.any(eyes < 1e-9):
+        raise VispeechError("eye corners coincide: cannot scale the lip gap")
+    return distance("lm13", "lm14") / eyes
+
+
 def articulatory_parameters(utterance: Utterance, frame_size: tuple[int, int] = FRAME_SIZE) -> Track:
     """Jaw opening, lip aperture, lip width and protrusion per frame, in eye-corner distances.
 

@@ -2,10 +2,10 @@
 
 A camera's sound can lead or trail its picture (a phone's or a webcam's capture pipeline, a
 re-encoded file). :func:`estimate_offset` measures it from the take itself. At 100 Hz, the
-rate of change of the inner-lip gap (landmarks 13 and 14 over the eye-corner distance, 33 to
-263; :func:`lip_gap`) is cross-correlated with that of the sound's log energy (low-passed at
-10 Hz) over lags of up to ``max_lag``; the peak, refined by a parabola, less what synchronous
-recordings show (:data:`NATURAL_LAG`, measured on grid_s1), is the offset. Positive: the picture
+rate of change of the inner-lip gap (:func:`vispeech.corpus.articulation.lip_gap`) is
+cross-correlated with that of the sound's log energy (low-passed at 10 Hz) over lags of up to
+``max_lag``; the peak, refined by a parabola, less what synchronous recordings show
+(:data:`NATURAL_LAG`, measured on grid_s1), is the offset. Positive: the picture
 is late (the mouth moves after the sound). It needs :data:`MIN_SECONDS` of the take: on 3-s
 takes a fifth of the estimates are wrong by more than 80 ms, on 30 s of speech none of 30 were.
 :func:`shift_frames` moves a track by an offset (linear interpolation, ends held).
@@ -30,17 +30,6 @@ NATURAL_LAG = 0.025
 300 utterances joined ten at a time; all 30 within -3 and 63 ms)."""
 SMOOTHING_WINDOW = 0.2
 """Seconds of the Savitzky–Golay window (5 frames at 25 fps), polynomial order 2."""
-
-
-def lip_gap(landmarks: dict[str, np.ndarray], size: tuple[int, int]) -> np.ndarray:
-    """Per frame, the inner-lip gap over the eye-corner distance, from image-normalised landmarks
-    of a frame of ``size`` (width, height) pixels."""
-    scale = np.array(size, dtype=float)
-
-    def distance(a: str, b: str) -> np.ndarray:
-        return np.linalg.norm((landmarks[a][:, :2] - landmarks[b][:, :2]) * scale, axis=1)
-
-    return distance("lm13", "lm14") / distance("lm33", "lm263")
 
 
 def estimate_offset(gap: np.ndarray, fps: float, samples: np.ndarray, sample_rate: int,

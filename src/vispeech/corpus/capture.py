@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.alignment.formats import write_textgrid
-from vispeech.corpus.av_sync import MIN_SECONDS, estimate_offset, lip_gap, shift_frames, smooth_frames
+from vispeech.corpus.articulation import lip_gap
+from vispeech.corpus.av_sync import MIN_SECONDS, estimate_offset, shift_frames, smooth_frames
 from vispeech.corpus.grid import fill_missing_frames, write_face_csv
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, check_output_dir

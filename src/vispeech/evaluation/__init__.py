@@ -5,7 +5,7 @@ over the speech span) and counts lip closures; see ``docs/evaluation.md``.
 """
 
 from vispeech.evaluation.closures import (
-    ClosureCounts, count_closures, lip_opening, model_closed, tracked_closed, tracked_lip_gap,
+    ClosureCounts, count_closures, lip_opening, model_closed, tracked_closed,
 )
 from vispeech.evaluation.metrics import (
     ChannelScores, mse, pearson_r, rmse_percent, score_channels, speech_frames, value_range,
@@ -33,6 +33,5 @@ __all__ = [
     "speech_frames",
     "target_track",
     "tracked_closed",
-    "tracked_lip_gap",
     "value_range",
 ]

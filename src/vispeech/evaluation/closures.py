@@ -15,7 +15,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence, first_frame
-from vispeech.corpus.articulation import FRAME_SIZE
+from vispeech.corpus.articulation import FRAME_SIZE, lip_gap
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES, phone_features
@@ -36,29 +36,10 @@ CLOSED_SHARE_TOLERANCE = 5.0
 _BILABIAL = FEATURE_NAMES.index("bilabial")
 
 
-def tracked_lip_gap(landmarks: dict[str, np.ndarray], frame_size: tuple[int, int] = FRAME_SIZE) -> np.ndarray:
-    """Per frame, the inner-lip gap (landmarks 13 to 14) over the eye-corner distance (33 to 263).
-
-    ``landmarks`` maps ``"lm<K>"`` to ``(frames, 3)`` image-normalised coordinates; x and y
-    are scaled to pixels by ``frame_size`` (width, height) and only they are used.
-    """
-    absent = [k for k in ("lm13", "lm14", "lm33", "lm263") if k not in landmarks]
-    if absent:
-        raise VispeechError(f"landmarks {', '.join(absent)} are missing")
-    scale = np.array(frame_size, dtype=float)
-
-    def distance(a: str, b: str) -> np.ndarray:
-        return np.linalg.norm((np.asarray(landmarks[a])[:, :2] - np.asarray(landmarks[b])[:, :2]) * scale, axis=1)
-
-    eyes = distance("lm33", "lm263")
-    if np.any(eyes < 1e-9):
-        raise VispeechError("eye corners coincide: cannot scale the lip gap")
-    return distance("lm13", "lm14") / eyes
-
-
 def tracked_closed(landmarks: dict[str, np.ndarray], frame_size: tuple[int, int] = FRAME_SIZE) -> np.ndarray:
-    """Boolean mask of the frames where the tracked lips are closed (see :func:`tracked_lip_gap`)."""
-    return tracked_lip_gap(landmarks, frame_size) <= TRACKED_CLOSED
+    """Boolean mask of the frames where the tracked lips are closed (see
+    :func:`vispeech.corpus.articulation.lip_gap`)."""
+    return lip_gap(landmarks, frame_size) <= TRACKED_CLOSED
 
 
 def lip_opening(track: Track) -> np.ndarray | None:
