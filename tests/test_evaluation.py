@@ -136,6 +136,20 @@ def test_count_closures_on_bilabials_and_speech_frames():
     assert np.isnan(ClosureCounts().bilabial_rate)
 
 
+def test_lip_vertex_error_through_a_linear_read_out():
+    from vispeech.evaluation.metrics import lip_vertex_error
+
+    rng = np.random.default_rng(0)
+    scores = [rng.uniform(0, 1, (40, 3)) for _ in range(3)]
+    mixing = rng.normal(0, 0.05, (3, 24))
+    shapes = [(s @ mixing).reshape(40, 12, 2) for s in scores]
+    shapes = [np.concatenate([x, np.zeros((40, 12, 1))], axis=2) for x in shapes]  # z is not used
+    exact = lip_vertex_error(scores, scores, shapes)
+    assert exact["floor"] < 1e-3 and exact["lve"] == pytest.approx(exact["floor"]) and exact["aperture_mae"] < 1e-3
+    flat = lip_vertex_error(scores, [np.full_like(s, 0.5) for s in scores], shapes)
+    assert flat["lve"] > 20 * exact["lve"] and flat["aperture_mae"] > 10 * exact["aperture_mae"]
+
+
 def test_frames_are_classed_by_what_their_phone_does_to_the_lips():
     from vispeech.evaluation.closures import PHONE_CLASSES, frame_classes, phone_class
 

@@ -149,4 +149,6 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     assert all(v is None or 0 <= v < 100 for v in by_phone.values()) and by_phone["vowel"] is not None
     closures = scores["models"][0]["closures"]
     assert closures["onset_median_ms"] is not None and abs(closures["onset_median_ms"]) <= 200
-    assert "jawOpen RMSE by phone class" in page and "onset median (ms)" in page
+    assert "jawOpen RMSE by phone class" in page and "onset median (ms)" in page and "lip vertex error" in page
+    lips = {m["label"]: m["lips"] for m in scores["models"]}
+    assert 0 < lips["grid-tdnn"]["floor"] <= lips["grid-tdnn"]["lve"] < lips["baseline"]["lve"] < 0.2

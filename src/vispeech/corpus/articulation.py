@@ -72,6 +72,23 @@ def articulatory_parameters(utterance: Utterance, frame_size: tuple[int, int] = 
     return Track(values, ARTICULATORY_CHANNELS, utterance.track.fps, utterance.track.start_time)
 
 
+LIP_LANDMARKS: tuple[int, ...] = (13, 14, 78, 308, 0, 17, 61, 291, 37, 267, 84, 314)
+"""The mesh points on the lips that GRID's tracks keep: inner and outer contours and corners."""
+
+
+def lip_shape(landmarks: dict[str, np.ndarray], frame_size: tuple[int, int] = FRAME_SIZE) -> np.ndarray:
+    """Per frame, the :data:`LIP_LANDMARKS` in the head frame (see the module docstring), in
+    eye-corner distances: frames × 12 × 3. Raises :class:`VispeechError` when one is missing."""
+    needed = (1, 10, 33, 263, *LIP_LANDMARKS)
+    absent = [k for k in needed if f"lm{k}" not in landmarks]
+    if absent:
+        raise VispeechError(f"landmarks {', '.join(map(str, absent))} are missing")
+    width, height = frame_size
+    scale = np.array([width, height, width], dtype=float)
+    head = _head_frame({k: np.asarray(landmarks[f"lm{k}"], dtype=float) * scale for k in needed})
+    return np.stack([head[k] for k in LIP_LANDMARKS], axis=1)
+
+
 def _head_frame(points: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
     """Landmarks in head coordinates (x: eye line, y: up to the forehead, z: out of the face),
     in units of the eye-corner distance, origin at the nose tip."""

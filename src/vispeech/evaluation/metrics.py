@@ -207,3 +207,35 @@ def motion_profile(curves: Sequence[np.ndarray], fps: float) -> dict[str, float]
         total += float(power.sum())
     out["high_frequency_share"] = high / total if total > 0 else float("nan")
     return out
+
+
+def lip_vertex_error(tracked_scores: Sequence[np.ndarray], predicted_scores: Sequence[np.ndarray],
+                     shapes: Sequence[np.ndarray], ridge: float = 1e-3) -> dict[str, float]:
+    """The lip vertex error (the field's, Karras et al. / VOCA: per frame the largest distance of a
+    lip vertex from its place, then the mean) in 2-D landmark space, for a model that predicts
+    blend shapes.
+
+    A linear read-out from the channels to the lip landmarks (``shapes``: per utterance frames ×
+    landmarks × 3, e.g. :func:`vispeech.corpus.articulation.lip_shape`; x and y used) is fitted by
+    ridge regression on the recording's own scores (``tracked_scores``, frames × channels), so it
+    maps blend shapes to lips as the tracker relates them; the predictions go through it. Returns
+    ``lve`` (the model's, in eye-corner distances), ``floor`` (the read-out's error on the
+    recorded scores: what no model can go below this way) and ``aperture_mae`` (the mean absolute
+    error of the inner-lip gap, landmarks 13 to 14, the first two)."""
+    x = np.concatenate(tracked_scores)
+    y = np.concatenate([s[:, :, :2].reshape(len(s), -1) for s in shapes])
+    design = np.column_stack([x, np.ones(len(x))])
+    weights = np.linalg.solve(design.T @ design + ridge * len(x) * np.eye(design.shape[1]), design.T @ y)
+    truth = y.reshape(len(y), -1, 2)
+
+    def read(scores: np.ndarray) -> np.ndarray:
+        return (np.column_stack([scores, np.ones(len(scores))]) @ weights).reshape(len(scores), -1, 2)
+
+    def errors(points: np.ndarray) -> tuple[float, float]:
+        vertex = float(np.linalg.norm(points - truth, axis=2).max(axis=1).mean())
+        gap = np.linalg.norm(points[:, 0] - points[:, 1], axis=1)
+        return vertex, float(np.abs(gap - np.linalg.norm(truth[:, 0] - truth[:, 1], axis=1)).mean())
+
+    lve, aperture = errors(read(np.concatenate(predicted_scores)))
+    floor, _ = errors(read(x))
+    return {"lve": lve, "floor": floor, "aperture_mae": aperture}

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE
-from vispeech.corpus.articulation import articulatory_parameters
+from vispeech.corpus.articulation import LIP_LANDMARKS, articulatory_parameters, lip_shape
 from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
@@ -25,7 +25,7 @@ from vispeech.evaluation.closures import (
     count_closures, frame_classes, lip_opening, model_closed, tracked_closed,
 )
 from vispeech.evaluation.metrics import (
-    SPEECH_MARGIN, ChannelScores, best_lag, motion_profile, score_channels, speech_frames,
+    SPEECH_MARGIN, ChannelScores, best_lag, lip_vertex_error, motion_profile, score_channels, speech_frames,
 )
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import ARTICULATORY_CHANNELS, MOUTH_CHANNELS
@@ -47,6 +47,9 @@ class ModelEvaluation:
     dynamics: dict[str, float] | None = None
     """jawOpen's motion (:func:`~vispeech.evaluation.metrics.motion_profile`) and ``lag_s``
     (:func:`~vispeech.evaluation.metrics.best_lag`), when the model predicts it and the corpus has it."""
+    lips: dict[str, float] | None = None
+    """The lip vertex error in landmark space and its floor (:func:`~vispeech.evaluation.metrics.lip_vertex_error`),
+    when the corpus has lip landmarks."""
     by_phone: dict[str, float] | None = None
     """jawOpen's RMSE (% of its range) over the scored frames of each phone class
     (:data:`~vispeech.evaluation.closures.PHONE_CLASSES`; NaN for a class with no frames)."""
@@ -281,6 +284,10 @@ def evaluate_models(
     masks = [scored_frames(u) for u in corpus]
     targets = [target_track(u, needed) for u in corpus]
     closed = [tracked_closed(u.landmarks) if _has_lip_landmarks(u) else None for u in corpus]
+    shapes = None
+    if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS))
+           for u in corpus):
+        shapes = [lip_shape(u.landmarks)[mask] for u, mask in zip(corpus, masks)]
 
     results = []
     bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
@@ -317,7 +324,10 @@ def evaluate_models(
                 by_phone = {name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
                             if (classes == k).any() and span > 0 else float("nan")
                             for k, name in enumerate(PHONE_CLASSES)}
-            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics, by_phone))
+            lips = None
+            if shapes is not None and any(len(t) for t in target_arrays):
+                lips = lip_vertex_error(target_arrays, predicted_arrays, shapes)
+            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics, lips, by_phone))
     finally:
         bar.close()
     ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]

@@ -6,8 +6,9 @@ screen and the page can be rebuilt from the command line it shows.
 
 - ``report.html``: the models' scores per channel, the repeated-measures ANOVA of per-utterance
   jawOpen RMSE with its pairwise comparisons (:mod:`vispeech.evaluation.statistics`), jawOpen's
-  motion (lag, velocity, jerk, energy above 8 Hz) against the recording's, jawOpen's RMSE by
-  phone class, the lip closures with their timing, and the figures;
+  motion (lag, velocity, jerk, energy above 8 Hz) against the recording's, the lip vertex error
+  in landmark space, jawOpen's RMSE by phone class, the lip closures with their timing, and the
+  figures;
 - ``scores.csv`` (one row per model and channel), ``utterances.csv`` (per utterance and model:
   jawOpen RMSE % and r), ``anova.csv``, ``pairs.csv`` and ``scores.json`` (all of it);
 - figures, each as PNG and SVG: ``correlation`` (r per channel and model), ``utterance_rmse``
@@ -140,7 +141,8 @@ def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
                         "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate, "passed": c.passed,
                         **c.timing()}
         models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
-                       "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone})
+                       "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone,
+                       "lips": m.lips})
     out = {"corpus": evaluation.corpus, "fps": evaluation.fps, "utterances": evaluation.utterances,
            "postprocessing": evaluation.postprocessing, "models": models,
            "recorded_jawOpen_dynamics": evaluation.recorded_dynamics}
@@ -253,6 +255,15 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                   m.dynamics["jerk_rms"], m.dynamics["high_frequency_share"]] for m in dynamic]
         parts.append(_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
                              "energy above 8 Hz"], rows))
+    lipped = [m for m in evaluation.models if m.lips]
+    if lipped:
+        parts.append("<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
+                     "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
+                     "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
+                     "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
+                     "inner-lip gap.</p>")
+        parts.append(_table(["model", "lip vertex error", "floor", "aperture error"],
+                            [[m.label, m.lips["lve"], m.lips["floor"], m.lips["aperture_mae"]] for m in lipped]))
     classed = [m for m in evaluation.models if m.by_phone]
     if classed:
         parts.append("<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
