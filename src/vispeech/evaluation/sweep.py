@@ -1,0 +1,89 @@
+"""Error against one hyper-parameter: the look-ahead of a low-latency network (Beskow 2004,
+Fig. 4) or the window of a sliding-window network (Taylor et al. 2017, Fig. 11).
+
+:func:`sweep` trains one model of a family per value of a hyper-parameter, on the same training
+split, and scores each on the test split (raw output, no post-processing: the figure is about
+the model); :func:`plot_sweep` draws jawOpen's RMSE and r against the value (PNG and SVG).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from vispeech.corpus.corpus import Corpus
+from vispeech.errors import VispeechError
+from vispeech.evaluation.report import evaluate_models
+
+SWEEPS = {
+    "look-ahead": ("tdnn-lowlatency", "look_ahead"),
+    "window": ("sliding-window-taylor", "input_window"),
+}
+"""What ``vispeech sweep`` varies: name → (default family, hyper-parameter)."""
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One trained model of a sweep: the ``value``, its test-split jawOpen RMSE (% of range) and
+    r, the epochs it trained and the seconds that took."""
+
+    value: int
+    rmse_percent: float
+    r: float
+    epochs: int
+    seconds: float
+
+
+def sweep(corpus: Corpus, family: str, parameter: str, values: Sequence[int], params: dict | None = None,
+          progress: Callable[[str], None] | None = None) -> list[SweepPoint]:
+    """Train ``family`` on ``corpus``'s train split (validation split for early stopping) once per
+    value of ``parameter`` (other hyper-parameters: ``params``) and score jawOpen on the test split."""
+    import time
+
+    from vispeech.models.registry import create_model
+
+    test = corpus.split("test")
+    if not len(test) or not len(corpus.split("train")):
+        raise VispeechError(f"corpus {corpus.name} needs train and test utterances for a sweep")
+    points = []
+    for value in values:
+        started = time.perf_counter()
+        model = create_model(family, **{**(params or {}), parameter: value}).fit(corpus, progress=False)
+        seconds = time.perf_counter() - started
+        scores = evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"],
+                                 postprocessing=False).models[0].scores["jawOpen"]
+        point = SweepPoint(value, scores["rmse_percent"], scores["r"], model.history_.epochs, seconds)
+        points.append(point)
+        if progress is not None:
+            progress(f"{parameter}={value}: jawOpen RMSE {point.rmse_percent:.2f} %, r {point.r:.3f} "
+                     f"({point.epochs} epochs, {seconds:.0f} s)")
+    return points
+
+
+def plot_sweep(points: Sequence[SweepPoint], parameter: str, family: str, out_stem: str | os.PathLike,
+               frames_per_second: float | None = None) -> list[Path]:
+    """jawOpen's RMSE (left axis) and r (right axis) against the value: ``out_stem``.png and .svg."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(6, 4), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    values = [p.value for p in points]
+    axes.plot(values, [p.rmse_percent for p in points], "o-", color="tab:blue", label="RMSE")
+    axes.set_xlabel(parameter.replace("_", " ") + (f" (frames at {frames_per_second:g} fps)" if frames_per_second else ""))
+    axes.set_ylabel("jawOpen RMSE, % of range", color="tab:blue")
+    right = axes.twinx()
+    right.plot(values, [p.r for p in points], "s--", color="tab:red", label="r")
+    right.set_ylabel("jawOpen r", color="tab:red")
+    axes.set_title(f"{family}: test split, raw output", fontsize=9)
+    figure.tight_layout()
+    stem = Path(out_stem)
+    written = []
+    for kind in ("png", "svg"):
+        path = stem.with_suffix(f".{kind}")
+        figure.savefig(path, format=kind)
+        written.append(path)
+    return written
