@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -45,7 +47,7 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
             raise VispeechError("--livelink imports one recording as it is: leave out --batch, --sync and --smooth")
         report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=lang)
         offset = report.timecode_offset
-        where = ("the video has no timecode: taken to start with the sound" if offset != offset
+        where = ("the video has no timecode: taken to start with the sound" if math.isnan(offset)
                  else f"its first row at {offset:+.3f} s of the sound (timecodes)")
         missing = f", {report.missing} not covered by the CSV (left empty)" if report.missing else ""
         click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}; {where} -> {out_dir}/")
@@ -54,12 +56,8 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
         if text is not None:
             raise VispeechError("--batch reads each video's transcript from <name>.txt beside it: leave out --text")
         with click.progressbar(length=1, label="capturing", show_eta=True, show_pos=True, file=sys.stderr) as bar:
-            def advance(done: int, total: int) -> None:
-                bar.length = total
-                bar.update(done - bar.pos)
-
             report = capture_corpus(video, out_dir, language=lang, face_model=face_model, sync=sync, smooth=smooth,
-                                    jobs=jobs, progress=advance)
+                                    jobs=jobs, progress=_advance(bar))
         click.echo(f"{report.captured} captured, {report.skipped} already there, {len(report.failed)} failed -> {out_dir}/")
         for name, reason in report.failed:
             click.echo(f"  failed {name}: {reason}")
@@ -67,19 +65,25 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
             raise SystemExit(1)
         return
     with click.progressbar(length=1, label="tracking", show_eta=True, file=sys.stderr) as bar:
-        def advance(done: int, total: int) -> None:
-            bar.length = total
-            bar.update(done - bar.pos)
-
         report = capture_take(video, out_dir, text=text, language=lang, face_model=face_model, sync=sync,
-                              smooth=smooth, progress=advance)
+                              smooth=smooth, progress=_advance(bar))
     missing = f", {report.missing} without a face (left empty in {report.name}.face.csv)" if report.missing else ""
     phones = f", {report.phones} phones aligned" if text is not None else ""
     click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} "
                f"-> {out_dir}/")
-    if report.offset != report.offset:
+    if math.isnan(report.offset):
         click.echo("audio-video offset: cannot be told (too short, or the mouth does not move)")
     else:
         late = "late" if report.offset >= 0 else "early"
         done = "moved back in time with the sound" if report.synced else "--sync moves it"
         click.echo(f"audio-video offset: the picture is {abs(report.offset) * 1000:.0f} ms {late} ({done})")
+
+
+def _advance(bar) -> Callable[[int, int], None]:
+    """A ``progress(done, total)`` callback moving click's progress ``bar``."""
+
+    def advance(done: int, total: int) -> None:
+        bar.length = total
+        bar.update(done - bar.pos)
+
+    return advance

@@ -118,12 +118,13 @@ def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...],
         with atomic_output_file(markdown) as tmp:
             tmp.write_text(evaluation.to_markdown(), encoding="utf-8")
         click.echo(f"tables -> {markdown}")
+    if plot is not None or report_dir is not None:
+        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
     if plot is not None:
         from vispeech.evaluation.plots import plot_utterance as draw
 
         jaw = "jawOpen" in corpus.channels and any("jawOpen" in m.channels for m in models.values())
         channel = "jawOpen" if jaw else evaluation.models[0].scores.channels[0]
-        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
         draw(example, predictions, plot, channel)
         click.echo(f"{channel} of {example.id} -> {plot}")
     if report_dir is not None:
@@ -132,7 +133,6 @@ def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...],
 
         from vispeech.evaluation.report_folder import write_report
 
-        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
         command = shlex.join(["vispeech", *sys.argv[1:]]) if sys.argv[1:2] == ["evaluate"] else ""
         write_report(evaluation, report_dir, example=example, predictions=predictions, command=command)
         click.echo(f"report -> {report_dir}/report.html")

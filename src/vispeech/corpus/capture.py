@@ -35,13 +35,14 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.alignment.formats import write_textgrid
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.corpus.articulation import lip_gap
 from vispeech.corpus.av_sync import MIN_SECONDS, estimate_offset, shift_frames, smooth_frames
 from vispeech.corpus.grid import fill_missing_frames, write_face_csv
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.align import align
-from vispeech.frontends.audio import wav_bytes
+from vispeech.frontends.audio import AudioClip, wav_bytes
 from vispeech.frontends.video import LANDMARKS, check_installed, face_model_path, track_face, video_audio
 from vispeech.motion.livelink import write_livelink_csv
 from vispeech.motion.track import Track
@@ -108,20 +109,29 @@ def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: 
         frames = smooth_frames(frames, face.fps)
     values = frames[:, :width]
     landmarks = {name: frames[:, width + 3 * i:width + 3 * i + 3] for i, name in enumerate(landmarks)}
-    found = np.isfinite(values).all(axis=1)
-    blend = [c for c in face.channels if not c.startswith("head")]
+    _write_take(out_dir, files, clip, values, face.channels, landmarks, face.fps, phones)
+    missing = int((~np.isfinite(values).all(axis=1)).sum())
+    return CaptureReport(name, len(values), missing, face.fps, clip.duration, _spoken(phones), offset, sync)
+
+
+def _write_take(out_dir: str | os.PathLike, files: list[str], clip: AudioClip, values: np.ndarray,
+                channels: tuple[str, ...], landmarks: dict[str, np.ndarray], fps: float,
+                phones: PhoneSequence | None) -> None:
+    """Write a take's files (:data:`TAKE_FILES`, named in ``files``) as one folder: the sound, the face
+    track with its untracked frames (NaN rows) left empty, the Live Link CSV with them filled in
+    from their neighbours (the format has no gaps), and the phones when there are some."""
     filled, _ = fill_missing_frames(values)
-    livelink = Track(filled, face.channels, face.fps).select([*blend, "headYaw", "headPitch", "headRoll"])
     with atomic_output_dir(out_dir, replaces=files) as staging:
         (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
-        write_face_csv(staging / files[1], values, face.channels, landmarks, face.fps)
-        write_livelink_csv(livelink, staging / files[2])
+        write_face_csv(staging / files[1], values, channels, landmarks, fps)
+        write_livelink_csv(Track(filled, channels, fps), staging / files[2])  # leaves out non-Live-Link columns
         if phones is not None:
             write_textgrid(phones, staging / files[3])
-    duration = len(clip.samples) / clip.sample_rate
-    return CaptureReport(name, len(found), int((~found).sum()), face.fps, duration,
-                         0 if phones is None else sum(1 for p in phones if not p.is_silence), offset, sync)
 
+
+def _spoken(phones: PhoneSequence | None) -> int:
+    """Phones other than silences (0 without phones)."""
+    return 0 if phones is None else sum(1 for p in phones if not p.is_silence)
 
 
 @dataclass
@@ -231,21 +241,12 @@ def import_livelink_take(csv: str | os.PathLike, video: str | os.PathLike, out_d
         if abs(offset) > 10.0:
             raise VispeechError(f"{csv}: its first timecode is {offset:+.2f} s from the video's ({timecode}): "
                                 "not the same take?")
-    duration = len(clip.samples) / clip.sample_rate
-    n = int(np.ceil(duration * track.fps - 1e-6))
-    source = (np.arange(n) - (0.0 if offset != offset else offset) * track.fps)  # row of the CSV at frame k
-    values = np.empty((n, len(track.channels)))
-    rows = np.arange(track.n_frames)
-    for j in range(len(track.channels)):
-        values[:, j] = np.interp(source, rows, track.values[:, j])
+    n = int(np.ceil(clip.duration * track.fps - 1e-6))
+    source = np.arange(n) - (0.0 if np.isnan(offset) else offset) * track.fps  # row of the CSV at frame k
+    values = np.column_stack([np.interp(source, np.arange(track.n_frames), column) for column in track.values.T])
     covered = (source > -0.5) & (source < track.n_frames - 0.5)
     phones = align(clip.samples, clip.sample_rate, text, language) if text is not None else None
-    marked = np.where(covered[:, None], values, np.nan)
-    with atomic_output_dir(out_dir, replaces=files) as staging:
-        (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
-        write_face_csv(staging / files[1], marked, track.channels, {}, track.fps)
-        write_livelink_csv(Track(values, track.channels, track.fps), staging / files[2])
-        if phones is not None:
-            write_textgrid(phones, staging / files[3])
-    return CaptureReport(name, n, int((~covered).sum()), track.fps, duration,
-                         0 if phones is None else sum(1 for p in phones if not p.is_silence), float("nan"), False, offset)
+    _write_take(out_dir, files, clip, np.where(covered[:, None], values, np.nan), track.channels, {}, track.fps,
+                phones)
+    return CaptureReport(name, n, int((~covered).sum()), track.fps, clip.duration, _spoken(phones), float("nan"),
+                         False, offset)

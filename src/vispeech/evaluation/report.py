@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vispeech.alignment.phones import TIME_TOLERANCE
+from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.corpus.articulation import LIP_LANDMARKS, articulatory_parameters, lip_shape
 from vispeech.corpus.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
@@ -234,16 +234,21 @@ def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bo
     if model.input_kind == "audio":
         clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {utterance.id}")
         predicted = animate_audio(clip, model, fps, postprocess)
-    elif utterance.phones is None:
-        raise VispeechError(f"utterance {utterance.id} has no phones: align the corpus first")
     else:
-        predicted = animate(utterance.phones, model, fps, postprocess)
+        predicted = animate(_phones(utterance), model, fps, postprocess)
     times = utterance.track.times
     if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < TIME_TOLERANCE:
         return predicted
     values = np.column_stack([np.interp(times, predicted.times, predicted.values[:, j])
                               for j in range(len(predicted.channels))])
     return Track(values, predicted.channels, fps, float(times[0]))
+
+
+def _phones(utterance: Utterance) -> PhoneSequence:
+    """The utterance's phones; :class:`VispeechError` when it has none."""
+    if utterance.phones is None:
+        raise VispeechError(f"utterance {utterance.id} has no phones: align the corpus first")
+    return utterance.phones
 
 
 def scored_frames(utterance: Utterance) -> np.ndarray:
@@ -288,6 +293,12 @@ def evaluate_models(
     if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS))
            for u in corpus):
         shapes = [lip_shape(u.landmarks)[mask] for u, mask in zip(corpus, masks)]
+    classes = np.concatenate([frame_classes(_phones(u), u.track.fps, len(mask), u.track.start_time)[mask]
+                              for u, mask in zip(corpus, masks)])
+    recorded = recorded_jaw = None
+    if "jawOpen" in needed:
+        recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
+        recorded = motion_profile(recorded_jaw, corpus.fps)
 
     results = []
     bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
@@ -295,14 +306,12 @@ def evaluate_models(
         for label, model in models.items():
             chosen = plans[label]
             columns = [needed.index(c) for c in chosen]
-            target_arrays, predicted_arrays, class_arrays = [], [], []
+            target_arrays, predicted_arrays = [], []
             closures: ClosureCounts | None = ClosureCounts()
             for utterance, mask, target, tracked in zip(corpus, masks, targets, closed):
                 predicted = predict_on_frames(model, utterance, postprocessing)
                 target_arrays.append(target.values[mask][:, columns])
                 predicted_arrays.append(predicted.select(chosen).values[mask])
-                class_arrays.append(frame_classes(utterance.phones, utterance.track.fps, len(mask),
-                                                  utterance.track.start_time)[mask])
                 if closures is not None and tracked is not None and lip_opening(predicted) is not None:
                     closures += count_closures(utterance.phones, utterance.track.fps, tracked,
                                                model_closed(predicted), mask, utterance.track.start_time)
@@ -313,13 +322,10 @@ def evaluate_models(
             dynamics = by_phone = None
             if "jawOpen" in chosen:
                 jaw = chosen.index("jawOpen")
-                target_jaw = [t[:, jaw] for t in target_arrays if len(t)]
                 predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
                 dynamics = {**motion_profile(predicted_jaw, corpus.fps),
-                            "lag_s": best_lag(target_jaw, predicted_jaw, corpus.fps)}
-                recorded = motion_profile(target_jaw, corpus.fps)
+                            "lag_s": best_lag(recorded_jaw, predicted_jaw, corpus.fps)}
                 errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
-                classes = np.concatenate(class_arrays)
                 span = scores.range[jaw]
                 by_phone = {name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
                             if (classes == k).any() and span > 0 else float("nan")
@@ -331,8 +337,7 @@ def evaluate_models(
     finally:
         bar.close()
     ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]
-    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results, ids,
-                      recorded if any(r.dynamics for r in results) else None)
+    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results, ids, recorded)
 
 
 def _has_lip_landmarks(utterance: Utterance) -> bool:

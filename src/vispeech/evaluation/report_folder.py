@@ -59,8 +59,8 @@ def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example:
                        [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]])
             _write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
                        [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs])
-        (staging / "scores.json").write_text(json.dumps(_as_json(evaluation, comparison), indent=2, allow_nan=False,
-                                                        default=_finite), encoding="utf-8")
+        (staging / "scores.json").write_text(json.dumps(_as_json(evaluation, comparison), indent=2, allow_nan=False),
+                                             encoding="utf-8")
         figures = _figures(evaluation, staging, example, predictions or {})
         (staging / "report.html").write_text(_html(evaluation, comparison, figures, command), encoding="utf-8")
     return Path(out_dir)
@@ -112,16 +112,8 @@ def _cell(value) -> str:
     return str(value)
 
 
-def _finite(value):
-    """JSON for NumPy values; NaN becomes null."""
-    if isinstance(value, np.ndarray):
-        return [None if not math.isfinite(v) else float(v) for v in value.tolist()]
-    if isinstance(value, np.floating | np.integer):
-        return None if not math.isfinite(float(value)) else value.item()
-    raise TypeError(type(value).__name__)
-
-
 def _clean(value):
+    """JSON-ready ``value``: NaN (a score with nothing to score) becomes null."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):

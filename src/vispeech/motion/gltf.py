@@ -1,7 +1,7 @@
 """glTF 2.0: a morph-target ``weights`` animation added to a copy of a GLB model
 (:func:`write_gltf_animation`), a model's primitives and morph geometry read back
 (:func:`read_primitives`, :func:`read_morph_mesh`), and morph targets and vertex colours added
-to a copy of a head (:func:`write_head`).
+to a copy of a head (:func:`extended_glb`).
 
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
 and most exporters write it) with ARKit names (or vispeech's tongue channels,
@@ -116,16 +116,20 @@ class MorphMesh:
 class Primitive(MorphMesh):
     """A :class:`MorphMesh` with where it is in the file and what it is made of: ``mesh`` and
     ``index`` (the primitive's place in that mesh), ``name`` (its material's name, else its
-    mesh's), ``triangles`` (faces × 3 vertex indices; empty for points and lines), ``matrix``
-    (the 4 × 4 transform of its node, applied to ``positions`` and ``targets``) and ``coloured``
+    mesh's), ``triangles`` (faces × 3 vertex indices; empty for points and lines) and ``coloured``
     (whether it has vertex colours or a base-colour texture already)."""
 
     mesh: int
     index: int
     name: str
     triangles: np.ndarray
-    matrix: np.ndarray
     coloured: bool
+
+    @property
+    def edges(self) -> np.ndarray:
+        """The triangles' edges (3 per triangle, as vertex index pairs; shared edges repeated)."""
+        t = self.triangles
+        return np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
 
 
 def read_primitives(path: str | os.PathLike) -> list[Primitive]:
@@ -157,7 +161,7 @@ def read_primitives(path: str | os.PathLike) -> list[Primitive]:
                 material.pbrMetallicRoughness.baseColorTexture is not None)
             found.append(Primitive(base @ matrix[:3, :3].T + matrix[:3, 3], targets, index, k,
                                    (material.name if material else None) or mesh.name or f"mesh {index}", triangles,
-                                   matrix, textured or primitive.attributes.COLOR_0 is not None))
+                                   textured or primitive.attributes.COLOR_0 is not None))
     return found
 
 
@@ -182,17 +186,16 @@ def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
     return MorphMesh(skin.positions, skin.targets)
 
 
-def write_head(base_glb: str | os.PathLike, out_path: str | os.PathLike, *,
-               targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
-               colours: dict[tuple[int, int], np.ndarray] | None = None) -> None:
-    """Write a copy of ``base_glb`` with morph targets and vertex colours added to its primitives.
+def extended_glb(base_glb: str | os.PathLike, *, targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
+                 colours: dict[tuple[int, int], np.ndarray] | None = None) -> bytes:
+    """The bytes of a copy of ``base_glb`` with morph targets and vertex colours added to its primitives.
 
     ``targets[(mesh, primitive)][name]``: a new morph target's offsets (vertices × 3, scene units,
     as :func:`read_primitives` gives them); every other primitive of that mesh gets the same
     target with no offsets (an accessor without data, zeros by the glTF rules), and the name is
     appended to ``mesh.extras.targetNames``. ``colours[(mesh, primitive)]``: ``COLOR_0`` (vertices ×
     3, linear RGB 0..1, multiplying the material's base colour). Compressed data stays compressed;
-    the new data is appended uncompressed. Written atomically.
+    the new data is appended uncompressed.
     """
     gltf = _load(base_glb)
     if gltf.buffers and gltf.buffers[0].uri is not None:
@@ -229,12 +232,11 @@ def write_head(base_glb: str | os.PathLike, out_path: str | os.PathLike, *,
         if gltf.meshes[mesh].weights:
             gltf.meshes[mesh].weights = [*gltf.meshes[mesh].weights, *[0.0] * len(new)]
     for (mesh, primitive), rgb in (colours or {}).items():
-        setattr(gltf.meshes[mesh].primitives[primitive].attributes, "COLOR_0",
-                _append_accessor(gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0)))
+        gltf.meshes[mesh].primitives[primitive].attributes.COLOR_0 = _append_accessor(
+            gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0))
     blob.extend(b"\x00" * (-len(blob) % 4))
     gltf.buffers[0].byteLength = len(blob)
-    with atomic_output_file(out_path) as tmp:
-        tmp.write_bytes(_glb_bytes(gltf, bytes(blob)))
+    return _glb_bytes(gltf, bytes(blob))
 
 
 def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | os.PathLike) -> np.ndarray:

@@ -13,7 +13,8 @@ import os
 from dataclasses import dataclass, field
 
 from vispeech.errors import VispeechError
-from vispeech.motion.gltf import read_primitives, skin_primitive, write_head
+from vispeech.files import atomic_output_file
+from vispeech.motion.gltf import extended_glb, read_primitives, skin_primitive
 from vispeech.motion.head_paint import paint_mouth, paint_skin
 from vispeech.motion.tongue_rig import tongue_targets
 
@@ -32,8 +33,16 @@ class HeadReport:
 
 
 def prepare_head(base_glb: str | os.PathLike, out_path: str | os.PathLike) -> HeadReport:
-    """Write a copy of ``base_glb`` with the tongue morph targets it lacks and, where its materials
-    are flat, painted vertex colours (see the module docstring); what was added, in the report.
+    """Write :func:`prepared_head` of ``base_glb`` to ``out_path`` (atomically); its report."""
+    data, report = prepared_head(base_glb)
+    with atomic_output_file(out_path) as tmp:
+        tmp.write_bytes(data)
+    return report
+
+
+def prepared_head(base_glb: str | os.PathLike) -> tuple[bytes, HeadReport]:
+    """The bytes of a copy of ``base_glb`` with the tongue morph targets it lacks and, where its
+    materials are flat, painted vertex colours (see the module docstring), and what was added.
     Raises :class:`VispeechError` for a file that is not a head with ARKit morph targets."""
     primitives = read_primitives(base_glb)
     skin = skin_primitive(primitives, base_glb)
@@ -51,6 +60,9 @@ def prepare_head(base_glb: str | os.PathLike, out_path: str | os.PathLike) -> He
         else:
             report.notes.append("the head already has every tongue morph target")
     mouth = [p for p in primitives if any(word in p.name.lower() for word in MOUTH_PARTS)]
+    if mouth:
+        front = max(p.positions[:, 2].max() for p in mouth)
+        back = min(p.positions[:, 2].min() for p in mouth)
     for primitive in [skin, *mouth]:
         if primitive.coloured:
             report.notes.append(f"{primitive.name}: already coloured (a texture or vertex colours), not painted")
@@ -62,10 +74,7 @@ def prepare_head(base_glb: str | os.PathLike, out_path: str | os.PathLike) -> He
                 report.notes.append(f"{skin.name}: not painted: {exc}")
                 continue
         else:
-            front = max(p.positions[:, 2].max() for p in mouth)
-            back = min(p.positions[:, 2].min() for p in mouth)
             weights = tongue.weights if tongue is not None and primitive is tongue.primitive else None
             colours[(primitive.mesh, primitive.index)] = paint_mouth(primitive, front, back, weights)
         report.painted.append(primitive.name)
-    write_head(base_glb, out_path, targets=targets, colours=colours)
-    return report
+    return extended_glb(base_glb, targets=targets, colours=colours), report

@@ -47,8 +47,7 @@ def _mix(colours: np.ndarray, tint: np.ndarray, amount: np.ndarray) -> np.ndarra
 
 def _holes(skin: Primitive) -> list[np.ndarray]:
     """The vertex indices of each hole's rim in the skin (boundary loops but the outer one, the longest)."""
-    edges = np.sort(np.concatenate([skin.triangles[:, [0, 1]], skin.triangles[:, [1, 2]], skin.triangles[:, [2, 0]]]),
-                    axis=1)
+    edges = np.sort(skin.edges, axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     rim = unique[counts == 1]
     n = len(skin.positions)

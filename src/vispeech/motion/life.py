@@ -35,6 +35,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.motion.easing import smoothstep
+from vispeech.motion.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 
@@ -104,9 +105,13 @@ def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
     return Track(values, tuple(names), fps, start_time)
 
 
-def with_life(track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0) -> Track:
-    """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had)."""
+def with_life(track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0,
+              scale: Calibration | None = None) -> Track:
+    """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had); ``scale``
+    puts the added channels in an output scale (for a ``track`` already in it)."""
     life = nonverbal(track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time)
+    if scale is not None:
+        life = scale.apply(life)
     if not life.channels:
         return track
     keep = [c for c in track.channels if c not in life.channels]

@@ -100,8 +100,7 @@ def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the he
     distance, _ = cKDTree(teeth_mesh.positions).query(primitive.positions)
     weights = smoothstep(distance, GUMS) * smoothstep(carried, JAW_CARRIED)
     inside = weights > 0.5
-    edges = np.concatenate([primitive.triangles[:, [0, 1]], primitive.triangles[:, [1, 2]],
-                            primitive.triangles[:, [2, 0]]])
+    edges = primitive.edges
     edges = edges[inside[edges[:, 0]] & inside[edges[:, 1]]]
     n = len(primitive.positions)
     _, labels = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),

@@ -28,7 +28,6 @@ import logging
 import os
 import re
 import sys
-import tempfile
 import threading
 import time
 from contextlib import asynccontextmanager
@@ -57,7 +56,7 @@ from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.calibration import Calibration, load_scale
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
-from vispeech.motion.life import check_layers, nonverbal
+from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.track import Track
 from vispeech.pipeline import (
     DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, animate, listen, speak,
@@ -164,7 +163,7 @@ class ServeConfig:
     bytes. ``static_dir``: the built web app (default
     :data:`STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
     and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
-    looks it lacks (:func:`vispeech.motion.head.prepare_head`, done once when the app is made);
+    looks it lacks (:func:`vispeech.motion.head.prepared_head`, done once when the app is made);
     ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
@@ -487,14 +486,9 @@ class SpeechService:
     def _with_life(self, animation: dict, life: tuple[str, ...], seed: int) -> dict:
         """Animation JSON (a dict) with the channels of the non-verbal layers ``life`` added (replacing
         any it had), timed by its phones and in the server's output scale."""
-        track = Track.from_dict(animation)
         phones = PhoneSequence.from_dict(animation["phones"]) if animation.get("phones") else None
-        extra = nonverbal(track.n_frames, track.fps, phones, layers=life, seed=seed, start_time=track.start_time)
-        if self.calibration is not None:
-            extra = self.calibration.apply(extra)
-        keep = [c for c in track.channels if c not in extra.channels]
-        values = np.column_stack([track.select(keep).values, extra.values])
-        return {**animation, **Track(values, (*keep, *extra.channels), track.fps, track.start_time).to_dict()}
+        track = with_life(Track.from_dict(animation), phones, life, seed, scale=self.calibration)
+        return {**animation, **track.to_dict()}
 
     def reply(self, message: str, lang: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
@@ -518,13 +512,6 @@ class SpeechService:
             asked = lang if said is None else find_voice(said).language
         return reply, asked
 
-    def chat(self, message: str, lang: str, say: bool, model_name: str | None,
-             life: tuple[str, ...] = (), seed: int = 0) -> dict:
-        """A :class:`ChatResponse` as a dict: the bot's reply, spoken when ``say`` (with the non-verbal
-        layers ``life``), and its language."""
-        reply, spoken = self.reply(message, lang)
-        speech = self.speak(reply, spoken, model_name, 1.0, life, seed) if say else None
-        return {"reply": reply, "lang": spoken, "speech": speech}
 
 
 MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
@@ -598,20 +585,18 @@ def describe_errors(errors, skip: int = 0, what: str = "body", kinds: tuple[str,
 
 
 def _avatar_bytes(path: Path) -> bytes | None:
-    """The head at ``path`` prepared for the page (:func:`~vispeech.motion.head.prepare_head`), or None
+    """The head at ``path`` prepared for the page (:func:`~vispeech.motion.head.prepared_head`), or None
     (served as it is) when it cannot be: the reason is logged."""
-    from vispeech.motion.head import prepare_head
+    from vispeech.motion.head import prepared_head
 
-    with tempfile.TemporaryDirectory(prefix="vispeech-avatar-") as folder:
-        out = Path(folder) / path.name
-        try:
-            report = prepare_head(path, out)
-        except VispeechError as exc:
-            log.warning("serving %s as it is: %s", path, exc)
-            return None
-        for note in report.notes:
-            log.info("avatar %s: %s", path.name, note)
-        return out.read_bytes()
+    try:
+        data, report = prepared_head(path)
+    except VispeechError as exc:
+        log.warning("serving %s as it is: %s", path, exc)
+        return None
+    for note in report.notes:
+        log.info("avatar %s: %s", path.name, note)
+    return data
 
 
 def create_app(config: ServeConfig | None = None) -> FastAPI:
