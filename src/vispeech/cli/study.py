@@ -1,0 +1,75 @@
+"""``vispeech study``: run a perceptual study, export and analyse its answers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vispeech.cli import main
+
+
+@main.group("study")
+def study_group() -> None:
+    """Run a perceptual study of speech animation and analyse it (docs/study.md)."""
+
+
+def _database(study: Path, db: Path | None) -> Path:
+    """The study's SQLite file: ``--db``, or STUDY.sqlite3 beside the TOML."""
+    return db if db is not None else study.with_suffix(".sqlite3")
+
+
+_db_option = click.option("--db", type=click.Path(path_type=Path, dir_okay=False), default=None,
+                          help="SQLite file of the answers [default: STUDY.sqlite3 beside STUDY.toml].")
+
+
+@study_group.command("serve")
+@click.argument("study", type=click.Path(path_type=Path, dir_okay=False))
+@_db_option
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (0.0.0.0: every interface).")
+@click.option("--port", default=8010, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
+@click.option("--admin-token", envvar="VISPEECH_STUDY_TOKEN", show_envvar=True,
+              help="Token of the CSV export (/admin/answers.csv) [default: a random one, printed at start].")
+@click.option("--log-level", default="warning", show_default=True,
+              type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
+def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str | None, log_level: str) -> None:
+    """Run the study in STUDY.toml at http://HOST:PORT/ (participants: send them there, with
+    ?pid=ID from a recruitment platform for one response set per id). Every answer is committed
+    to the SQLite file before the page goes on. Stop with Ctrl+C."""
+    import secrets
+
+    import uvicorn
+
+    from vispeech.study.app import create_app
+    from vispeech.study.config import read_study
+    from vispeech.study.store import StudyStore
+
+    plan = read_study(study)
+    store = StudyStore(_database(study, db), plan)
+    token = admin_token or secrets.token_urlsafe(18)
+    click.echo(f"study {plan.title!r}: {len(plan.clips)} clips, answers in {store.path}")
+    click.echo(f"participants: http://{host}:{port}/   export: http://{host}:{port}/admin/answers.csv "
+               f"(Authorization: Bearer {'<the admin token>' if admin_token else token})")
+    uvicorn.run(create_app(plan, store, token), host=host, port=port, log_level=log_level)
+
+
+@study_group.command("export")
+@click.argument("study", type=click.Path(path_type=Path, dir_okay=False))
+@_db_option
+@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
+              help="Folder for answers.csv and participants.csv (what `study analyse` reads).")
+def export(study: Path, db: Path | None, output: Path) -> None:
+    """Write the answers of STUDY.toml's study (one row per answer, per face on a rating
+    trial) and one row per participant (intro answers, checks passed) as CSV."""
+    from vispeech.files import atomic_output_dir
+    from vispeech.study.config import read_study
+    from vispeech.study.store import StudyStore
+
+    path = _database(study, db)
+    if not path.is_file():
+        raise click.UsageError(f"no answers yet: {path} not found")
+    answers, participants = StudyStore(path, read_study(study)).export()
+    with atomic_output_dir(output, replaces=("answers.csv", "participants.csv")) as folder:
+        (folder / "answers.csv").write_text(answers, encoding="utf-8")
+        (folder / "participants.csv").write_text(participants, encoding="utf-8")
+    click.echo(f"{answers.count(chr(10)) - 1} answer rows, {participants.count(chr(10)) - 1} participants -> {output}")
