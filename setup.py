@@ -19,7 +19,7 @@ from setuptools.command.sdist import sdist
 ROOT = Path(__file__).resolve().parent
 WEB = ROOT / "web"
 STATIC = ROOT / "src" / "vispeech" / "serve" / "static"
-BUILT = ("index.html", "player.html", "viewer.html", "chat.js", "player.js", "viewer.js", "style.css", "face2d.js")
+BUILT = ("index.html", "player.html", "viewer.html", "chat.js", "player.js", "viewer.js", "stimuli.js", "style.css", "face2d.js")
 
 
 def _built() -> bool:

@@ -112,3 +112,89 @@ def test_faces_render_side_by_side_with_their_sound(tmp_path):
                                       side * width + width // 3:side * width + 2 * width // 3].mean()
     assert mouth(frames[k], speaking) < mouth(frames[k], 1 - speaking) - 5  # the open mouth is darker
     assert abs(mouth(frames[0], speaking) - mouth(frames[0], 1 - speaking)) < 3  # both at rest at first
+
+
+def _require_chromium():
+    from pathlib import Path
+
+    from conftest import require, require_module
+
+    require_module("playwright.sync_api", "Playwright (the test extra)")
+    require(Path("/usr/bin/chromium").is_file(), "Chromium (/usr/bin/chromium)")
+
+
+def test_tracks_render_on_the_3d_head_side_by_side(tmp_path, shared_dir):
+    """Two 10-frame tracks on the ICT head, swapped by the shuffle: one at rest, one opening the jaw.
+    The MP4 has 10 frames of two 320x400 heads and the sound; the opening one is where the key
+    says, its mouth region darker than the resting one's by the last frame; the rest of the face
+    and the first frame (both at rest) are alike."""
+    import json
+    from pathlib import Path
+
+    import av
+
+    from vispeech import Track
+    from vispeech.frontends.audio import wav_bytes
+    from vispeech.motion.arkit import ARKIT_NAMES
+    from vispeech.motion.io import write_track
+
+    _require_chromium()
+    rest = Track.zeros(10, ARKIT_NAMES, 25.0)
+    opening = Track.zeros(10, [*ARKIT_NAMES, "headYaw"], 25.0)
+    opening.values[:, ARKIT_NAMES.index("jawOpen")] = np.linspace(0, 1, 10)
+    opening.values[:, ARKIT_NAMES.index("mouthLowerDownLeft")] = np.linspace(0, 0.5, 10)
+    opening.values[:, ARKIT_NAMES.index("mouthLowerDownRight")] = np.linspace(0, 0.5, 10)
+    write_track(rest, tmp_path / "rest.json")
+    write_track(opening, tmp_path / "open.json")
+    (tmp_path / "speech.wav").write_bytes(wav_bytes(np.zeros(6400, dtype=np.float32), 16000))
+    out = tmp_path / "clip.mp4"
+    assert np.random.default_rng(3).permutation(2).tolist() == [1, 0]  # seed 3 swaps the two
+    result = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "rest.json"), str(tmp_path / "open.json"),
+                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "3",
+                                       "--head", str(shared_dir / "assets/ict_head.glb"), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    key = json.loads((tmp_path / "clip.json").read_text())
+    assert [Path(p).name for p in key["left_to_right"]] == ["open.json", "rest.json"]
+    assert key["head"].endswith("ict_head.glb")
+    with av.open(str(out)) as container:
+        assert {s.type for s in container.streams} == {"video", "audio"}
+        frames = [f.to_ndarray(format="rgb24").astype(float) for f in container.decode(video=0)]
+    assert len(frames) == 10 and frames[0].shape == (400, 640, 3)
+
+    def region(frame, side, top, bottom):  # the middle fifth of a head's width, rows top..bottom of 400
+        return frame[top:bottom, side * 320 + 128:side * 320 + 192]
+
+    mouth, brows = (248, 312), (120, 160)
+    assert region(frames[-1], 0, *mouth).mean() < region(frames[-1], 1, *mouth).mean() - 10  # open: darker
+    assert np.abs(region(frames[-1], 0, *mouth) - region(frames[-1], 1, *mouth)).mean() > 20
+    assert np.abs(region(frames[-1], 0, *brows) - region(frames[-1], 1, *brows)).mean() < 3  # the same face
+    assert np.abs(region(frames[0], 0, *mouth) - region(frames[0], 1, *mouth)).mean() < 5  # both at rest at first
+    assert region(frames[-1], 1, *mouth).std() > 5  # a face is there, not the background
+
+
+def test_a_head_that_is_not_an_arkit_glb_is_refused(tmp_path):
+    """A text file, or a GLB whose morph targets have no ARKit names, as --head: one line `error:`,
+    exit 2, no clip and no key; the library raises VispeechError."""
+    from test_gltf import tiny_glb
+
+    from vispeech import Track
+    from vispeech.evaluation.stimuli import render_faces
+    from vispeech.motion.arkit import ARKIT_NAMES
+    from vispeech.motion.io import write_track
+
+    write_track(Track.zeros(3, ARKIT_NAMES, 25.0), tmp_path / "a.json")
+    (tmp_path / "notes.glb").write_text("not a head\n")
+    tiny_glb(tmp_path / "shapes.glb", ["Key 1", "Smile"])
+    for head, extra in [("notes.glb", []), ("shapes.glb", []), ("shapes.glb", ["--head-as-is"]), ("missing.glb", [])]:
+        result = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "a.json"), *extra,
+                                           "--head", str(tmp_path / head), "-o", str(tmp_path / "clip.mp4")])
+        assert result.exit_code == 2 and result.output.startswith("error:"), (head, result.output)
+        assert result.output.count("\n") == 1, result.output
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "notes.glb", "shapes.glb"]
+    for prepare in (True, False):
+        with pytest.raises(VispeechError, match="ARKit morph targets"):
+            render_faces([Track.zeros(3, ARKIT_NAMES, 25.0)], tmp_path / "clip.mp4", head=tmp_path / "shapes.glb",
+                         prepare_head=prepare)
+    bad = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "a.json"), "--head-as-is",
+                                    "-o", str(tmp_path / "clip.mp4")])
+    assert bad.exit_code == 2 and "--head-as-is needs --head" in bad.output

@@ -57,6 +57,7 @@ def test_bundle_carries_three_and_the_app(static):
     for name in ("influences", "frameIndex", "audioTime", "playAnimation", "seek", "speak"):
         assert re.search(rf"\b{name}\b", code), f"window.vispeech.{name} missing from the bundle"
     assert "VispeechFace2D" in (static / "face2d.js").read_text(encoding="utf-8")
+    assert "vispeechStimuli" in (static / "stimuli.js").read_text(encoding="utf-8")  # stimuli render --head
 
 
 def test_no_external_urls(static):

@@ -1,5 +1,6 @@
-// Build the web app into src/vispeech/serve/static/: bundle the three page scripts (three.js
-// included, shared code split into chunks/), copy the pages, the style sheet and the 2D face.
+// Build the web app into src/vispeech/serve/static/: bundle the three page scripts and the
+// stimuli renderer's (three.js included, shared code split into chunks/), copy the pages, the
+// style sheet and the 2D face.
 // The folder is generated: it is emptied first and ignores itself in git.
 import { build } from 'esbuild';
 import { copyFileSync, mkdirSync, rmSync, writeFileSync } from 'node:fs';
@@ -16,7 +17,7 @@ mkdirSync(out, { recursive: true });
 writeFileSync(join(out, '.gitignore'), '# Built by web/build.mjs (npm run build); not kept in git.\n*\n');
 
 await build({
-  entryPoints: ['chat.js', 'player.js', 'viewer.js'].map((name) => join(src, name)),
+  entryPoints: ['chat.js', 'player.js', 'viewer.js', 'stimuli.js'].map((name) => join(src, name)),
   outdir: out,
   bundle: true,
   splitting: true,

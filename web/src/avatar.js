@@ -6,22 +6,14 @@ import { MeshoptDecoder } from 'three/examples/jsm/libs/meshopt_decoder.module.j
 import { MORPH_NAMES, morphName } from './arkit.js';
 
 /**
- * A GLB head in a three.js scene. Every mesh primitive whose morph targets match ARKit names
- * (or vispeech's tongue channels) is driven; `weights` are indexed like MORPH_NAMES.
+ * A GLB head in a three.js scene, without a canvas: every mesh primitive whose morph targets
+ * match ARKit names (or vispeech's tongue channels) is driven; `weights` are indexed like
+ * MORPH_NAMES. A camera frames the face and lights light it. Avatar3D draws one on a page;
+ * the stimuli page (stimuli.js) draws several side by side.
  */
-export class Avatar3D {
-  /** Load the GLB at `url` into a canvas appended to `container`. */
-  static async load(container, url) {
-    const loader = new GLTFLoader();
-    loader.setMeshoptDecoder(MeshoptDecoder);
-    const gltf = await loader.loadAsync(url);
-    return new Avatar3D(container, gltf);
-  }
-
-  constructor(container, gltf) {
-    this.container = container;
+export class HeadScene {
+  constructor(gltf) {
     this.credit = (gltf.asset && gltf.asset.copyright) || null;
-    this.blinks = false;
     this.targets = MORPH_NAMES.map(() => []); // per channel name: [{mesh, index}]
     this.head = null; // the mesh whose influences `influence()` reports
     let best = -1;
@@ -71,21 +63,12 @@ export class Avatar3D {
     this.scene.add(key);
 
     this.camera = new THREE.PerspectiveCamera(25, 1, 0.01 * size.y, 100 * size.y);
-    this.renderer = new THREE.WebGLRenderer({ antialias: true, alpha: true });
-    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
-    this.canvas = this.renderer.domElement;
-    container.appendChild(this.canvas);
-    this.resize();
-    new ResizeObserver(() => this.resize()).observe(container);
   }
 
-  /** Fit the canvas to its container and keep the face in view at any aspect ratio. */
-  resize() {
-    const w = Math.max(1, this.container.clientWidth);
-    const h = Math.max(1, this.container.clientHeight);
-    this.renderer.setSize(w, h, false);
-    this.camera.aspect = w / h;
-    const d = this.distance * Math.max(1, 0.9 / this.camera.aspect);
+  /** Aim the camera for a view `aspect` (width / height) wide, keeping the face in view. */
+  frame(aspect) {
+    this.camera.aspect = aspect;
+    const d = this.distance * Math.max(1, 0.9 / aspect);
     this.camera.position.set(this.target.x, this.target.y + this.lift, this.target.z + d);
     this.camera.lookAt(this.target);
     this.camera.updateProjectionMatrix();
@@ -107,6 +90,41 @@ export class Avatar3D {
   influence(name) {
     const index = this.headIndex.get(morphName(name));
     return index === undefined ? 0 : this.head.morphTargetInfluences[index];
+  }
+}
+
+/** Load a GLB head (meshopt-compressed or not) from `url`; resolves to three.js's glTF result. */
+export function loadHead(url) {
+  const loader = new GLTFLoader();
+  loader.setMeshoptDecoder(MeshoptDecoder);
+  return loader.loadAsync(url);
+}
+
+/** A GLB head on a page: a HeadScene drawn on a canvas that fills `container`. */
+export class Avatar3D extends HeadScene {
+  /** Load the GLB at `url` into a canvas appended to `container`. */
+  static async load(container, url) {
+    return new Avatar3D(container, await loadHead(url));
+  }
+
+  constructor(container, gltf) {
+    super(gltf);
+    this.container = container;
+    this.blinks = false;
+    this.renderer = new THREE.WebGLRenderer({ antialias: true, alpha: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+    this.canvas = this.renderer.domElement;
+    container.appendChild(this.canvas);
+    this.resize();
+    new ResizeObserver(() => this.resize()).observe(container);
+  }
+
+  /** Fit the canvas to its container and keep the face in view at any aspect ratio. */
+  resize() {
+    const w = Math.max(1, this.container.clientWidth);
+    const h = Math.max(1, this.container.clientHeight);
+    this.renderer.setSize(w, h, false);
+    this.frame(w / h);
   }
 
   render() {

@@ -10,9 +10,9 @@ const STREAM_BUFFER = 0.25; // seconds of streamed audio buffered before playbac
 const FADE = 0.2; // seconds to ease into and out of an animation's first and last frame
 const LIVE_SLACK = 0.02; // seconds added when a live frame came late, beyond its lateness
 const LAYER_BLEND = 0.4; // seconds to hand the head and the blinks from idle motion to an utterance's layers and back
-const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
-const HEAD_CHANNELS = ['headpitch', 'headyaw', 'headroll']; // lower-cased, in setHeadRotation's order
-const RADIANS_PER_DEGREE = Math.PI / 180; // tracks carry head rotation in degrees (vispeech.Utterance)
+export const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
+export const HEAD_CHANNELS = ['headpitch', 'headyaw', 'headroll']; // lower-cased, in setHeadRotation's order
+export const RADIANS_PER_DEGREE = Math.PI / 180; // tracks carry head rotation in degrees (vispeech.Utterance)
 
 /** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
 export function decodePcm16(base64) {
