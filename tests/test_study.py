@@ -436,3 +436,76 @@ def test_a_participant_completes_the_study_in_chromium_and_a_killed_server_loses
     assert len(participants) == 1 and participants[0]["finished_at"]
     assert participants[0]["intro_experience"] == "Moderate"
     assert participants[0]["passed_identical"] == "1"
+
+
+# --- the command line -------------------------------------------------------------------------
+
+def _cli(*args):
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+
+    return CliRunner().invoke(main, ["study", *map(str, args)])
+
+
+def test_study_export_writes_the_answers_and_refuses_bad_input_in_one_line(study_file, tmp_path):
+    study = read_study(study_file)
+    store = StudyStore(study_file.with_suffix(".sqlite3"), study)
+    who = store.join("pid:one", {"experience": "None"})
+    store.answer(who.id, 0, _rating_for(who.trials[0]), 500)
+    result = _cli("export", study_file, "-o", tmp_path / "out")
+    assert result.exit_code == 0, result.output
+    assert "3 answer rows, 1 participants" in result.output
+    rows = list(csv.DictReader((tmp_path / "out" / "answers.csv").open(encoding="utf-8")))
+    assert [int(r["answer"]) for r in rows] == _rating_for(who.trials[0])
+    assert (tmp_path / "out" / "participants.csv").is_file()
+    missing = _cli("export", study_file, "--db", tmp_path / "none.sqlite3", "-o", tmp_path / "out2")
+    assert missing.exit_code == 2 and "none.sqlite3 not found" in missing.output
+    assert not (tmp_path / "out2").exists()
+    (tmp_path / "junk.sqlite3").write_bytes(b"not a database at all, just bytes" * 40)
+    junk = _cli("export", study_file, "--db", tmp_path / "junk.sqlite3", "-o", tmp_path / "out3")
+    assert junk.exit_code == 2 and "is not a study database" in junk.output and len(junk.output.splitlines()) == 1
+    study_file.write_text(STUDY_TOML.replace("[rating]", "[ratin]"), encoding="utf-8")
+    bad = _cli("serve", study_file)
+    assert bad.exit_code == 2 and bad.output.startswith("error:") and len(bad.output.splitlines()) == 1
+
+
+# --- a study made from a recorded corpus ------------------------------------------------------
+
+@pytest.mark.browser
+def test_study_prepare_renders_the_recording_and_the_models_into_a_study_that_runs(grid_s1, tmp_path):
+    require(CHROMIUM.is_file(), f"Chromium ({CHROMIUM}: apt-get install chromium)")
+    require_module("playwright.sync_api", "Playwright (the test extra)")
+    av = require_module("av", "PyAV (the capture extra)")
+    from vispeech.corpus.corpus import split_of
+
+    root = tmp_path / "corpus"
+    (root / "utterances").mkdir(parents=True)
+    texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
+    ids = sorted(path.stem for path in (grid_s1 / "utterances").glob("*.flac"))[:2]
+    for uid in ids:
+        for ext in ("flac", "align", "csv"):
+            shutil.copy(grid_s1 / "utterances" / f"{uid}.{ext}", root / "utterances" / f"{uid}.{ext}")
+    (root / "sentences.tsv").write_text("id\ttext\n" + "".join(f"{uid}\t{texts[uid]}\n" for uid in ids))
+    split = split_of(ids[0])
+    result = _cli("prepare", "--corpus", root, "--split", split, "-m", "recorded", "-m", "baseline",
+                  "--sentences", "1", "--cache", tmp_path / "cache", "-q", "-o", tmp_path / "study")
+    assert result.exit_code == 0, result.output
+    study = read_study(tmp_path / "study" / "study.toml")
+    assert len(study.clips) == 1 and study.clips[0].models == ["recorded", "baseline"]
+    clip = study.clips[0]
+    assert clip.sentence in ids and clip.text == texts[clip.sentence]
+    with av.open(str(clip.path)) as container:
+        sound = container.streams.audio[0]
+        duration = float(sound.duration * sound.time_base)
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    with av.open(str(grid_s1 / "utterances" / f"{clip.sentence}.flac")) as source:
+        assert abs(duration - source.duration / 1e6) < 0.1
+    assert frames[0].shape[1] == 2 * frames[0].shape[0] * 4 // 5  # two 4:5 faces side by side
+    # the two faces move differently (the recording is not the rule baseline)
+    half = frames[0].shape[1] // 2
+    motion = np.array([np.abs(f[:, :half].astype(int) - f[:, half:].astype(int)).mean() for f in frames])
+    assert motion.max() > 1.0
+    assert {t.task for t in plan_trials(study, 0)} == {"rating", "pairwise"}
+    again = _cli("prepare", "--corpus", root, "-m", "recorded", "-m", "recorded", "-o", tmp_path / "other")
+    assert again.exit_code == 2 and "each --model once" in again.output and not (tmp_path / "other").exists()

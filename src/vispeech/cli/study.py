@@ -7,11 +7,53 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
+from vispeech.cli.evaluate import cache_option, corpus_option, language_option, quiet_option, read_aligned_corpus
+from vispeech.corpus.corpus import SPLITS
 
 
 @main.group("study")
 def study_group() -> None:
     """Run a perceptual study of speech animation and analyse it (docs/study.md)."""
+
+
+@study_group.command("prepare")
+@corpus_option
+@click.option("--model", "-m", "model_specs", multiple=True, required=True,
+              help="A model to show: a shipped name or saved folder, or `recorded` for the corpus's own "
+              "track (repeat: two at least; left to right in each clip).")
+@click.option("--split", default="test", show_default=True, type=click.Choice(list(SPLITS)),
+              help="Where the sentences come from.")
+@click.option("--sentences", default=10, show_default=True, type=click.IntRange(1, 200),
+              help="Sentences (clips) to draw at random from the split.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Seed of the draw (and of the study's trial order).")
+@click.option("--vocode", is_flag=True, help="Play the speech through the 3-band noise vocoder (stimuli vocode), "
+              "so that the faces matter for understanding it.")
+@click.option("--title", default="Talking faces", show_default=True, help="The study's title.")
+@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
+              help="The study folder: study.toml and clips/.")
+@language_option
+@cache_option
+@quiet_option
+def prepare(corpus_dir: Path, model_specs: tuple[str, ...], split: str, sentences: int, seed: int, vocode: bool,
+            title: str, output: Path, language: str, cache: Path | None, quiet: bool) -> None:
+    """Make a study from a recorded corpus: SENTENCES of its SPLIT, each rendered with every
+    --model's face side by side (the recording itself as `recorded`) and the sentence's sound,
+    and a study.toml with the rating and the pairwise task. Needs Chromium and Playwright (as
+    `stimuli render`)."""
+    from vispeech.errors import VispeechError
+    from vispeech.files import check_output_dir
+    from vispeech.models.registry import load_model
+    from vispeech.study.prepare import RECORDED, STUDY_FILE, prepare_study
+
+    if len(set(model_specs)) != len(model_specs):
+        raise VispeechError("each --model once")
+    check_output_dir(output, replaces=(STUDY_FILE, "clips"))
+    models = {spec: None if spec == RECORDED else load_model(spec) for spec in model_specs}
+    corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet).split(split)
+    path = prepare_study(corpus, models, output, sentences=sentences, seed=seed, vocode=vocode, title=title,
+                         progress=None if quiet else click.echo)
+    click.echo(f"study -> {path} (run it: vispeech study serve {path})")
 
 
 def _database(study: Path, db: Path | None) -> Path:

@@ -79,8 +79,10 @@ class Question(_Strict):
 class Clip(_Strict):
     """A composite clip: the faces of ``models`` side by side (left to right) saying ``sentence``."""
 
-    sentence: str = Field(min_length=1, max_length=80)
+    sentence: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")
     path: Path
+    text: str = ""
+    """What is said (for the experimenter; participants only hear it)."""
     models: list[str] = Field(default_factory=list)
 
     @field_validator("models")
