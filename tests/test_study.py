@@ -306,6 +306,20 @@ def test_the_app_takes_a_participant_through_without_telling_the_models(client):
     assert again.status_code == 409 and "already taken part" in again.json()["detail"]
 
 
+def test_the_page_speaks_the_study_s_language(study_file, tmp_path):
+    testclient = require_module("fastapi.testclient", "FastAPI (the serve extra)")
+    from vispeech.study.app import create_app
+
+    study_file.write_text(STUDY_TOML + '\n[labels]\nplay = "Spela"\nitem = "Fråga {n} av {total}"\n', encoding="utf-8")
+    study = read_study(study_file)
+    with testclient.TestClient(create_app(study, StudyStore(tmp_path / "a.sqlite3", study), "x")) as client:
+        labels = client.get("/api/study").json()["labels"]
+    assert labels["play"] == "Spela" and labels["item"] == "Fråga {n} av {total}" and labels["next"] == "Next"
+    study_file.write_text(STUDY_TOML + '\n[labels]\nplai = "Spela"\n', encoding="utf-8")
+    with pytest.raises(VispeechError, match="labels.plai: Extra inputs are not permitted"):
+        read_study(study_file)
+
+
 def test_the_export_needs_the_admin_token(client):
     assert client.get("/admin/answers.csv").status_code == 401
     assert client.get("/admin/answers.csv", headers={"Authorization": "Bearer nope"}).status_code == 403

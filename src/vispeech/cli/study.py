@@ -29,6 +29,9 @@ def study_group() -> None:
               help="Seed of the draw (and of the study's trial order).")
 @click.option("--vocode", is_flag=True, help="Play the speech through the 3-band noise vocoder (stimuli vocode), "
               "so that the faces matter for understanding it.")
+@click.option("--head", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Render the faces on this GLB head (ARKit morph targets) instead of the 2D face "
+              "(slower: about 10 heads a second).")
 @click.option("--title", default="Talking faces", show_default=True, help="The study's title.")
 @click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
               help="The study folder: study.toml and clips/.")
@@ -36,11 +39,11 @@ def study_group() -> None:
 @cache_option
 @quiet_option
 def prepare(corpus_dir: Path, model_specs: tuple[str, ...], split: str, sentences: int, seed: int, vocode: bool,
-            title: str, output: Path, language: str, cache: Path | None, quiet: bool) -> None:
+            head: Path | None, title: str, output: Path, language: str, cache: Path | None, quiet: bool) -> None:
     """Make a study from a recorded corpus: SENTENCES of its SPLIT, each rendered with every
-    --model's face side by side (the recording itself as `recorded`) and the sentence's sound,
-    and a study.toml with the rating and the pairwise task. Needs Chromium and Playwright (as
-    `stimuli render`)."""
+    --model's face side by side (the recording itself as `recorded`) and the sentence's sound
+    (2D faces, or --head), and a study.toml with the rating and the pairwise task. Needs
+    Chromium and Playwright (as `stimuli render`)."""
     from vispeech.errors import VispeechError
     from vispeech.files import check_output_dir
     from vispeech.models.registry import load_model
@@ -51,8 +54,8 @@ def prepare(corpus_dir: Path, model_specs: tuple[str, ...], split: str, sentence
     check_output_dir(output, replaces=(STUDY_FILE, "clips"))
     models = {spec: None if spec == RECORDED else load_model(spec) for spec in model_specs}
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet).split(split)
-    path = prepare_study(corpus, models, output, sentences=sentences, seed=seed, vocode=vocode, title=title,
-                         progress=None if quiet else click.echo)
+    path = prepare_study(corpus, models, output, sentences=sentences, seed=seed, vocode=vocode, head=head,
+                         title=title, progress=None if quiet else click.echo)
     click.echo(f"study -> {path} (run it: vispeech study serve {path})")
 
 
@@ -115,3 +118,50 @@ def export(study: Path, db: Path | None, output: Path) -> None:
         (folder / "answers.csv").write_text(answers, encoding="utf-8")
         (folder / "participants.csv").write_text(participants, encoding="utf-8")
     click.echo(f"{answers.count(chr(10)) - 1} answer rows, {participants.count(chr(10)) - 1} participants -> {output}")
+
+
+@study_group.command("analyse")
+@click.argument("answers", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
+              help="Folder for analysis.json, the CSV tables, the figures and report.html.")
+@click.option("--participants", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="participants.csv of the same export: the checks' pass counts.")
+@click.option("--exclude-failed-checks", is_flag=True,
+              help="Leave out the participants who failed a check (needs --participants).")
+@click.option("--models", default=None, metavar="A,B,...",
+              help="The models in this order, the first the reference level [default: sorted].")
+@click.option("--random-slopes/--no-random-slopes", default=True, show_default=True,
+              help="Random model slopes per participant and sentence, as the thesis (minutes on a few cores), "
+                   "or random intercepts alone.")
+def analyse(answers: Path, output: Path, participants: Path | None, exclude_failed_checks: bool,
+            models: str | None, random_slopes: bool) -> None:
+    """Analyse ANSWERS (answers.csv from `vispeech study export`) as the thesis did: a
+    cumulative-link mixed model per task (R's ordinal::clmm), the Wald chi-square of the model
+    factor, Tukey-adjusted pairs, inferred probabilities, per-sentence models, the
+    proportional-odds check and win/tie/loss counts (docs/study.md). Needs R with ordinal, car,
+    emmeans and jsonlite."""
+    import shlex
+    import sys
+
+    from vispeech.files import check_output_dir
+    from vispeech.study.analysis import (
+        ANALYSIS_FILES,
+        analyse_answers,
+        read_answers,
+        read_participants,
+        write_analysis,
+    )
+
+    if exclude_failed_checks and participants is None:
+        raise click.UsageError("--exclude-failed-checks needs --participants")
+    check_output_dir(output, replaces=ANALYSIS_FILES)
+    table = read_answers(answers)
+    people = read_participants(participants) if participants is not None else None
+    order = [m.strip() for m in models.split(",") if m.strip()] if models else None
+    analysis = analyse_answers(table, participants=people, exclude_failed_checks=exclude_failed_checks,
+                               models=order, random_slopes=random_slopes)
+    command = shlex.join(["vispeech", *sys.argv[1:]]) if sys.argv[1:3] == ["study", "analyse"] else ""
+    write_analysis(analysis, output, command=command)
+    for line in analysis.summary():
+        click.echo(line)
+    click.echo(f"analysis -> {output}/report.html")

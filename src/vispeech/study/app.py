@@ -27,7 +27,7 @@ from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
-from vispeech.study.config import Study
+from vispeech.study.config import Labels, Study
 from vispeech.study.store import Participant, StudyError, StudyStore
 
 STATIC = Path(__file__).with_name("static")
@@ -52,6 +52,7 @@ class StudyView(BaseModel):
     rating_question: str | None
     anchors: dict[int, str]
     pairwise_question: str | None
+    labels: Labels
 
 
 class JoinRequest(BaseModel):
@@ -126,7 +127,8 @@ def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
                          questions=[QuestionView(**q.model_dump()) for q in study.questions],
                          rating_question=study.rating.question if study.rating else None,
                          anchors=study.rating.anchors if study.rating else {},
-                         pairwise_question=study.pairwise.question if study.pairwise else None)
+                         pairwise_question=study.pairwise.question if study.pairwise else None,
+                         labels=study.labels)
 
     @app.post("/api/join", response_model=Progress)
     def join(request: JoinRequest, response: Response, vispeech_study: str | None = Cookie(default=None)) -> Progress:

@@ -38,6 +38,10 @@ A minimal ``STUDY.toml``::
 
     [pairwise]
     question = "Please indicate which animation you prefer."
+
+Optional: ``[checks]`` (``identical``, ``mismatched``: true or false), ``warmup`` in each task
+(default 3), ``pairs`` in ``[pairwise]``, ``models`` in ``[rating]``, ``thanks``, ``seed``, and
+``[labels]`` (:class:`Labels`: the page's buttons and hints, for a study in another language).
 """
 
 from __future__ import annotations
@@ -130,6 +134,19 @@ class Checks(_Strict):
     mismatched: bool = True
 
 
+class Labels(_Strict):
+    """The page's own words, for a study in another language (``[labels]``)."""
+
+    start: str = "Start"
+    play: str = "Play"
+    play_again: str = "Play again"
+    listen_first: str = "Play the clip to the end to answer."
+    next: str = "Next"
+    tie: str = "Equal"
+    item: str = "Item {n} of {total}"
+    not_saved: str = "Your answer was not saved, please answer again."
+
+
 class Study(_Strict):
     """A perceptual study (see the module docstring); paths are relative to the TOML file."""
 
@@ -142,6 +159,7 @@ class Study(_Strict):
     rating: RatingTask | None = None
     pairwise: PairwiseTask | None = None
     checks: Checks = Checks()
+    labels: Labels = Labels()
     seed: int = 0
 
     @model_validator(mode="after")

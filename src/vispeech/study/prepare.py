@@ -46,10 +46,11 @@ QUESTIONS = (
 
 
 def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_dir: str | os.PathLike, *,
-                  sentences: int = 10, seed: int = 0, vocode: bool = False, title: str = "Talking faces",
-                  progress: Callable[[str], None] | None = None) -> Path:
+                  sentences: int = 10, seed: int = 0, vocode: bool = False, head: str | os.PathLike | None = None,
+                  title: str = "Talking faces", progress: Callable[[str], None] | None = None) -> Path:
     """Write a study folder: ``clips/<utterance>.mp4`` (the faces of ``models`` left to right,
-    with the utterance's sound, through the noise vocoder when ``vocode``), a key beside each,
+    with the utterance's sound, through the noise vocoder when ``vocode``; on the 2D face, or on
+    the 3D ``head`` (a GLB, prepared as ``serve --avatar`` prepares it)), a key beside each,
     and ``study.toml`` with both tasks (rating every face, every pair) and the thesis's intro
     questions. ``models`` maps a name to a model, or to None for the recording itself
     (:data:`RECORDED`). ``sentences`` utterances of ``corpus`` are drawn at random (``seed``).
@@ -73,9 +74,9 @@ def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_di
             samples, rate = utterance.load_audio()
             if vocode:
                 samples = noise_vocode(samples, rate)
-            render_faces(tracks, staging / "clips" / f"{utterance.id}.mp4", audio=samples, sample_rate=rate)
+            render_faces(tracks, staging / "clips" / f"{utterance.id}.mp4", audio=samples, sample_rate=rate, head=head)
             key = {"clip": f"{utterance.id}.mp4", "sentence": utterance.id, "text": utterance.text,
-                   "vocoded": vocode, "left_to_right": list(models)}
+                   "vocoded": vocode, "head": None if head is None else str(head), "left_to_right": list(models)}
             (staging / "clips" / f"{utterance.id}.json").write_text(json.dumps(key, indent=2) + "\n", encoding="utf-8")
             clips.append((utterance.id, utterance.text))
             if progress is not None:

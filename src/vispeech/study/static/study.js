@@ -100,7 +100,7 @@ function next() {
     return;
   }
   const trial = state.trials[state.next];
-  $("count").textContent = `Item ${state.next + 1} of ${state.trials.length}`;
+  $("count").textContent = study.labels.item.replace("{n}", state.next + 1).replace("{total}", state.trials.length);
   $("question").textContent = trial.task === "rating" ? study.rating_question : study.pairwise_question;
 
   const videos = new Map();
@@ -145,10 +145,10 @@ function next() {
     for (const video of media) video.pause();
     drawFaces(trial.faces, canvases, videos);
     $("play").disabled = false;
-    $("play").textContent = "Play again";
+    $("play").textContent = study.labels.play_again;
     if (!heard) { heard = true; enableAnswers(trial); }
   });
-  $("play").textContent = "Play";
+  $("play").textContent = study.labels.play;
   $("ratings").hidden = true;
   $("choices").hidden = true;
   $("next").hidden = true;
@@ -215,7 +215,7 @@ async function send(answer) {
       next();
       return;
     }
-    fail(`${error.message}: your answer was not saved, please answer again.`);
+    fail(`${error.message}: ${study.labels.not_saved}`);
     for (const button of document.querySelectorAll("#choices button, #next")) button.disabled = false;
   }
 }
@@ -229,6 +229,10 @@ async function start() {
   }
   document.title = study.title;
   $("title").textContent = study.title;
+  $("start").textContent = study.labels.start;
+  $("next").textContent = study.labels.next;
+  $("choose-tie").textContent = study.labels.tie;
+  $("hint").textContent = study.labels.listen_first;
   $("join").addEventListener("submit", join);
   try {
     state = await api("/api/me");
