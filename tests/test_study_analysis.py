@@ -94,7 +94,7 @@ def simulate(effects=(0.0, 0.8, 1.6), participants=20, sentences=10, seed=0, pai
 
 
 def test_wine_gives_the_ordinal_packages_published_estimates(r, tmp_path):
-    """ordinal's documentation (?clmm, Christensen's clmm tutorial): rating ~ temp + contact + (1|judge)
+    """The ordinal package's documented fit (Christensen's clmm tutorial): rating ~ temp + contact + (1|judge)
     on the wine data has thresholds -1.62, 1.51, 4.23, 6.09, tempwarm 3.06, contactyes 1.83 and a
     judge SD of 1.13 (variance 1.28)."""
     path = tmp_path / "wine.csv"
@@ -118,7 +118,7 @@ def test_wine_gives_the_ordinal_packages_published_estimates(r, tmp_path):
     assert (pair["a"], pair["b"]) == ("cold", "warm") and pair["estimate"] == pytest.approx(-3.063, abs=1e-3)
     warm = [p["probability"] for p in fit["probabilities"] if p["level"] == "warm"]
     assert len(warm) == 5 and sum(warm) == pytest.approx(1)
-    # ordinal's ?nominal_test: temp's nominal effect LRT 3.1750, p 0.3654
+    # nominal_test as R prints it: temp's nominal effect LRT 3.1750 on 3 df, p 0.3654
     nominal = fit["proportional_odds"]["nominal"]["temp"]
     assert (nominal["df"], round(nominal["lrt"], 3), round(nominal["p"], 4)) == (3, 3.175, 0.3654)
 
@@ -149,7 +149,8 @@ def test_the_thesis_model_finds_a_planted_effect(thesis_fits):
     assert rating.fit["formula"] == SLOPES_FORMULA and rating.fit["convergence"]["code"] == 0
     assert rating.wald["df"] == 2 and rating.wald["p"] < 0.001
     fixed = {f["name"]: f["estimate"] for f in rating.fit["fixed"]}
-    assert fixed["xm1"] == pytest.approx(0.8, abs=0.35) and fixed["xm2"] == pytest.approx(1.6, abs=0.35)
+    # ±0.5: the estimates' sampling SD is 0.18-0.25 (20 seeds; ±0.35 missed 4 of their 40 estimates, ±0.5 none)
+    assert fixed["xm1"] == pytest.approx(0.8, abs=0.5) and fixed["xm2"] == pytest.approx(1.6, abs=0.5)
     pairs = {(p["a"], p["b"]): p for p in rating.fit["pairs"]}
     assert pairs["m0", "m1"]["estimate"] < 0 and pairs["m1", "m2"]["estimate"] < 0
     assert pairs["m0", "m2"]["estimate"] < pairs["m0", "m1"]["estimate"] and pairs["m0", "m2"]["p"] < 0.001
