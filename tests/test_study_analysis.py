@@ -235,7 +235,8 @@ def test_warmups_checks_and_failed_participants_stay_out_of_the_fits(monkeypatch
 
     def fake_r(jobs):
         sent.extend(jobs)
-        return [{"formula": None, "error": "not run", "attempts": []} for _ in jobs], {}
+        attempts = [{"formula": f, "error": "not run"} for f in jobs[0][1]["formulas"]]
+        return [{"formula": None, "error": "not run", "attempts": attempts} for _ in jobs], {}
 
     monkeypatch.setattr(analysis, "_run_r", fake_r)
     people = pd.DataFrame({"participant": ["p1", "p2"], "passed_identical": ["1", "0"],
@@ -247,7 +248,8 @@ def test_warmups_checks_and_failed_participants_stay_out_of_the_fits(monkeypatch
     assert result.exclusions.participants == ("p2",)
     assert result.exclusions.checks == {"identical": {"passed": 1, "failed": 1, "none": 0},
                                         "mismatched": {"passed": 1, "failed": 0, "none": 1}}
-    assert any("no model could be fitted" in w for w in result.tasks["pairwise"].warnings)
+    assert result.tasks["pairwise"].warnings[0] == (f"no model could be fitted ({SLOPES_FORMULA}: not run; "
+                                                    f"{INTERCEPTS_FORMULA}: not run)")
 
 
 def _analyse(*args):
