@@ -131,7 +131,7 @@ def export(study: Path, db: Path | None, output: Path) -> None:
 @click.option("--models", default=None, metavar="A,B,...",
               help="The models in this order, the first the reference level [default: sorted].")
 @click.option("--random-slopes/--no-random-slopes", default=True, show_default=True,
-              help="Random model slopes per participant and sentence, as the thesis (minutes on a few cores), "
+              help="Random model slopes per participant and sentence, as the thesis (about a minute a task), "
                    "or random intercepts alone.")
 def analyse(answers: Path, output: Path, participants: Path | None, exclude_failed_checks: bool,
             models: str | None, random_slopes: bool) -> None:
