@@ -22,7 +22,8 @@ import pytest
 from conftest import require, require_module
 from vispeech.errors import VispeechError
 from vispeech.study.config import plan_trials, read_study
-from vispeech.study.store import ANSWER_COLUMNS, StudyError, StudyStore, check_results
+from vispeech.study.answers import ANSWER_COLUMNS
+from vispeech.study.store import StudyError, StudyStore, check_results
 
 COLOURS = {"red": (220, 30, 30), "blue": (30, 30, 220), "green": (30, 200, 30)}
 """Each model's face is a plain colour, so that the test can tell which model a slot shows."""
@@ -450,6 +451,34 @@ def test_a_participant_completes_the_study_in_chromium_and_a_killed_server_loses
     assert len(participants) == 1 and participants[0]["finished_at"]
     assert participants[0]["intro_experience"] == "Moderate"
     assert participants[0]["passed_identical"] == "1"
+    # the analysis counts the wins, ties and losses that were clicked (warm-ups and checks left out)
+    require(shutil.which("Rscript"), "R (apt-get install r-base-core r-cran-ordinal r-cran-car r-cran-emmeans "
+                                     "r-cran-jsonlite)")
+    from vispeech.study.analysis import ALL_SENTENCES, analyse_answers, read_answers, read_participants
+
+    (tmp_path / "answers.csv").write_text(export.text, encoding="utf-8")
+    (tmp_path / "participants.csv").write_text(people.text, encoding="utf-8")
+    analysis = analyse_answers(read_answers(tmp_path / "answers.csv"),
+                               participants=read_participants(tmp_path / "participants.csv"), random_slopes=False)
+    real = {int(r["trial"]) for r in rows if r["warmup"] == "0" and not r["check"]}
+    for task, table in (("rating", analysis.tasks["rating"].wins), ("pairwise", analysis.tasks["pairwise"].wins)):
+        expected = Counter()
+        for number in real:
+            models, answer = clicked[number]
+            if task == "rating" and isinstance(answer, list):
+                scores = dict(zip(models, answer))
+            elif task == "pairwise" and isinstance(answer, str):
+                scores = dict(zip(models, {"left": (2, 0), "tie": (1, 1), "right": (0, 2)}[answer]))
+            else:
+                continue
+            for a in scores:
+                for b in scores:
+                    if a < b:
+                        expected[(a, b)] += np.array([scores[a] > scores[b], scores[a] == scores[b],
+                                                      scores[a] < scores[b]], int)
+        total = table[table["sentence"] == ALL_SENTENCES]
+        found = {(r.a, r.b): [r.a_wins, r.ties, r.b_wins] for r in total.itertuples() if r.a_wins + r.ties + r.b_wins}
+        assert found == {pair: list(counts) for pair, counts in expected.items()}, task
 
 
 # --- the command line -------------------------------------------------------------------------

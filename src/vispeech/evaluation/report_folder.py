@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import html
-import io
 import json
 import math
 import os
@@ -49,15 +48,15 @@ def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example:
     ``command`` is shown as how to rebuild the report. Written whole or not at all."""
     comparison = _comparison(evaluation)
     with atomic_output_dir(out_dir, replaces=REPORT_FILES) as staging:
-        _write_csv(staging / "scores.csv", ["model", "channel", "mse", "rmse_percent", "r", "utterance_mse",
+        write_csv(staging / "scores.csv", ["model", "channel", "mse", "rmse_percent", "r", "utterance_mse",
                                             "utterance_rmse_percent", "utterance_r"], _score_rows(evaluation))
-        _write_csv(staging / "utterances.csv", *_utterance_table(evaluation))
+        write_csv(staging / "utterances.csv", *_utterance_table(evaluation))
         if comparison is not None:
             a = comparison.anova
-            _write_csv(staging / "anova.csv", ["score", "F", "df_model", "df_error", "p", "partial_eta_squared",
+            write_csv(staging / "anova.csv", ["score", "F", "df_model", "df_error", "p", "partial_eta_squared",
                                                "mse", "utterances"],
                        [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]])
-            _write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
+            write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
                        [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs])
         (staging / "scores.json").write_text(json.dumps(_as_json(evaluation, comparison), indent=2, allow_nan=False),
                                              encoding="utf-8")
@@ -99,7 +98,8 @@ def _utterance_table(evaluation: Evaluation) -> tuple[list[str], list[list]]:
     return header, rows
 
 
-def _write_csv(path: Path, header: Sequence[str], rows: list[list]) -> None:
+def write_csv(path: Path, header: Sequence[str], rows: list[list]) -> None:
+    """``rows`` under ``header`` as a CSV file (NaN as an empty cell)."""
     with path.open("w", newline="", encoding="utf-8") as out:
         writer = csv.writer(out)
         writer.writerow(header)
@@ -112,14 +112,14 @@ def _cell(value) -> str:
     return str(value)
 
 
-def _clean(value):
+def json_ready(value):
     """JSON-ready ``value``: NaN (a score with nothing to score) becomes null."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: json_ready(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_clean(v) for v in value]
+        return [json_ready(v) for v in value]
     return value
 
 
@@ -141,7 +141,7 @@ def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
     if comparison is not None:
         out["comparison"] = {"means": comparison.means, "anova": vars(comparison.anova),
                              "pairs": [vars(p) for p in comparison.pairs]}
-    return _clean(out)
+    return json_ready(out)
 
 
 def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
@@ -158,13 +158,14 @@ def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
     width = 0.8 / len(evaluation.models)
     for i, m in enumerate(evaluation.models):
         values = [m.scores[c]["r"] if c in m.scores.channels else np.nan for c in channels]
-        axes.bar(np.arange(len(channels)) + (i - (len(evaluation.models) - 1) / 2) * width, values, width, label=m.label)
+        offset = (i - (len(evaluation.models) - 1) / 2) * width
+        axes.bar(np.arange(len(channels)) + offset, values, width, label=m.label)
     axes.set_xticks(np.arange(len(channels)), channels, rotation=60, ha="right", fontsize=7)
     axes.set_ylabel("Pearson r (frames pooled)")
     axes.axhline(0, color="black", linewidth=0.6)
     axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     figure.tight_layout()
-    _save(figure, folder / "correlation")
+    save_figure(figure, folder / "correlation")
     drawn.append(("correlation", "Correlation with the recording, per channel and model"))
 
     models = [m for m in evaluation.models if "jawOpen" in m.scores.channels]
@@ -177,7 +178,7 @@ def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
         axes.set_xticks(np.arange(1, len(models) + 1), [m.label for m in models], rotation=30, ha="right", fontsize=8)
         axes.set_ylabel("jawOpen RMSE, % of range (per utterance)")
         figure.tight_layout()
-        _save(figure, folder / "utterance_rmse")
+        save_figure(figure, folder / "utterance_rmse")
         drawn.append(("utterance_rmse", "Per-utterance jawOpen RMSE: what the ANOVA compares (triangles: means)"))
 
     if example is not None and any("jawOpen" in t.channels for t in predictions.values()):
@@ -189,12 +190,14 @@ def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
     return drawn
 
 
-def _save(figure, stem: Path) -> None:
+def save_figure(figure, stem: Path) -> None:
+    """``figure`` as ``stem``.png and ``stem``.svg."""
     for kind in ("png", "svg"):
         figure.savefig(stem.with_suffix(f".{kind}"), format=kind)
 
 
-def _table(header: Sequence[str], rows: list[list]) -> str:
+def html_table(header: Sequence[str], rows: list[list]) -> str:
+    """An HTML table of ``rows`` under ``header``."""
     head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(_shown(v))}</td>" for v in row) + "</tr>" for row in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
@@ -208,7 +211,7 @@ def _shown(value) -> str:
     return str(value)
 
 
-def _p(value: float) -> str:
+def p_text(value: float) -> str:
     """A p value as papers print it."""
     return "< 0.0001" if value < 1e-4 else f"{value:.4f}"
 
@@ -221,19 +224,19 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
     if command:
         parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
     parts.append("<h2>Scores</h2>")
-    parts.append(_table(["model", "channel", "MSE", "RMSE %", "r", "utt. RMSE %", "utt. r"],
+    parts.append(html_table(["model", "channel", "MSE", "RMSE %", "r", "utt. RMSE %", "utt. r"],
                         [[r[0], r[1], r[2], r[3], r[4], r[6], r[7]] for r in _score_rows(evaluation)]))
     if comparison is not None:
         a = comparison.anova
         parts.append(f"<h2>Do the models differ? {html.escape(a.score)}</h2>")
-        parts.append(_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]))
+        parts.append(html_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]))
         parts.append("<p>Repeated-measures ANOVA, the model as the within-utterance factor:</p>")
-        parts.append(_table(["F", "df", "p", "partial η²"],
-                            [[a.f, f"{a.df_model}, {a.df_error}", _p(a.p), a.partial_eta_squared]]))
+        parts.append(html_table(["F", "df", "p", "partial η²"],
+                            [[a.f, f"{a.df_model}, {a.df_error}", p_text(a.p), a.partial_eta_squared]]))
         parts.append("<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
                      "mean paired difference over its standard deviation):</p>")
-        parts.append(_table(["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
-                            [[p.a, p.b, p.difference, p.t, _p(p.p_lsd), _p(p.p_tukey), p.d_z]
+        parts.append(html_table(["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
+                            [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z]
                              for p in comparison.pairs]))
     dynamic = [m for m in evaluation.models if m.dynamics]
     if dynamic and evaluation.recorded_dynamics:
@@ -245,7 +248,7 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                  rec["high_frequency_share"]]]
         rows += [[m.label, m.dynamics["lag_s"], m.dynamics["velocity_rms"], m.dynamics["acceleration_rms"],
                   m.dynamics["jerk_rms"], m.dynamics["high_frequency_share"]] for m in dynamic]
-        parts.append(_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
+        parts.append(html_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
                              "energy above 8 Hz"], rows))
     lipped = [m for m in evaluation.models if m.lips]
     if lipped:
@@ -254,14 +257,14 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                      "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
                      "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
                      "inner-lip gap.</p>")
-        parts.append(_table(["model", "lip vertex error", "floor", "aperture error"],
+        parts.append(html_table(["model", "lip vertex error", "floor", "aperture error"],
                             [[m.label, m.lips["lve"], m.lips["floor"], m.lips["aperture_mae"]] for m in lipped]))
     classed = [m for m in evaluation.models if m.by_phone]
     if classed:
         parts.append("<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
                      "that fall in phones of each class.</p>")
         names = list(classed[0].by_phone)
-        parts.append(_table(["model", *names], [[m.label, *(m.by_phone[n] for n in names)] for m in classed]))
+        parts.append(html_table(["model", *names], [[m.label, *(m.by_phone[n] for n in names)] for m in classed]))
     closing = [m for m in evaluation.models if m.closures is not None]
     if closing:
         parts.append("<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
@@ -273,17 +276,26 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                          f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
                          timing["onset_median_ms"], timing["onset_mean_abs_ms"], timing["release_median_ms"],
                          timing["release_mean_abs_ms"], "yes" if m.closures.passed else "no"])
-        parts.append(_table(["model", "/p b m/ the speaker closes", "closed by the model too", "onset median (ms)",
+        parts.append(html_table(["model", "/p b m/ the speaker closes", "closed by the model too", "onset median (ms)",
                              "onset mean |ms|", "release median (ms)", "release mean |ms|", "passed"], rows))
-    for stem, caption in figures:
-        parts.append(f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>'
-                     f'{html.escape(caption)} (<a href="{stem}.svg">SVG</a>)</figcaption></figure>')
-    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
-             "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;padding:.2em .5em;"
-             "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}")
-    buffer = io.StringIO()
-    buffer.write(f"<!doctype html><html><head><meta charset='utf-8'><title>vispeech evaluation: "
-                 f"{html.escape(evaluation.corpus)}</title><style>{style}</style></head><body>")
-    buffer.write("\n".join(parts))
-    buffer.write("</body></html>\n")
-    return buffer.getvalue()
+    parts += [html_figure(stem, caption) for stem, caption in figures]
+    return html_page(f"vispeech evaluation: {evaluation.corpus}", parts)
+
+
+REPORT_STYLE = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
+                "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;"
+                "padding:.2em .5em;text-align:right}td:first-child,th:first-child{text-align:left}"
+                "img{max-width:100%}.warning{color:#a40}")
+"""The style of the HTML reports (evaluation, study analysis)."""
+
+
+def html_page(title: str, parts: Sequence[str]) -> str:
+    """An HTML report page: ``title`` and the HTML ``parts`` one after another."""
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{REPORT_STYLE}</style></head><body>" + "\n".join(parts) + "</body></html>\n")
+
+
+def html_figure(stem: str, caption: str) -> str:
+    """A report's figure: ``stem``.png shown, ``stem``.svg linked."""
+    return (f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)} '
+            f'(<a href="{stem}.svg">SVG</a>)</figcaption></figure>')

@@ -49,8 +49,10 @@ import numpy as np
 import pandas as pd
 
 from vispeech.errors import VispeechError
-from vispeech.evaluation.report_folder import _clean, _p, _save, _table, _write_csv
+from vispeech.evaluation.report_folder import (html_figure, html_page, html_table, json_ready, p_text, save_figure,
+                                              write_csv)
 from vispeech.files import atomic_output_dir, read_text
+from vispeech.study.answers import PAIRWISE_ANSWERS, RATINGS, TASKS
 
 INSTALL_R = "apt-get install r-base-core r-cran-ordinal r-cran-car r-cran-emmeans r-cran-jsonlite"
 """The Debian packages the analysis needs."""
@@ -63,11 +65,10 @@ SENTENCE_FORMULA = "y ~ x + (1 | u)"
 FIXED_FORMULA = "y ~ x"
 """The fixed-effects ``clm``: its nominal and scale effects test the proportional-odds assumption, and
 it is a sentence's model when the participants' random intercepts cannot be fitted."""
-RATINGS = tuple(range(1, 10))
-"""The ratings a rating answer takes."""
+R_TIMEOUT = 3 * 3600
+"""Seconds R may take for one analysis (the thesis's model takes about a minute a task)."""
 POINTS = {"win": 2, "tie": 1, "loss": 0}
 """A pairwise answer's points for each of its two models."""
-TASKS = ("rating", "pairwise")
 ALL_SENTENCES = "(all)"
 """The ``sentence`` of the win/tie/loss rows that count every sentence."""
 ALPHA = 0.05
@@ -167,7 +168,9 @@ def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[
         request.write_text(json.dumps({"jobs": specs}), encoding="utf-8")
         try:
             done = subprocess.run([rscript, str(script), str(request), str(result)], capture_output=True, text=True,
-                                  check=False)
+                                  check=False, timeout=R_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            raise VispeechError(f"R did not finish the models in {R_TIMEOUT} s (try --no-random-slopes)") from None
         except OSError as exc:
             raise VispeechError(f"cannot run R ({rscript}): {exc.strerror or exc}") from None
         lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
@@ -245,7 +248,7 @@ def check_answers(answers: pd.DataFrame, source: str = "answers", first_line: in
     refuse(rating & ~frame["answer"].isin([str(r) for r in RATINGS]),
            f"rating {{answer!r}} is not a whole number from {RATINGS[0]} to {RATINGS[-1]}")
     refuse(pairwise & ((frame["left"] == "") | (frame["right"] == "")), "a pairwise answer without left and right")
-    refuse(pairwise & ~frame["answer"].isin(["left", "tie", "right"]),
+    refuse(pairwise & ~frame["answer"].isin(PAIRWISE_ANSWERS),
            "pairwise answer {answer!r} is not left, tie or right")
     refuse(pairwise & (frame["left"] == frame["right"]) & (frame["check"] == ""),
            "{left!r} on both sides of a pairwise trial that is no check")
@@ -288,8 +291,9 @@ def rating_frame(kept: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
     (1-9), ``x`` (the model, a categorical over ``models``), ``u`` (participant), ``s``
     (sentence) and ``trial``."""
     rows = kept[kept["task"] == "rating"]
-    return pd.DataFrame({"y": rows["answer"].astype(int), "x": pd.Categorical(rows["model"], categories=models),
-                         "u": rows["participant"], "s": rows["sentence"], "trial": rows["trial"]}).reset_index(drop=True)
+    frame = pd.DataFrame({"y": rows["answer"].astype(int), "x": pd.Categorical(rows["model"], categories=models),
+                          "u": rows["participant"], "s": rows["sentence"], "trial": rows["trial"]})
+    return frame.reset_index(drop=True)
 
 
 def points_frame(kept: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
@@ -379,7 +383,8 @@ class TaskAnalysis:
         for attempt in attempts[:-1] if self.fit.get("formula") else []:
             notes.append(f"{attempt['formula']} failed ({attempt['error']}); fell back to {self.fit['formula']}")
         if not self.fit.get("formula"):
-            notes.append(f"no model could be fitted ({'; '.join(a['formula'] + ': ' + str(a['error']) for a in attempts)})")
+            tried = "; ".join(f"{a['formula']}: {a['error']}" for a in attempts)
+            notes.append(f"no model could be fitted ({tried})")
         notes += self.fit.get("warnings", [])
         if self.proportional_odds["error"]:
             notes.append(f"the proportional-odds check failed to run: {self.proportional_odds['error']}")
@@ -409,7 +414,7 @@ class StudyAnalysis:
     seconds: float
 
     def as_json(self) -> dict:
-        return _clean({"tasks": {name: t.as_json() for name, t in self.tasks.items()},
+        return json_ready({"tasks": {name: t.as_json() for name, t in self.tasks.items()},
                        "excluded": {"warmup_rows": self.exclusions.warmup_rows,
                                     "check_rows": self.exclusions.check_rows,
                                     "participants": list(self.exclusions.participants)},
@@ -441,7 +446,8 @@ def _p_text(p: float | None) -> str:
 
 def _proportional_odds_text(po: dict) -> str:
     verdict = {True: "holds", False: "violated", None: "not testable"}[po["passes"]]
-    return f"{verdict} (nominal p {_p_text((po['nominal'] or {}).get('p'))}, scale p {_p_text((po['scale'] or {}).get('p'))})"
+    nominal, scale = (po["nominal"] or {}).get("p"), (po["scale"] or {}).get("p")
+    return f"{verdict} (nominal p {_p_text(nominal)}, scale p {_p_text(scale)})"
 
 
 def analyse_answers(answers: pd.DataFrame, *, participants: pd.DataFrame | None = None,
@@ -522,7 +528,7 @@ def write_analysis(analysis: StudyAnalysis, out_dir: str | os.PathLike, command:
         figures = []
         for name, task in analysis.tasks.items():
             for table, (header, rows) in _tables(task).items():
-                _write_csv(staging / f"{name}_{table}.csv", header, rows)
+                write_csv(staging / f"{name}_{table}.csv", header, rows)
             figures += _figures(task, staging)
         (staging / "report.html").write_text(_html(analysis, figures, command), encoding="utf-8")
     return Path(out_dir)
@@ -587,7 +593,7 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
         axes.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="model")
         axes.set_title(f"{task.task}: {task.fit['formula']}", fontsize=9)
         figure.tight_layout()
-        _save(figure, folder / f"{task.task}_probabilities")
+        save_figure(figure, folder / f"{task.task}_probabilities")
         caption = (f"{task.task}: the inferred probability of each {task.response} per model, with 95 % "
                    "confidence intervals (at random effects 0)")
         drawn.append((f"{task.task}_probabilities", caption))
@@ -620,7 +626,7 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
             axes.legend(fontsize=7, ncol=3, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False,
                         handlelength=1.2, columnspacing=1.0)
         figure.tight_layout()
-        _save(figure, folder / f"{task.task}_wins")
+        save_figure(figure, folder / f"{task.task}_wins")
         caption = (f"{task.task}: wins, ties and losses of each pair of models per sentence and over all "
                    f"({'higher rating' if task.task == 'rating' else 'preferred'} in one trial)")
         drawn.append((f"{task.task}_wins", caption))
@@ -629,11 +635,11 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
 
 def _html_table(header: Sequence[str], rows: list[list]) -> str:
     """:func:`~vispeech.evaluation.report_folder._table` of rows whose missing numbers are None."""
-    return _table(header, [[math.nan if v is None else v for v in row] for row in rows])
+    return html_table(header, [[math.nan if v is None else v for v in row] for row in rows])
 
 
 def _html_p(p: float | None) -> str:
-    return "–" if p is None else _p(p)
+    return "–" if p is None else p_text(p)
 
 
 def _html(analysis: StudyAnalysis, figures: list[tuple[str, str]], command: str) -> str:
@@ -642,7 +648,8 @@ def _html(analysis: StudyAnalysis, figures: list[tuple[str, str]], command: str)
              f"<p>Left out of the fits: {e.warmup_rows} warm-up rows, {e.check_rows} check rows"
              + (f", the {len(e.participants)} participants who failed a check" if e.participants else "")
              + f". R {html.escape(analysis.versions.get('R', '?'))}, ordinal "
-             f"{html.escape(analysis.versions.get('ordinal', '?'))}, car {html.escape(analysis.versions.get('car', '?'))}"
+             f"{html.escape(analysis.versions.get('ordinal', '?'))}, "
+             f"car {html.escape(analysis.versions.get('car', '?'))}"
              f", emmeans {html.escape(analysis.versions.get('emmeans', '?'))}.</p>"]
     if command:
         parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
@@ -696,11 +703,5 @@ def _html(analysis: StudyAnalysis, figures: list[tuple[str, str]], command: str)
             parts.append(_html_table(["sentence", "model", "a", "b", "estimate", "p (Tukey)"], per_sentence))
         parts.append("<p>Wins, ties and losses (a wins: a scored higher than b in one trial):</p>")
         parts.append(_html_table(list(t.wins.columns), t.wins.values.tolist()))
-        parts += [f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)} '
-                  f'(<a href="{stem}.svg">SVG</a>)</figcaption></figure>'
-                  for stem, caption in figures if stem.startswith(f"{t.task}_")]
-    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
-             "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;padding:.2em .5em;"
-             "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}.warning{color:#a40}")
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>vispeech study analysis</title>"
-            f"<style>{style}</style></head><body>" + "\n".join(parts) + "</body></html>\n")
+        parts += [html_figure(stem, caption) for stem, caption in figures if stem.startswith(f"{t.task}_")]
+    return html_page("vispeech study analysis", parts)

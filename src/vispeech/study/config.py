@@ -59,13 +59,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from vispeech.errors import VispeechError
 from vispeech.files import read_text
+from vispeech.study.answers import RATINGS
 
 Task = Literal["rating", "pairwise"]
 Check = Literal["", "identical", "mismatched"]
-PAIRWISE_ANSWERS = ("left", "tie", "right")
-"""The answers of a pairwise trial."""
-RATING_SCALE = (1, 9)
-"""The lowest and highest rating."""
 
 
 class _Strict(BaseModel):
@@ -113,7 +110,7 @@ class RatingTask(_Strict):
             keys = {int(k): v for k, v in dict(anchors).items()}
         except (TypeError, ValueError):
             raise ValueError("anchors are keyed by ratings 1 to 9") from None
-        if any(not RATING_SCALE[0] <= k <= RATING_SCALE[1] for k in keys):
+        if any(k not in RATINGS for k in keys):
             raise ValueError("anchors are keyed by ratings 1 to 9")
         return keys
 

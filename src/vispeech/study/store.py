@@ -31,11 +31,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from vispeech.errors import VispeechError
-from vispeech.study.config import PAIRWISE_ANSWERS, RATING_SCALE, Study, Trial, plan_trials
-
-ANSWER_COLUMNS = ("participant", "task", "trial", "sentence", "audio", "warmup", "check", "position", "model",
-                  "left", "right", "answer", "ms", "answered_at", "expected")
-"""The columns of ``answers.csv``."""
+from vispeech.study.answers import ANSWER_COLUMNS, PAIRWISE_ANSWERS, RATINGS
+from vispeech.study.config import Study, Trial, plan_trials
 MAX_MS = 24 * 3600 * 1000
 """The longest time to an answer accepted (ms)."""
 
@@ -208,9 +205,9 @@ def _checked_answer(trial: Trial, answer: object) -> int | str | list[int]:
         if answer not in PAIRWISE_ANSWERS:
             raise StudyError(f"a pairwise answer is one of: {', '.join(PAIRWISE_ANSWERS)}", 422)
         return str(answer)
-    low, high = RATING_SCALE
+    low, high = RATINGS[0], RATINGS[-1]
     if (not isinstance(answer, list) or len(answer) != len(trial.faces)
-            or any(isinstance(a, bool) or not isinstance(a, int) or not low <= a <= high for a in answer)):
+            or any(isinstance(a, bool) or a not in RATINGS for a in answer)):
         raise StudyError(f"a rating answer is one whole number from {low} to {high} per face "
                          f"({len(trial.faces)} here)", 422)
     return list(answer)
