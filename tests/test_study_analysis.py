@@ -288,6 +288,7 @@ BAD = {
     "empty file": ("", "is empty"),
     "header only": (",".join(COLUMNS) + "\n", "holds no answers"),
     "one model": (None, "one model only (m0)"),
+    "a face twice": (None, "model 'm2' shown twice in trial 0 of participant 'p0'"),
 }
 
 
@@ -301,6 +302,10 @@ def test_bad_answers_are_one_line_and_write_nothing(tmp_path, case):
     elif case == "one model":
         frame = simulate(participants=2, sentences=2)
         text = frame[frame["model"] == "m0"].to_csv(index=False)
+    elif case == "a face twice":
+        frame = simulate(participants=2, sentences=2)
+        frame.loc[frame.index[0], "model"] = frame.loc[frame.index[1], "model"]
+        text = frame.to_csv(index=False)
     path = tmp_path / "answers.csv"
     path.write_text(text)
     result = _analyse(path, "-o", tmp_path / "out")

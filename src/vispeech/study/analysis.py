@@ -230,9 +230,10 @@ def check_answers(answers: pd.DataFrame, source: str = "answers", first_line: in
         raise VispeechError(f"{source} holds no answers")
     frame = answers.reset_index(drop=True).astype({c: str for c in REQUIRED_COLUMNS})
 
-    def refuse(mask: pd.Series, what: str) -> None:
+    def refuse(mask: pd.Series | np.ndarray, what: str) -> None:
+        mask = np.asarray(mask, dtype=bool)
         if mask.any():
-            k = int(np.flatnonzero(mask.to_numpy())[0])
+            k = int(np.flatnonzero(mask)[0])
             place = f"row {k}" if first_line is None else f"line {first_line + k}"
             raise VispeechError(f"{source}, {place}: {what.format(**frame.iloc[k].to_dict())}")
 
@@ -253,7 +254,7 @@ def check_answers(answers: pd.DataFrame, source: str = "answers", first_line: in
     refuse(pairwise & (frame["left"] == frame["right"]) & (frame["check"] == ""),
            "{left!r} on both sides of a pairwise trial that is no check")
     shown = frame[rating & (frame["check"] != "identical")]
-    refuse(frame.index.isin(shown.index[shown.duplicated(["participant", "trial", "model"])]),
+    refuse(frame.index.isin(shown.index[shown.duplicated(["participant", "task", "trial", "model"])]),
            "model {model!r} shown twice in trial {trial} of participant {participant!r}")
     return frame.astype({"trial": int, "warmup": int})
 
