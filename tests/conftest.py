@@ -83,6 +83,20 @@ def random_sentence(rng: np.random.Generator, symbols: Sequence[str], language: 
     return PhoneSequence(phones, language)
 
 
+def copy_grid_utterances(source: Path, root: Path, count: int) -> Path:
+    """``root``, made a GRID folder of the first ``count`` utterances of the GRID folder ``source``."""
+    import shutil
+
+    texts = dict(line.split("\t") for line in (source / "sentences.tsv").read_text().splitlines()[1:])
+    ids = sorted(path.stem for path in (source / "utterances").glob("*.flac"))[:count]
+    (root / "utterances").mkdir(parents=True)
+    for uid in ids:
+        for ext in ("flac", "align", "csv"):
+            shutil.copy(source / "utterances" / f"{uid}.{ext}", root / "utterances" / f"{uid}.{ext}")
+    (root / "sentences.tsv").write_text("id\ttext\n" + "".join(f"{uid}\t{texts[uid]}\n" for uid in ids))
+    return root
+
+
 TINY_AUDIO_UTTERANCES = 10
 """GRID utterances the tiny audio model of :func:`tiny_audio_model` learns from (8 to train, 2 to validate)."""
 
@@ -92,8 +106,6 @@ def tiny_audio_model(tmp_path_factory) -> Path:
     """The folder of a tiny ``audio-cnn`` (one epoch, 16 channels a layer) trained on the first
     GRID speaker-1 utterances: an audio model for the server's tests while the shipped
     ``grid-audio-cnn`` is not there (skips without ``shared/`` or torch, fails under CI)."""
-    import shutil
-
     require_module("torch", "torch (the train extra)")
     source = SHARED / "data" / "grid_s1"
     require(source.is_dir(), f"GRID speaker 1 ({source})")
@@ -101,14 +113,7 @@ def tiny_audio_model(tmp_path_factory) -> Path:
     from vispeech.models.contract import Splits
     from vispeech.models.registry import create_model
 
-    root = tmp_path_factory.mktemp("grid")
-    texts = dict(line.split("\t") for line in (source / "sentences.tsv").read_text().splitlines()[1:])
-    ids = sorted(path.stem for path in (source / "utterances").glob("*.flac"))[:TINY_AUDIO_UTTERANCES]
-    (root / "utterances").mkdir()
-    for uid in ids:
-        for ext in ("flac", "align", "csv"):
-            shutil.copy(source / "utterances" / f"{uid}.{ext}", root / "utterances" / f"{uid}.{ext}")
-    (root / "sentences.tsv").write_text("id\ttext\n" + "".join(f"{uid}\t{texts[uid]}\n" for uid in ids))
+    root = copy_grid_utterances(source, tmp_path_factory.mktemp("grid"), TINY_AUDIO_UTTERANCES)
     corpus = align_corpus(read_grid(root, cache=root / "cache"), progress=False)
     utterances = list(corpus)
     model = create_model("audio-cnn", epochs=1, channels=[16, 16, 16], pitch_copies=0)

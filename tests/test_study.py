@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import require, require_module
+from conftest import copy_grid_utterances, require, require_module
 from vispeech.errors import VispeechError
 from vispeech.study.config import plan_trials, read_study
 from vispeech.study.answers import ANSWER_COLUMNS
@@ -522,14 +522,9 @@ def test_study_prepare_renders_the_recording_and_the_models_into_a_study_that_ru
     av = require_module("av", "PyAV (the capture extra)")
     from vispeech.corpus.corpus import split_of
 
-    root = tmp_path / "corpus"
-    (root / "utterances").mkdir(parents=True)
-    texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
-    ids = sorted(path.stem for path in (grid_s1 / "utterances").glob("*.flac"))[:2]
-    for uid in ids:
-        for ext in ("flac", "align", "csv"):
-            shutil.copy(grid_s1 / "utterances" / f"{uid}.{ext}", root / "utterances" / f"{uid}.{ext}")
-    (root / "sentences.tsv").write_text("id\ttext\n" + "".join(f"{uid}\t{texts[uid]}\n" for uid in ids))
+    root = copy_grid_utterances(grid_s1, tmp_path / "corpus", 2)
+    texts = dict(line.split("\t") for line in (root / "sentences.tsv").read_text().splitlines()[1:])
+    ids = sorted(texts)
     split = split_of(ids[0])
     result = _cli("prepare", "--corpus", root, "--split", split, "-m", "recorded", "-m", "baseline",
                   "--sentences", "1", "--cache", tmp_path / "cache", "-q", "-o", tmp_path / "study")
