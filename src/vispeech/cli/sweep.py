@@ -52,7 +52,7 @@ def sweep_command(what: str, corpus_dir: Path, values: str, family: str | None, 
     points = sweep(corpus, family, parameter, numbers, options, progress=click.echo)
     with atomic_output_dir(out_dir, replaces=("sweep.csv", "sweep.json", "sweep.png", "sweep.svg")) as staging:
         rows = ["value,rmse_percent,r,epochs,seconds"] + [
-            f"{p.value},{p.rmse_percent:.6g},{p.r:.6g},{p.epochs},{p.seconds:.3g}" for p in points]
+            f"{p.value},{p.rmse_percent:.6g},{p.r:.6g},{p.epochs},{p.seconds:.1f}" for p in points]
         (staging / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
         (staging / "sweep.json").write_text(json.dumps({"family": family, "parameter": parameter, "corpus": corpus.name,
                                                         "params": options, "points": [vars(p) for p in points]},
