@@ -154,11 +154,9 @@ def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[
     rscript = shutil.which("Rscript")
     if rscript is None:
         raise VispeechError(f"the study analysis needs R (Rscript was not found): {INSTALL_R}")
-    with tempfile.TemporaryDirectory(prefix="vispeech-clmm-") as tmp:
+    with (tempfile.TemporaryDirectory(prefix="vispeech-clmm-") as tmp,
+          resources.as_file(resources.files(__package__).joinpath("clmm.R")) as script):
         folder = Path(tmp)
-        script = folder / "clmm.R"
-        script.write_text(resources.files(__package__).joinpath("clmm.R").read_text(encoding="utf-8"),
-                          encoding="utf-8")
         specs = []
         for k, (frame, spec) in enumerate(jobs):
             path = folder / f"data{k}.csv"
@@ -442,7 +440,8 @@ class StudyAnalysis:
 
 
 def _p_text(p: float | None) -> str:
-    return "n/a" if p is None else "< 0.0001" if p < 1e-4 else f"= {p:.4f}"
+    """A p value after "p" in a line of text: ``= 0.0123``, ``< 0.0001`` or ``n/a``."""
+    return "n/a" if p is None else p_text(p) if p < 1e-4 else f"= {p_text(p)}"
 
 
 def _proportional_odds_text(po: dict) -> str:

@@ -33,6 +33,7 @@ from vispeech.study.store import Participant, StudyError, StudyStore
 STATIC = Path(__file__).with_name("static")
 COOKIE = "vispeech_study"
 """The cookie that holds the participant's stored id."""
+NOT_STARTED = "no study started in this browser"
 
 
 class QuestionView(BaseModel):
@@ -108,7 +109,7 @@ def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
     def known(pid: str | None) -> Participant:
         found = store.participant(pid) if pid else None
         if found is None:
-            raise StudyError("no study started in this browser", 404)
+            raise StudyError(NOT_STARTED, 404)
         return found
 
     @app.exception_handler(StudyError)
@@ -134,11 +135,8 @@ def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
     def join(request: JoinRequest, response: Response, vispeech_study: str | None = Cookie(default=None)) -> Progress:
         if not request.consent:
             raise StudyError("the study needs your consent to go on", 400)
-        if request.pid is None and vispeech_study and store.participant(vispeech_study):
-            participant = known(vispeech_study)
-            if participant.finished:
-                raise StudyError("you have already taken part in this study: one response set per participant", 409)
-        else:
+        participant = store.rejoin(vispeech_study) if request.pid is None and vispeech_study else None
+        if participant is None:
             participant = store.join(f"pid:{request.pid}" if request.pid else f"random:{secrets.token_hex(16)}",
                                      request.intro)
         response.set_cookie(COOKIE, participant.id, httponly=True, samesite="strict", max_age=90 * 24 * 3600)
@@ -150,7 +148,9 @@ def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
 
     @app.post("/api/answers", response_model=Progress)
     def answer(request: AnswerRequest, vispeech_study: str | None = Cookie(default=None)) -> Progress:
-        return progress(store.answer(known(vispeech_study).id, request.trial, request.answer, request.ms))
+        if not vispeech_study:
+            raise StudyError(NOT_STARTED, 404)
+        return progress(store.answer(vispeech_study, request.trial, request.answer, request.ms))
 
     @app.get("/clips/{sentence}.mp4")
     def clip(sentence: str) -> FileResponse:

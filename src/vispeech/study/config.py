@@ -50,7 +50,7 @@ import itertools
 import json
 import os
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -312,7 +312,7 @@ def plan_trials(study: Study, seed: int) -> list[Trial]:
             if a in other.models:
                 faces = (Face(clip.sentence, a, clip.models.index(a)), Face(other.sentence, a, other.models.index(a)))
                 checks.append(Trial("pairwise", faces, clip.sentence, check="mismatched"))
-        trials += _block(rng, [_shuffled_faces(rng, t) for t in items], checks, study.pairwise.warmup)
+        trials += _block(rng, items, checks, study.pairwise.warmup)
     return trials
 
 
@@ -322,8 +322,7 @@ def _other_sentence(rng: np.random.Generator, clips: dict[str, Clip], sentence: 
 
 
 def _shuffled_faces(rng: np.random.Generator, trial: Trial) -> Trial:
-    order = rng.permutation(len(trial.faces))
-    return Trial(trial.task, tuple(trial.faces[i] for i in order), trial.audio, trial.warmup, trial.check)
+    return replace(trial, faces=tuple(trial.faces[i] for i in rng.permutation(len(trial.faces))))
 
 
 def _block(rng: np.random.Generator, items: list[Trial], checks: list[Trial], warmup: int) -> list[Trial]:
@@ -331,7 +330,7 @@ def _block(rng: np.random.Generator, items: list[Trial], checks: list[Trial], wa
     warm-up, and the first ``warmup`` items shown again at the end (their first showing marked)."""
     items = [_shuffled_faces(rng, items[i]) for i in rng.permutation(len(items))]
     warmup = min(warmup, len(items))
-    first = [Trial(t.task, t.faces, t.audio, warmup=True) for t in items[:warmup]]
+    first = [replace(t, warmup=True) for t in items[:warmup]]
     rest = items[warmup:]
     for check in checks:
         rest.insert(int(rng.integers(len(rest) + 1)), _shuffled_faces(rng, check))

@@ -68,9 +68,8 @@ def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_di
         (staging / "clips").mkdir()
         for n, index in enumerate(chosen, start=1):
             utterance = corpus[index]
-            tracks = [target_track(utterance, channels) if model is None else predict_on_frames(model, utterance)
-                      for model in models.values()]
-            tracks = [arkit.apply(track) if arkit is not None else track for track in tracks]
+            tracks = [arkit.apply(target_track(utterance, channels) if model is None
+                                  else predict_on_frames(model, utterance)) for model in models.values()]
             samples, rate = utterance.load_audio()
             if vocode:
                 samples = noise_vocode(samples, rate)

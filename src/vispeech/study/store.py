@@ -124,48 +124,45 @@ class StudyStore:
                 raise StudyError(f"intro question {qid!r} needs one of: {', '.join(question.choices)}", 422)
         pid = self.participant_id(key)
         with self._transaction() as db:
-            if db.execute("SELECT 1 FROM participants WHERE id = ?", (pid,)).fetchone() is None:
+            found = _load(db, pid)
+            if found is None:
                 seed = self.study.seed * 1_000_003 + db.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
-                plan = [t.to_json() for t in plan_trials(self.study, seed)]
+                trials = plan_trials(self.study, seed)
                 db.execute("INSERT INTO participants VALUES (?, ?, ?, ?, ?, NULL)",
-                           (pid, seed, json.dumps(plan), json.dumps(intro), _now()))
+                           (pid, seed, json.dumps([t.to_json() for t in trials]), json.dumps(intro), _now()))
+                found = Participant(pid, trials, 0, False)
+        return _unfinished(found)
+
+    def rejoin(self, pid: str) -> Participant | None:
+        """The participant with the stored id ``pid`` (a returning browser's), or None when
+        there is none. Refused (409) once finished."""
         found = self.participant(pid)
-        assert found is not None
-        if found.finished:
-            raise StudyError("you have already taken part in this study: one response set per participant", 409)
-        return found
+        return None if found is None else _unfinished(found)
 
     def participant(self, pid: str) -> Participant | None:
         """The participant with the stored id ``pid``, or None."""
         with self._transaction() as db:
-            row = db.execute("SELECT plan, finished_at FROM participants WHERE id = ?", (pid,)).fetchone()
-            if row is None:
-                return None
-            answered = db.execute("SELECT COUNT(*) FROM answers WHERE participant = ?", (pid,)).fetchone()[0]
-        return Participant(pid, [Trial.from_json(t) for t in json.loads(row[0])], answered, row[1] is not None)
+            return _load(db, pid)
 
     def answer(self, pid: str, trial: int, answer: int | str | Sequence[int], ms: int) -> Participant:
         """Store ``pid``'s ``answer`` to their trial number ``trial`` (their next one: 409
         otherwise) after ``ms`` milliseconds; committed before it returns."""
         with self._transaction() as db:
-            row = db.execute("SELECT plan, finished_at FROM participants WHERE id = ?", (pid,)).fetchone()
-            if row is None:
+            found = _load(db, pid)
+            if found is None:
                 raise StudyError("unknown participant: start the study first", 404)
-            plan = json.loads(row[0])
-            answered = db.execute("SELECT COUNT(*) FROM answers WHERE participant = ?", (pid,)).fetchone()[0]
-            if trial != answered:
-                raise StudyError(f"trial {trial} is not the next one (trial {answered} is)"
-                                 if answered < len(plan) else "every trial is already answered", 409)
-            value = _checked_answer(Trial.from_json(plan[trial]), answer)
+            if trial != found.answered:
+                raise StudyError(f"trial {trial} is not the next one (trial {found.answered} is)"
+                                 if not found.finished else "every trial is already answered", 409)
+            value = _checked_answer(found.trials[trial], answer)
             if not 0 <= int(ms) <= MAX_MS:
                 raise StudyError(f"ms must lie between 0 and {MAX_MS}", 422)
             now = _now()
             db.execute("INSERT INTO answers VALUES (?, ?, ?, ?, ?)", (pid, trial, json.dumps(value), int(ms), now))
-            if trial + 1 == len(plan):
+            finished = trial + 1 == len(found.trials)
+            if finished:
                 db.execute("UPDATE participants SET finished_at = ? WHERE id = ?", (now, pid))
-        found = self.participant(pid)
-        assert found is not None
-        return found
+        return Participant(pid, found.trials, trial + 1, finished)
 
     def export(self) -> tuple[str, str]:
         """``answers.csv`` and ``participants.csv`` (see the module docstring) as text."""
@@ -197,6 +194,22 @@ class StudyStore:
                               "answered": len(rows), **{f"intro_{k}": v for k, v in json.loads(intro).items()},
                               **{f"passed_{k}": "" if v is None else int(v) for k, v in passed.items()}})
         return answers.getvalue(), participants.getvalue()
+
+
+def _unfinished(participant: Participant) -> Participant:
+    """``participant``, unless finished (409: one response set per participant)."""
+    if participant.finished:
+        raise StudyError("you have already taken part in this study: one response set per participant", 409)
+    return participant
+
+
+def _load(db: sqlite3.Connection, pid: str) -> Participant | None:
+    """The participant with the stored id ``pid`` as ``db`` holds them, or None."""
+    row = db.execute("SELECT plan, finished_at FROM participants WHERE id = ?", (pid,)).fetchone()
+    if row is None:
+        return None
+    answered = db.execute("SELECT COUNT(*) FROM answers WHERE participant = ?", (pid,)).fetchone()[0]
+    return Participant(pid, [Trial.from_json(t) for t in json.loads(row[0])], answered, row[1] is not None)
 
 
 def _checked_answer(trial: Trial, answer: object) -> int | str | list[int]:
