@@ -10,9 +10,19 @@ const STREAM_BUFFER = 0.25; // seconds of streamed audio buffered before playbac
 const FADE = 0.2; // seconds to ease into and out of an animation's first and last frame
 const LIVE_SLACK = 0.02; // seconds added when a live frame came late, beyond its lateness
 const LAYER_BLEND = 0.4; // seconds to hand the head and the blinks from idle motion to an utterance's layers and back
-export const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
+const BREATH_LIFT = 0.01; // radians the head tilts up with full lungs (the `breath` channel at 1)
 export const HEAD_CHANNELS = ['headpitch', 'headyaw', 'headroll']; // lower-cased, in setHeadRotation's order
-export const RADIANS_PER_DEGREE = Math.PI / 180; // tracks carry head rotation in degrees (vispeech.Utterance)
+const RADIANS_PER_DEGREE = Math.PI / 180; // tracks carry head rotation in degrees (vispeech.Utterance)
+
+/**
+ * The head [pitch, yaw, roll] (radians) a track's frame `values` asks for: the head channels at
+ * indices `head` (degrees; -1 or a null `head`: 0), tilted up by the breath at index `breath` (-1: none).
+ */
+export function trackHeadPose(values, head, breath) {
+  const pose = head ? head.map((c) => (c >= 0 ? values[c] * RADIANS_PER_DEGREE : 0)) : [0, 0, 0];
+  if (breath >= 0) pose[0] -= BREATH_LIFT * values[breath];
+  return pose;
+}
 
 /** Decode base64 little-endian 16-bit PCM into floats in [-1, 1). */
 export function decodePcm16(base64) {
@@ -223,8 +233,7 @@ export class Performer {
     const { head, breath } = this.layers;
     if (showing && (head || breath >= 0)) {
       // head channels replace the idle sway; the breath's lift adds to whichever drives the head
-      this.headOffset = head ? head.map((c, i) => (c >= 0 ? this.values[c] * RADIANS_PER_DEGREE : 0) - base[i]) : [0, 0, 0];
-      if (breath >= 0) this.headOffset[0] -= BREATH_LIFT * this.values[breath];
+      this.headOffset = trackHeadPose(this.values, head, breath).map((v, i) => v - (head ? base[i] : 0));
     }
     const blend = ease(this.blend.head);
     return base.map((v, i) => v + blend * this.headOffset[i]);

@@ -10,7 +10,7 @@ import * as THREE from 'three';
 import { clone } from 'three/examples/jsm/utils/SkeletonUtils.js';
 import { MORPH_INDEX, MORPH_NAMES, morphName } from './arkit.js';
 import { HeadScene, loadHead } from './avatar.js';
-import { BREATH_LIFT, HEAD_CHANNELS, RADIANS_PER_DEGREE } from './performer.js';
+import { HEAD_CHANNELS, trackHeadPose } from './performer.js';
 
 /** One head per slot in a scene of its own, drawn into its own viewport of one canvas. */
 class Stimuli {
@@ -49,9 +49,7 @@ class Stimuli {
         if (k >= 0) slot.weights[k] = Math.min(1, Math.max(0, values[c]));
       });
       slot.head.setWeights(slot.weights);
-      const pose = slot.pose.map((c) => (c >= 0 ? values[c] * RADIANS_PER_DEGREE : 0));
-      if (slot.breath >= 0) pose[0] -= BREATH_LIFT * values[slot.breath];
-      slot.head.setHeadRotation(...pose);
+      slot.head.setHeadRotation(...trackHeadPose(values, slot.pose, slot.breath));
       this.renderer.setViewport(i * this.width, 0, this.width, this.height);
       this.renderer.setScissor(i * this.width, 0, this.width, this.height);
       this.renderer.render(slot.head.scene, slot.head.camera);
