@@ -215,3 +215,13 @@ def test_grid_word_alignment(shared_dir):
     assert words[0].start == pytest.approx(23750 / 25000) and words[-1].end == pytest.approx(53000 / 25000)
     with pytest.raises(VispeechError, match="'bin'"):
         read_alignment(shared_dir / "data/grid_s1/utterances/bbaf2n.align")
+
+
+def test_an_empty_pause_is_dropped_and_an_empty_phone_refused(tmp_path):
+    # pocketsphinx's word alignments (dev_eval/natural) can end on a pause of no length
+    (tmp_path / "words.align").write_text("0 2500 sil\n2500 10000 bin\n10000 12500 sil\n12500 12500 sil\n")
+    words = read_word_alignment(tmp_path / "words.align")
+    assert [(w.text, w.start, w.end) for w in words] == [("bin", 0.1, 0.4)]
+    (tmp_path / "phones.lab").write_text("0 1000000 sil\n1000000 1000000 sp\n1000000 2000000 AH1\n2000000 2000000 AH1\n")
+    with pytest.raises(VispeechError, match="line 4: the span ends at 2000000, not after its start"):
+        read_alignment(tmp_path / "phones.lab")

@@ -141,7 +141,8 @@ def _suffix(path: Path) -> str:
 
 
 def _table_spans(text: str, path: Path, units: int) -> list[_Span]:
-    """``start end label`` lines: integer times, non-negative, each span after the previous one."""
+    """``start end label`` lines: integer times, non-negative, each span after the previous one;
+    a pause (``sil``, ``sp``) that lasts nothing is dropped."""
     spans: list[_Span] = []
     previous_end = 0
     for number, line in enumerate(text.splitlines(), 1):
@@ -154,6 +155,8 @@ def _table_spans(text: str, path: Path, units: int) -> list[_Span]:
         start, end = int(fields[0]), int(fields[1])
         if start < 0 or end < 0:
             raise VispeechError(f"{where}: negative time {min(start, end)}")
+        if end == start and fields[2].lower() in _SILENT_WORDS:
+            continue  # an empty pause (forced aligners write one at a clip's end) marks nothing
         if end <= start:
             raise VispeechError(f"{where}: the span ends at {end}, not after its start {start}")
         if end / units > MAX_DURATION_S:
