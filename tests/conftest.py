@@ -97,6 +97,21 @@ def copy_grid_utterances(source: Path, root: Path, count: int) -> Path:
     return root
 
 
+def resample_face_csv(path: Path, fps: float) -> None:
+    """Rewrite a GRID face-track CSV at ``fps`` over the same span: channels and landmarks
+    interpolated linearly (untracked frames, already filled in by the reader, become tracked)."""
+    from vispeech.corpus.grid import read_face_csv, write_face_csv
+    from vispeech.motion.track import Track
+
+    track, landmarks, _ = read_face_csv(path)
+    names = list(landmarks)
+    both = Track(np.hstack([track.values, *landmarks.values()]), (*track.channels, *(
+        f"{name}_{axis}" for name in names for axis in "xyz")), track.fps).resample(fps)
+    width = len(track.channels)
+    points = {name: both.values[:, width + 3 * k:width + 3 * k + 3] for k, name in enumerate(names)}
+    write_face_csv(path, both.values[:, :width], track.channels, points, fps)
+
+
 TINY_AUDIO_UTTERANCES = 10
 """GRID utterances the tiny audio model of :func:`tiny_audio_model` learns from (8 to train, 2 to validate)."""
 

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import soundfile
+from conftest import resample_face_csv
 
 from vispeech import PhoneSequence, Track, VispeechError
 from vispeech.alignment.formats import write_textgrid
@@ -16,6 +17,7 @@ from vispeech.corpus import (
     read_corpus, read_grid, read_takes, split_of,
 )
 from vispeech.corpus.alignment import cache_key
+from vispeech.corpus.corpus import common_frame_rate, frame_rates_text
 from vispeech.corpus.grid import fill_missing_frames
 from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
 
@@ -69,6 +71,30 @@ def test_grid_reader_on_real_utterances(grid_src, tmp_path):
     assert rate == 16000 and samples.shape == (47648,) and np.abs(samples).max() <= 1
     assert corpus["lrae3s"].track.n_frames == 74
     assert corpus.duration == pytest.approx(sum(x.duration for x in corpus))
+
+
+def test_grid_utterances_keep_their_own_frame_rates(grid_src, tmp_path):
+    root = make_grid(grid_src, tmp_path / "g", GRID_IDS)
+    resample_face_csv(root / "utterances" / "bbaf2n.csv", 30.0)  # times written with 4 decimals: 0.0333, ...
+    corpus = read_grid(root)
+    assert corpus.ids == GRID_IDS and not corpus.problems
+    assert corpus["bbaf2n"].track.fps == 30.0 and corpus["bbaf2n"].track.n_frames == 90
+    assert corpus["bbaf2n"].landmarks["lm13"].shape == (90, 3) and corpus["bbaf2n"].frame_mask.shape == (90,)
+    assert [u.track.fps for u in corpus][1:] == [25.0, 25.0] and corpus["lrae3s"].track.n_frames == 74
+    assert corpus.frame_rates == (25.0, 30.0) and corpus.fps == 25.0  # the rate most utterances have
+    assert "25 and 30 fps" in repr(corpus) and corpus.split("train").frame_rates == (25.0,)
+    csv = root / "utterances" / "lrae3s.csv"
+    csv.write_text(csv.read_text().replace("headZ", "headW", 1))
+    with pytest.warns(CorpusWarning, match="skipped lrae3s: its track's columns differ"):
+        assert read_grid(root).ids == GRID_IDS[:2]
+
+
+def test_common_frame_rate_and_its_text():
+    tracks = [Track(np.zeros((3, 1)), ("jawOpen",), fps) for fps in (30.0, 25.0, 29.9999, 25.0004, 60.0)]
+    assert common_frame_rate(tracks, 60.0) == 25.0  # 25.0 and 30.0 twice each: the lower
+    assert common_frame_rate(tracks[:1], 60.0) == 30.0 and common_frame_rate([], 60.0) == 60.0
+    assert [frame_rates_text(r) for r in ((25.0,), (25.0, 30.0), (24.0, 25.0, 29.97))] == [
+        "25", "25 and 30", "24, 25 and 29.97"]
 
 
 def test_grid_untracked_frames_are_filled_and_masked(grid_src, tmp_path):

@@ -27,6 +27,7 @@ def info_command(directory: Path, no_phones: bool, language: str, cache: Path | 
     from dataclasses import replace
 
     from vispeech.corpus import SPLITS, CorpusWarning, align_corpus, read_corpus
+    from vispeech.corpus.corpus import frame_rates_text
     from vispeech.phonetics.inventory import get_inventory, is_silence
 
     with warnings.catch_warnings():
@@ -38,7 +39,7 @@ def info_command(directory: Path, no_phones: bool, language: str, cache: Path | 
     for problem in corpus.problems:
         echo(f"  {problem}")
     echo(f"duration: {corpus.duration:.1f} s ({corpus.duration / 60:.1f} min)")
-    echo(f"fps: {corpus.fps:g}")
+    echo(f"fps: {frame_rates_text(corpus.frame_rates)}")
     echo(f"channels ({len(corpus.channels)}): {', '.join(corpus.channels)}")
     echo("splits: " + ", ".join(f"{name} {len(corpus.split(name))}" for name in SPLITS))
     if no_phones or not len(corpus):

@@ -100,6 +100,8 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
         options["checkpoint_dir"] = str(checkpoint)
     model = cls(**options)
 
+    from vispeech.corpus.corpus import frame_rates_text
+
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
     if options.get("targets") == "articulatory":
         from vispeech.corpus import with_articulatory_tracks
@@ -109,7 +111,7 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     if not sizes["train"]:
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
     click.echo(f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
-               f"utterances at {corpus.fps:g} fps")
+               f"utterances at {frame_rates_text(corpus.frame_rates)} fps")
 
     model.fit(corpus, progress=not quiet)
     if neural:

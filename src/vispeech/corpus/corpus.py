@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import warnings
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -45,8 +45,12 @@ def split_of(utterance_id: str) -> str:
 
 @dataclass
 class Corpus:
-    """A named list of utterances sharing one frame rate (fps) and one set of track channels.
+    """A named list of utterances sharing one set of track channels.
 
+    Each utterance's track keeps its own frame rate (``utterance.track.fps``): clips filmed at
+    25 and at 30 fps may sit in one corpus, and whatever works per utterance uses the
+    utterance's rate. ``fps`` is the rate of the corpus's tracks, for a corpus of several
+    (:attr:`frame_rates`) the one most of them have (:func:`common_frame_rate`).
     ``problems`` lists the utterances the reader skipped, one line each; ``cache`` is where
     derived data (alignments) is kept.
     """
@@ -76,11 +80,17 @@ class Corpus:
         return self.utterances[key]
 
     def __repr__(self) -> str:
-        return f"Corpus({self.name!r}, {len(self)} utterances, {self.fps:g} fps, {len(self.channels)} channels)"
+        rates = frame_rates_text(self.frame_rates)
+        return f"Corpus({self.name!r}, {len(self)} utterances, {rates} fps, {len(self.channels)} channels)"
 
     @property
     def ids(self) -> list[str]:
         return [u.id for u in self.utterances]
+
+    @property
+    def frame_rates(self) -> tuple[float, ...]:
+        """The frame rates of the utterances' tracks, each once, lowest first (``(fps,)`` without utterances)."""
+        return tuple(sorted({_rate(u.track.fps) for u in self.utterances})) or (self.fps,)
 
     @property
     def duration(self) -> float:
@@ -106,6 +116,23 @@ class Corpus:
                 f"{len(missing)} utterances have no phones (first: {missing[0]}); align the corpus first"
             )
         return Counter(p.symbol for u in self.utterances for p in u.phones)
+
+
+def _rate(fps: float) -> float:
+    """A frame rate rounded to 0.001 fps, so that 29.97 fps measured on two clips is one rate."""
+    return round(float(fps), 3)
+
+
+def common_frame_rate(tracks: Iterable[Track], default: float) -> float:
+    """The frame rate most of ``tracks`` have (the lowest of equally common ones); ``default`` for none."""
+    counts = Counter(_rate(track.fps) for track in tracks)
+    return min(counts, key=lambda rate: (-counts[rate], rate)) if counts else default
+
+
+def frame_rates_text(rates: Iterable[float]) -> str:
+    """Frame rates for a line of text: ``"25"``, ``"25 and 30"``, ``"24, 25 and 30"``."""
+    names = [f"{rate:g}" for rate in rates]
+    return ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else "".join(names)
 
 
 def report_problem(problems: list[str], message: str, strict: bool) -> None:

@@ -6,8 +6,9 @@ Layout (see ``shared/data/grid_s1/README.md``)::
     sentences.tsv            id <TAB> text
     utterances/<id>.flac     audio
     utterances/<id>.align    word timings "<start> <end> <word>" in 1/25000 s, sil/sp for pauses
-    utterances/<id>.csv      face track at 25 fps: frame, time, ARKit scores, head pose,
-                             landmarks lm<K>_x/_y/_z (rows with no face leave those empty)
+    utterances/<id>.csv      face track at its video's frame rate (GRID: 25 fps): frame, time,
+                             ARKit scores, head pose, landmarks lm<K>_x/_y/_z (rows with no face
+                             leave those empty)
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 
 from vispeech.alignment.formats import read_word_alignment
 from vispeech.corpus.cache import CorpusCache, content_hash
-from vispeech.corpus.corpus import Corpus, Utterance, check_durations, report_problem
+from vispeech.corpus.corpus import Corpus, Utterance, check_durations, common_frame_rate, report_problem
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import audio_duration
@@ -37,10 +38,12 @@ def read_grid(
 
     Frames where the tracker found no face are filled in: linearly between tracked frames,
     held at the first / last tracked value at the ends; ``Utterance.frame_mask`` marks them
-    False. Utterances with a missing or unreadable file, an empty transcript, ``.align`` words
-    that differ from the transcript, no tracked frame, or a track whose length differs from the
-    audio's are skipped with a :class:`~vispeech.corpus.corpus.CorpusWarning` naming each
-    (listed in ``Corpus.problems``), or raise :class:`VispeechError` if ``strict``.
+    False. Each track keeps the frame rate of its ``time`` column, so clips of different rates
+    and lengths make one corpus (``Corpus.fps``: the most common rate). Utterances with a missing
+    or unreadable file, an empty transcript, ``.align`` words that differ from the transcript, no
+    tracked frame, a track whose length differs from the audio's or whose columns differ from the
+    first utterance's are skipped with a :class:`~vispeech.corpus.corpus.CorpusWarning` naming
+    each (listed in ``Corpus.problems``), or raise :class:`VispeechError` if ``strict``.
     ``cache`` overrides the cache folder (default: see :mod:`vispeech.corpus.cache`).
     """
     root = Path(directory)
@@ -52,15 +55,11 @@ def read_grid(
 
     utterances: list[Utterance] = []
     problems: list[str] = []
-    fps: float | None = None
-    channels: tuple[str, ...] | None = None
     for utterance_id, text in sentences:
         try:
             utterance = _read_utterance(folder, utterance_id, text)
-            if fps is None:
-                fps, channels = utterance.track.fps, utterance.track.channels
-            elif abs(utterance.track.fps - fps) > 1e-3 or utterance.track.channels != channels:
-                raise VispeechError("its track's frame rate or columns differ from the other utterances'")
+            if utterances and utterance.track.channels != utterances[0].track.channels:
+                raise VispeechError("its track's columns differ from the other utterances'")
         except VispeechError as exc:
             report_problem(problems, f"skipped {utterance_id}: {exc}", strict)
             continue
@@ -70,8 +69,8 @@ def read_grid(
     return Corpus(
         name=root.resolve().name,
         utterances=utterances,
-        fps=fps if fps is not None else 25.0,
-        channels=channels or (),
+        fps=common_frame_rate((u.track for u in utterances), 25.0),
+        channels=utterances[0].track.channels if utterances else (),
         language="en",
         root=root,
         problems=problems,
@@ -115,7 +114,8 @@ def read_face_csv(path: str | os.PathLike) -> tuple[Track, dict[str, np.ndarray]
     """Read a GRID face-track CSV: ``(track, landmarks, frame_mask)``.
 
     The track holds every column but ``frame``, ``time`` and the landmarks, at the frame rate
-    the ``time`` column gives; ``landmarks["lm<K>"]`` is ``(n_frames, 3)``. Rows with empty
+    of its rows over the ``time`` column's span (to 0.001 fps: the column's 4 decimals would
+    make 30 fps 30.03 step by step); ``landmarks["lm<K>"]`` is ``(n_frames, 3)``. Rows with empty
     fields are untracked frames: filled as :func:`fill_missing_frames` does, False in the mask.
     """
     path = Path(path)
@@ -146,7 +146,7 @@ def read_face_csv(path: str | os.PathLike) -> tuple[Track, dict[str, np.ndarray]
     steps = np.diff(times)
     if not np.all(np.isfinite(times)) or np.any(steps <= 0):
         raise VispeechError(f"{path.name}: the time column is not increasing")
-    fps = float(np.round(1.0 / np.median(steps), 3))
+    fps = round((len(times) - 1) / float(times[-1] - times[0]), 3)  # rows over the span: times carry 4 decimals
     values, mask = fill_missing_frames(data[:, 2:])
     if not mask.any():
         raise VispeechError(f"{path.name}: no face tracked in any frame")
