@@ -15,7 +15,8 @@ from vispeech.evaluation import (
 )
 from vispeech.evaluation.closures import phone_frames
 from vispeech.evaluation.plots import plot_utterance
-from vispeech.evaluation.report import predict_on_frames
+from vispeech.evaluation.metrics import best_lag, motion_profile
+from vispeech.evaluation.report import predict_on_frames, scored_frames
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import create_model
 
@@ -162,9 +163,9 @@ def test_frames_are_classed_by_what_their_phone_does_to_the_lips():
 
 # -- the report ----------------------------------------------------------------------------
 
-def _utterance(name: str, seed: int) -> Utterance:
-    """Silence, then B AA M IY P AA at 0.2 s each, then silence (0.5 s); tracked lips close on
-    the bilabials and the 'recorded' track follows the phones. Frame 1 was not tracked."""
+def _utterance(name: str, seed: int, fps: float = FPS) -> Utterance:
+    """Silence, then B AA M IY P AA at 0.2 s each, then silence (0.5 s), tracked at ``fps``; tracked
+    lips close on the bilabials and the 'recorded' track follows the phones. Frame 1 was not tracked."""
     rng = np.random.default_rng(seed)
     symbols = ["B", "AA", "M", "IY", "P", "AA"]
     phones, t = [Phone("sil", 0.0, 0.5)], 0.5
@@ -173,13 +174,13 @@ def _utterance(name: str, seed: int) -> Utterance:
         t += 0.2
     phones.append(Phone("sil", t, t + 0.5))
     sequence = PhoneSequence(phones, "en", [Word("bamipa", 0.5, t)])
-    labels = sequence.frame_labels(FPS)
+    labels = sequence.frame_labels(fps)
     opening = np.array([0.0 if s in ("B", "M", "P", "sil") else 0.3 + 0.1 * rng.random() for s in labels])
     close = np.full(len(labels), 0.02)
     jaw = opening + close
     pucker = rng.random(len(labels))
     track = Track(np.column_stack([jaw, close, pucker, rng.random(len(labels))]),
-                  ("jawOpen", "mouthClose", "mouthPucker", "eyeBlinkLeft"), FPS)
+                  ("jawOpen", "mouthClose", "mouthPucker", "eyeBlinkLeft"), fps)
     mask = np.ones(len(labels), dtype=bool)
     mask[1] = False
     return Utterance(id=name, text="bamipa", audio_path=Path("none.wav"), duration=sequence.duration,
@@ -241,6 +242,42 @@ def test_a_perfect_model_scores_perfectly(corpus):
     assert "synthetic: 2 utterances, 30 speech frames at 10 fps, post-processing off" in text
     assert "replay   jawOpen" in text and "6/6" in text
     assert "| shifted | jawOpen | 0.01000 |" in markdown and "## Lip closures" in markdown
+
+
+def test_each_utterance_is_animated_and_scored_at_its_own_frame_rate():
+    utterances = [_utterance("a", 1), _utterance("b", 2, fps=2 * FPS)]
+    corpus = Corpus("mixed", utterances, FPS, utterances[0].track.channels)
+    replay = Replay(corpus)
+    predicted = predict_on_frames(replay, corpus["b"], postprocessing=False)
+    assert predicted.fps == 20.0 and predicted.n_frames == corpus["b"].track.n_frames == 44
+    evaluation = evaluate_models(corpus, {"replay": replay}, channels=["jawOpen"], postprocessing=False)
+    result = evaluation["replay"]
+    assert evaluation.frame_rates == (10.0, 20.0)
+    # speech span 0.4 s .. 1.8 s: 15 frames at 10 fps, 29 at 20 fps
+    assert result.scores.frames == 44 and result.scores["jawOpen"]["r"] == pytest.approx(1.0)
+    assert "mixed: 2 utterances, 44 speech frames at 10 and 20 fps" in evaluation.to_text()
+    assert result.closures.tracked_closures == result.closures.model_closures == 6
+    assert result.dynamics["lag_s"] == 0.0 and evaluation.recorded_dynamics == {
+        key: value for key, value in result.dynamics.items() if key != "lag_s"}
+    curves = [u.track["jawOpen"][scored_frames(u)] for u in utterances]
+    assert evaluation.recorded_dynamics == motion_profile(curves, [10.0, 20.0])
+
+
+def test_motion_and_lag_take_each_curves_frame_rate():
+    rng = np.random.default_rng(3)
+    seconds = np.arange(0, 4, 1 / 600)
+    signal = np.convolve(rng.normal(size=len(seconds)), np.hanning(120), "same")  # about 5 Hz and slower
+    slow, fast = signal[::24], signal[::20]  # the same curve at 25 and at 30 fps
+    both = motion_profile([slow, fast], [25.0, 30.0])
+    for key in ("velocity_rms", "acceleration_rms"):
+        assert both[key] == pytest.approx(motion_profile([slow], 25.0)[key], rel=0.1)
+        assert both[key] == pytest.approx(motion_profile([fast], 30.0)[key], rel=0.1)
+    assert motion_profile([slow, fast], 25.0)["velocity_rms"] < 0.95 * both["velocity_rms"]
+    late = [np.roll(slow, 5), np.roll(fast, 6)]  # 0.2 s late at either rate
+    assert best_lag([slow, fast], late, [25.0, 30.0], max_seconds=0.3) == pytest.approx(0.2)
+    assert best_lag([slow], late[:1], 25.0, max_seconds=0.3) == pytest.approx(0.2)
+    with pytest.raises(VispeechError, match="1 frame rates for 2 curves"):
+        motion_profile([slow, fast], [25.0])
 
 
 def test_channels_default_to_shared_mouth_channels_with_jaw_first(corpus):

@@ -166,43 +166,60 @@ def score_channels(
 
 
 
-def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], fps: float,
+def _rates(fps: float | Sequence[float], curves: Sequence[np.ndarray]) -> list[float]:
+    """One frame rate per curve: ``fps`` for all, or ``fps[i]`` for curve i."""
+    if np.ndim(fps) == 0:
+        return [float(fps)] * len(curves)
+    if len(fps) != len(curves):
+        raise VispeechError(f"{len(fps)} frame rates for {len(curves)} curves")
+    return [float(f) for f in fps]
+
+
+def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], fps: float | Sequence[float],
              max_seconds: float = 0.2) -> float:
     """Seconds by which the predictions trail the targets where they correlate best (negative:
     they lead), from per-utterance 1-D arrays pooled: Pearson r of target frame t with predicted
-    frame t + lag, for lags up to ``max_seconds`` either way."""
-    reach = int(round(max_seconds * fps))
+    frame t + lag, for lags up to ``max_seconds`` either way.
+
+    ``fps`` is the curves' frame rate, or one per utterance: lags are then tried in steps of
+    the highest rate's frame, each utterance shifted by the whole frames of its own rate nearest
+    the lag."""
+    rates = _rates(fps, targets)
+    step = 1.0 / max(rates)
+    reach = int(round(max_seconds / step))
     best, best_r = 0, -np.inf
-    for lag in range(-reach, reach + 1):
-        t = np.concatenate([x[max(0, -lag):len(x) - max(0, lag)] for x in targets])
-        p = np.concatenate([y[max(0, lag):len(y) - max(0, -lag)] for y in predictions])
+    for k in range(-reach, reach + 1):
+        shifts = [int(round(k * step * rate)) for rate in rates]
+        t = np.concatenate([x[max(0, -lag):len(x) - max(0, lag)] for x, lag in zip(targets, shifts)])
+        p = np.concatenate([y[max(0, lag):len(y) - max(0, -lag)] for y, lag in zip(predictions, shifts)])
         if len(t) > 2 and np.std(t) > 0 and np.std(p) > 0:
             r = float(np.corrcoef(t, p)[0, 1])
             if r > best_r:
-                best, best_r = lag, r
-    return best / fps
+                best, best_r = k, r
+    return best * step
 
 
 HIGH_FREQUENCY = 8.0
 """Hz above which a curve's motion counts as jitter (speech articulation moves at 2–7 Hz)."""
 
 
-def motion_profile(curves: Sequence[np.ndarray], fps: float) -> dict[str, float]:
-    """How a channel moves, from per-utterance 1-D arrays at ``fps``: the root mean square of its
-    velocity, acceleration and jerk (units per second, per second², per second³), and the share of
-    its energy (mean removed, per utterance, pooled) above :data:`HIGH_FREQUENCY` Hz. Jitter
-    shows as more jerk and high-frequency energy than the recorded curve has, over-smoothing as
-    less."""
+def motion_profile(curves: Sequence[np.ndarray], fps: float | Sequence[float]) -> dict[str, float]:
+    """How a channel moves, from per-utterance 1-D arrays at ``fps`` (one rate for all, or one
+    per curve): the root mean square of its velocity, acceleration and jerk (units per second,
+    per second², per second³), and the share of its energy (mean removed, per utterance, pooled)
+    above :data:`HIGH_FREQUENCY` Hz. Jitter shows as more jerk and high-frequency energy than
+    the recorded curve has, over-smoothing as less."""
+    rates = _rates(fps, curves)
     out = {}
     for order, name in ((1, "velocity"), (2, "acceleration"), (3, "jerk")):
-        steps = [np.diff(c, order) * fps ** order for c in curves if len(c) > order]
+        steps = [np.diff(c, order) * rate ** order for c, rate in zip(curves, rates) if len(c) > order]
         out[f"{name}_rms"] = float(np.sqrt(np.mean(np.concatenate(steps) ** 2))) if steps else float("nan")
     high = total = 0.0
-    for c in curves:
+    for c, rate in zip(curves, rates):
         if len(c) < 4:
             continue
         power = np.abs(np.fft.rfft(c - c.mean())) ** 2
-        freqs = np.fft.rfftfreq(len(c), 1.0 / fps)
+        freqs = np.fft.rfftfreq(len(c), 1.0 / rate)
         high += float(power[freqs > HIGH_FREQUENCY].sum())
         total += float(power.sum())
     out["high_frequency_share"] = high / total if total > 0 else float("nan")

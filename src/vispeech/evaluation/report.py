@@ -1,7 +1,7 @@
 """Evaluating control models on a corpus: metrics and closures per model, as text or Markdown.
 
-:func:`evaluate_models` animates every utterance with each model at the corpus frame rate
-(:func:`vispeech.pipeline.animate`, optionally post-processed), scores the channels over
+:func:`evaluate_models` animates every utterance with each model at the frame rate of its
+recorded track (:func:`vispeech.pipeline.animate`, optionally post-processed), scores the channels over
 the speech span of each utterance (:func:`vispeech.evaluation.metrics.speech_frames`;
 frames the tracker missed are left out) and counts lip closures
 (:mod:`vispeech.evaluation.closures`).
@@ -17,7 +17,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.corpus.articulation import LIP_LANDMARKS, articulatory_parameters, lip_shape
-from vispeech.corpus.corpus import Corpus, Utterance
+from vispeech.corpus.corpus import Corpus, Utterance, frame_rates_text
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.evaluation.closures import (
@@ -60,7 +60,9 @@ class Evaluation:
     """Results of :func:`evaluate_models` for several models on one set of utterances."""
 
     corpus: str
-    fps: float
+    frame_rates: tuple[float, ...]
+    """The frame rates of the utterances' tracks (:attr:`~vispeech.corpus.corpus.Corpus.frame_rates`):
+    each utterance is animated and scored at its own."""
     utterances: int
     postprocessing: bool
     models: list[ModelEvaluation]
@@ -106,7 +108,8 @@ class Evaluation:
 
     def _header(self) -> str:
         frames = self.models[0].scores.frames if self.models else 0
-        return (f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at {self.fps:g} fps, "
+        return (f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at "
+                f"{frame_rates_text(self.frame_rates)} fps, "
                 f"post-processing {'on' if self.postprocessing else 'off'}")
 
     def to_text(self) -> str:
@@ -295,10 +298,11 @@ def evaluate_models(
         shapes = [lip_shape(u.landmarks)[mask] for u, mask in zip(corpus, masks)]
     classes = np.concatenate([frame_classes(_phones(u), u.track.fps, len(mask), u.track.start_time)[mask]
                               for u, mask in zip(corpus, masks)])
+    rates = [u.track.fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
     recorded = recorded_jaw = None
     if "jawOpen" in needed:
         recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
-        recorded = motion_profile(recorded_jaw, corpus.fps)
+        recorded = motion_profile(recorded_jaw, rates)
 
     results = []
     bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
@@ -323,8 +327,8 @@ def evaluate_models(
             if "jawOpen" in chosen:
                 jaw = chosen.index("jawOpen")
                 predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
-                dynamics = {**motion_profile(predicted_jaw, corpus.fps),
-                            "lag_s": best_lag(recorded_jaw, predicted_jaw, corpus.fps)}
+                dynamics = {**motion_profile(predicted_jaw, rates),
+                            "lag_s": best_lag(recorded_jaw, predicted_jaw, rates)}
                 errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
                 span = scores.range[jaw]
                 by_phone = {name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
@@ -337,7 +341,7 @@ def evaluate_models(
     finally:
         bar.close()
     ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]
-    return Evaluation(corpus.name, corpus.fps, len(corpus), postprocessing, results, ids, recorded)
+    return Evaluation(corpus.name, corpus.frame_rates, len(corpus), postprocessing, results, ids, recorded)
 
 
 def _has_lip_landmarks(utterance: Utterance) -> bool:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vispeech.corpus.corpus import Utterance
+from vispeech.corpus.corpus import Utterance, frame_rates_text
 from vispeech.evaluation.report import Evaluation
 from vispeech.evaluation.statistics import Comparison, compare_models
 from vispeech.files import atomic_output_dir
@@ -135,7 +135,7 @@ def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
         models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
                        "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone,
                        "lips": m.lips})
-    out = {"corpus": evaluation.corpus, "fps": evaluation.fps, "utterances": evaluation.utterances,
+    out = {"corpus": evaluation.corpus, "frame_rates": evaluation.frame_rates, "utterances": evaluation.utterances,
            "postprocessing": evaluation.postprocessing, "models": models,
            "recorded_jawOpen_dynamics": evaluation.recorded_dynamics}
     if comparison is not None:
@@ -218,7 +218,7 @@ def p_text(value: float) -> str:
 
 def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[tuple[str, str]], command: str) -> str:
     parts = [f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
-             f"<p>{evaluation.utterances} utterances at {evaluation.fps:g} fps, "
+             f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
              f"{'with' if evaluation.postprocessing else 'without'} post-processing. "
              "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>"]
     if command:
