@@ -165,6 +165,8 @@ def test_corpus_split_partitions_the_corpus(grid_src, tmp_path):
     for name, part in parts.items():
         assert all(split_of(u.id) == name for u in part)
         assert part.fps == corpus.fps and part.channels == corpus.channels
+    everything = corpus.split("all")  # an evaluation-only corpus is scored whole
+    assert everything.ids == corpus.ids and everything.name == "g:all" and not everything.problems
     # membership depends on the id only, not on what else the corpus holds
     corpus.utterances = corpus.utterances[::2]
     assert corpus.split("test").ids == [i for i in parts["test"].ids if i in corpus.ids]

@@ -4,6 +4,7 @@ import shutil
 
 import pytest
 from click.testing import CliRunner
+from conftest import copy_grid_utterances, resample_face_csv
 from test_train_cli import synthetic_take, write_takes
 
 from vispeech.cli import main
@@ -152,3 +153,31 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     assert "jawOpen RMSE by phone class" in page and "onset median (ms)" in page and "lip vertex error" in page
     lips = {m["label"]: m["lips"] for m in scores["models"]}
     assert 0 < lips["grid-tdnn"]["floor"] <= lips["grid-tdnn"]["lve"] < lips["baseline"]["lve"] < 0.2
+
+
+def test_split_all_scores_a_corpus_of_mixed_frame_rates(grid_s1, tmp_path):
+    """bbaf2n (test split, 25 fps) and bbaf3s (train split, its track resampled to 30 fps):
+    --split all scores both, each on its own frames, with the closures."""
+    from vispeech.corpus import read_grid
+    from vispeech.evaluation import scored_frames, tracked_closed
+
+    root = copy_grid_utterances(grid_s1, tmp_path / "grid2", 2)
+    resample_face_csv(root / "utterances" / "bbaf3s.csv", 30.0)
+    corpus = read_grid(root, cache=tmp_path / "unused")
+    assert [(u.id, u.track.fps, u.track.n_frames) for u in corpus] == [("bbaf2n", 25.0, 75), ("bbaf3s", 30.0, 90)]
+    frames = [int(scored_frames(u).sum()) for u in corpus]
+    test_only = _evaluate("--corpus", root, "-m", "baseline", "--channels", "jawOpen", "-q")
+    assert test_only.exit_code == 0, test_only.output
+    assert test_only.output.splitlines()[0] == (
+        f"grid2:test: 1 utterances, {frames[0]} speech frames at 25 fps, post-processing on")
+    result = _evaluate("--corpus", root, "--split", "all", "-m", "baseline", "--channels", "jawOpen", "-q")
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert lines[0] == f"grid2:all: 2 utterances, {sum(frames)} speech frames at 25 and 30 fps, post-processing on"
+    jaw = next(line.split() for line in lines if line.startswith("baseline  jawOpen"))
+    assert float(jaw[4]) > 0.4
+    closures = next(line.split() for line in lines if line.startswith("baseline ") and "/" in line)
+    closed = sum(int(tracked_closed(u.landmarks)[scored_frames(u)].sum()) for u in corpus)
+    assert closures[1] == "3/3" and closures[4] == f"{100 * closed / sum(frames):.1f}"  # tracked, per own frame
+    bad = _evaluate("--corpus", root, "--split", "every", "-m", "baseline", "-q")
+    assert bad.exit_code == 2 and "'every' is not one of 'train', 'validation', 'test', 'all'" in bad.output

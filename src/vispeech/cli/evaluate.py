@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import lang_option, main
-from vispeech.corpus.corpus import SPLITS, Corpus
+from vispeech.corpus.corpus import ALL, SPLITS, Corpus
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, check_output_dir
 
@@ -63,8 +63,9 @@ def read_aligned_corpus(directory: Path, language: str, cache: Path | None, prog
 
 @main.command("evaluate")
 @corpus_option
-@click.option("--split", default="test", show_default=True, type=click.Choice(list(SPLITS)),
-              help="Utterances to score.")
+@click.option("--split", default="test", show_default=True, type=click.Choice([*SPLITS, ALL]),
+              help=f"Utterances to score: a split, or {ALL} for the whole corpus (one kept for evaluation "
+                   "only, such as another speaker's).")
 @click.option("--model", "-m", "model_specs", multiple=True, required=True,
               help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a trained model "
                    "folder; repeat to compare; `shipped` for every shipped trained model.")

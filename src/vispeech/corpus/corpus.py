@@ -22,6 +22,10 @@ SPLITS: dict[str, tuple[float, float]] = {
 }
 """Each split's share of the unit interval that :func:`split_of` maps utterance ids into."""
 
+ALL = "all"
+"""What :meth:`Corpus.split` takes for every utterance: the whole of a corpus kept for
+evaluation only, whose splits mean nothing."""
+
 MAX_DURATION_MISMATCH = 0.5
 """Seconds by which a face track and its audio may differ in length before readers reject them."""
 
@@ -98,10 +102,11 @@ class Corpus:
         return float(sum(u.duration for u in self.utterances))
 
     def split(self, name: str) -> Corpus:
-        """The sub-corpus of split ``name`` (``train``, ``validation``, ``test``); see :func:`split_of`."""
-        if name not in SPLITS:
-            raise VispeechError(f"unknown split {name!r} (use {', '.join(SPLITS)})")
-        kept = [u for u in self.utterances if split_of(u.id) == name]
+        """The sub-corpus of split ``name`` (``train``, ``validation``, ``test``; see :func:`split_of`),
+        or of every utterance for :data:`ALL`."""
+        if name not in (*SPLITS, ALL):
+            raise VispeechError(f"unknown split {name!r} (use {', '.join(SPLITS)} or {ALL})")
+        kept = [u for u in self.utterances if name == ALL or split_of(u.id) == name]
         return replace(self, name=f"{self.name}:{name}", utterances=kept, problems=[])
 
     def phone_coverage(self) -> Counter:
