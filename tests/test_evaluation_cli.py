@@ -149,6 +149,8 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     assert list(by_phone) == ["vowel", "bilabial", "labiodental", "other consonant", "silence"]
     assert all(v is None or 0 <= v < 100 for v in by_phone.values()) and by_phone["vowel"] is not None
     closures = scores["models"][0]["closures"]
+    printed = next(line.split() for line in result.output.splitlines() if line.startswith("grid-tdnn ") and "/" in line)
+    assert [f"{closures[k]:.1f}" for k in ("model_closed_share", "tracked_closed_share")] == printed[3:5]
     assert closures["onset_median_ms"] is not None and abs(closures["onset_median_ms"]) <= 200
     assert "jawOpen RMSE by phone class" in page and "onset median (ms)" in page and "lip vertex error" in page
     lips = {m["label"]: m["lips"] for m in scores["models"]}

@@ -58,7 +58,7 @@ def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example:
                        [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]])
             write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
                        [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs])
-        (staging / "scores.json").write_text(json.dumps(_as_json(evaluation, comparison), indent=2, allow_nan=False),
+        (staging / "scores.json").write_text(json.dumps(evaluation_json(evaluation, comparison), indent=2, allow_nan=False),
                                              encoding="utf-8")
         figures = _figures(evaluation, staging, example, predictions or {})
         (staging / "report.html").write_text(_html(evaluation, comparison, figures, command), encoding="utf-8")
@@ -123,15 +123,18 @@ def json_ready(value):
     return value
 
 
-def _as_json(evaluation: Evaluation, comparison: Comparison | None) -> dict:
+def evaluation_json(evaluation: Evaluation, comparison: Comparison | None = None) -> dict:
+    """Every number of ``evaluation`` (and of its ``comparison``) as JSON-ready data: what
+    ``scores.json`` holds."""
     models = []
     for m in evaluation.models:
         closures = None
         if m.closures is not None:
             c = m.closures
             closures = {"bilabials": c.bilabials, "tracked_closures": c.tracked_closures,
-                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate, "passed": c.passed,
-                        **c.timing()}
+                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate,
+                        "model_closed_share": c.model_closed_share, "tracked_closed_share": c.tracked_closed_share,
+                        "passed": c.passed, **c.timing()}
         models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
                        "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone,
                        "lips": m.lips})
