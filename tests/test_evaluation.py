@@ -324,3 +324,38 @@ def test_plot_writes_a_png(corpus, tmp_path):
     with pytest.raises(VispeechError, match="nothing to plot"):
         plot_utterance(corpus[0], {}, tmp_path / "k.png")
     assert not (tmp_path / "k.png").exists()
+
+
+# -- the loudness floor ----------------------------------------------------------------------
+
+def test_the_loudness_envelope_is_the_rms_level_per_frame():
+    from vispeech.evaluation.floor import SILENT_DB, LoudnessFloor, loudness_envelope
+    from vispeech.frontends.audio import AudioClip
+
+    rate = 16000
+    tone = 0.5 * np.sin(2 * np.pi * 1000 * np.arange(rate // 2) / rate)  # 0.5 s, RMS 0.5 / √2
+    clip = AudioClip.from_array(np.concatenate([tone, np.zeros(rate // 2)]), rate)
+    level = loudness_envelope(clip, 20.0)
+    assert level.shape == (20,)
+    np.testing.assert_allclose(level[1:9], 20 * np.log10(0.5 / np.sqrt(2)), atol=0.01)  # -9.03 dB
+    assert level[10] == pytest.approx(10 * np.log10(0.125 / 2), abs=0.01)  # half a frame of tone, half silence
+    np.testing.assert_array_equal(level[12:], SILENT_DB)
+    jaw = LoudnessFloor().predict(clip, 20.0)
+    assert jaw.channels == ("jawOpen",) and jaw.fps == 20.0
+    np.testing.assert_allclose(jaw["jawOpen"][[2, 15]], [1 + 20 * np.log10(0.5 / np.sqrt(2)) / 60, 0.0], atol=1e-3)
+
+
+def test_the_loudness_floor_is_scored_like_a_model(corpus):
+    """Audio whose level follows the recorded jaw: the floor's jawOpen follows it too."""
+    from vispeech.evaluation.floor import SILENT_DB, LoudnessFloor
+
+    rate = 16000
+    for utterance in corpus:
+        times = np.arange(int(utterance.duration * rate)) / rate
+        level = SILENT_DB * (1 - np.interp(times, utterance.track.times, utterance.track["jawOpen"]))
+        utterance.audio = (np.sqrt(2) * 10 ** (level / 20) * np.sin(2 * np.pi * 500 * times)).astype(np.float32)
+        utterance.sample_rate = rate
+    floor = evaluate_models(corpus, {"floor": LoudnessFloor()}, channels=["jawOpen"])["floor"]
+    assert floor.scores["jawOpen"]["r"] > 0.95 and floor.closures.tracked_closures == 6
+    with pytest.raises(VispeechError, match="learns nothing"):
+        LoudnessFloor().fit(corpus)
