@@ -14,33 +14,32 @@ the frames of all sentences and as the mean of per-sentence r, both post-process
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import synthesize
+from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.pipeline import DEFAULT_AUDIO_MODEL, DEFAULT_MODEL, animate, animate_audio
 
 SENTENCES = Path(__file__).resolve().parents[1] / "tests" / "data"
 FPS = 30.0
+LANGUAGES = ("en", "sv")
+RATES = (0.8, 1.0, 1.3)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", nargs="+", default=[DEFAULT_AUDIO_MODEL], help="audio models (names or folders)")
-    parser.add_argument("--phone-model", default=DEFAULT_MODEL)
-    parser.add_argument("--rates", type=float, nargs="+", default=[0.8, 1.0, 1.3])
-    args = parser.parse_args()
-
-    phone_model = load_model(args.phone_model)
-    audio_models = {name: load_model(name) for name in args.model}
-    print(f"{'model':<22} {'lang':<4} {'rate':>4} {'sentences':>9} {'pooled r':>8} {'mean r':>7}")
-    for language in ("en", "sv"):
+def voice_scores(audio_models: Mapping[str, Estimator], phone_model: Estimator,
+                 rates: Sequence[float] = RATES) -> Iterator[dict]:
+    """Per language of :data:`LANGUAGES`, rate and audio model (by label), as computed: ``model``,
+    ``language``, ``rate``, ``sentences``, ``pooled_r`` and ``mean_r`` (jawOpen r against the
+    phone model on espeak-ng's phone timings)."""
+    for language in LANGUAGES:
         sentences = [s.strip() for s in (SENTENCES / f"sentences_{language}.txt").read_text(encoding="utf-8")
                      .splitlines() if s.strip()]
-        for rate in args.rates:
+        for rate in rates:
             speeches = [synthesize(text, language, rate=rate) for text in sentences]
             references = [animate(s.phones, phone_model, FPS)["jawOpen"] for s in speeches]
             for name, model in audio_models.items():
@@ -53,8 +52,22 @@ def main() -> None:
                     pooled_b.append(reference[:n])
                     per_sentence.append(np.corrcoef(jaw[:n], reference[:n])[0, 1])
                 pooled = np.corrcoef(np.concatenate(pooled_a), np.concatenate(pooled_b))[0, 1]
-                print(f"{name:<22} {language:<4} {rate:>4.1f} {len(sentences):>9} {pooled:>8.3f} "
-                      f"{np.nanmean(per_sentence):>7.3f}", flush=True)
+                yield {"model": name, "language": language, "rate": rate, "sentences": len(sentences),
+                       "pooled_r": float(pooled), "mean_r": float(np.nanmean(per_sentence))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", nargs="+", default=[DEFAULT_AUDIO_MODEL], help="audio models (names or folders)")
+    parser.add_argument("--phone-model", default=DEFAULT_MODEL)
+    parser.add_argument("--rates", type=float, nargs="+", default=list(RATES))
+    args = parser.parse_args()
+
+    audio_models = {name: load_model(name) for name in args.model}
+    print(f"{'model':<22} {'lang':<4} {'rate':>4} {'sentences':>9} {'pooled r':>8} {'mean r':>7}")
+    for row in voice_scores(audio_models, load_model(args.phone_model), args.rates):
+        print(f"{row['model']:<22} {row['language']:<4} {row['rate']:>4.1f} {row['sentences']:>9} "
+              f"{row['pooled_r']:>8.3f} {row['mean_r']:>7.3f}", flush=True)
 
 
 if __name__ == "__main__":
