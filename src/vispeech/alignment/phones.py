@@ -132,6 +132,14 @@ class PhoneSequence:
             words=[replace(w, start=w.start + seconds, end=w.end + seconds) for w in self.words],
         )
 
+    def scaled(self, factor: float) -> PhoneSequence:
+        """A copy with every time multiplied by ``factor`` (the same speech ``1 / factor`` times as fast)."""
+        return replace(
+            self,
+            phones=[replace(p, start=p.start * factor, end=p.end * factor) for p in self.phones],
+            words=[replace(w, start=w.start * factor, end=w.end * factor) for w in self.words],
+        )
+
     def to_dict(self) -> dict:
         """JSON-ready form: ``{"language", "words": [...], "phones": [...]}``."""
         return {

@@ -18,7 +18,10 @@ hidden layer against the utterance's phone sequence (silences left to the blank)
 is a training aid and prediction ignores it. Robustness to voices the corpus lacks comes from
 the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
-(``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones). Prediction runs
+(``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
+that many copies of each training utterance as other voices in other rooms, at other rates and
+over other channels would have said it, for either kind of features
+(:mod:`vispeech.models.networks.augmentation`). Prediction runs
 on NumPy (:mod:`vispeech.models.networks.kernels`).
 
 With ``features="encoder"`` and ``encoder`` the path of a local wav2vec 2.0 / WavLM / HuBERT
@@ -49,7 +52,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
 from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, SpectrumStream, power_spectrogram, warp_frequencies
-from vispeech.models.contract import ModelStream, ResampledFrames
+from vispeech.models.contract import ModelStream, ResampledFrames, Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
 from vispeech.models.networks.network import TRAINING_PARAMS, Network
@@ -71,6 +74,7 @@ AUDIO_PARAMS: dict = {
     "warp": 0.1,
     "pitch_shift": 2.0,
     "pitch_copies": 1,
+    "augment": 0,
     "ctc_weight": 0.0,
     "velocity_weight": 0.0,
     "acceleration_weight": 0.0,
@@ -114,8 +118,9 @@ class AudioNetwork(Network):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
         if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
             raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
-        if not (isinstance(p["pitch_copies"], int) and 0 <= p["pitch_copies"] <= 8):
-            raise VispeechError(f"pitch_copies must be a whole number within 0..8, got {p['pitch_copies']!r}")
+        for key in ("pitch_copies", "augment"):
+            if not (isinstance(p[key], int) and 0 <= p[key] <= 8):
+                raise VispeechError(f"{key} must be a whole number within 0..8, got {p[key]!r}")
 
     def _unfitted_encoding(self, fps: float) -> AudioEncoding:
         """The audio encoding the parameters ask for at ``fps``, without training statistics."""
@@ -205,10 +210,30 @@ class AudioNetwork(Network):
         head's labels), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
         """
         try:
+            if self._params["augment"]:
+                corpus = self._augmented(corpus, progress)
             return super().fit(corpus, progress=progress)
         finally:
             self.__dict__.pop("_powers", None)
             self.__dict__.pop("_hidden", None)
+
+    def _augmented(self, corpus, progress: bool | None) -> Splits:
+        """The corpus's splits with ``augment`` copies of every training utterance added
+        (:func:`~vispeech.models.networks.augmentation.augmented_copy`); validation as it is."""
+        from tqdm.auto import tqdm
+
+        from vispeech.models.networks.augmentation import augmented_copy
+
+        train, validation = training_split(corpus)
+        copies = self._params["augment"]
+        bar = tqdm(total=len(train) * copies, desc="augmenting", unit="utt", disable=not show_progress(progress))
+        added = []
+        with bar:
+            for utterance in train:
+                for index in range(1, copies + 1):
+                    added.append(augmented_copy(utterance, index, self._params["seed"]))
+                    bar.update(1)
+        return Splits(train + added, validation)
 
     # -- training --------------------------------------------------------------------------
 
