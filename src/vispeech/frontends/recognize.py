@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vispeech.alignment.edits import edit_path
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.activity import speech_span
@@ -100,19 +101,5 @@ def match_phones(reference: PhoneSequence, hypothesis: PhoneSequence) -> tuple[i
     insertions and deletions), and the pairs of equal phones one cheapest edit path matches."""
     ref = [p for p in reference if not p.is_silence]
     hyp = [p for p in hypothesis if not p.is_silence]
-    cost = np.zeros((len(ref) + 1, len(hyp) + 1), dtype=int)
-    cost[:, 0], cost[0, :] = np.arange(len(ref) + 1), np.arange(len(hyp) + 1)
-    for i, r in enumerate(ref, 1):
-        for j, h in enumerate(hyp, 1):
-            cost[i, j] = min(cost[i - 1, j] + 1, cost[i, j - 1] + 1, cost[i - 1, j - 1] + (r.symbol != h.symbol))
-    pairs, i, j = [], len(ref), len(hyp)
-    while i and j:
-        if cost[i, j] == cost[i - 1, j - 1] + (ref[i - 1].symbol != hyp[j - 1].symbol):
-            if ref[i - 1].symbol == hyp[j - 1].symbol:
-                pairs.append((ref[i - 1], hyp[j - 1]))
-            i, j = i - 1, j - 1
-        elif cost[i, j] == cost[i - 1, j] + 1:
-            i -= 1
-        else:
-            j -= 1
-    return int(cost[-1, -1]), pairs[::-1]
+    edits, pairs = edit_path([p.symbol for p in ref], [p.symbol for p in hyp])
+    return edits, [(ref[i], hyp[j]) for i, j in pairs]
