@@ -55,7 +55,8 @@ espeak-ng (any language espeak speaks; the default for the others)."""
 ALIGNER = "pocketsphinx 5.1.1 dithered, wide-beam retry; espeak-ng DTW log-mel 1"
 """Names the aligners in cached results, so that a change of aligner invalidates them."""
 
-_EDGE_PUNCTUATION = "\"'.,;:!?()[]{}«»“”‘’—–-"
+EDGE_PUNCTUATION = "\"'.,;:!?()[]{}«»“”‘’—–-"
+"""What :func:`normalize_transcript` strips from the ends of words."""
 _ALTERNATE = re.compile(r"\(\d+\)$")
 _DECODER_LOCK = threading.Lock()  # one shared decoder per process
 
@@ -88,11 +89,17 @@ def align(audio: np.ndarray, sample_rate: int, text: str, language: str = "en",
 
 def normalize_transcript(text: str) -> list[str]:
     """Lower-case words of ``text`` with punctuation stripped from their edges."""
-    words = [w.strip(_EDGE_PUNCTUATION).lower() for w in text.split()]
+    words = [w.strip(EDGE_PUNCTUATION).lower() for w in text.split()]
     words = [w for w in words if w]
     if not words:
         raise VispeechError("the transcript has no words")
     return words
+
+
+def in_dictionary(word: str) -> bool:
+    """Whether pocketsphinx's pronouncing dictionary (CMUdict, lower case, no stress) has ``word``:
+    every word of an English transcript must be there for :func:`align`."""
+    return _decoder().lookup_word(word) is not None
 
 
 def padded_pcm(clip: AudioClip) -> bytes:
@@ -107,7 +114,7 @@ def padded_pcm(clip: AudioClip) -> bytes:
 def _pocketsphinx_align(clip: AudioClip, text: str) -> PhoneSequence:
     words = normalize_transcript(text)
     decoder = _decoder()
-    unknown = [w for w in dict.fromkeys(words) if decoder.lookup_word(w) is None]
+    unknown = [w for w in dict.fromkeys(words) if not in_dictionary(w)]
     if unknown:
         raise VispeechError(f"words not in the pronouncing dictionary: {', '.join(unknown)}")
     n_phones = sum(len(decoder.lookup_word(w).split()) for w in words)
