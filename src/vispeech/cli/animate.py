@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
 import click
 
 from vispeech.cli import lang_option, life_options, main, scale_option
+from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
@@ -22,31 +25,69 @@ from vispeech.pipeline import (
 @click.argument("audio", type=click.Path(path_type=Path))
 @click.option("--text", "-t", default=None,
               help="The transcript, aligned with the audio: its phones drive the model.")
+@click.option("--transcribe", is_flag=True,
+              help="Recognise the transcript with Whisper (the whisper extra), then as --text.")
+@click.option("--whisper-model", type=click.Path(path_type=Path), default=None,
+              help="A CTranslate2 Whisper folder used for this run instead of the installed models: "
+                   "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).")
 @lang_option("Language of the transcript: any `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option("--model", "-m", default=None,
               help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
-                   f"[default: {DEFAULT_AUDIO_MODEL}; {DEFAULT_MODEL} with --text].")
+                   f"[default: {DEFAULT_AUDIO_MODEL}; {DEFAULT_MODEL} with --text or --transcribe].")
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)
 @life_options
-def animate(audio: Path, text: str | None, lang: str, out_dir: Path, model: str | None, fps: float,
-            no_postprocess: bool, scale: str, life: str, seed: int) -> None:
+def animate(audio: Path, text: str | None, transcribe: bool, whisper_model: Path | None, lang: str, out_dir: Path,
+            model: str | None, fps: float, no_postprocess: bool, scale: str, life: str, seed: int) -> None:
     """Animate the speech in AUDIO (WAV, FLAC, MP3, OGG; at most 10 minutes).
 
-    Writes speech.wav, animation.csv/.json, preview.html and, with --text, phones.TextGrid.
-    Without --text an audio model animates the sound; with it the transcript is aligned with
-    the audio and the model animates its phones.
+    Writes speech.wav, animation.csv/.json, preview.html and, with --text or --transcribe,
+    phones.TextGrid. Without either an audio model animates the sound; with --text the
+    transcript is aligned with the audio and the model animates its phones; --transcribe has
+    Whisper hear the transcript first (English by Whisper tiny.en, other languages by Whisper
+    base; docs/audio.md).
     """
+    if text is not None and transcribe:
+        raise VispeechError("give --text or --transcribe, not both")
     check_fps(fps, "--fps")
     check_outputs(out_dir)
     load_scale(scale)
     layers = check_layers(life)
-    clip = AudioClip.read(audio)
-    utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
+    with _whisper_folder(whisper_model):
+        clip = AudioClip.read(audio)
+        if transcribe:
+            from vispeech.frontends.transcribe import transcribe as heard
+
+            text = heard(clip, lang)
+        utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
     utterance = replace(utterance, track=with_life(utterance.track, utterance.phones, layers, seed))
-    paths = write_outputs(utterance, out_dir, title=text or audio.name, scale=scale)
+    paths = write_outputs(utterance, out_dir, title=utterance.text or audio.name, scale=scale)
+    if transcribe:
+        click.echo(f"transcript: {utterance.text}")
     click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")
+
+
+@contextmanager
+def _whisper_folder(folder: Path | None):
+    """``$VISPEECH_WHISPER_MODEL`` set to ``folder`` (checked first) while the block runs: every
+    named Whisper model of the run, the transcriber's and an audio network's features, then
+    loads from it. Nothing changes without a folder."""
+    if folder is None:
+        yield
+        return
+    from vispeech.frontends.whisper import MODEL_ENV, model_folder
+
+    checked = str(model_folder(str(folder)))
+    before = os.environ.get(MODEL_ENV)
+    os.environ[MODEL_ENV] = checked
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(MODEL_ENV, None)
+        else:
+            os.environ[MODEL_ENV] = before
