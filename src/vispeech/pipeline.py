@@ -34,8 +34,22 @@ models' own scale, a calibration file fits one head."""
 DEFAULT_MODEL = "grid-tdnn"
 """The shipped network trained on GRID (``vispeech/models/pretrained``), for every language."""
 DEFAULT_AUDIO_MODEL = "grid-audio-encdec"
-"""The shipped audio network that animates recorded audio coming without a transcript: the
-encoder-decoder, the best on GRID's validation split (jawOpen r 0.865 against 0.819)."""
+"""The core install's audio network for recorded audio coming without a transcript: the
+log-mel encoder-decoder, the best of the two on GRID's validation split (jawOpen r 0.865
+against 0.819). :func:`default_audio_model` prefers :data:`WHISPER_AUDIO_MODEL`."""
+WHISPER_AUDIO_MODEL = "grid-audio-whisper"
+"""The audio network on Whisper's encoder (the ``whisper`` extra): on other people's voices and
+faces jawOpen r 0.78 against 0.65 (another GRID speaker) and 0.30 against 0.20 (TV and web
+speech), docs/audio.md."""
+
+
+def default_audio_model() -> str:
+    """The audio model that animates recorded audio by default: :data:`WHISPER_AUDIO_MODEL` where
+    Whisper is installed (:func:`vispeech.frontends.whisper.installed`), else
+    :data:`DEFAULT_AUDIO_MODEL`."""
+    from vispeech.frontends.whisper import installed
+
+    return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
 DEFAULT_AUDIO_STREAM_MODEL = "grid-audio-cnn"
 """The shipped audio network for live audio: its stream equals its offline output, 126 ms behind."""
 GREETINGS = {
@@ -173,7 +187,7 @@ def listen(
     """Animate recorded speech: audio, text, phones (``None`` without ``text``) and a track of
     ``clip.n_frames(fps)`` frames from time 0.
 
-    Without ``text`` an audio model animates the audio (default :data:`DEFAULT_AUDIO_MODEL`).
+    Without ``text`` an audio model animates the audio (default :func:`default_audio_model`).
     With ``text`` the transcript is aligned with the audio in ``language``
     (:func:`vispeech.frontends.align.align`) and a model of either kind animates it with
     those phones (default :data:`DEFAULT_MODEL`). A recording without its transcript gets one
@@ -183,7 +197,7 @@ def listen(
     """
     check_fps(fps)
     utterance = hear(clip, text, language)
-    default = DEFAULT_AUDIO_MODEL if utterance.phones is None else DEFAULT_MODEL
+    default = default_audio_model() if utterance.phones is None else DEFAULT_MODEL
     track = animate_audio(clip, default if model is None else model, fps, postprocessing, phones=utterance.phones)
     return replace(utterance, track=track)
 

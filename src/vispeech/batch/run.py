@@ -38,12 +38,12 @@ from vispeech.models.registry import load_model, model_version, saved_folder
 from vispeech.motion.calibration import SCALES, load_scale
 from vispeech.motion.life import with_life
 from vispeech.pipeline import (
-    DEFAULT_AUDIO_MODEL,
     DEFAULT_MODEL,
     OUTPUT_FILES,
     Utterance,
     animate,
     animate_audio,
+    default_audio_model,
     hear,
     voice,
     write_outputs,
@@ -96,7 +96,7 @@ def model_spec(line: BatchLine) -> str:
     audio without a transcript, else the default phone model)."""
     if line.model is not None:
         return line.model
-    return DEFAULT_AUDIO_MODEL if line.kind == "audio" and line.text is None else DEFAULT_MODEL
+    return default_audio_model() if line.kind == "audio" and line.text is None else DEFAULT_MODEL
 
 
 def run_batch(

@@ -17,7 +17,7 @@ from vispeech.models.registry import RUNNABLE
 from vispeech.motion.calibration import load_scale
 from vispeech.motion.life import check_layers, with_life
 from vispeech.pipeline import (
-    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, check_outputs, listen, write_outputs,
+    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, WHISPER_AUDIO_MODEL, DEFAULT_SCALE, check_outputs, listen, write_outputs,
 )
 
 
@@ -34,7 +34,8 @@ from vispeech.pipeline import (
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option("--model", "-m", default=None,
               help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
-                   f"[default: {DEFAULT_AUDIO_MODEL}; {DEFAULT_MODEL} with --text or --transcribe].")
+                   f"[default: {WHISPER_AUDIO_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; "
+                   f"{DEFAULT_MODEL} with --text or --transcribe].")
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)

