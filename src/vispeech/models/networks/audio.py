@@ -33,11 +33,14 @@ about 1 MB per second of audio for a base model). ``normalize``, ``prior_seconds
 ``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
 waveform, and re-encoding pitch-shifted copies would multiply the encoding time and memory for
 an encoder already trained on thousands of voices. Prediction encodes the clip (torch) and runs
-the rest on NumPy. A stream re-encodes the audio from :data:`ENCODER_CONTEXT` seconds before
-the first frame it has not computed up to the newest sample every :data:`ENCODER_STEP`
-seconds, and takes a frame's hidden states once :data:`ENCODER_AHEAD` seconds of audio follow
-it: frames come up to ``ENCODER_AHEAD + ENCODER_STEP`` (0.4 s) later than with log-mel, and
-differ a little from the offline ones (the encoder attends to a window, not the whole clip).
+the rest on NumPy. A stream (:class:`EncoderStream`) re-encodes the audio from
+``encoder_context`` seconds (1) before the first frame it has not computed up to the newest
+sample every ``encoder_step`` seconds (0.2), and takes a frame's hidden states once
+``encoder_ahead`` seconds (0.2) of audio follow it: frames come up to ``encoder_ahead +
+encoder_step`` (0.4 s) later than with log-mel, and differ a little from the offline ones (the
+encoder attends to a window, not the whole clip), unless the network was trained with
+``encoder_streamed``: then training, prediction and the stream all read the states as the
+stream computes them, and the stream equals the offline output.
 """
 
 from __future__ import annotations
@@ -75,6 +78,10 @@ AUDIO_PARAMS: dict = {
     "pitch_shift": 2.0,
     "pitch_copies": 1,
     "augment": 0,
+    "encoder_ahead": 0.2,
+    "encoder_step": 0.2,
+    "encoder_context": 1.0,
+    "encoder_streamed": False,
     "ctc_weight": 0.0,
     "velocity_weight": 0.0,
     "acceleration_weight": 0.0,
@@ -82,12 +89,12 @@ AUDIO_PARAMS: dict = {
     "batch_size": 16,
 }
 """Hyper-parameters every audio network has (see the module docstring)."""
-ENCODER_CONTEXT = 1.0
-"""Seconds of audio before the first new frame that an encoder stream re-encodes."""
-ENCODER_AHEAD = 0.2
-"""Seconds of audio after a frame that an encoder stream waits for before taking its hidden states."""
-ENCODER_STEP = 0.2
-"""Seconds of new frames an encoder stream gathers before re-encoding."""
+ENCODER_CONTEXT = AUDIO_PARAMS["encoder_context"]
+"""Seconds of audio before the first new frame that an encoder stream re-encodes (default)."""
+ENCODER_AHEAD = AUDIO_PARAMS["encoder_ahead"]
+"""Seconds of audio after a frame that an encoder stream waits for before taking its hidden states (default)."""
+ENCODER_STEP = AUDIO_PARAMS["encoder_step"]
+"""Seconds of new frames an encoder stream gathers before re-encoding (default)."""
 
 
 @dataclass
@@ -118,6 +125,9 @@ class AudioNetwork(Network):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
         if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
             raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
+        if not (0 <= p["encoder_ahead"] <= 1 and 0.01 <= p["encoder_step"] <= 1 and 0 <= p["encoder_context"] <= 10):
+            raise VispeechError("encoder_ahead must lie in [0, 1] s, encoder_step in [0.01, 1] s and "
+                                "encoder_context in [0, 10] s")
         for key in ("pitch_copies", "augment"):
             if not (isinstance(p[key], int) and 0 <= p[key] <= 8):
                 raise VispeechError(f"{key} must be a whole number within 0..8, got {p[key]!r}")
@@ -146,9 +156,21 @@ class AudioNetwork(Network):
     def _clip(utterance) -> AudioClip:
         return AudioClip.from_array(*utterance.load_audio(), where=f"audio of {getattr(utterance, 'id', '?')}")
 
-    def _utterance_hidden(self, utterance, encoder: SpeechEncoder) -> np.ndarray:
+    def _utterance_hidden(self, utterance, encoder) -> np.ndarray:
         """The encoder's hidden states of the utterance's audio, float16 (half the memory while fitting)."""
-        return encoder.hidden_states(self._clip(utterance)).astype(np.float16)
+        return self._hidden_states(self._clip(utterance), encoder).astype(np.float16)
+
+    def _hidden_states(self, clip: AudioClip, encoder) -> np.ndarray:
+        """``(layers, clip.n_frames(fps), width)`` hidden states of a clip: of the whole clip, or with
+        ``encoder_streamed`` as a live stream computes them (:class:`EncoderStream`)."""
+        if not self._params["encoder_streamed"]:
+            return encoder.hidden_states(clip)
+        samples = clip.resampled(SAMPLE_RATE).samples
+        stream = EncoderStream(encoder, ENCODER_RATE, self._params)
+        step = round(self._params["encoder_step"] * SAMPLE_RATE)
+        parts = [stream.push(samples[i:i + step]) for i in range(0, len(samples), step)]
+        parts.append(stream.push(np.zeros(0, dtype=np.float32), final=True))
+        return np.concatenate(parts, axis=1)
 
     def _utterance_powers(self, utterance, copies: bool = True) -> list[np.ndarray]:
         """Power spectra of the utterance's audio and (``copies``) of its pitch-shifted copies (seeded by its id)."""
@@ -301,10 +323,11 @@ class AudioNetwork(Network):
     def delay(self) -> float:
         """Seconds of audio after a frame's time that a stream needs before giving it: the
         look-ahead, the stacked feature frames and half the analysis window (with encoder
-        features: the look-ahead, :data:`ENCODER_AHEAD` and at most :data:`ENCODER_STEP`)."""
+        features: the look-ahead, ``encoder_ahead`` and at most ``encoder_step``)."""
         fps = getattr(self, "fps_", self._params["fps"])
-        if self._params["features"] == "encoder":
-            return self.lookahead / fps + ENCODER_AHEAD + ENCODER_STEP
+        p = self._params
+        if p["features"] == "encoder":
+            return self.lookahead / fps + p["encoder_ahead"] + p["encoder_step"]
         stack = round(FRAME_RATE / fps)
         return self.lookahead / fps + (stack - 1) / FRAME_RATE + 256 / SAMPLE_RATE
 
@@ -315,7 +338,7 @@ class AudioNetwork(Network):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
         n_model = clip.n_frames(self.fps_)
         if self.encoding_.kind == "encoder":
-            source = SpeechEncoder.load(self.encoding_.encoder).hidden_states(clip)
+            source = self._hidden_states(clip, SpeechEncoder.load(self.encoding_.encoder))
         else:
             source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
         inputs = self.encoding_.encode(source, n_model)
@@ -458,9 +481,7 @@ class AudioStream(ModelStream):
         self.lookahead = math.ceil(self.delay * self.fps)
         self._samples = 0  # pushed so far
         if model.encoding_.kind == "encoder":
-            self._encoder = SpeechEncoder.load(model.encoding_.encoder)
-            self._audio = np.zeros(0, dtype=np.float32)  # the samples from network frame _audio_start on
-            self._audio_start = 0
+            self._encoder = EncoderStream(SpeechEncoder.load(model.encoding_.encoder), model.fps_, model.get_params())
         else:
             self._encoder = None
             self._spectra = SpectrumStream()
@@ -530,23 +551,10 @@ class AudioStream(ModelStream):
                 tail = [tail[-1]]
 
     def _add_hidden(self, chunk: np.ndarray, final: bool) -> None:
-        """Add encoder input rows: every :data:`ENCODER_STEP` seconds (and at the end) those of the
-        frames :data:`ENCODER_AHEAD` seconds of audio follow, from a re-encoding of the audio
-        since :data:`ENCODER_CONTEXT` seconds before the first of them."""
-        self._audio = np.concatenate([self._audio, chunk])
-        hop = round(SAMPLE_RATE / self.model.fps_)
-        rows = self._first_input + len(self._inputs)
-        n = self._n_model_frames() if self._samples else 0
-        upto = n if final else min(n, max(0, (self._samples - round(ENCODER_AHEAD * SAMPLE_RATE)) // hop + 1))
-        if upto <= rows or (not final and upto - rows < round(ENCODER_STEP * self.model.fps_)):
-            return
-        start = max(self._audio_start, rows - round(ENCODER_CONTEXT * self.model.fps_))
-        window = AudioClip.from_array(self._audio[(start - self._audio_start) * hop:], SAMPLE_RATE)
-        encoding = self.model.encoding_
-        self._inputs.extend(encoding.encode(self._encoder.hidden_states(window), upto - start)[rows - start:])
-        keep = max(self._audio_start, upto - round(ENCODER_CONTEXT * self.model.fps_))
-        self._audio = self._audio[(keep - self._audio_start) * hop:]
-        self._audio_start = keep
+        """Add the encoder input rows of the hidden states the :class:`EncoderStream` gives."""
+        states = self._encoder.push(chunk, final)
+        if states.shape[1]:
+            self._inputs.extend(self.model.encoding_.encode(states, states.shape[1]))
 
     def _advance(self, upto: int, final: bool) -> None:
         """Compute network frames up to (not including) ``upto`` (an incremental network: all it can)."""
@@ -581,3 +589,60 @@ class AudioStream(ModelStream):
             return self._empty()
         start, self.emitted = self.emitted, upto
         return start, self._frames.give(start, upto)
+
+
+class EncoderStream:
+    """A speech encoder's hidden states of audio pushed in chunks, as a live stream has them.
+
+    Each time the audio reaches a multiple of ``encoder_step`` seconds (and at the end) it
+    re-encodes the audio from ``encoder_context`` seconds before the first frame it has not
+    given up to there, and gives the frames that ``encoder_ahead`` seconds of that audio
+    follow: a frame's states come from a window that ends ``encoder_ahead`` to ``encoder_ahead
+    + encoder_step`` seconds after it (``params``: an audio network's). The windows do not
+    depend on how the audio is chunked. :meth:`push` takes float samples at 16 kHz and returns
+    the new frames' ``(layers, frames, width)`` states at ``fps``; ``final`` gives the rest of
+    ``ceil(duration · fps)`` frames. An audio network with ``encoder_streamed`` trains and
+    predicts on exactly these states, so its stream equals its offline output.
+    """
+
+    def __init__(self, encoder, fps: float, params: dict) -> None:
+        self.encoder = encoder
+        self._hop = round(SAMPLE_RATE / fps)
+        self._ahead = round(params["encoder_ahead"] * SAMPLE_RATE)
+        self._step = max(self._hop, round(params["encoder_step"] * fps) * self._hop)  # samples between encodings
+        self._context = round(params["encoder_context"] * fps)
+        self._audio = np.zeros(0, dtype=np.float32)  # the samples from frame _audio_start on
+        self._audio_start = 0
+        self._samples = 0
+        self._encoded_to = 0  # samples heard at the last encoding
+        self._given = 0
+
+    def push(self, chunk: np.ndarray, final: bool = False) -> np.ndarray:
+        chunk = np.asarray(chunk, dtype=np.float32).reshape(-1)
+        self._audio = np.concatenate([self._audio, chunk])
+        self._samples += len(chunk)
+        parts = []
+        while self._encoded_to + self._step <= self._samples:
+            self._encoded_to += self._step
+            upto = max(0, (self._encoded_to - self._ahead) // self._hop + 1)
+            parts.append(self._encode(min(upto, math.ceil(self._encoded_to / self._hop - 1e-9)), self._encoded_to))
+        if final:
+            parts.append(self._encode(math.ceil(self._samples / self._hop - 1e-9), self._samples))
+        parts = [p for p in parts if p.shape[1]]
+        if not parts:
+            return np.zeros((self.encoder.layers, 0, self.encoder.width), dtype=np.float32)
+        return np.concatenate(parts, axis=1)
+
+    def _encode(self, upto: int, heard: int) -> np.ndarray:
+        """States of frames ``_given .. upto`` from the audio up to sample ``heard``."""
+        if upto <= self._given:
+            return np.zeros((self.encoder.layers, 0, self.encoder.width), dtype=np.float32)
+        start = max(self._audio_start, self._given - self._context)
+        audio = self._audio[(start - self._audio_start) * self._hop:heard - self._audio_start * self._hop]
+        states = self.encoder.hidden_states(AudioClip.from_array(audio, SAMPLE_RATE))
+        index = np.minimum(np.arange(self._given - start, upto - start), states.shape[1] - 1)
+        self._given = upto
+        keep = max(self._audio_start, upto - self._context)
+        self._audio = self._audio[(keep - self._audio_start) * self._hop:]
+        self._audio_start = keep
+        return states[:, index]
