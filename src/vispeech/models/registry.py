@@ -45,6 +45,7 @@ PRETRAINED: dict[str, str] = {
     "grid-ohman": "grid_ohman",
     "grid-audio-cnn": "grid_audio_cnn",
     "grid-audio-encdec": "grid_audio_encdec",
+    "grid-audio-whisper": "grid_audio_whisper",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 
