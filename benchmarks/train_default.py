@@ -65,13 +65,6 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     "grid-audio-whisper": ("audio-encdec", {"features": "encoder", "encoder": "whisper-tiny.en", "normalize": "global",
                                             "ctc_weight": 0.008, "velocity_weight": 0.3, "acceleration_weight": 0.3,
                                             "lr_step_down": True, "epochs": 25, "patience": 5}),
-    # issue 22 part 4: the streaming CNN on Whisper's states as a live stream has them (encoder_streamed):
-    # re-encoded every 40 ms, each frame once 60 ms of audio follow it, 1 frame (20 ms) of look-ahead
-    "grid-audio-whisper-live": ("audio-cnn", {"features": "encoder", "encoder": "whisper-tiny.en",
-                                              "normalize": "global", "encoder_streamed": True, "encoder_ahead": 0.06,
-                                              "encoder_step": 0.04, "encoder_context": 1.0, "look_ahead": 1,
-                                              "learning_rate": 0.002, "ctc_weight": 0.004, "velocity_weight": 0.3,
-                                              "acceleration_weight": 0.3, "epochs": 30, "patience": 5}),
 }
 """Family and hyper-parameters (over the family's defaults) of each shipped model."""
 
