@@ -74,15 +74,16 @@ class AudioClip:
         return n_frames_for(self.duration, fps)
 
     def resampled(self, sample_rate: int) -> AudioClip:
-        """The clip at ``sample_rate`` Hz (band-limited resampling by soxr, through librosa)."""
+        """The clip at ``sample_rate`` Hz (band-limited resampling by soxr's high quality, as
+        librosa's ``soxr_hq``; ``ceil(samples · sample_rate / self.sample_rate)`` samples)."""
         if sample_rate == self.sample_rate:
             return self
-        import librosa
+        import soxr
 
-        samples = librosa.resample(self.samples, orig_sr=self.sample_rate, target_sr=sample_rate, res_type="soxr_hq")
+        samples = soxr.resample(self.samples, self.sample_rate, sample_rate, quality="HQ")
         expected = math.ceil(self.samples.size * sample_rate / self.sample_rate)
-        return AudioClip(np.clip(librosa.util.fix_length(samples, size=expected), -1.0, 1.0).astype(np.float32),
-                         int(sample_rate))
+        samples = np.pad(samples[:expected], (0, max(0, expected - samples.size)))
+        return AudioClip(np.clip(samples, -1.0, 1.0).astype(np.float32), int(sample_rate))
 
     def wav_bytes(self) -> bytes:
         """The clip as a mono 16-bit PCM WAV file in memory."""
