@@ -179,3 +179,10 @@ def test_a_network_trained_on_streamed_states_streams_its_offline_output(live, c
         parts.append(frames)
     parts.append(stream.finish()[1])
     np.testing.assert_allclose(np.concatenate(parts), offline, atol=1e-5)
+
+
+def test_the_stored_mel_filters_are_librosas():
+    """The filter bank kept as package data (so that encoding never imports librosa) is Whisper's."""
+    import librosa
+
+    np.testing.assert_allclose(whisper._mel_filters(80), librosa.filters.mel(sr=16000, n_fft=400, n_mels=80), atol=1e-7)

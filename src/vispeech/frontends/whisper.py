@@ -123,8 +123,19 @@ def _joined_base(first: Path, second: Path) -> Path:
     return folder
 
 
+MEL_FILTERS = "whisper_mel_filters.npz"
+"""Whisper's 80-band filter bank, ``librosa.filters.mel(sr=16000, n_fft=400, n_mels=80)`` (Slaney),
+kept as package data so that encoding audio does not import librosa (about 2 s of start-up)."""
+
+
 @functools.cache
 def _mel_filters(n_mels: int) -> np.ndarray:
+    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filters to 8 kHz: the stored bank for 80 bands, librosa's otherwise."""
+    if n_mels == 80:
+        from importlib import resources
+
+        with resources.files("vispeech.frontends").joinpath(MEL_FILTERS).open("rb") as file:
+            return np.load(file)["filters"]
     import librosa
 
     return librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=n_mels).astype(np.float32)
@@ -133,15 +144,17 @@ def _mel_filters(n_mels: int) -> np.ndarray:
 def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
     """``(n_mels, frames)`` Whisper log-mel of float samples at 16 kHz: ``len(samples) // 160 + 1``
     frames, frame j centred at ``10 j`` ms, the samples followed by 10 ms of silence as
-    faster-whisper's feature extractor pads them (see the module docstring)."""
-    import librosa
-
+    faster-whisper's feature extractor pads them (see the module docstring). The short-time
+    spectrum is NumPy's: a periodic Hann window of 400 samples, reflected at both ends, as
+    ``librosa.stft(center=True)`` frames it."""
     samples = np.asarray(samples, dtype=np.float32)
     n_frames = len(samples) // HOP + 1
     samples = np.pad(samples, (0, max(HOP, N_FFT - len(samples))))
-    spectrum = librosa.stft(samples, n_fft=N_FFT, hop_length=HOP, window="hann", center=True, pad_mode="reflect")
-    power = np.abs(spectrum[:, :n_frames]) ** 2
-    mel = np.log10(np.maximum(_mel_filters(n_mels) @ power, 1e-10))
+    padded = np.pad(samples, N_FFT // 2, mode="reflect")
+    frames = np.lib.stride_tricks.sliding_window_view(padded, N_FFT)[::HOP][:n_frames]
+    window = np.hanning(N_FFT + 1)[:-1].astype(np.float32)
+    power = (np.abs(np.fft.rfft(frames * window, axis=1)) ** 2).astype(np.float32)
+    mel = np.log10(np.maximum(_mel_filters(n_mels) @ power.T, 1e-10))
     mel = np.maximum(mel, mel.max() - 8.0)
     return ((mel + 4.0) / 4.0).astype(np.float32)
 
