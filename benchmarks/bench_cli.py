@@ -9,12 +9,17 @@ Times, as the median (and minimum) wall time of N runs of a fresh process each:
   sentence, tests/golden/phones.json, written as a TextGrid by
   :func:`vispeech.alignment.formats.write_alignment`);
 - ``vispeech say "SENTENCE" -o DIR``: the same sentence spoken by espeak-ng;
+- ``vispeech animate SPEECH.wav -o DIR``: 10 s of espeak-ng speech (the golden sentences
+  spoken one after another, cut to 10 s) animated from the audio alone by the default audio
+  model (:func:`vispeech.pipeline.default_audio_model`: ``grid-audio-whisper`` where the
+  whisper extra is installed);
 - espeak-ng's own synthesis of that sentence in-process
   (:func:`vispeech.frontends.espeak.synthesize`): the first call in a process and later
   calls (every call loads the library and the voice afresh, so that a text always sounds
   the same; later calls find the files in the page cache).
 
-Targets (issue 7): animate-phones ≤ 0.6 s; say ≤ 0.6 s plus espeak-ng's first-call time.
+Targets (issue 7): animate-phones ≤ 0.6 s; say ≤ 0.6 s plus espeak-ng's first-call time;
+(issue 22) animate of 10 s of audio ≤ 1.5 s.
 Every process is pinned to one CPU with OpenMP/OpenBLAS/MKL threads set to 1.
 """
 
@@ -39,6 +44,9 @@ ROOT = Path(__file__).resolve().parents[1]
 GOLDEN_PHONES = ROOT / "tests" / "golden" / "phones.json"
 TARGET = 0.6
 """Seconds: the whole-process target of animate-phones, and of say beyond espeak-ng's own time."""
+ANIMATE_TARGET = 1.5
+"""Seconds: the whole-process target of animate on :data:`ANIMATE_SECONDS` of audio."""
+ANIMATE_SECONDS = 10.0
 CPU = min(os.sched_getaffinity(0))
 
 _ESPEAK_TIMER = """
@@ -95,6 +103,25 @@ def make_take(folder: Path) -> tuple[Path, str, float]:
     return path, entry["text"], phones.duration
 
 
+def make_speech(folder: Path) -> Path:
+    """:data:`ANIMATE_SECONDS` of espeak-ng speech as a WAV file: the golden sentences one after another."""
+    import numpy as np
+    import soundfile
+
+    from vispeech.pipeline import voice
+
+    parts, rate = [], None
+    for entry in json.loads(GOLDEN_PHONES.read_text(encoding="utf-8")):
+        utterance = voice(entry["text"], "en")
+        parts.append(utterance.audio)
+        rate = utterance.sample_rate
+        if sum(len(p) for p in parts) >= ANIMATE_SECONDS * rate:
+            break
+    path = folder / "speech.wav"
+    soundfile.write(path, np.tile(np.concatenate(parts), 2)[:round(ANIMATE_SECONDS * rate)], rate)
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=7, help="Timed runs per command (median reported).")
@@ -121,6 +148,12 @@ def main() -> None:
         rows.append((f'vispeech say "{text}"',
                      wall_times([*vispeech, "say", text, "-o", str(tmp / "say"), *model], args.runs, tmp),
                      TARGET + first))
+        from vispeech.pipeline import default_audio_model
+
+        speech = make_speech(tmp)
+        rows.append((f"vispeech animate ({ANIMATE_SECONDS:g}-s WAV, {default_audio_model()})",
+                     wall_times([*vispeech, "animate", str(speech), "-o", str(tmp / "animate")], args.runs, tmp),
+                     ANIMATE_TARGET))
 
     print(f"one core (CPU {CPU}), {args.runs} runs each, model {args.model or 'default'}; seconds")
     print(f"{'':<66} {'median':>7} {'min':>7} {'target':>7}")
@@ -128,7 +161,7 @@ def main() -> None:
         median = statistics.median(times)
         mark = "" if target is None else f"{target:7.3f} {'ok' if median <= target else 'OVER'}"
         print(f"{name[:66]:<66} {median:7.3f} {min(times):7.3f} {mark}")
-    say = statistics.median(rows[-1][1])
+    say = statistics.median(rows[-2][1])
     print(f"say minus espeak-ng's first call: {say - first:.3f} s (target {TARGET} s)")
 
 
