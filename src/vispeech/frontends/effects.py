@@ -14,6 +14,9 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 
+MIN_PITCH, MAX_PITCH = 60.0, 600.0
+"""Hz: the pitch range Praat looks for a voice in."""
+
 
 def _limited(samples: np.ndarray) -> np.ndarray:
     peak = float(np.max(np.abs(samples))) if len(samples) else 0.0
@@ -38,10 +41,6 @@ def shift_voice(samples: np.ndarray, rate: int, pitch: float = 0.0, formants: fl
     changed = call(sound, "Change gender", MIN_PITCH, MAX_PITCH, formants, target, 1.0, 1.0)
     out = changed.values[0][:len(samples)]
     return _limited(np.pad(out, (0, len(samples) - len(out))))
-
-
-MIN_PITCH, MAX_PITCH = 60.0, 600.0
-"""Hz: the pitch range Praat looks for a voice in."""
 
 
 def time_stretch(samples: np.ndarray, speed: float) -> np.ndarray:
