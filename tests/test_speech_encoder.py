@@ -24,7 +24,7 @@ from vispeech.cli import main  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
 from vispeech.frontends.encoder import SpeechEncoder  # noqa: E402
 from vispeech.models.contract import Splits  # noqa: E402
-from vispeech.models.networks.audio import ENCODER_AHEAD, ENCODER_STEP, AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
+from vispeech.models.networks.audio import AUDIO_PARAMS, AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
 from vispeech.models.registry import load_model  # noqa: E402
 
 RATE = 16000
@@ -193,15 +193,16 @@ def test_encoder_stream_follows_the_offline_prediction(cnn, corpus):
     clip = clip_of(corpus.validation[0])
     offline = cnn.predict(clip, 25).values
     stream = cnn.stream(None, 25)
-    assert stream.delay == pytest.approx(8 / 50 + ENCODER_AHEAD + ENCODER_STEP)
+    ahead, step = AUDIO_PARAMS["encoder_ahead"], AUDIO_PARAMS["encoder_step"]  # 0.2 s, 0.2 s
+    assert stream.delay == pytest.approx(8 / 50 + ahead + step)
     parts, given = [], 0
     for i in range(0, len(clip.samples), 320):
         start, frames = stream.push(clip.samples[i:i + 320])
         assert start == given
         given += len(frames)
         heard = min(len(clip.samples), i + 320) / RATE
-        # no frame before the look-ahead and ENCODER_AHEAD of audio follow it; none later than delay
-        assert given <= max(0, math.floor((heard - stream.delay + ENCODER_STEP) * 25 + 1e-6) + 1)
+        # no frame before the look-ahead and encoder_ahead of audio follow it; none later than delay
+        assert given <= max(0, math.floor((heard - stream.delay + step) * 25 + 1e-6) + 1)
         assert given >= math.floor((heard - stream.delay) * 25) - 1
         parts.append(frames)
     parts.append(stream.finish()[1])

@@ -89,12 +89,6 @@ AUDIO_PARAMS: dict = {
     "batch_size": 16,
 }
 """Hyper-parameters every audio network has (see the module docstring)."""
-ENCODER_CONTEXT = AUDIO_PARAMS["encoder_context"]
-"""Seconds of audio before the first new frame that an encoder stream re-encodes (default)."""
-ENCODER_AHEAD = AUDIO_PARAMS["encoder_ahead"]
-"""Seconds of audio after a frame that an encoder stream waits for before taking its hidden states (default)."""
-ENCODER_STEP = AUDIO_PARAMS["encoder_step"]
-"""Seconds of new frames an encoder stream gathers before re-encoding (default)."""
 
 
 @dataclass
