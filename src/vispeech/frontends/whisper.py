@@ -166,8 +166,6 @@ class WhisperEncoder:
     def __init__(self, folder: str, model, n_mels: int, width: int) -> None:
         self.folder = folder
         self.model = model
-        self.sample_rate = SAMPLE_RATE
-        self.normalize = False
         self.n_mels = n_mels
         self.layers = 1
         self.width = width
