@@ -17,7 +17,8 @@ from vispeech.models.registry import RUNNABLE
 from vispeech.motion.calibration import load_scale
 from vispeech.motion.life import check_layers, with_life
 from vispeech.pipeline import (
-    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, WHISPER_AUDIO_MODEL, DEFAULT_SCALE, check_outputs, listen, write_outputs,
+    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, WHISPER_AUDIO_MODEL, check_outputs, listen,
+    write_outputs,
 )
 
 
