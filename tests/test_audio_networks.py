@@ -113,6 +113,42 @@ def test_numpy_inference_equals_torch(fixture, request):
     np.testing.assert_allclose(model.kernel.forward(x), torch_outputs(model, x), atol=2e-5)
 
 
+def test_numpy_phone_posteriors_equal_torch(encdec, cnn):
+    x = np.random.default_rng(4).normal(size=(41, encdec.encoding_.size)).astype(np.float32)
+    module = encdec._build_module(encdec.encoding_.size, len(encdec.outputs_))
+    module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in encdec.weights_.items()})
+    module.eval()
+    with torch.no_grad():
+        logits = module(torch.from_numpy(x[None]), torch.tensor([len(x)]))[1][0]
+    outputs, posteriors = encdec.kernel.forward_with_phones(x)
+    np.testing.assert_allclose(posteriors, torch.softmax(logits.double(), -1).numpy(), atol=1e-5)
+    np.testing.assert_array_equal(outputs, encdec.kernel.forward(x))
+    assert posteriors.shape == (41, len(encdec.phones_) + 1)
+    assert cnn.kernel.forward_with_phones(x)[1] is None  # trained without CTC: no head
+
+
+def test_animate_audio_shuts_the_lips_on_the_bilabials_the_head_hears(encdec, held_out, tmp_path):
+    import json
+
+    from vispeech.evaluation.closures import model_closed
+    from vispeech.pipeline import animate_audio
+
+    clip = clip_of(held_out[0])
+    assert encdec.predict_with_closures(clip, 25)[1] is None  # closure_threshold 0: off
+    folder = encdec.save(tmp_path / "hearing")
+    config = json.loads((folder / "config.json").read_text())
+    config["params"]["closure_threshold"] = 1e-3  # the tiny network's head is unsure
+    (folder / "config.json").write_text(json.dumps(config))
+    hearing = load_model(folder)
+    raw, heard = hearing.predict_with_closures(clip, 25)
+    np.testing.assert_array_equal(raw.values, encdec.predict(clip, 25).values)
+    bilabials = [p for p in heard if p.symbol != "sil"]
+    assert bilabials and all(p.symbol in ("B", "M", "P") for p in bilabials)
+    centres = [round(0.5 * (p.start + p.end) * 25) for p in bilabials]
+    assert model_closed(animate_audio(clip, hearing, 25))[centres].all()
+    assert not model_closed(animate_audio(clip, hearing, 25, postprocessing=False))[centres].all()
+
+
 @pytest.mark.parametrize("fps", [25.0, 30.0, 50.0, 60.0])
 def test_cnn_stream_equals_offline_prediction(cnn, held_out, fps):
     clip = clip_of(held_out[1])
@@ -163,7 +199,8 @@ def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_p
     model = request.getfixturevalue(fixture)
     loaded = load_model(model.save(tmp_path / "model"))
     assert type(loaded) is type(model) and loaded.get_params() == model.get_params()
-    assert loaded.phones_ == model.phones_ and loaded.encoding_ == model.encoding_
+    assert loaded.phones_ == model.phones_ and loaded.phone_language_ == model.phone_language_ == "en"
+    assert loaded.encoding_ == model.encoding_
     clip = clip_of(held_out[0])
     np.testing.assert_array_equal(loaded.predict(clip, 25).values, model.predict(clip, 25).values)
 

@@ -92,8 +92,10 @@ def animate_audio(
 
     An audio model (``input_kind == "audio"``) animates the audio itself; a phone model
     animates ``phones``, which must then be given (the audio's alignment). Post-processing
-    as in :func:`animate`; an audio model's recommended preset (``audio``) needs no phones,
-    and with ``phones`` given its output gets the ``learned-jaw`` preset's closures too.
+    as in :func:`animate`; an audio model's recommended preset (``audio``) needs no phones;
+    with ``phones`` given its output gets the ``learned-jaw`` preset's closures, and without,
+    a model that hears bilabials (:meth:`~vispeech.models.contract.Estimator.predict_with_closures`)
+    gets the ``audio-closures`` preset's closures on them.
     """
     check_fps(fps)
     check_utterance(clip.duration, 0 if phones is None else len(phones))
@@ -102,8 +104,11 @@ def animate_audio(
         if phones is None:
             raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
         return animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
-    preset = estimator.postprocessing if phones is None else "learned-jaw"
-    return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, preset)
+    if phones is not None:
+        return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, "learned-jaw")
+    track, heard = estimator.predict_with_closures(clip, fps)
+    preset = estimator.postprocessing if heard is None else "audio-closures"
+    return _postprocessed(track, heard, postprocessing, preset)
 
 
 def _postprocessed(track: Track, phones: PhoneSequence | None, postprocessing: PostprocessConfig | bool,

@@ -21,7 +21,7 @@ microphone or a voice service delivers them, resamples them to the audio model's
 soxr's streaming resampler and gives each frame as soon as the model's
 :class:`~vispeech.models.networks.audio.AudioStream` has the audio it looks ahead to,
 post-processed frame by frame: the frames equal :func:`~vispeech.pipeline.animate_audio` of
-the whole audio.
+the whole audio (without the closures an audio network's phone head hears offline).
 """
 
 from __future__ import annotations
@@ -306,7 +306,9 @@ class LiveAudioStream:
     is resampled by soxr's streaming resampler (the quality offline resampling uses). A frame
     comes once :attr:`delay` seconds of audio after its time are in. The model's post-processing
     preset must act frame by frame (the ``audio`` preset: clipping and ``mouthClose ≤ jawOpen``),
-    so the frames equal :func:`~vispeech.pipeline.animate_audio` of the whole audio.
+    so the frames equal :func:`~vispeech.pipeline.animate_audio` of the whole audio, but for the
+    closures a model's phone head hears (``closure_threshold``), which only offline animation
+    makes; the live ``grid-audio-cnn`` hears none.
     """
 
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:

@@ -12,7 +12,8 @@ A control model is an estimator in scikit-learn's sense:
   are ready without it;
 - :meth:`~Estimator.predict` ``(inputs, fps) -> Track`` animates one utterance's inputs
   (a :class:`~vispeech.alignment.phones.PhoneSequence` for the phone families; audio
-  families take audio through the same call); :attr:`~Estimator.is_fitted` says whether it can;
+  families take audio through the same call, and :meth:`~Estimator.predict_with_closures`
+  also gives the bilabials they hear); :attr:`~Estimator.is_fitted` says whether it can;
 - :attr:`~Estimator.lookahead` is how many frames of input after frame t a stream needs
   before it gives frame t, and :meth:`~Estimator.stream` predicts incrementally as inputs
   arrive (:class:`ModelStream`);
@@ -130,6 +131,11 @@ class Estimator(ABC):
     @abstractmethod
     def predict(self, inputs: PhoneSequence, fps: float) -> Track:
         """A track of ``inputs.n_frames(fps)`` frames from time 0 over :attr:`channels`."""
+
+    def predict_with_closures(self, inputs: Any, fps: float) -> tuple[Track, PhoneSequence | None]:
+        """:meth:`predict`'s track and the bilabials the model hears in audio, as phones that
+        post-processing may shut the lips on; ``None`` (the default) for a model that hears none."""
+        return self.predict(inputs, fps), None
 
     def stream(self, language: str, fps: float) -> ModelStream:
         """An incremental prediction for phones of ``language`` as they arrive, at ``fps``."""

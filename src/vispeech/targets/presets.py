@@ -19,10 +19,16 @@ PRESETS: Mapping[str, Mapping] = MappingProxyType({
         "jaw_shift": 0.0, "ceilings": {}, "overlays": False, "jaw_peaks_in_vowels": False, "vowel_opening": 0.0,
         "tongue": False,
     },
+    "audio-closures": {
+        "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ("bilabial",), "keep_jaw": True,
+        "jaw_peaks_in_vowels": False, "vowel_opening": 0.0, "tongue": False,
+    },
 })
 """``authored``: every step with its defaults, tuned for the iPhone-scale authored targets of the
 data-free models (jaw range shift, soft ceilings, all consonant overlays). ``learned-jaw``: for
 models fitted to recordings: no jaw shift or absolute ceilings, overlays only for /p b m/ and
 /f v/, closing the lips through mouthClose and leaving the learned jaw alone. ``audio``: for models that
 animate audio without phones: nothing keyed on phones (no overlays, no vowel opening, no tongue, no jaw confinement), only
-``mouthClose ≤ jawOpen`` and clipping."""
+``mouthClose ≤ jawOpen`` and clipping. ``audio-closures``: ``audio`` plus the /p b m/ overlay of
+``learned-jaw``, for audio networks that hear the bilabials themselves (their phone head gives
+phones for the bilabials only)."""

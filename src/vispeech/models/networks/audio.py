@@ -14,8 +14,10 @@ Two families read :class:`~vispeech.models.networks.audio_encoding.AudioEncoding
 Training (torch) minimises the MSE of standardised targets plus ``velocity_weight`` and
 ``acceleration_weight`` times the MSE of their first and second differences (PhISANet's
 L_vel, L_accel), plus ``ctc_weight`` (λ_CTC) times a CTC loss of a phone head on the last
-hidden layer against the utterance's phone sequence (silences left to the blank); the head
-is a training aid and prediction ignores it. Robustness to voices the corpus lacks comes from
+hidden layer against the utterance's phone sequence (silences left to the blank). With
+``closure_threshold`` > 0 prediction also reports the bilabials the head hears
+(:meth:`AudioNetwork.predict_with_closures`, :mod:`vispeech.models.networks.phone_head`),
+phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to voices the corpus lacks comes from
 the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
@@ -50,6 +52,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
@@ -59,6 +62,7 @@ from vispeech.models.contract import ModelStream, ResampledFrames, Splits, show_
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
 from vispeech.models.networks.network import TRAINING_PARAMS, Network
+from vispeech.models.networks.phone_head import heard_bilabials
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import get_inventory, is_silence
 
@@ -83,6 +87,8 @@ AUDIO_PARAMS: dict = {
     "encoder_context": 1.0,
     "encoder_streamed": False,
     "ctc_weight": 0.0,
+    "closure_threshold": 0.0,
+    "closure_length": 0.08,
     "velocity_weight": 0.0,
     "acceleration_weight": 0.0,
     "dropout": 0.1,
@@ -114,11 +120,14 @@ class AudioNetwork(Network):
     def _check_inputs(self) -> None:
         p = self._params
         self._unfitted_encoding(float(p["fps"]))
-        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight"):
+        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight",
+                    "closure_threshold"):
             if not (isinstance(p[key], int | float) and p[key] >= 0):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
-        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
-            raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
+        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1 or p["closure_threshold"] >= 1:
+            raise VispeechError("warp must be below 0.5, dropout within [0, 1) and closure_threshold below 1")
+        if not (isinstance(p["closure_length"], int | float) and 0.01 <= p["closure_length"] <= 0.5):
+            raise VispeechError(f"closure_length must lie in [0.01, 0.5] s, got {p['closure_length']!r}")
         if not (0 <= p["encoder_ahead"] <= 1 and 0.01 <= p["encoder_step"] <= 1 and 0 <= p["encoder_context"] <= 10):
             raise VispeechError("encoder_ahead must lie in [0, 1] s, encoder_step in [0.01, 1] s and "
                                 "encoder_context in [0, 10] s")
@@ -138,6 +147,7 @@ class AudioNetwork(Network):
     def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
         encoding = self._unfitted_encoding(self.fps_)
         self.phones_ = self._phone_vocabulary(train_set)
+        self.phone_language_ = train_set[0].phones.language
         if encoding.kind == "encoder":
             encoder = SpeechEncoder.load(encoding.encoder)
             encoding = replace(encoding, layers=encoder.layers, width=encoder.width)
@@ -223,7 +233,7 @@ class AudioNetwork(Network):
         """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
 
         Learns ``encoding_`` (with the training features' statistics), ``phones_`` (the CTC
-        head's labels), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
+        head's labels) and ``phone_language_`` (theirs), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
         """
         try:
             if self._params["augment"]:
@@ -327,6 +337,12 @@ class AudioNetwork(Network):
 
     def predict(self, clip: AudioClip, fps: float) -> Track:
         """A track of ``clip.n_frames(fps)`` frames for the audio: predicted at the model's rate, resampled."""
+        return self.predict_with_closures(clip, fps)[0]
+
+    def predict_with_closures(self, clip: AudioClip, fps: float) -> tuple[Track, PhoneSequence | None]:
+        """:meth:`predict`'s track and the bilabials the CTC head hears in the clip
+        (:func:`~vispeech.models.networks.phone_head.heard_bilabials`, possibly none), or
+        ``None`` when the network has no head or ``closure_threshold`` is 0."""
         kernel = self.kernel
         if not isinstance(clip, AudioClip):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
@@ -335,12 +351,16 @@ class AudioNetwork(Network):
             source = self._hidden_states(clip, SpeechEncoder.load(self.encoding_.encoder))
         else:
             source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
-        inputs = self.encoding_.encode(source, n_model)
-        track = Track(self._denormalise(kernel.forward(inputs)), self.channels, self.fps_)
+        outputs, posteriors = kernel.forward_with_phones(self.encoding_.encode(source, n_model))
+        track = Track(self._denormalise(outputs), self.channels, self.fps_)
         n = clip.n_frames(fps)
         if fps != self.fps_ or track.n_frames != n:
             track = track.resample(fps, n_frames=n)
-        return track
+        p = self._params
+        if posteriors is None or not p["closure_threshold"] or self.phone_language_ is None:
+            return track, None
+        return track, heard_bilabials(posteriors, self.phones_, self.phone_language_, self.fps_,
+                                      p["closure_threshold"], p["closure_length"])
 
     def stream(self, language: str | None = None, fps: float = 30.0) -> AudioStream:
         """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
@@ -357,10 +377,11 @@ class AudioNetwork(Network):
         if learned is None:
             return None
         state, arrays = learned
-        return {**state, "phones": list(self.phones_)}, arrays
+        return {**state, "phones": list(self.phones_), "phone_language": self.phone_language_}, arrays
 
     def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
         self.phones_ = tuple(state["phones"])
+        self.phone_language_ = state.get("phone_language")  # absent from folders saved before it
         super()._set_learned_state(state, arrays)
 
 

@@ -316,18 +316,39 @@ def _fusion(weights: Mapping[str, np.ndarray], fusion_layers: int) -> LayerFusio
     return fusion
 
 
+def _phone_head(weights: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The CTC head's weight (transposed) and bias, or ``None`` for a network trained without one."""
+    if "ctc.weight" not in weights:
+        return None
+    return np.asarray(weights["ctc.weight"], dtype=np.float32).T, np.asarray(weights["ctc.bias"], dtype=np.float32)
+
+
+def _posteriors(head: tuple[np.ndarray, np.ndarray] | None, hidden: np.ndarray) -> np.ndarray | None:
+    """``(frames, phones + 1)`` phone posteriors (column 0: CTC's blank) of ``hidden``; ``None`` without a head."""
+    if head is None:
+        return None
+    logits = (hidden @ head[0] + head[1]).astype(np.float64)
+    e = np.exp(logits - logits.max(axis=1, keepdims=True))
+    return e / e.sum(axis=1, keepdims=True)
+
+
 class AudioCNNKernel:
-    """The NumPy forward pass of ``AudioCNN`` (the CTC head is a training aid and not run)."""
+    """The NumPy forward pass of ``AudioCNN``, with its CTC head's phone posteriors when it has one."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], fusion_layers: int = 0):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
+        self.phone_head = _phone_head(weights)
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
-        h = inputs if self.fusion is None else self.fusion.forward(inputs)
-        return self._output(self.encoder.forward(h))
+        return self.forward_with_phones(inputs)[0]
+
+    def forward_with_phones(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The outputs and the phone posteriors (``None`` without a CTC head) of ``inputs``."""
+        h = self.encoder.forward(inputs if self.fusion is None else self.fusion.forward(inputs))
+        return self._output(h), _posteriors(self.phone_head, h)
 
     def stream(self, n_inputs: int) -> AudioCNNStream:
         """An incremental forward pass over input rows of ``n_inputs`` values (:class:`AudioCNNStream`)."""
@@ -355,7 +376,7 @@ class AudioCNNStream:
 
 class EncoderDecoderKernel:
     """The NumPy forward pass of ``AudioEncoderDecoder``: conv encoder, bidirectional GRU
-    layers (torch's gate order r, z, n), linear output; behind a :class:`LayerFusionKernel`
+    layers (torch's gate order r, z, n), linear output and CTC head (when it has one); behind a :class:`LayerFusionKernel`
     when it reads ``fusion_layers`` encoder hidden states."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int,
@@ -371,12 +392,17 @@ class EncoderDecoderKernel:
             self.gru.append(directions)
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
+        self.phone_head = _phone_head(weights)
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
+        return self.forward_with_phones(inputs)[0]
+
+    def forward_with_phones(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The outputs and the phone posteriors (``None`` without a CTC head) of ``inputs``."""
         h = self.encoder.forward(inputs if self.fusion is None else self.fusion.forward(inputs))
         for forward, backward in self.gru:
             h = np.concatenate([_gru(h, *forward), _gru(h[::-1], *backward)[::-1]], axis=1)
-        return (h @ self.out_weight + self.out_bias).astype(np.float64)
+        return (h @ self.out_weight + self.out_bias).astype(np.float64), _posteriors(self.phone_head, h)
 
 
 def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_hh: np.ndarray) -> np.ndarray:
