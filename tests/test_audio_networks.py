@@ -68,6 +68,13 @@ def cnn(corpus) -> AudioCNNNetwork:
 
 
 @pytest.fixture(scope="module")
+def recurrent_cnn(corpus) -> AudioCNNNetwork:
+    """The CNN with a forward GRU over its convolutions and a CTC head."""
+    return AudioCNNNetwork(**{**TINY, "epochs": 12}, channels=[16, 16, 16], look_ahead=2, recurrent=8,
+                           ctc_weight=0.01).fit(corpus, progress=False)
+
+
+@pytest.fixture(scope="module")
 def encdec(corpus) -> EncoderDecoderNetwork:
     return EncoderDecoderNetwork(**{**TINY, "epochs": 12}, channels=[16, 16], hidden=8, ctc_weight=0.01).fit(
         corpus, progress=False)
@@ -106,7 +113,7 @@ def torch_outputs(model, inputs: np.ndarray) -> np.ndarray:
         return module(torch.from_numpy(inputs[None]), torch.tensor([len(inputs)]))[0][0].numpy()
 
 
-@pytest.mark.parametrize("fixture", ["cnn", "encdec"])
+@pytest.mark.parametrize("fixture", ["cnn", "recurrent_cnn", "encdec"])
 def test_numpy_inference_equals_torch(fixture, request):
     model = request.getfixturevalue(fixture)
     x = np.random.default_rng(3).normal(size=(57, model.encoding_.size)).astype(np.float32)
@@ -149,8 +156,10 @@ def test_animate_audio_shuts_the_lips_on_the_bilabials_the_head_hears(encdec, he
     assert not model_closed(animate_audio(clip, hearing, 25, postprocessing=False))[centres].all()
 
 
-@pytest.mark.parametrize("fps", [25.0, 30.0, 50.0, 60.0])
-def test_cnn_stream_equals_offline_prediction(cnn, held_out, fps):
+@pytest.mark.parametrize("fixture,fps", [("cnn", 25.0), ("cnn", 30.0), ("cnn", 50.0), ("cnn", 60.0),
+                                         ("recurrent_cnn", 30.0)])
+def test_cnn_stream_equals_offline_prediction(fixture, fps, request, held_out):
+    cnn = request.getfixturevalue(fixture)
     clip = clip_of(held_out[1])
     offline = cnn.predict(clip, fps).values
     stream = cnn.stream("en", fps)
@@ -194,7 +203,7 @@ def test_encoder_decoder_stream_follows_its_offline_output(encdec, held_out):
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.95
 
 
-@pytest.mark.parametrize("fixture", ["cnn", "encdec"])
+@pytest.mark.parametrize("fixture", ["cnn", "recurrent_cnn", "encdec"])
 def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_path):
     model = request.getfixturevalue(fixture)
     loaded = load_model(model.save(tmp_path / "model"))
@@ -232,6 +241,10 @@ def test_audio_networks_refuse_bad_input(cnn):
         AudioCNNNetwork(fps=30.0)
     with pytest.raises(VispeechError, match="audio feature"):
         EncoderDecoderNetwork(features="spectrogram")
+    with pytest.raises(VispeechError, match="GRU units"):
+        AudioCNNNetwork(recurrent=-1)
+    with pytest.raises(VispeechError, match="closure_length"):
+        EncoderDecoderNetwork(closure_length=2.0)
     stream = cnn.stream(None, 25)
     with pytest.raises(VispeechError, match="non-finite"):
         stream.push(np.array([0.0, np.inf], dtype=np.float32))

@@ -5,7 +5,7 @@ Two families read :class:`~vispeech.models.networks.audio_encoding.AudioEncoding
 
 - ``audio-cnn``: PhISANet's streaming decoder, three 1-D convolutions (kernels [15, 7, 3],
   ReLU, per-frame layer norm) whose right contexts add up to ``look_ahead`` frames (8 = 160 ms
-  at 50 fps), and a linear output. Frame t depends on inputs ``t - behind .. t + look_ahead``
+  at 50 fps), optionally a forward-only GRU of ``recurrent`` units, and a linear output. Frame t depends on inputs ``t - behind .. t + look_ahead``
   only, so :class:`AudioStream` gives exactly the offline frames.
 - ``audio-encdec``: an offline encoder-decoder, a centred convolution encoder and a
   bidirectional GRU decoder over the whole utterance. Streamed, it re-decodes a recent window
@@ -398,10 +398,13 @@ def _right_contexts(kernels: list[int], ahead: int) -> list[int]:
 
 
 class AudioCNNNetwork(AudioNetwork):
-    """PhISANet's streaming CNN: ``kernels`` (15, 7, 3), ``channels`` per layer, ``look_ahead`` frames."""
+    """PhISANet's streaming CNN: ``kernels`` (15, 7, 3), ``channels`` per layer, ``look_ahead``
+    frames; with ``recurrent`` > 0 a forward-only GRU of that many units over the convolutions
+    (context from the past, as far back as it learns to keep, at no cost in look-ahead)."""
 
     family = "audio-cnn"
-    defaults = {**AUDIO_PARAMS, "kernels": [15, 7, 3], "channels": [256, 256, 256], "look_ahead": 8}
+    defaults = {**AUDIO_PARAMS, "kernels": [15, 7, 3], "channels": [256, 256, 256], "look_ahead": 8,
+                "recurrent": 0}
 
     def _check_architecture(self) -> None:
         p = self._params
@@ -409,6 +412,8 @@ class AudioCNNNetwork(AudioNetwork):
             raise VispeechError("kernels must be odd sizes, one per entry of channels")
         if not (isinstance(p["look_ahead"], int) and p["look_ahead"] >= 0):
             raise VispeechError(f"look_ahead must be a whole number of frames >= 0, got {p['look_ahead']!r}")
+        if not (isinstance(p["recurrent"], int) and p["recurrent"] >= 0):
+            raise VispeechError(f"recurrent must be a whole number of GRU units >= 0, got {p['recurrent']!r}")
         _right_contexts(p["kernels"], p["look_ahead"])
 
     def _pads(self) -> list[tuple[int, int]]:
@@ -430,7 +435,7 @@ class AudioCNNNetwork(AudioNetwork):
         p = self._params
         right = [r for _, r in self._pads()]
         return AudioCNN(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), right, p["dropout"],
-                        len(self.phones_), self.encoding_.layers)
+                        len(self.phones_), self.encoding_.layers, p["recurrent"])
 
     def _make_kernel(self) -> AudioCNNKernel:
         return AudioCNNKernel(self.weights_, self._pads(), self.encoding_.layers)

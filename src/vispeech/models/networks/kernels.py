@@ -333,11 +333,16 @@ def _posteriors(head: tuple[np.ndarray, np.ndarray] | None, hidden: np.ndarray) 
 
 
 class AudioCNNKernel:
-    """The NumPy forward pass of ``AudioCNN``, with its CTC head's phone posteriors when it has one."""
+    """The NumPy forward pass of ``AudioCNN`` (its forward GRU when it has one), with its CTC
+    head's phone posteriors when it has one."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], fusion_layers: int = 0):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
+        self.gru = None
+        if "gru.weight_ih_l0" in weights:
+            w = lambda name: np.asarray(weights[f"gru.{name}_l0"], dtype=np.float32)  # noqa: E731
+            self.gru = (w("weight_ih").T.copy(), w("bias_ih"), w("weight_hh").T.copy(), w("bias_hh"))
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
         self.phone_head = _phone_head(weights)
@@ -348,6 +353,8 @@ class AudioCNNKernel:
     def forward_with_phones(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The outputs and the phone posteriors (``None`` without a CTC head) of ``inputs``."""
         h = self.encoder.forward(inputs if self.fusion is None else self.fusion.forward(inputs))
+        if self.gru is not None:
+            h = _gru(h, *self.gru)
         return self._output(h), _posteriors(self.phone_head, h)
 
     def stream(self, n_inputs: int) -> AudioCNNStream:
@@ -361,17 +368,25 @@ class AudioCNNKernel:
 
 class AudioCNNStream:
     """:class:`AudioCNNKernel` frame by frame: ``push(rows, final)`` returns the outputs the
-    rows made computable, equal to :meth:`AudioCNNKernel.forward` of all rows."""
+    rows made computable, equal to :meth:`AudioCNNKernel.forward` of all rows (the GRU's
+    state carried from push to push)."""
 
     def __init__(self, kernel: AudioCNNKernel, convs: ConvStackStream, width: int):
         self.kernel, self.convs, self.width = kernel, convs, width
+        self._state = None if kernel.gru is None else np.zeros(len(kernel.gru[3]) // 3, dtype=np.float32)
 
     def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
         if not len(rows):
             h = np.zeros((0, self.width), dtype=np.float32)
         else:
             h = rows if self.kernel.fusion is None else self.kernel.fusion.forward(rows)
-        return self.kernel._output(self.convs.push(h, final))
+        h = self.convs.push(h, final)
+        if self._state is not None and len(h):
+            h = _gru(h, *self.kernel.gru, state=self._state)
+            self._state = h[-1]
+        elif self._state is not None:
+            h = np.zeros((0, len(self._state)), dtype=np.float32)
+        return self.kernel._output(h)
 
 
 class EncoderDecoderKernel:
@@ -405,11 +420,12 @@ class EncoderDecoderKernel:
         return (h @ self.out_weight + self.out_bias).astype(np.float64), _posteriors(self.phone_head, h)
 
 
-def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_hh: np.ndarray) -> np.ndarray:
-    """One GRU direction over ``x`` (frames × inputs) from a zero state, as torch computes it."""
+def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_hh: np.ndarray,
+         state: np.ndarray | None = None) -> np.ndarray:
+    """One GRU direction over ``x`` (frames × inputs) from ``state`` (zeros by default), as torch computes it."""
     hidden = w_hh.shape[0]
     drive = x @ w_ih + b_ih  # the input terms of every frame at once
-    h = np.zeros(hidden, dtype=np.float32)
+    h = np.zeros(hidden, dtype=np.float32) if state is None else state
     out = np.empty((len(x), hidden), dtype=np.float32)
     for t in range(len(x)):
         recurrent = h @ w_hh + b_hh

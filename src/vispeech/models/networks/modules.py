@@ -159,20 +159,26 @@ def _fused(n_inputs: int, fusion_layers: int) -> tuple[LayerFusion | None, int]:
 
 
 class AudioCNN(nn.Module):
-    """PhISANet's streaming decoder: a :class:`ConvStack`, a linear output and an optional CTC
-    head, behind a :class:`LayerFusion` when it reads ``fusion_layers`` encoder hidden states."""
+    """PhISANet's streaming decoder: a :class:`ConvStack`, a forward-only GRU of ``recurrent``
+    units when that is not 0 (it carries context from the past only, so streaming stays exact),
+    a linear output and an optional CTC head, behind a :class:`LayerFusion` when it reads
+    ``fusion_layers`` encoder hidden states."""
 
     def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], right: list[int],
-                 dropout: float, n_phones: int, fusion_layers: int = 0):
+                 dropout: float, n_phones: int, fusion_layers: int = 0, recurrent: int = 0):
         super().__init__()
         self.fusion, width = _fused(n_inputs, fusion_layers)
         self.encoder = ConvStack(width, channels, kernels, right, dropout)
-        self.output = nn.Linear(channels[-1], n_outputs)
-        self.ctc = nn.Linear(channels[-1], n_phones + 1) if n_phones else None
+        self.gru = nn.GRU(channels[-1], recurrent, batch_first=True) if recurrent else None
+        top = recurrent or channels[-1]
+        self.output = nn.Linear(top, n_outputs)
+        self.ctc = nn.Linear(top, n_phones + 1) if n_phones else None
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Outputs ``(batch, frames, outputs)`` and CTC logits ``(batch, frames, phones + 1)`` or ``None``."""
         h = self.encoder(x if self.fusion is None else self.fusion(x))
+        if self.gru is not None:  # padding trails each utterance, so it never reaches a frame's output
+            h, _ = self.gru(h)
         return self.output(h), None if self.ctc is None else self.ctc(h)
 
 
