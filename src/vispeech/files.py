@@ -83,6 +83,15 @@ def read_text(path: str | os.PathLike, what: str = "file", limit: int = limits.M
     return text
 
 
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
+    """The JSON object in ``path`` (read by :func:`read_text`, parsed by
+    :func:`vispeech.limits.parse_json`); :class:`VispeechError` if it is not an object."""
+    data = limits.parse_json(read_text(path, what), str(path))
+    if not isinstance(data, dict):
+        raise VispeechError(f"{path}: expected a JSON object")
+    return data
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -25,9 +25,9 @@ from pathlib import Path
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.files import read_json
 from vispeech.motion.jsonformat import (
     ANIMATION_FORMAT,
-    load_json,
     read_animation_json,
     read_talkinghead_json,
     write_animation_json,
@@ -155,7 +155,7 @@ def write_track(
 
 
 def _json_kind(path: Path) -> str:
-    data = load_json(path)
+    data = read_json(path)
     if data.get("format") == ANIMATION_FORMAT:
         return "json"
     if "dt" in data or isinstance(data.get("anim"), dict):

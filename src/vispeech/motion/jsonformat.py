@@ -24,8 +24,8 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file, read_text
-from vispeech.limits import MAX_DURATION_S, check_fps, check_track_size, parse_json
+from vispeech.files import atomic_output_file, read_json
+from vispeech.limits import MAX_DURATION_S, check_fps, check_track_size
 from vispeech.motion.track import Track
 
 ANIMATION_FORMAT = "vispeech-animation"
@@ -60,7 +60,7 @@ def write_animation_json(
 def read_animation_json(path: str | os.PathLike) -> Animation:
     """Read a vispeech animation JSON file; raises :class:`VispeechError` naming what is wrong."""
     path = Path(path)
-    data = load_json(path)
+    data = read_json(path)
     if data.get("format") != ANIMATION_FORMAT:
         raise VispeechError(f"{path} is not a {ANIMATION_FORMAT} file (its format is {data.get('format')!r})")
     if data.get("version") != 1:
@@ -115,7 +115,7 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
     resampled linearly at ``fps`` (default: ``1000 / median(dt)``).
     """
     path = Path(path)
-    data = load_json(path)
+    data = read_json(path)
     data = data.get("anim", data) if isinstance(data.get("anim"), dict) else data
     dt, vs = data.get("dt"), data.get("vs")
     if not isinstance(dt, list) or not isinstance(vs, dict) or not dt or not vs:
@@ -155,15 +155,6 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
         return Track(resampled, channels, rate)
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
-
-
-def load_json(path: str | os.PathLike) -> dict:
-    """A JSON object from ``path``; :class:`VispeechError` if missing, empty or not an object."""
-    path = Path(path)
-    data = parse_json(read_text(path, "JSON file"), str(path))
-    if not isinstance(data, dict):
-        raise VispeechError(f"{path}: expected a JSON object")
-    return data
 
 
 def _excerpt(value: object, width: int = 40) -> str:

@@ -35,9 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_dir, atomic_output_file
+from vispeech.files import atomic_output_dir, atomic_output_file, read_json
 from vispeech.motion.arkit import MOUTH_CHANNELS
-from vispeech.motion.jsonformat import load_json
 from vispeech.motion.track import Track
 
 MEAN_POSE = "mean"
@@ -247,7 +246,7 @@ class RigSpace:
     def load_rig(self, path: str | os.PathLike) -> RigSpace:
         """Attach rig poses from a JSON file ``{"poses": {name: {control: value}}, "range": [low, high]}``
         (``range`` optional; see :meth:`set_rig`); returns ``self``."""
-        data = load_json(path)
+        data = read_json(path)
         clip = data.get("range")
         if clip is not None and not (isinstance(clip, list) and len(clip) == 2
                                      and all(_is_number(v) for v in clip)):
@@ -299,7 +298,7 @@ class RigSpace:
         folder = Path(path)
         if not (folder / SPACE_JSON).is_file():
             raise VispeechError(f"no rig space at {folder} ({SPACE_JSON} missing)")
-        config = load_json(folder / SPACE_JSON)
+        config = read_json(folder / SPACE_JSON)
         if config.get("format") != FORMAT or not isinstance(config.get("version"), int):
             raise VispeechError(f"{folder / SPACE_JSON} is not a vispeech rig space")
         if config["version"] > FORMAT_VERSION:
