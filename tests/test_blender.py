@@ -47,7 +47,7 @@ def test_blender_imports_the_animated_head(tmp_path, shared_dir):
 def test_blender_imports_the_prepared_head_with_its_tongue(tmp_path, shared_dir):
     """The head `vispeech rig prepare` writes (tongue targets on one primitive, data-less zero
     targets on the others, vertex colours) animated: Blender reads the tongue shape keys and curves."""
-    from vispeech.motion.head import prepare_head
+    from vispeech.motion.rigging.head import prepare_head
 
     blender = shutil.which("blender")
     require(blender, "Blender (apt-get install blender python3-numpy)")

@@ -326,7 +326,7 @@ def test_the_rendered_lip_gap_is_the_calibrated_heads(page):
     grid = SHARED / "data" / "grid_s1"
     require(grid.is_dir(), f"grid_s1 ({grid}, in the shared data folder)")
     from vispeech.corpus.grid import read_grid
-    from vispeech.motion.calibration import HeadGeometry, load_scale
+    from vispeech.motion.rigging.calibration import HeadGeometry, load_scale
 
     head = HeadGeometry.from_glb(ICT_HEAD)
     arkit = load_scale("arkit")

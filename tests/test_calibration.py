@@ -13,7 +13,7 @@ from conftest import SHARED, require
 from vispeech.cli import main
 from vispeech.errors import VispeechError
 from vispeech.evaluation.closures import TRACKED_CLOSED
-from vispeech.motion.calibration import (
+from vispeech.motion.rigging.calibration import (
     CLOSED_GAP, Calibration, HeadGeometry, compare_gaps, fit_calibration, load_mouth_frames, load_scale,
 )
 from vispeech.motion.track import Track

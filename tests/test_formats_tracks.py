@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import vispeech.motion
+import vispeech.motion.rigging
 from vispeech import Phone, PhoneSequence, Track, VispeechError, Word
 from vispeech.motion.io import FORMATS, read_track, track_format, write_track
 from vispeech.motion.jsonformat import (
@@ -17,7 +17,7 @@ from vispeech.motion.jsonformat import (
 )
 from vispeech.motion.visemes import OCULUS_VISEMES, MouthCue, mouth_cues, oculus_visemes
 
-DATA = Path(vispeech.motion.__file__).parent / "data"
+DATA = Path(vispeech.motion.rigging.__file__).parent / "data"
 
 
 def poses(table: str) -> dict:
@@ -177,7 +177,7 @@ def test_write_track_by_name_and_retargeting(tmp_path):
     assert read_track(tmp_path / "take.txt", "livelink")["jawOpen"].tolist() == track["jawOpen"].tolist()
     write_track(track, tmp_path / "th.json", "talkinghead")
     assert read_track(tmp_path / "th.json").channels == track.channels
-    from vispeech.motion.retarget import PoseTable
+    from vispeech.motion.rigging.retarget import PoseTable
     write_track(track, tmp_path / "rig.json", pose_table=PoseTable.load("thesis_bone_rig"))
     rig = read_track(tmp_path / "rig.json")
     assert "jaw.rotation_x" in rig.channels

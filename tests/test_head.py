@@ -13,8 +13,8 @@ from vispeech import VispeechError
 from vispeech.cli import main
 from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.gltf import read_primitives, skin_primitive
-from vispeech.motion.head import prepare_head
-from vispeech.motion.tongue_rig import find_tongue
+from vispeech.motion.rigging.head import prepare_head
+from vispeech.motion.rigging.tongue import find_tongue
 
 
 ICT_HEAD = SHARED / "assets" / "ict_head.glb"

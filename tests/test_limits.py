@@ -23,7 +23,7 @@ from vispeech.files import read_text
 from vispeech.motion.gltf import write_gltf_animation
 from vispeech.motion.jsonformat import read_animation_json, read_talkinghead_json, write_animation_json
 from vispeech.motion.livelink import read_livelink_csv
-from vispeech.motion.retarget import PoseTable
+from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.pipeline import animate, speak
 
 HELLO = PhoneSequence([Phone("sil", 0.0, 0.2), Phone("HH", 0.2, 0.3), Phone("AH", 0.3, 0.5, stress=1),

@@ -31,7 +31,7 @@ from vispeech.motion.jsonformat import (
     write_talkinghead_json,
 )
 from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
-from vispeech.motion.retarget import PoseTable
+from vispeech.motion.rigging.retarget import PoseTable
 
 SETTINGS = settings(max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

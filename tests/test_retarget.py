@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import vispeech.motion
+import vispeech.motion.rigging
 from vispeech import Track, VispeechError
-from vispeech.motion.retarget import BUILTIN_TABLES, PoseTable
+from vispeech.motion.rigging.retarget import BUILTIN_TABLES, PoseTable
 
-DATA = Path(vispeech.motion.__file__).parent / "data"
+DATA = Path(vispeech.motion.rigging.__file__).parent / "data"
 
 
 def track(**curves) -> Track:

@@ -12,7 +12,7 @@ from vispeech import Track, VispeechError
 from vispeech.cli import main
 from vispeech.motion.io import read_track, write_track
 from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
-from vispeech.motion.rigspace import RigSpace, parse_pose_name, pose_name
+from vispeech.motion.rigging.rigspace import RigSpace, parse_pose_name, pose_name
 
 CHANNELS = ("jawOpen", "mouthClose", "mouthFunnel", "mouthPucker", "mouthSmileLeft")
 CONTROLS = ("jaw_rot", "lip_seal", "pout", "smile")

@@ -179,7 +179,7 @@ def test_the_avatar_is_served_prepared_unless_asked_as_is(tmp_path):
     `vispeech rig prepare` writes); --avatar-as-is, or a file that cannot be prepared (the site fixture's fake GLB,
     test_config), is served as it is."""
     from conftest import SHARED, require
-    from vispeech.motion.head import prepare_head
+    from vispeech.motion.rigging.head import prepare_head
 
     head = SHARED / "assets" / "ict_head.glb"
     require(head.is_file(), f"the ICT head ({head})")
@@ -382,7 +382,7 @@ def test_serve_command_refuses_a_missing_avatar(tmp_path):
 def test_answers_and_streams_come_in_the_output_scale(tmp_path):
     """The server writes ARKit scale by default: its answers and stream frames are the model's
     tracks through the shipped calibration; scale="tracker" gives the model's own."""
-    from vispeech.motion.calibration import load_scale
+    from vispeech.motion.rigging.calibration import load_scale
     from vispeech.motion.track import Track
 
     arkit = load_scale("arkit")

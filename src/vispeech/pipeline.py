@@ -20,8 +20,8 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
-from vispeech.motion.calibration import load_scale
 from vispeech.motion.io import write_track
+from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.postprocess import PostprocessConfig, postprocess
@@ -257,7 +257,7 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
                   scale: str | os.PathLike | None = DEFAULT_SCALE) -> list[Path]:
     """Write an utterance's files as the folder ``out_dir`` and return their paths.
 
-    The track is written in the output ``scale`` (:func:`vispeech.motion.calibration.load_scale`:
+    The track is written in the output ``scale`` (:func:`vispeech.motion.rigging.calibration.load_scale`:
     ``arkit``, ``tracker`` or a calibration file).
 
     ``formats`` names the files (:data:`OUTPUT_FILES`); by default ``animation.csv`` (Live Link

@@ -40,7 +40,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
-from vispeech.motion.calibration import Calibration
+from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, animate, spoken_text

@@ -66,7 +66,7 @@ class JobDefaults:
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
     postprocess: bool = True
     scale: str = DEFAULT_SCALE
-    """The output scale of every line (:func:`vispeech.motion.calibration.load_scale`)."""
+    """The output scale of every line (:func:`vispeech.motion.rigging.calibration.load_scale`)."""
     voice: str | None = None
     """The espeak-ng voice variant text lines are spoken with (``None``: each language's own)."""
     life: tuple[str, ...] = ()

@@ -35,8 +35,8 @@ from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model, model_version, saved_folder
-from vispeech.motion.calibration import SCALES, load_scale
 from vispeech.motion.life import with_life
+from vispeech.motion.rigging.calibration import SCALES, load_scale
 from vispeech.pipeline import (
     DEFAULT_MODEL,
     OUTPUT_FILES,

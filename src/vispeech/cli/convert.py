@@ -31,10 +31,10 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
     calibration file rescales a track in the models' scale on the way.
     """
     from vispeech.limits import check_fps
-    from vispeech.motion.calibration import load_scale
     from vispeech.motion.io import read_track, track_format, write_track
     from vispeech.motion.jsonformat import read_animation_json
-    from vispeech.motion.retarget import PoseTable
+    from vispeech.motion.rigging.calibration import load_scale
+    from vispeech.motion.rigging.retarget import PoseTable
 
     if fps is not None:
         check_fps(fps, "--fps")

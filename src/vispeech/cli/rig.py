@@ -18,7 +18,7 @@ def rig_group() -> None:
 
 def _fit_corpus(directory: Path, language: str):
     """A rig space fitted on the tracked frames of every utterance of a corpus folder, and the corpus."""
-    from vispeech.motion.rigspace import RigSpace
+    from vispeech.motion.rigging.rigspace import RigSpace
     from vispeech.motion.track import Track
 
     corpus = open_corpus(directory, language)
@@ -69,7 +69,7 @@ def export_poses(corpus_dir: Path, output: Path, n_modes: int, sigma: float, sav
 @language_option
 def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | None, output: Path, language: str) -> None:
     """Attach an artist's RIG_POSES (JSON: {"poses": {"mean": {...}, "mode1-3sd": {...}, ...}}) to a rig space."""
-    from vispeech.motion.rigspace import RigSpace
+    from vispeech.motion.rigging.rigspace import RigSpace
 
     if (space_dir is None) == (corpus_dir is None):
         raise VispeechError("give exactly one of --space and --corpus")
@@ -89,7 +89,7 @@ def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | Non
 def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, output: Path) -> None:
     """Retarget the ARKit track INPUT onto the rig's controls."""
     from vispeech.motion.io import read_track, write_track
-    from vispeech.motion.rigspace import RigSpace
+    from vispeech.motion.rigging.rigspace import RigSpace
 
     space = RigSpace.load(space_dir)
     if rig_poses is not None:
@@ -112,7 +112,7 @@ def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Pa
     """Fit the gains that make HEAD's lips (a GLB with ARKit morph targets) open and spread as the
     tracked human's do: its inner-lip gap and mouth width over its eye-corner distance follow
     the speaker's (docs/calibration.md). --scale FILE applies the result."""
-    from vispeech.motion.calibration import HeadGeometry, fit_calibration, load_mouth_frames
+    from vispeech.motion.rigging.calibration import HeadGeometry, fit_calibration, load_mouth_frames
 
     if corpus_dir is not None and frames_path is not None:
         raise VispeechError("give --corpus or --frames, not both")
@@ -144,7 +144,7 @@ def prepare(head: Path, output: Path) -> None:
     """Give HEAD (a GLB with ARKit morph targets) the tongue morph targets it lacks, built from its own
     tongue geometry, and paint lips, brows, lash line and the mouth's depth on flat materials
     (docs/avatar.md). vispeech serve --avatar does this by itself."""
-    from vispeech.motion.head import prepare_head
+    from vispeech.motion.rigging.head import prepare_head
 
     if output.resolve() == head.resolve():
         raise VispeechError(f"{output}: write the prepared head to another file than {head.name}")
@@ -169,7 +169,7 @@ def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: in
     """Keep a sample of a corpus's tracked frames with the speaker's lip gap and mouth width:
     what rig calibrate fits heads to without the corpus (the shipped sample is grid_s1's)."""
     from vispeech.corpus.articulation import mouth_frames
-    from vispeech.motion.calibration import save_mouth_frames
+    from vispeech.motion.rigging.calibration import save_mouth_frames
 
     corpus = open_corpus(corpus_dir, language).split("train")
     scores, gap, width = mouth_frames(corpus)

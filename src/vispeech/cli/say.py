@@ -12,7 +12,7 @@ from vispeech.errors import VispeechError
 from vispeech.limits import check_fps, check_text
 from vispeech.frontends.espeak import check_variant
 from vispeech.models.registry import RUNNABLE
-from vispeech.motion.calibration import load_scale
+from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.life import check_layers, with_life
 from vispeech.pipeline import (
     DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,

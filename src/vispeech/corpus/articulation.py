@@ -119,7 +119,7 @@ def mouth_frames(corpus: Corpus, frame_size: tuple[int, int] = FRAME_SIZE) -> tu
     """Every tracked frame of ``corpus`` (frames where the tracker lost the face left out):
     the scores, and the speaker's inner-lip gap and mouth width over the eye-corner distance
     (``lip_aperture`` and ``lip_width`` of :func:`articulatory_parameters`), what
-    :func:`vispeech.motion.calibration.fit_calibration` fits a head to."""
+    :func:`vispeech.motion.rigging.calibration.fit_calibration` fits a head to."""
     scores, gaps, widths = [], [], []
     for utterance in corpus:
         tracked = np.ones(utterance.track.n_frames, bool) if utterance.frame_mask is None else utterance.frame_mask

@@ -118,7 +118,7 @@ def render_faces(tracks: Sequence[Track], path: str | os.PathLike, *, audio: np.
     frame rate: a stimulus for a perceptual test, as the thesis showed its avatars. The face is the
     2D face (``vispeech/preview/face2d.js``, the one the preview page and the web app draw), or
     with ``head`` that GLB head (ARKit morph targets) as the web app shows it: made ready by
-    :func:`vispeech.motion.head.prepared_head` (tongue targets, painted looks) unless
+    :func:`vispeech.motion.rigging.head.prepared_head` (tongue targets, painted looks) unless
     ``prepare_head`` is false, drawn by the web build's ``stimuli.js`` (three.js), the head
     turned by the tracks' ``headPitch``/``headYaw``/``headRoll`` (degrees), no idle motion.
 
@@ -184,7 +184,7 @@ def _head_glb(path: Path, prepare: bool) -> bytes:
     """The GLB head at ``path`` as the page gets it: prepared (see :func:`render_faces`) or as it is,
     once checked to carry ARKit morph targets."""
     from vispeech.motion.gltf import read_primitives
-    from vispeech.motion.head import prepared_head
+    from vispeech.motion.rigging.head import prepared_head
 
     if not path.is_file():
         raise VispeechError(f"head file not found: {path}")

@@ -23,7 +23,7 @@ ARKIT_NAMES: tuple[str, ...] = (
 
 TONGUE_CHANNELS: tuple[str, ...] = ("tongueOut", "tongueTipUp", "tongueBodyUp", "tongueBack")
 """The tongue: ARKit's ``tongueOut`` and vispeech's own tip raise, body raise and backing (0..1 each;
-:mod:`vispeech.postprocess.tongue` sets them, :mod:`vispeech.motion.tongue_rig` gives a head their
+:mod:`vispeech.postprocess.tongue` sets them, :mod:`vispeech.motion.rigging.tongue` gives a head their
 morph targets)."""
 
 MORPH_NAMES: tuple[str, ...] = ARKIT_NAMES + TONGUE_CHANNELS[1:]

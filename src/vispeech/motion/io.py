@@ -34,7 +34,7 @@ from vispeech.motion.jsonformat import (
     write_talkinghead_json,
 )
 from vispeech.motion.livelink import LIVELINK_CHANNELS, read_livelink_csv, write_livelink_csv
-from vispeech.motion.retarget import PoseTable
+from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.motion.track import Track
 from vispeech.motion.visemes import write_oculus_csv, write_oculus_json, write_rhubarb_json, write_rhubarb_tsv
 

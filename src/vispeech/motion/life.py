@@ -35,7 +35,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.motion.easing import smoothstep
-from vispeech.motion.calibration import Calibration
+from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 

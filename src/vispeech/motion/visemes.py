@@ -30,7 +30,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.motion.jsonformat import write_animation_json
-from vispeech.motion.retarget import PoseTable
+from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES, phone_features
 

@@ -54,7 +54,7 @@ from vispeech.frontends.text import detect_language
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
-from vispeech.motion.calibration import Calibration, load_scale
+from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.jsonformat import ANIMATION_FORMAT
 from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.track import Track
@@ -587,7 +587,7 @@ def describe_errors(errors, skip: int = 0, what: str = "body", kinds: tuple[str,
 def _avatar_bytes(path: Path) -> bytes | None:
     """The head at ``path`` prepared for the page (:func:`~vispeech.motion.head.prepared_head`), or None
     (served as it is) when it cannot be: the reason is logged."""
-    from vispeech.motion.head import prepared_head
+    from vispeech.motion.rigging.head import prepared_head
 
     try:
         data, report = prepared_head(path)

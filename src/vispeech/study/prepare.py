@@ -24,7 +24,7 @@ from vispeech.evaluation.report import predict_on_frames, target_track
 from vispeech.evaluation.stimuli import noise_vocode, render_faces
 from vispeech.files import atomic_output_dir
 from vispeech.models.contract import Estimator
-from vispeech.motion.calibration import load_scale
+from vispeech.motion.rigging.calibration import load_scale
 
 RECORDED = "recorded"
 """The name of the corpus's own track among a study's models."""

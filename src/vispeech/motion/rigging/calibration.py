@@ -169,7 +169,7 @@ class Calibration:
 
 
 FRAMES_FILE = "grid_s1_mouth_frames.npz"
-"""The shipped sample of human frames (in ``vispeech/motion/data``): 5,000 tracked frames of
+"""The shipped sample of human frames (in ``vispeech/motion/rigging/data``): 5,000 tracked frames of
 grid_s1's training split (GRID corpus, CC BY 4.0), their lip-channel scores, inner-lip gap and
 mouth width; written by ``vispeech rig mouth-frames`` (docs/calibration.md)."""
 
@@ -190,7 +190,7 @@ def load_mouth_frames(path: str | os.PathLike | None = None) -> tuple[Track, np.
     """``(scores, gap, width, source)`` from :func:`save_mouth_frames`'s file (default: the shipped one)."""
     try:
         if path is None:
-            with resources.files("vispeech.motion").joinpath(f"data/{FRAMES_FILE}").open("rb") as f:
+            with resources.files("vispeech.motion.rigging").joinpath(f"data/{FRAMES_FILE}").open("rb") as f:
                 data = dict(np.load(f))
         else:
             with np.load(path) as loaded:
@@ -217,7 +217,8 @@ def load_scale(scale: str | os.PathLike | None) -> Calibration | None:
 @cache
 def _arkit() -> Calibration:
     """The shipped ``arkit`` calibration, read once (every output of a batch or a server uses it)."""
-    text = resources.files("vispeech.motion").joinpath("data/arkit.calibration.json").read_text(encoding="utf-8")
+    shipped = resources.files("vispeech.motion.rigging").joinpath("data/arkit.calibration.json")
+    text = shipped.read_text(encoding="utf-8")
     return Calibration.from_dict(json.loads(text), "the shipped arkit calibration")
 
 

@@ -36,7 +36,7 @@ from vispeech.limits import MAX_CHANNELS, MAX_POSE_TABLE_BYTES, parse_json
 from vispeech.motion.track import Track
 
 BUILTIN_TABLES: tuple[str, ...] = ("oculus_visemes", "rhubarb_shapes", "thesis_bone_rig")
-"""Pose tables shipped in ``vispeech/motion/data`` (load them by name)."""
+"""Pose tables shipped in ``vispeech/motion/rigging/data`` (load them by name)."""
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class PoseTable:
         """Load a pose table from a JSON file, or a built-in one by name (:data:`BUILTIN_TABLES`)."""
         path = Path(source)
         if not os.path.lexists(path) and str(source) in BUILTIN_TABLES:
-            path = Path(str(resources.files("vispeech.motion") / "data" / f"{source}.json"))
+            path = Path(str(resources.files("vispeech.motion.rigging") / "data" / f"{source}.json"))
         if not os.path.lexists(path):
             raise VispeechError(f"pose table not found: {source} (built-in tables: {', '.join(BUILTIN_TABLES)})")
         data = parse_json(read_text(path, "pose table", MAX_POSE_TABLE_BYTES), f"pose table {path}")

@@ -2,8 +2,8 @@
 
 :func:`prepare_head` adds to a head what it lacks of what vispeech's tracks drive and a viewer
 should see: the tongue channels' morph targets, built from the head's own tongue geometry
-(:mod:`vispeech.motion.tongue_rig`), and, on a head with flat materials, vertex colours for the
-lips, brows, lash line and the mouth's depth (:mod:`vispeech.motion.head_paint`). The rest of the
+(:mod:`vispeech.motion.rigging.tongue`), and, on a head with flat materials, vertex colours for the
+lips, brows, lash line and the mouth's depth (:mod:`vispeech.motion.rigging.head_paint`). The rest of the
 file is kept as it is (compressed data stays compressed).
 """
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.motion.gltf import extended_glb, read_primitives, skin_primitive
-from vispeech.motion.head_paint import paint_mouth, paint_skin
-from vispeech.motion.tongue_rig import tongue_targets
+from vispeech.motion.rigging.head_paint import paint_mouth, paint_skin
+from vispeech.motion.rigging.tongue import tongue_targets
 
 MOUTH_PARTS = ("tongue", "gum", "teeth", "tooth")
 """Words in a primitive's material or mesh name that put it inside the mouth."""

@@ -17,7 +17,7 @@ geometry says where the features are, so :func:`paint_skin` and :func:`paint_mou
   - lash line: the upper rim of each eye hole, within 0.06 W of it, nearly black;
 - **the mouth** (the primitives named for the tongue, gums or teeth): darkened with depth from
   the lips back (front 1.0, throat 0.25 of the base colour), as the little light that gets in
-  the mouth falls off; the tongue (:func:`~vispeech.motion.tongue_rig.find_tongue`) a deeper red than
+  the mouth falls off; the tongue (:func:`~vispeech.motion.rigging.tongue.find_tongue`) a deeper red than
   the gums.
 """
 
