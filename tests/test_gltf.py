@@ -6,7 +6,8 @@ import pytest
 
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.gltf import target_channel, write_gltf_animation
+from vispeech.motion.gltf import write_gltf_animation
+from vispeech.motion.rigging.glb import target_channel
 
 
 def accessor_data(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:

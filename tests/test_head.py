@@ -12,7 +12,7 @@ from conftest import SHARED, require
 from vispeech import VispeechError
 from vispeech.cli import main
 from vispeech.motion.arkit import TONGUE_CHANNELS
-from vispeech.motion.gltf import read_primitives, skin_primitive
+from vispeech.motion.rigging.glb import read_primitives, skin_primitive
 from vispeech.motion.rigging.head import prepare_head
 from vispeech.motion.rigging.tongue import find_tongue
 

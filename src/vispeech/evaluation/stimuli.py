@@ -183,7 +183,7 @@ def render_faces(tracks: Sequence[Track], path: str | os.PathLike, *, audio: np.
 def _head_glb(path: Path, prepare: bool) -> bytes:
     """The GLB head at ``path`` as the page gets it: prepared (see :func:`render_faces`) or as it is,
     once checked to carry ARKit morph targets."""
-    from vispeech.motion.gltf import read_primitives
+    from vispeech.motion.rigging.glb import read_primitives
     from vispeech.motion.rigging.head import prepared_head
 
     if not path.is_file():

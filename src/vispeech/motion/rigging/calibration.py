@@ -77,7 +77,7 @@ class HeadGeometry:
     def from_glb(cls, path: str | os.PathLike) -> HeadGeometry:
         """Measure a GLB head (see the module docstring); :class:`VispeechError` when its morph
         targets lack what the landmarks are found by."""
-        from vispeech.motion.gltf import read_morph_mesh
+        from vispeech.motion.rigging.glb import read_morph_mesh
 
         mesh = read_morph_mesh(path)
         needed = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight")

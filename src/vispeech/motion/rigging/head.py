@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
-from vispeech.motion.gltf import extended_glb, read_primitives, skin_primitive
+from vispeech.motion.rigging.glb import extended_glb, read_primitives, skin_primitive
 from vispeech.motion.rigging.head_paint import paint_mouth, paint_skin
 from vispeech.motion.rigging.tongue import tongue_targets
 

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.easing import smoothstep
-from vispeech.motion.gltf import Primitive
+from vispeech.motion.rigging.glb import Primitive
 
 LIPS = np.array([0.86, 0.58, 0.6])
 LIP_DEPTH = (0.09, 0.11)  # upper, lower: × ED

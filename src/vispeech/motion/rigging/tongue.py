@@ -52,7 +52,7 @@ from scipy.spatial import cKDTree
 from vispeech.errors import VispeechError
 from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.easing import smoothstep
-from vispeech.motion.gltf import Primitive
+from vispeech.motion.rigging.glb import Primitive
 
 GUMS = (0.0025, 0.006)
 """Metres from the nearest tooth over which a vertex goes from gum (weight 0) to tongue (1)."""
