@@ -46,8 +46,8 @@ import numpy as np
 from vispeech.alignment.formats import write_alignment
 from vispeech.alignment.phones import Phone, PhoneSequence, Word
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.jsonformat import write_animation_json, write_talkinghead_json
-from vispeech.motion.livelink import write_livelink_csv
+from vispeech.motion.formats.animation_json import write_animation_json, write_talkinghead_json
+from vispeech.motion.formats.livelink import write_livelink_csv
 from vispeech.motion.track import Track
 
 CLI = "import sys; from vispeech.cli import main; sys.argv[0] = 'vispeech'; main()"

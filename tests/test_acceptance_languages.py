@@ -130,7 +130,7 @@ def test_cli_lists_languages_and_says_in_one(tmp_path):
     ("ɾ", "ipa", "RR"), ("ɭ", "ipa", "nn"), ("ʈ", "ipa", "DD"), ("ʔ", "ipa", "kk"), ("j", "ipa", None), ("aɪ", "ipa", None),
 ])
 def test_oculus_visemes_of_consonants_come_from_their_features(symbol, language, viseme):
-    from vispeech.motion.visemes import oculus_viseme
+    from vispeech.motion.formats.visemes import oculus_viseme
 
     assert oculus_viseme(symbol, language) == viseme
 
@@ -139,7 +139,7 @@ def test_oculus_visemes_of_consonants_come_from_their_features(symbol, language,
 def test_viseme_exports_name_lip_consonants_in_every_language(utterances, model):
     """Oculus PP and Rhubarb A on every bilabial, FF and G on every labiodental; a pose alone
     would read closed lips as silence."""
-    from vispeech.motion.visemes import mouth_cues, oculus_visemes
+    from vispeech.motion.formats.visemes import mouth_cues, oculus_visemes
 
     for lang, _ in SENTENCES:
         utt = utterances[lang, model]
@@ -157,7 +157,7 @@ def test_viseme_exports_name_lip_consonants_in_every_language(utterances, model)
 
 
 def oculus_viseme_of(phone) -> str | None:
-    from vispeech.motion.visemes import oculus_viseme
+    from vispeech.motion.formats.visemes import oculus_viseme
 
     return None if phone.is_silence else oculus_viseme(phone.symbol, "ipa")
 

@@ -6,7 +6,7 @@ from scipy.signal import find_peaks
 
 from conftest import read_sentences
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
-from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.livelink import read_livelink_csv, write_livelink_csv
 from vispeech.phonetics.inventory import is_vowel
 from vispeech.pipeline import DEFAULT_MODEL, speak
 
@@ -85,7 +85,7 @@ def test_livelink_round_trip_is_exact(utterances, tmp_path):
 def test_glb_export_opens_with_animation_channels(utterances, tmp_path, shared_dir):
     import pygltflib
 
-    from vispeech.motion.gltf import write_gltf_animation
+    from vispeech.motion.formats.gltf import write_gltf_animation
 
     utt = utterances["en", SENTENCES[-1][1], "cohen-massaro"]
     out = tmp_path / "head_speaking.glb"

@@ -51,15 +51,15 @@ def test_csv_manifest_fields_defaults_and_relative_paths(tmp_path):
         'a,"Hello, there.",,,,,,,,',
         "b,Hej då.,sv,,,baseline,60,1.3,csv;json,false",
         "c,bin blue,,takes/c.wav,,,,,,",
-        "d,,,,takes/d.TextGrid,,,,csv json,",
+        "d,,,,takes/d.TextGrid,,,,livelink json,",
     ])
     lines = read_job(job, JobDefaults(lang="en", fps=25.0))
     assert [(x.id, x.kind, x.error) for x in lines] == [
         ("a", "text", None), ("b", "text", None), ("c", "audio", None), ("d", "alignment", None)]
     a, b, c, d = lines
     assert a.text == "Hello, there." and a.lang == "en" and a.fps == 25.0 and a.model is None and a.postprocess
-    assert a.formats == ("wav", "textgrid", "csv", "json", "preview")
-    assert (b.lang, b.model, b.fps, b.rate, b.formats, b.postprocess) == ("sv", "baseline", 60.0, 1.3, ("csv", "json"), False)
+    assert a.formats == ("wav", "textgrid", "livelink", "json", "preview")
+    assert (b.lang, b.model, b.fps, b.rate, b.formats, b.postprocess) == ("sv", "baseline", 60.0, 1.3, ("livelink", "json"), False)
     assert c.audio == tmp_path / "takes" / "c.wav" and c.text == "bin blue"
     assert d.alignment == tmp_path / "takes" / "d.TextGrid" and d.lang is None  # guessed from its symbols
 
@@ -85,7 +85,7 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     ])
     lines = read_job(job)
     errors = {x.number: x.error for x in lines}
-    assert errors[1] is None and lines[0].formats == ("csv",)
+    assert errors[1] is None and lines[0].formats == ("livelink",)  # csv: its alias
     assert "not valid JSON" in errors[2]
     assert "not a JSON object" in errors[3]
     assert "not both" in errors[4]
@@ -266,7 +266,7 @@ def test_killed_batch_loses_and_duplicates_nothing(tmp_path):
 
 
 def test_export_formats_are_written_and_read_back(tmp_path):
-    from vispeech.motion.io import read_track
+    from vispeech.motion.formats.registry import read_track
 
     job = _jsonl(tmp_path / "job.jsonl", [{"id": "x", "text": "Bob met my mum.", "fps": 60,
                                            "formats": ["json", "oculus", "rhubarb", "talkinghead"]}])
@@ -288,7 +288,7 @@ def test_non_verbal_layers_in_a_batch_are_those_say_adds(tmp_path):
     from click.testing import CliRunner
 
     from vispeech.cli import main
-    from vispeech.motion.livelink import read_livelink_csv
+    from vispeech.motion.formats.livelink import read_livelink_csv
 
     job = _csv(tmp_path / "job.csv", ["id,text,lang", 'one,"Hello there, my friend.",en'])
     runner = CliRunner()

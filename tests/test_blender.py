@@ -10,7 +10,7 @@ import numpy as np
 
 from conftest import require
 from vispeech.motion.arkit import TONGUE_CHANNELS
-from vispeech.motion.gltf import write_gltf_animation
+from vispeech.motion.formats.gltf import write_gltf_animation
 from vispeech.pipeline import speak, write_outputs
 
 READ_SCENE = Path(__file__).parent / "blender" / "read_scene.py"

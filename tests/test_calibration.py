@@ -116,7 +116,7 @@ def test_cli_calibrates_a_head_and_every_command_writes_in_its_scale(head, tmp_p
     assert saved["format"] == "vispeech-calibration" and saved["gains"]["jawOpen"] > 1.3
     assert 0.9 <= saved["fit"]["calibrated"]["median_ratio"] <= 1.1 and saved["fit"]["raw"]["median_ratio"] < 0.8
 
-    from vispeech.motion.io import read_track
+    from vispeech.motion.formats.registry import read_track
 
     text = "My mom made a large map."
     jaw = {}

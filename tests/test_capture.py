@@ -309,7 +309,7 @@ def test_an_iphone_recording_is_imported_with_its_timecodes_lined_up(videos, tmp
     from vispeech.corpus.grid import read_face_csv
     from vispeech.corpus.takes import read_takes
     from vispeech.frontends.audio import read_audio
-    from vispeech.motion.livelink import write_livelink_csv
+    from vispeech.motion.formats.livelink import write_livelink_csv
 
     recorded = read_face_csv(GRID / "utterances" / f"{videos[0].stem}.csv")[0]
     csv = tmp_path / "take01_iPhone.csv"

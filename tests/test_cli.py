@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 import vispeech.cli
 from vispeech.cli import main
-from vispeech.motion.livelink import write_livelink_csv
+from vispeech.motion.formats.livelink import write_livelink_csv
 from vispeech.motion.track import Track
 
 EXTRA_MODULES = ("torch", "matplotlib", "pocketsphinx", "tqdm", "fastapi", "starlette", "uvicorn", "websockets")

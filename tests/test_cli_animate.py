@@ -17,8 +17,8 @@ from test_cli_say import SAY_FILES, assert_clean_error, run
 from vispeech.alignment.formats import read_alignment
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import MAX_DURATION_S
-from vispeech.motion.io import read_track
-from vispeech.motion.livelink import read_livelink_csv
+from vispeech.motion.formats.livelink import read_livelink_csv
+from vispeech.motion.formats.registry import read_track
 
 ANIMATE_FILES = SAY_FILES - {"phones.TextGrid"}
 """What ``animate`` writes without ``--text``."""

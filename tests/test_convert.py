@@ -8,9 +8,9 @@ from click.testing import CliRunner
 
 from vispeech import Phone, PhoneSequence, Track
 from vispeech.cli import main
-from vispeech.motion.io import read_track
-from vispeech.motion.jsonformat import read_animation_json, write_animation_json
-from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
+from vispeech.motion.formats.animation_json import read_animation_json, write_animation_json
+from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, write_livelink_csv
+from vispeech.motion.formats.registry import read_track
 
 
 def run(*args):

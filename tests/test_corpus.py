@@ -19,7 +19,7 @@ from vispeech.corpus import (
 from vispeech.corpus.alignment import cache_key
 from vispeech.corpus.corpus import common_frame_rate, frame_rates_text
 from vispeech.corpus.grid import fill_missing_frames
-from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
+from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, write_livelink_csv
 
 GRID_IDS = ["bbaf2n", "bbizzn", "lrae3s"]  # bbizzn: 12 untracked frames first; lrae3s: 74 rows
 

@@ -8,14 +8,14 @@ import pytest
 
 import vispeech.motion.rigging
 from vispeech import Phone, PhoneSequence, Track, VispeechError, Word
-from vispeech.motion.io import FORMATS, read_track, track_format, write_track
-from vispeech.motion.jsonformat import (
+from vispeech.motion.formats.animation_json import (
     read_animation_json,
     read_talkinghead_json,
     write_animation_json,
     write_talkinghead_json,
 )
-from vispeech.motion.visemes import OCULUS_VISEMES, MouthCue, mouth_cues, oculus_visemes
+from vispeech.motion.formats.registry import FORMATS, read_animation, read_track, track_format, write_track
+from vispeech.motion.formats.visemes import OCULUS_VISEMES, MouthCue, mouth_cues, oculus_visemes
 
 DATA = Path(vispeech.motion.rigging.__file__).parent / "data"
 
@@ -169,6 +169,27 @@ def test_format_dispatch():
         write_track(small_track(), "a.fbx")
     with pytest.raises(VispeechError, match="cannot be read"):
         read_track("a.glb")
+
+
+def test_csv_is_an_alias_of_livelink(tmp_path):
+    from vispeech.pipeline import OUTPUT_FILES, check_formats
+
+    assert track_format("a.txt", "csv") == "livelink" and "csv" not in FORMATS
+    write_track(small_track(), tmp_path / "take.txt", "csv")
+    assert np.allclose(read_track(tmp_path / "take.txt", "livelink")["jawOpen"], small_track()["jawOpen"])
+    assert check_formats(["csv", "json"]) == ("livelink", "json")
+    assert set(OUTPUT_FILES) - {"wav", "textgrid", "preview"} <= set(FORMATS)
+
+
+def test_read_animation_keeps_what_json_holds(tmp_path):
+    phones = PhoneSequence([Phone("sil", 0, 0.1), Phone("M", 0.1, 0.3, 0), Phone("sil", 0.3, 0.4)], "en",
+                           [Word("mm", 0.1, 0.3)])
+    write_track(small_track(), tmp_path / "a.json", phones=phones, audio="a.wav")
+    write_track(small_track(), tmp_path / "a.csv", phones=phones, audio="a.wav")
+    json_animation, csv_animation = read_animation(tmp_path / "a.json"), read_animation(tmp_path / "a.csv")
+    assert json_animation.phones == phones and json_animation.audio == "a.wav"
+    assert csv_animation.phones is None and csv_animation.audio is None
+    assert np.allclose(csv_animation.track["jawOpen"], json_animation.track["jawOpen"])
 
 
 def test_write_track_by_name_and_retargeting(tmp_path):

@@ -6,7 +6,7 @@ import pytest
 
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.gltf import write_gltf_animation
+from vispeech.motion.formats.gltf import write_gltf_animation
 from vispeech.motion.rigging.glb import target_channel
 
 

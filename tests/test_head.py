@@ -179,7 +179,7 @@ def test_a_head_without_a_tongue_or_features_is_copied_with_notes(tmp_path):
 
 def test_a_gltf_export_onto_the_prepared_head_animates_the_tongue(prepared, tmp_path):
     from vispeech import Track
-    from vispeech.motion.gltf import write_gltf_animation
+    from vispeech.motion.formats.gltf import write_gltf_animation
 
     out, _, _ = prepared
     values = np.zeros((10, 3))

@@ -8,8 +8,8 @@ from scipy.signal import find_peaks
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.motion.formats.livelink import read_livelink_csv, write_livelink_csv
 from vispeech.motion.life import CHANNELS, LAYERS, check_layers, nonverbal, with_life
-from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
 from vispeech.motion.track import Track
 
 FPS = 30.0
@@ -99,7 +99,7 @@ def test_a_breath_is_taken_before_speech_and_let_out_while_speaking():
 
 
 def test_breath_goes_to_json_not_to_live_link(tmp_path):
-    from vispeech.motion.jsonformat import read_animation_json, write_animation_json
+    from vispeech.motion.formats.animation_json import read_animation_json, write_animation_json
 
     speech = Track(np.zeros((90, 1)), ("jawOpen",), FPS)
     lively = with_life(speech, None, ["blink", "breath"], seed=1)

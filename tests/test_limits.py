@@ -20,9 +20,9 @@ from vispeech import limits
 from vispeech.alignment.formats import read_alignment, write_alignment
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.files import read_text
-from vispeech.motion.gltf import write_gltf_animation
-from vispeech.motion.jsonformat import read_animation_json, read_talkinghead_json, write_animation_json
-from vispeech.motion.livelink import read_livelink_csv
+from vispeech.motion.formats.animation_json import read_animation_json, read_talkinghead_json, write_animation_json
+from vispeech.motion.formats.gltf import write_gltf_animation
+from vispeech.motion.formats.livelink import read_livelink_csv
 from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.pipeline import animate, speak
 

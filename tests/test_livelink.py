@@ -5,7 +5,7 @@ import pytest
 
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.livelink import LIVELINK_CHANNELS, LIVELINK_COLUMNS, read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, LIVELINK_COLUMNS, read_livelink_csv, write_livelink_csv
 
 IPHONE_HEADER = (
     "Timecode,BlendshapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"

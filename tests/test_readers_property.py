@@ -22,15 +22,15 @@ from vispeech import Track, VispeechError
 from vispeech.alignment.formats import read_alignment, write_alignment
 from vispeech.alignment.phones import Phone, PhoneSequence, Word
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.gltf import write_gltf_animation
-from vispeech.motion.io import read_track
-from vispeech.motion.jsonformat import (
+from vispeech.motion.formats.animation_json import (
     read_animation_json,
     read_talkinghead_json,
     write_animation_json,
     write_talkinghead_json,
 )
-from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.gltf import write_gltf_animation
+from vispeech.motion.formats.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.registry import read_track
 from vispeech.motion.rigging.retarget import PoseTable
 
 SETTINGS = settings(max_examples=60, deadline=None,

@@ -10,8 +10,8 @@ from test_train_cli import write_takes
 
 from vispeech import Track, VispeechError
 from vispeech.cli import main
-from vispeech.motion.io import read_track, write_track
-from vispeech.motion.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.livelink import read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.registry import read_track, write_track
 from vispeech.motion.rigging.rigspace import RigSpace, parse_pose_name, pose_name
 
 CHANNELS = ("jawOpen", "mouthClose", "mouthFunnel", "mouthPucker", "mouthSmileLeft")

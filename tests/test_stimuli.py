@@ -82,7 +82,7 @@ def test_faces_render_side_by_side_with_their_sound(tmp_path):
     from conftest import require, require_module
     from vispeech.frontends.audio import wav_bytes
     from vispeech.models.registry import load_model
-    from vispeech.motion.io import write_track
+    from vispeech.motion.formats.registry import write_track
 
     require_module("playwright.sync_api", "Playwright (the test extra)")
     from pathlib import Path
@@ -136,7 +136,7 @@ def test_tracks_render_on_the_3d_head_side_by_side(tmp_path, shared_dir):
     from vispeech import Track
     from vispeech.frontends.audio import wav_bytes
     from vispeech.motion.arkit import ARKIT_NAMES
-    from vispeech.motion.io import write_track
+    from vispeech.motion.formats.registry import write_track
 
     _require_chromium()
     rest = Track.zeros(10, ARKIT_NAMES, 25.0)
@@ -180,7 +180,7 @@ def test_a_head_that_is_not_an_arkit_glb_is_refused(tmp_path):
     from vispeech import Track
     from vispeech.evaluation.stimuli import render_faces
     from vispeech.motion.arkit import ARKIT_NAMES
-    from vispeech.motion.io import write_track
+    from vispeech.motion.formats.registry import write_track
 
     write_track(Track.zeros(3, ARKIT_NAMES, 25.0), tmp_path / "a.json")
     (tmp_path / "notes.glb").write_text("not a head\n")

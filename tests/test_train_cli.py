@@ -15,7 +15,7 @@ from vispeech.corpus import split_of
 from vispeech.errors import VispeechError
 from vispeech.models.networks.network import Network
 from vispeech.models.registry import load_model
-from vispeech.motion.livelink import LIVELINK_CHANNELS, write_livelink_csv
+from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, write_livelink_csv
 from vispeech.phonetics.inventory import is_vowel
 
 FPS = 25.0

@@ -94,7 +94,7 @@ def test_talkinghead_frames_start_where_the_durations_before_them_end():
 @pytest.mark.parametrize("suffix", [".json", ".csv", ".talkinghead.json"])
 def test_files_vispeech_writes_read_back_frame_for_frame(tmp_path, suffix):
     """The player reads vispeech's own writers' files onto the same timeline, to 6 decimals."""
-    from vispeech.motion.io import write_track
+    from vispeech.motion.formats.registry import write_track
     from vispeech.motion.track import Track
 
     rng = np.random.default_rng(3)

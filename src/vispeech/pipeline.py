@@ -20,7 +20,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
-from vispeech.motion.io import write_track
+from vispeech.motion.formats.registry import ALIASES, write_track
 from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
@@ -223,22 +223,25 @@ def hear(clip: AudioClip, text: str | None = None, language: str = "en") -> Utte
 OUTPUT_FILES: dict[str, str] = {
     "wav": "speech.wav",
     "textgrid": "phones.TextGrid",
-    "csv": "animation.csv",
+    "livelink": "animation.csv",
     "json": "animation.json",
     "preview": "preview.html",
     "oculus": "animation.visemes.csv",
     "rhubarb": "mouth_cues.tsv",
     "talkinghead": "animation.talkinghead.json",
 }
-"""What :func:`write_outputs` can write: format name → file name (Live Link Face CSV, vispeech
-JSON, Oculus viseme curves, Rhubarb mouth cues, TalkingHead JSON; see docs/formats.md)."""
-DEFAULT_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "csv", "json", "preview")
+"""What :func:`write_outputs` can write: format name → file name (the audio, the phones, the
+preview page, and tracks in the formats of :data:`vispeech.motion.formats.registry.FORMATS`:
+Live Link Face CSV, vispeech JSON, Oculus viseme curves, Rhubarb mouth cues, TalkingHead JSON;
+see docs/formats.md). A track format's aliases (``csv``) are accepted too."""
+DEFAULT_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "livelink", "json", "preview")
 """The formats ``say``, ``animate`` and ``animate-phones`` write (those the utterance has data for)."""
 
 
 def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
-    """``formats`` as a tuple of names of :data:`OUTPUT_FILES`; :class:`VispeechError` names any other."""
-    formats = tuple(formats)
+    """``formats`` as a tuple of names of :data:`OUTPUT_FILES` (aliases replaced by the names);
+    :class:`VispeechError` names any other."""
+    formats = tuple(ALIASES.get(f, f) for f in formats)
     unknown = [f for f in formats if f not in OUTPUT_FILES]
     if unknown or not formats:
         what = f"unknown output format {unknown[0]!r}" if unknown else "no output format given"
@@ -294,14 +297,11 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
                 if wav is None or utterance.phones is None:
                     continue
                 write_textgrid(utterance.phones, staging / name)
-            elif fmt == "json":
-                write_track(utterance.track, staging / name, "json", phones=utterance.phones)
             elif fmt == "preview":
                 html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
                 (staging / name).write_text(html, encoding="utf-8")
             else:
-                write_track(utterance.track, staging / name, "livelink" if fmt == "csv" else fmt,
-                            phones=utterance.phones)
+                write_track(utterance.track, staging / name, fmt, phones=utterance.phones)
             names.append(name)
         for name, text in extra.items():
             (staging / name).write_text(text, encoding="utf-8")

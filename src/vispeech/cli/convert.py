@@ -7,14 +7,14 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main, scale_option
+from vispeech.motion.formats.registry import FORMATS, read_animation, write_track
 
 
 @main.command("convert")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
-              help="Output format: livelink, json, talkinghead, oculus, rhubarb, gltf or fbx "
-              "(default: from OUTPUT's extension).")
+              help=f"Output format: {', '.join(FORMATS)} (default: from OUTPUT's extension).")
 @click.option("--fps", type=float, help="Resample to this many frames per second.")
 @click.option("--pose-table", help="Pose table (JSON file or built-in name): retargets the track, or for "
               "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
@@ -31,8 +31,6 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
     calibration file rescales a track in the models' scale on the way.
     """
     from vispeech.limits import check_fps
-    from vispeech.motion.io import read_track, track_format, write_track
-    from vispeech.motion.jsonformat import read_animation_json
     from vispeech.motion.rigging.calibration import load_scale
     from vispeech.motion.rigging.retarget import PoseTable
 
@@ -40,16 +38,13 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
         check_fps(fps, "--fps")
     fmt = fmt.lower() if fmt else None
     calibration = load_scale(scale)
-    phones = audio = None
-    if track_format(input_path, reading=True) == "json":
-        animation = read_animation_json(input_path)
-        track, phones, audio = animation.track, animation.phones, animation.audio
-    else:
-        track = read_track(input_path)
+    animation = read_animation(input_path)
+    track = animation.track
     if fps is not None:
         track = track.resample(fps)
     if calibration is not None:
         track = calibration.apply(track)
     table = PoseTable.load(pose_table) if pose_table else None
-    write_track(track, output, fmt, phones=phones, audio=audio, base_glb=base_glb, pose_table=table)
+    write_track(track, output, fmt, phones=animation.phones, audio=animation.audio, base_glb=base_glb,
+                pose_table=table)
     click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

@@ -88,7 +88,7 @@ def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | Non
               help="Output track (.json; .csv when the rig controls are ARKit names).")
 def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, output: Path) -> None:
     """Retarget the ARKit track INPUT onto the rig's controls."""
-    from vispeech.motion.io import read_track, write_track
+    from vispeech.motion.formats.registry import read_track, write_track
     from vispeech.motion.rigging.rigspace import RigSpace
 
     space = RigSpace.load(space_dir)

@@ -62,7 +62,7 @@ def render(animations: tuple[Path, ...], audio: Path | None, output: Path, seed:
     from vispeech.evaluation.stimuli import render_faces
     from vispeech.files import atomic_output_file
     from vispeech.frontends.audio import AudioClip
-    from vispeech.motion.io import read_track
+    from vispeech.motion.formats.registry import read_track
 
     if output.suffix.lower() != ".mp4":
         raise click.UsageError("the clip is an .mp4 file")

@@ -69,7 +69,7 @@ def stream(text: str | None, audio: Path | None, realtime: bool, chunk_ms: int, 
     except (OSError, RuntimeError, TimeoutError, WebSocketException) as exc:
         raise VispeechError(f"streaming from {url} failed: {exc}") from None
     if out is not None:
-        from vispeech.motion.io import write_track
+        from vispeech.motion.formats.registry import write_track
 
         write_track(result.track(), out)
     click.echo(result.summary())

@@ -44,7 +44,7 @@ from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.align import align
 from vispeech.frontends.audio import AudioClip, wav_bytes
 from vispeech.frontends.video import LANDMARKS, check_installed, face_model_path, track_face, video_audio
-from vispeech.motion.livelink import write_livelink_csv
+from vispeech.motion.formats.livelink import write_livelink_csv
 from vispeech.motion.track import Track
 
 TAKE_FILES = ("{name}.wav", "{name}.face.csv", "{name}.csv", "{name}.TextGrid")
@@ -226,7 +226,7 @@ def import_livelink_take(csv: str | os.PathLike, video: str | os.PathLike, out_d
     are taken to start together (the report's ``timecode_offset`` is then NaN). Raises
     :class:`VispeechError` for a CSV that starts more than 10 s away from the sound."""
     from vispeech.frontends.video import video_timecode
-    from vispeech.motion.livelink import parse_timecode, read_livelink_csv
+    from vispeech.motion.formats.livelink import parse_timecode, read_livelink_csv
 
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]

@@ -18,7 +18,7 @@ from vispeech.corpus.corpus import Corpus, Utterance, check_durations, report_pr
 from vispeech.corpus.grid import read_face_csv
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import audio_duration
-from vispeech.motion.livelink import read_livelink_csv
+from vispeech.motion.formats.livelink import read_livelink_csv
 from vispeech.motion.track import Track
 
 AUDIO_SUFFIXES = (".wav", ".flac")

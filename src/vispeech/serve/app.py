@@ -54,9 +54,9 @@ from vispeech.frontends.text import detect_language
 from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
-from vispeech.motion.rigging.calibration import Calibration, load_scale
-from vispeech.motion.jsonformat import ANIMATION_FORMAT
+from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
 from vispeech.motion.life import check_layers, with_life
+from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.pipeline import (
     DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, animate, listen, speak,

@@ -15,7 +15,7 @@ from pydantic import AfterValidator, BaseModel, Field, StringConstraints, TypeAd
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
 from vispeech.limits import MAX_FPS, MIN_FPS
-from vispeech.motion.jsonformat import ANIMATION_FORMAT
+from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
 
 MAX_TEXT_CHARS = 1000
 """Longest text (characters) that ``/api/speak``, ``/api/chat`` and the stream accept."""

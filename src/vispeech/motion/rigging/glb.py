@@ -1,7 +1,7 @@
 """GLB models with ARKit morph targets: a head's primitives and morph geometry read back
 (:func:`read_primitives`, :func:`read_morph_mesh`), morph targets and vertex colours added to
 a copy of it (:func:`extended_glb`), and the checked loading, decoding and packing that
-:mod:`vispeech.motion.gltf` writes its animations with.
+:mod:`vispeech.motion.formats.gltf` writes its animations with.
 
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
 and most exporters write it) with ARKit names (or vispeech's tongue channels,

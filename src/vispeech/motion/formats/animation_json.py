@@ -34,7 +34,8 @@ ANIMATION_FORMAT = "vispeech-animation"
 
 @dataclass
 class Animation:
-    """The contents of a vispeech animation JSON file."""
+    """A track with the phones and audio file name a file holds besides (as vispeech animation
+    JSON may; :func:`vispeech.motion.formats.registry.read_animation` reads any format as one)."""
 
     track: Track
     phones: PhoneSequence | None = None

@@ -29,7 +29,7 @@ import numpy as np
 from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
-from vispeech.motion.jsonformat import write_animation_json
+from vispeech.motion.formats.animation_json import write_animation_json
 from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES, phone_features

@@ -1,7 +1,7 @@
 """FBX export for Unity, Maya and other FBX pipelines, made by Blender.
 
 The track is first written as a glTF animation on the base model
-(:func:`vispeech.motion.gltf.write_gltf_animation`); Blender, run headless (``blender -b``,
+(:func:`vispeech.motion.formats.gltf.write_gltf_animation`); Blender, run headless (``blender -b``,
 Debian's ``blender`` 3.4 or newer on the ``PATH``, or the ``BLENDER`` environment variable),
 sets its scene to the track's frame rate and imports it with its own glTF importer, so that
 every frame of the track lands on a whole FBX frame, and exports FBX with the shape-key
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
-from vispeech.motion.gltf import write_gltf_animation
+from vispeech.motion.formats.gltf import write_gltf_animation
 from vispeech.motion.track import Track
 
 BLENDER_TIMEOUT_S = 600

@@ -1,0 +1,224 @@
+"""Every track format by its one name, with its file extensions, its reader and its writer.
+
+============  ======================================  =====  ==========================================
+format        extensions                              reads  what
+============  ======================================  =====  ==========================================
+livelink      ``.csv``                                yes    Live Link Face CSV
+json          ``.json``                               yes    vispeech animation JSON
+talkinghead   ``.talkinghead.json``                   yes    TalkingHead ``{"name", "dt", "vs"}``
+oculus        ``.visemes.csv``, ``.visemes.json``     --     15 Oculus viseme curves (CSV or JSON)
+rhubarb       ``.tsv``, ``.rhubarb.json``             --     Rhubarb mouth cues (TSV or JSON)
+gltf          ``.glb``                                --     glTF morph-target animation on a base GLB
+fbx           ``.fbx``                                --     the same as FBX, made by Blender
+============  ======================================  =====  ==========================================
+
+The longest matching extension wins; a ``.json`` file being read is recognised by its content
+(vispeech animation JSON, which Oculus viseme JSON also is, or TalkingHead). ``csv`` is
+accepted for ``livelink`` (:data:`ALIASES`).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from vispeech.alignment.phones import PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.files import read_json
+from vispeech.motion.formats.animation_json import (
+    ANIMATION_FORMAT,
+    Animation,
+    read_animation_json,
+    read_talkinghead_json,
+    write_animation_json,
+    write_talkinghead_json,
+)
+from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.visemes import write_oculus_csv, write_oculus_json, write_rhubarb_json, write_rhubarb_tsv
+from vispeech.motion.rigging.retarget import PoseTable
+from vispeech.motion.track import Track
+
+
+@dataclass(frozen=True)
+class WriteOptions:
+    """What a track file may carry besides the track; each format takes what it can hold."""
+
+    phones: PhoneSequence | None = None
+    audio: str | None = None
+    base_glb: str | os.PathLike | None = None
+    pose_table: PoseTable | None = None
+
+
+@dataclass(frozen=True)
+class TrackFormat:
+    """A track file format: its name, file extensions, writer and, if it can be read back, reader."""
+
+    name: str
+    extensions: tuple[str, ...]
+    description: str
+    writer: Callable[[Track, Path, WriteOptions], None]
+    reader: Callable[[Path], Animation] | None = None
+    maps_poses: bool = False
+    """Whether a pose table is the format's own ARKit -> visemes/shapes table (else it retargets)."""
+
+    @property
+    def readable(self) -> bool:
+        return self.reader is not None
+
+
+def _write_livelink(track: Track, path: Path, options: WriteOptions) -> None:
+    if not set(track.channels) & set(LIVELINK_CHANNELS):
+        raise VispeechError("the track has no Live Link Face channel (ARKit names, headYaw, ...) to write")
+    write_livelink_csv(track, path)
+
+
+def _write_json(track: Track, path: Path, options: WriteOptions) -> None:
+    write_animation_json(track, path, phones=options.phones, audio=options.audio)
+
+
+def _write_talkinghead(track: Track, path: Path, options: WriteOptions) -> None:
+    write_talkinghead_json(track, path)
+
+
+def _write_oculus(track: Track, path: Path, options: WriteOptions) -> None:
+    write = write_oculus_json if _is_json(path) else write_oculus_csv
+    write(track, path, options.pose_table, options.phones)
+
+
+def _write_rhubarb(track: Track, path: Path, options: WriteOptions) -> None:
+    if _is_json(path):
+        write_rhubarb_json(track, path, options.pose_table, sound_file=options.audio or "", phones=options.phones)
+    else:
+        write_rhubarb_tsv(track, path, options.pose_table, options.phones)
+
+
+def _write_gltf(track: Track, path: Path, options: WriteOptions) -> None:
+    base_glb = _base_glb(options, "glTF")
+    from vispeech.motion.formats.gltf import write_gltf_animation  # pygltflib: imported only for glTF
+
+    write_gltf_animation(track, base_glb, path)
+
+
+def _write_fbx(track: Track, path: Path, options: WriteOptions) -> None:
+    base_glb = _base_glb(options, "FBX")
+    from vispeech.motion.formats.fbx import write_fbx_animation
+
+    write_fbx_animation(track, base_glb, path)
+
+
+def _base_glb(options: WriteOptions, what: str) -> str | os.PathLike:
+    if options.base_glb is None:
+        raise VispeechError(f"writing {what} needs a base model (.glb with ARKit-named morph targets)")
+    return options.base_glb
+
+
+def _is_json(path: Path) -> bool:
+    return path.name.lower().endswith(".json")
+
+
+FORMATS: dict[str, TrackFormat] = {
+    f.name: f
+    for f in (
+        TrackFormat("livelink", (".csv",), "Live Link Face CSV", _write_livelink,
+                    lambda path: Animation(read_livelink_csv(path))),
+        TrackFormat("json", (".json",), "vispeech animation JSON", _write_json, read_animation_json),
+        TrackFormat("talkinghead", (".talkinghead.json",), "TalkingHead blend-shape JSON", _write_talkinghead,
+                    lambda path: Animation(read_talkinghead_json(path))),
+        TrackFormat("oculus", (".visemes.csv", ".visemes.json"), "Oculus 15-viseme curves (CSV or JSON)",
+                    _write_oculus, maps_poses=True),
+        TrackFormat("rhubarb", (".tsv", ".rhubarb.json"), "Rhubarb mouth cues (TSV or JSON)", _write_rhubarb,
+                    maps_poses=True),
+        TrackFormat("gltf", (".glb",), "glTF 2.0 morph-target animation added to a base GLB", _write_gltf),
+        TrackFormat("fbx", (".fbx",), "FBX of a base GLB's model with the animation (needs Blender)", _write_fbx),
+    )
+}
+"""Every track format by name."""
+
+ALIASES: dict[str, str] = {"csv": "livelink"}
+"""Other names a format is accepted by: ``csv``, the name ``vispeech batch`` gave Live Link Face CSV."""
+
+
+def format_name(name: str) -> str:
+    """The format ``name`` names (itself or through :data:`ALIASES`); :class:`VispeechError`
+    listing the known formats for any other."""
+    name = ALIASES.get(name, name)
+    if name not in FORMATS:
+        raise VispeechError(f"unknown track format {name!r} (known formats: {', '.join(FORMATS)})")
+    return name
+
+
+def track_format(path: str | os.PathLike, fmt: str | None = None, *, reading: bool = False) -> str:
+    """The format name for ``path``: ``fmt`` if given (checked), else from the extension.
+
+    When ``reading`` a ``.json`` file, its content decides (vispeech animation JSON, which
+    Oculus viseme JSON also is, TalkingHead, or Rhubarb). Raises :class:`VispeechError`
+    listing the known formats.
+    """
+    if fmt is not None:
+        name = format_name(fmt)
+    else:
+        lowered = Path(path).name.lower()
+        matches = [(len(ext), f.name) for f in FORMATS.values() for ext in f.extensions if lowered.endswith(ext)]
+        if not matches:
+            raise VispeechError(f"cannot tell the track format of {path} from its extension "
+                                f"(known formats: {', '.join(FORMATS)})")
+        name = max(matches)[1]
+    if reading and fmt is None and _is_json(Path(path)):
+        name = _json_kind(Path(path))
+    if reading and not FORMATS[name].readable:
+        readable = ", ".join(f.name for f in FORMATS.values() if f.readable)
+        raise VispeechError(f"{name} files cannot be read as a track (readable formats: {readable})")
+    return name
+
+
+def read_animation(path: str | os.PathLike, fmt: str | None = None) -> Animation:
+    """Read a track from ``path`` in format ``fmt`` (default: from the extension / content), with
+    the phones and audio file name the file holds (vispeech animation JSON may hold them)."""
+    reader = FORMATS[track_format(path, fmt, reading=True)].reader
+    assert reader is not None  # track_format refuses formats that cannot be read
+    return reader(Path(path))
+
+
+def read_track(path: str | os.PathLike, fmt: str | None = None) -> Track:
+    """Read a track from ``path`` in format ``fmt`` (default: from the extension / content)."""
+    return read_animation(path, fmt).track
+
+
+def write_track(
+    track: Track,
+    path: str | os.PathLike,
+    fmt: str | None = None,
+    *,
+    phones: PhoneSequence | None = None,
+    audio: str | None = None,
+    base_glb: str | os.PathLike | None = None,
+    pose_table: PoseTable | None = None,
+) -> None:
+    """Write ``track`` to ``path`` in format ``fmt`` (default: from the extension), atomically.
+
+    Parameters
+    ----------
+    phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``); ``oculus``
+        and ``rhubarb`` name each consonant's viseme or shape by its features.
+    base_glb : the model ``gltf`` and ``fbx`` add the animation to (required for them).
+    pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
+        replaces the shipped one; for every other format a retargeting applied before writing.
+    """
+    path = Path(path)
+    target = FORMATS[track_format(path, fmt)]
+    if pose_table is not None and not target.maps_poses:
+        track = pose_table.apply(track)
+    target.writer(track, path, WriteOptions(phones, audio, base_glb, pose_table))
+
+
+def _json_kind(path: Path) -> str:
+    data = read_json(path)
+    if data.get("format") == ANIMATION_FORMAT:
+        return "json"
+    if "dt" in data or isinstance(data.get("anim"), dict):
+        return "talkinghead"
+    if "mouthCues" in data:
+        return "rhubarb"
+    raise VispeechError(f"{path} is neither vispeech animation JSON nor TalkingHead JSON")
