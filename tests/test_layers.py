@@ -13,4 +13,4 @@ def test_import_contracts_are_kept():
     result = subprocess.run([command, "--config", str(ROOT / "pyproject.toml")], cwd=ROOT,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-1000:]
-    assert "3 kept, 0 broken" in result.stdout
+    assert "6 kept, 0 broken" in result.stdout
