@@ -29,15 +29,8 @@ morph targets)."""
 MORPH_NAMES: tuple[str, ...] = ARKIT_NAMES + TONGUE_CHANNELS[1:]
 """Every channel a head's morph target can carry: the ARKit shapes and vispeech's tongue channels."""
 
-MOUTH_CHANNELS: tuple[str, ...] = (
-    "jawForward", "jawLeft", "jawRight", "jawOpen",
-    "mouthClose", "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight",
-    "mouthSmileLeft", "mouthSmileRight", "mouthFrownLeft", "mouthFrownRight",
-    "mouthDimpleLeft", "mouthDimpleRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
-    "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft", "mouthLowerDownRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "cheekPuff", "tongueOut",
-)
+MOUTH_CHANNELS: tuple[str, ...] = tuple(
+    name for name in ARKIT_NAMES if name.startswith(("jaw", "mouth")) or name in ("cheekPuff", "tongueOut"))
 """Jaw, lip, cheek-puff and tongue channels: what speech animation drives."""
 
 ARTICULATORY_CHANNELS: tuple[str, ...] = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
