@@ -75,6 +75,7 @@ for (const [name, weights] of Object.entries(cases)) {
   out[name] = { shape: lib.mouthShape(weights), drawCalls: calls.length, fills: fills.slice() };
 }
 out.canvas = [canvas.width, canvas.height];
+out.channels = lib.CHANNELS;
 process.stdout.write(JSON.stringify(out));
 """
 
@@ -124,6 +125,14 @@ def width(shape):
 
 def mid(values):
     return values[len(values) // 2]
+
+
+def test_channels_are_pythons_morph_names(run):
+    from vispeech.motion.arkit import MORPH_NAMES
+
+    undrawn = {"eyeSquintLeft", "eyeSquintRight", "cheekSquintLeft", "cheekSquintRight"}  # no lower lids or cheeks
+    assert len(run["channels"]) == len(set(run["channels"]))
+    assert set(run["channels"]) == set(MORPH_NAMES) - undrawn
 
 
 def test_every_case_draws(run):
