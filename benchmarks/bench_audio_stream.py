@@ -11,7 +11,7 @@ paced in real time as a microphone would deliver them. A frame's delay is the wa
 from sending the chunk that holds the audio sample at the frame's time (``k / fps``) until
 the frame arrived: the model's look-ahead, the features, inference and transport.
 
-1. In-process, no server: the model's :class:`~vispeech.models.networks.audio.AudioStream`
+1. In-process, no server: the model's :class:`~vispeech.models.networks.audio_stream.AudioStream`
    alone, pushed the 16 kHz chunks in real time (delay = look-ahead + features + inference),
    and the compute time of a push.
 2. ``vispeech serve`` in a subprocess on a free loopback port (no rate limit, the per-address

@@ -19,7 +19,7 @@ preset the model recommends.
 **Audio.** :class:`LiveAudioStream` takes 16-bit PCM chunks at any sample rate as a
 microphone or a voice service delivers them, resamples them to the audio model's rate with
 soxr's streaming resampler and gives each frame as soon as the model's
-:class:`~vispeech.models.networks.audio.AudioStream` has the audio it looks ahead to,
+:class:`~vispeech.models.networks.audio_stream.AudioStream` has the audio it looks ahead to,
 post-processed frame by frame: the frames equal :func:`~vispeech.pipeline.animate_audio` of
 the whole audio (without the closures an audio network's phone head hears offline).
 """
