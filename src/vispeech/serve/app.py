@@ -13,7 +13,7 @@ Every bad request gets a 4xx JSON ``{"detail": "..."}``: 422 for a malformed bod
 input the library refuses (or a Host not allowed), 401 without the token (when one is
 configured), 403 from a foreign Origin, 413 for a body over the limit, 415 for a form where an
 audio file was wanted, 429 past the rate limit. The CPU-heavy work runs in a bounded
-:class:`~vispeech.serve.safety.WorkPool`: when its queue is full the answer is 503 with
+:class:`~vispeech.serve.pool.WorkPool`: when its queue is full the answer is 503 with
 ``Retry-After`` (a stream error on the WebSocket).
 """
 
@@ -63,17 +63,15 @@ from vispeech.pipeline import (
 )
 from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache
+from vispeech.serve.pool import Busy, Cancelled, WorkPool
 from vispeech.serve.safety import (
     DEFAULT_ALLOWED_HOSTS,
     BodySizeLimit,
-    Busy,
-    Cancelled,
     ConnectionCounter,
     HostOriginCheck,
     RateLimited,
     TokenAuth,
     TokenBucket,
-    WorkPool,
     client_key,
 )
 from vispeech.serve.schemas import (
