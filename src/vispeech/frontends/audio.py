@@ -1,8 +1,11 @@
-"""Speech audio: reading files (WAV, FLAC, MP3, OGG and the other formats libsndfile knows),
-the checked mono clip every audio path takes, and conversions to 16-bit PCM."""
+"""Speech audio: reading files (WAV, FLAC, MP3, OGG and the other formats libsndfile knows), from
+a path or as the bytes of an upload, the checked mono clip every audio path takes, and conversions
+to 16-bit PCM."""
 
 from __future__ import annotations
 
+import hashlib
+import io
 import math
 import os
 from dataclasses import dataclass
@@ -118,6 +121,44 @@ def audio_duration(path: str | os.PathLike) -> float:
     return info.frames / info.samplerate
 
 
+MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
+"""Most samples (all channels together) an uploaded file may decode to: 600 s of stereo at 48 kHz."""
+
+
+def probe_upload(data: bytes) -> tuple[str, float]:
+    """The SHA-256 (hex) and length in seconds of an uploaded audio file, read from its header;
+    :class:`VispeechError` when it is empty, not audio, too long or too large decoded."""
+    import soundfile
+
+    if not data:
+        raise VispeechError("the request body is empty: send an audio file (WAV, FLAC, MP3 or OGG) as the body")
+    try:
+        info = soundfile.info(io.BytesIO(data))
+    except (RuntimeError, OSError, EOFError) as exc:
+        raise VispeechError("the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
+                            f"{getattr(exc, 'error_string', exc)}") from None
+    if info.frames <= 0 or info.samplerate <= 0:
+        raise VispeechError("the uploaded audio is empty")
+    duration = info.frames / info.samplerate
+    if duration > MAX_DURATION_S:
+        raise VispeechError(f"the uploaded audio lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
+    if info.frames * info.channels > MAX_UPLOAD_SAMPLES:
+        raise VispeechError(f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
+                            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)")
+    return hashlib.sha256(data).hexdigest(), duration
+
+
+def read_upload(data: bytes) -> AudioClip:
+    """The checked clip of an uploaded audio file (see :func:`probe_upload`), channels averaged."""
+    import soundfile
+
+    try:
+        samples, sample_rate = soundfile.read(io.BytesIO(data), dtype="float32", always_2d=True)
+    except (RuntimeError, OSError, EOFError) as exc:
+        raise VispeechError(f"cannot read the uploaded audio: {getattr(exc, 'error_string', exc)}") from None
+    return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
+
+
 def _check_exists(path: str | os.PathLike) -> None:
     if Path(path).is_dir():
         raise VispeechError(f"audio path {path} is a folder, not a file")
@@ -133,7 +174,6 @@ def to_pcm16(samples: np.ndarray) -> np.ndarray:
 
 def wav_bytes(samples: np.ndarray, sample_rate: int) -> bytes:
     """A mono 16-bit PCM WAV file of ``samples`` (floats in [-1, 1]) in memory."""
-    import io
     import wave
 
     buffer = io.BytesIO()

@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import io
 import json
 import logging
 import os
@@ -48,10 +47,9 @@ import vispeech
 import vispeech.preview
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.audio import probe_upload, read_upload
 from vispeech.frontends.espeak import check_variant, find_voice, voices
 from vispeech.frontends.text import detect_language
-from vispeech.limits import MAX_DURATION_S
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
@@ -510,44 +508,6 @@ class SpeechService:
             asked = lang if said is None else find_voice(said).language
         return reply, asked
 
-
-
-MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
-"""Most samples (all channels together) an uploaded file may decode to: 600 s of stereo at 48 kHz."""
-
-
-def probe_upload(data: bytes) -> tuple[str, float]:
-    """The SHA-256 (hex) and length in seconds of an uploaded audio file, read from its header;
-    :class:`VispeechError` when it is empty, not audio, too long or too large decoded."""
-    import soundfile
-
-    if not data:
-        raise VispeechError("the request body is empty: send an audio file (WAV, FLAC, MP3 or OGG) as the body")
-    try:
-        info = soundfile.info(io.BytesIO(data))
-    except (RuntimeError, OSError, EOFError) as exc:
-        raise VispeechError("the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
-                            f"{getattr(exc, 'error_string', exc)}") from None
-    if info.frames <= 0 or info.samplerate <= 0:
-        raise VispeechError("the uploaded audio is empty")
-    duration = info.frames / info.samplerate
-    if duration > MAX_DURATION_S:
-        raise VispeechError(f"the uploaded audio lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
-    if info.frames * info.channels > MAX_UPLOAD_SAMPLES:
-        raise VispeechError(f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
-                            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)")
-    return hashlib.sha256(data).hexdigest(), duration
-
-
-def read_upload(data: bytes) -> AudioClip:
-    """The checked clip of an uploaded audio file (see :func:`probe_upload`), channels averaged."""
-    import soundfile
-
-    try:
-        samples, sample_rate = soundfile.read(io.BytesIO(data), dtype="float32", always_2d=True)
-    except (RuntimeError, OSError, EOFError) as exc:
-        raise VispeechError(f"cannot read the uploaded audio: {getattr(exc, 'error_string', exc)}") from None
-    return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
 
 
 def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:
