@@ -106,7 +106,7 @@ def serve(host: str, port: int, avatar: Path | None, avatar_credit: str | None, 
         return
     import os
 
-    from vispeech.serve.app import CONFIG_VARIABLE
+    from vispeech.serve.config import CONFIG_VARIABLE
 
     os.environ[CONFIG_VARIABLE] = config.to_json()
     del app, service

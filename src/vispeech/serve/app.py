@@ -30,7 +30,6 @@ import sys
 import threading
 import time
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Annotated
 
@@ -56,14 +55,12 @@ from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
 from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
-from vispeech.pipeline import (
-    DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, animate, listen, speak,
-)
-from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
+from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
+from vispeech.serve.bot import ChatBot, ChatBotError
 from vispeech.serve.cache import CacheKey, UtteranceCache
+from vispeech.serve.config import CONFIG_VARIABLE, ServeConfig
 from vispeech.serve.pool import Busy, Cancelled, WorkPool
 from vispeech.serve.safety import (
-    DEFAULT_ALLOWED_HOSTS,
     BodySizeLimit,
     ConnectionCounter,
     HostOriginCheck,
@@ -73,7 +70,6 @@ from vispeech.serve.safety import (
     client_key,
 )
 from vispeech.serve.schemas import (
-    MAX_STREAM_SECONDS,
     MAX_TEXT_CHARS,
     AnimateQuery,
     AudioStartMessage,
@@ -130,128 +126,10 @@ _FORM_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "appl
 _ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
 
 
-def _default_workers() -> int:
-    return max(1, (os.cpu_count() or 2) - 1)
-
-
 def _chat_languages(bot: ChatBot) -> list[str] | None:
     """The languages ``bot`` answers in (``None``: any, or it does not say)."""
     languages = getattr(bot, "languages", None)
     return None if languages is None else list(languages)
-
-
-@dataclass
-class ServeConfig:
-    """Server settings.
-
-    ``cache``: SQLite file of the utterance cache (``None``: the user cache folder,
-    ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
-    when a message names none; ``None`` picks the shipped ``grid-tdnn-lowlatency`` if it is there and
-    otherwise ``default_model``. ``audio_model``: model name or saved folder of the audio model
-    that animates uploads without a transcript (``/api/animate``) and live audio (``/api/listen``)
-    when a request names none; the shipped ``grid-audio-cnn`` by default, and when that is not
-    installed (or ``None``) there is none and those requests must name one. ``rate_limit``:
-    tokens a second per client IP (0 = no limit), with bursts of ``burst``; a request or stream
-    message costs a token per ``chars_per_token`` characters of text (at least one), per
-    ``phone_seconds_per_token`` seconds of phones it adds (at least ``min_message_cost``) or per
-    ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
-    least :data:`MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
-    bytes. ``static_dir``: the built web app (default
-    :data:`STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
-    and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
-    looks it lacks (:func:`vispeech.motion.head.prepared_head`, done once when the app is made);
-    ``False`` serves the file as it is.
-
-    Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
-    in pieces of ``piece_seconds``) with at most ``max_queue`` jobs waiting (503 / stream
-    error beyond). ``max_streams`` WebSocket connections at once, ``max_streams_per_ip`` of
-    them from one address; each closes after ``idle_timeout`` s without a message while
-    nothing is being computed, and after ``stream_timeout`` s in all. A phones message may add
-    at most ``max_message_seconds`` s of phones, a phone or audio stream reach ``max_stream_seconds``.
-    Audio: an upload's body may have ``max_audio_bytes``, a live chunk ``max_chunk_bytes``; a live
-    client that sends audio faster than ``max_audio_speed`` times real time is warned
-    (``too_fast``), and so is one whose frames leave more than ``max_audio_lag`` s after their
-    audio arrived (``behind``); the server reads no more of a connection's audio while
-    ``max_audio_backlog`` s of it wait (TCP then slows the client).
-    ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.serve.safety.HostOriginCheck`;
-    ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
-    ``cache_bytes`` caps the cache's size. ``switch_interval``: the GIL switch interval the
-    server sets when it starts (seconds; ``None`` leaves Python's 5 ms), so the event loop wins
-    the GIL back quickly from a busy worker after each socket call.
-    """
-
-    avatar: Path | None = None
-    avatar_credit: str | None = None
-    prepare_avatar: bool = True
-    cache: str | os.PathLike | None = None
-    cache_entries: int = 10_000
-    cache_bytes: int = 512 * 1024 * 1024
-    bot: ChatBot = field(default_factory=RuleBot)
-    default_model: str = DEFAULT_MODEL
-    stream_model: str | None = None
-    audio_model: str | None = DEFAULT_AUDIO_STREAM_MODEL
-    fps: float = DEFAULT_FPS
-    rate_limit: float = 2.0
-    burst: int = 20
-    max_body_bytes: int = 64 * 1024
-    max_message_bytes: int = 64 * 1024
-    max_audio_bytes: int = 32 * 1024 * 1024
-    max_chunk_bytes: int = 32 * 1024
-    max_streams: int = 500
-    max_streams_per_ip: int = 8
-    idle_timeout: float = 30.0
-    stream_timeout: float = 600.0
-    max_message_seconds: float = 20.0
-    max_stream_seconds: float = MAX_STREAM_SECONDS
-    chars_per_token: float = 100.0
-    phone_seconds_per_token: float = 1.0
-    min_message_cost: float = 0.05
-    audio_seconds_per_token: float = 4.0
-    max_audio_speed: float = 4.0
-    max_audio_lag: float = 0.5
-    max_audio_backlog: float = 2.0
-    workers: int = field(default_factory=_default_workers)
-    max_queue: int = 64
-    piece_seconds: float = 1.0
-    switch_interval: float | None = 0.0005
-    allowed_hosts: tuple[str, ...] = DEFAULT_ALLOWED_HOSTS
-    allowed_origins: tuple[str, ...] | None = None
-    token: str | None = None
-    static_dir: Path | None = None
-    scale: str = DEFAULT_SCALE
-    voice: str | None = None
-
-    def to_json(self) -> str:
-        """The settings as JSON, for the server's other processes (:func:`app_from_environment`).
-
-        Raises :class:`VispeechError` for a chat bot other than the rule bot or the HTTP relay."""
-        data = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "bot"}
-        data = {k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v for k, v in data.items()}
-        bot = self.bot
-        if isinstance(bot, HTTPChatBot):
-            data["bot"] = {"url": bot.url, "message_field": bot.message_field, "lang_field": bot.lang_field,
-                           "reply_field": bot.reply_field, "headers": bot.headers, "timeout": bot.timeout}
-        elif type(bot) is RuleBot:
-            data["bot"] = None
-        else:
-            raise VispeechError(f"the chat bot {bot!r} cannot be handed to other server processes")
-        return json.dumps(data)
-
-    @classmethod
-    def from_json(cls, text: str) -> ServeConfig:
-        """The settings :meth:`to_json` wrote."""
-        data = json.loads(text)
-        bot = data.pop("bot")
-        for key in ("avatar", "static_dir"):
-            data[key] = None if data[key] is None else Path(data[key])
-        for key in ("allowed_hosts", "allowed_origins"):
-            data[key] = None if data[key] is None else tuple(data[key])
-        return cls(**data, bot=RuleBot() if bot is None else HTTPChatBot(**bot))
-
-
-CONFIG_VARIABLE = "VISPEECH_SERVE_CONFIG"
-"""The environment variable through which ``vispeech serve --processes N`` hands its settings
-(:meth:`ServeConfig.to_json`) to each server process."""
 
 
 def app_from_environment() -> FastAPI:
