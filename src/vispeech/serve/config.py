@@ -14,14 +14,41 @@ from vispeech.serve.bot import ChatBot, HTTPChatBot, RuleBot
 from vispeech.serve.safety import DEFAULT_ALLOWED_HOSTS
 from vispeech.serve.schemas import MAX_STREAM_SECONDS
 
+_MIB = 1024 * 1024
+"""Bytes in a mebibyte."""
+
 
 def _default_workers() -> int:
     return max(1, (os.cpu_count() or 2) - 1)
 
 
+@dataclass(frozen=True)
+class Option:
+    """How ``vispeech serve`` sets a :class:`ServeConfig` field; the option's default is the field's.
+
+    ``name``: the option (``--rate-limit``); ``minimum``: the least number it takes; ``unit``: it
+    counts in units of this many of the field's (``--cache-mb``: MiB of ``cache_bytes``);
+    ``envvar``: where it is read from when not given; ``negated``: a flag that sets a true field
+    false (``--avatar-as-is``).
+    """
+
+    name: str
+    help: str
+    minimum: float | None = None
+    unit: int = 1
+    envvar: str | None = None
+    negated: bool = False
+
+
+def _option(name: str, help: str, **more) -> dict[str, Option]:
+    """A field's metadata: the :class:`Option` that sets it from the command line."""
+    return {"option": Option(name, help, **more)}
+
+
 @dataclass
 class ServeConfig:
-    """Server settings.
+    """Server settings, with every default of the server; a field with an :class:`Option` in its
+    metadata is a ``vispeech serve`` option as well.
 
     ``cache``: SQLite file of the utterance cache (``None``: the user cache folder,
     ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
@@ -59,27 +86,44 @@ class ServeConfig:
     the GIL back quickly from a busy worker after each socket call.
     """
 
-    avatar: Path | None = None
-    avatar_credit: str | None = None
-    prepare_avatar: bool = True
-    cache: str | os.PathLike | None = None
+    avatar: Path | None = field(default=None, metadata=_option(
+        "--avatar", "glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
+        "lacks (vispeech rig prepare)."))
+    avatar_credit: str | None = field(default=None, metadata=_option(
+        "--avatar-credit", 'Credit line shown under the head, e.g. "3D head: ICT-FaceKit (USC ICT), MIT licence".'))
+    prepare_avatar: bool = field(default=True, metadata=_option(
+        "--avatar-as-is", "Serve --avatar untouched (no tongue targets or paint added).", negated=True))
+    cache: str | os.PathLike | None = field(default=None, metadata=_option(
+        "--cache", "SQLite file of the utterance cache [default: serve.sqlite3 in ~/.cache/vispeech]."))
     cache_entries: int = 10_000
-    cache_bytes: int = 512 * 1024 * 1024
+    cache_bytes: int = field(default=512 * _MIB, metadata=_option(
+        "--cache-mb", "Largest size of the utterance cache (MiB of audio and animation).", minimum=1, unit=_MIB))
     bot: ChatBot = field(default_factory=RuleBot)
-    default_model: str = DEFAULT_MODEL
-    stream_model: str | None = None
-    audio_model: str | None = DEFAULT_AUDIO_STREAM_MODEL
+    default_model: str = field(default=DEFAULT_MODEL, metadata=_option(
+        "--model", "Default model of /api/speak and /api/chat."))
+    stream_model: str | None = field(default=None, metadata=_option(
+        "--stream-model", "Model name or saved model folder for /api/stream [default: the shipped "
+        "grid-tdnn-lowlatency]."))
+    audio_model: str | None = field(default=DEFAULT_AUDIO_STREAM_MODEL, metadata=_option(
+        "--audio-model", "Audio model name or saved folder for /api/listen and /api/animate without a transcript "
+        "(none when the default is not installed)."))
     fps: float = DEFAULT_FPS
-    rate_limit: float = 2.0
-    burst: int = 20
+    rate_limit: float = field(default=2.0, metadata=_option(
+        "--rate-limit", "Requests a second per client IP for speak, chat and stream texts (0: no limit).", minimum=0))
+    burst: int = field(default=20, metadata=_option("--burst", "Requests a client may make at once.", minimum=1))
     max_body_bytes: int = 64 * 1024
     max_message_bytes: int = 64 * 1024
-    max_audio_bytes: int = 32 * 1024 * 1024
+    max_audio_bytes: int = 32 * _MIB
     max_chunk_bytes: int = 32 * 1024
-    max_streams: int = 500
-    max_streams_per_ip: int = 8
-    idle_timeout: float = 30.0
-    stream_timeout: float = 600.0
+    max_streams: int = field(default=500, metadata=_option(
+        "--max-streams", "WebSocket connections open at once.", minimum=1))
+    max_streams_per_ip: int = field(default=8, metadata=_option(
+        "--max-streams-per-ip", "WebSocket connections open at once from one client address.", minimum=1))
+    idle_timeout: float = field(default=30.0, metadata=_option(
+        "--idle-timeout", "Seconds a WebSocket may stay silent (with nothing being computed) before it is closed.",
+        minimum=0.1))
+    stream_timeout: float = field(default=600.0, metadata=_option(
+        "--stream-timeout", "Seconds a WebSocket connection may stay open in all.", minimum=1))
     max_message_seconds: float = 20.0
     max_stream_seconds: float = MAX_STREAM_SECONDS
     chars_per_token: float = 100.0
@@ -89,19 +133,25 @@ class ServeConfig:
     max_audio_speed: float = 4.0
     max_audio_lag: float = 0.5
     max_audio_backlog: float = 2.0
-    workers: int = field(default_factory=_default_workers)
-    max_queue: int = 64
+    workers: int = field(default_factory=_default_workers, metadata=_option(
+        "--workers", "Threads for the CPU-heavy work [default: cores - 1].", minimum=1))
+    max_queue: int = field(default=64, metadata=_option(
+        "--max-queue", "Jobs that may wait for a worker; beyond that requests get 503 (busy).", minimum=1))
     piece_seconds: float = 1.0
     switch_interval: float | None = 0.0005
     allowed_hosts: tuple[str, ...] = DEFAULT_ALLOWED_HOSTS
     allowed_origins: tuple[str, ...] | None = None
-    token: str | None = None
+    token: str | None = field(default=None, metadata=_option(
+        "--token", "Require this bearer token for the API and the stream (pages and /api/config stay open; open a "
+        "page with ?token=... to let it in).", envvar="VISPEECH_TOKEN"))
     static_dir: Path | None = None
     scale: str = DEFAULT_SCALE
-    voice: str | None = None
+    voice: str | None = field(default=None, metadata=_option(
+        "--voice", "The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages "
+        "--variants`)."))
 
     def to_json(self) -> str:
-        """The settings as JSON, for the server's other processes (:func:`app_from_environment`).
+        """The settings as JSON, for the server's other processes (:func:`~vispeech.serve.app.app_from_environment`).
 
         Raises :class:`VispeechError` for a chat bot other than the rule bot or the HTTP relay."""
         data = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "bot"}

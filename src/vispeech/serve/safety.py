@@ -179,7 +179,10 @@ class RateLimited(Exception):
 
 # -- Host, Origin and token -------------------------------------------------------------------------
 
-DEFAULT_ALLOWED_HOSTS = ("localhost", "127.0.0.1", "::1", "testserver")
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
+"""The names of this machine, which a server answers to whatever else it allows."""
+
+DEFAULT_ALLOWED_HOSTS = (*LOOPBACK_HOSTS, "testserver")
 """Host names the server answers to by default: loopback (and ``testserver``, Starlette's
 TestClient, which no DNS name can be)."""
 
