@@ -418,7 +418,7 @@ def test_the_server_pushes_the_sessions_of_one_tick_together():
     import asyncio
     import json
 
-    from vispeech.serve.app import SpeechService
+    from vispeech.serve.service import SpeechService
 
     service = SpeechService(ServeConfig(cache=":memory:", workers=1))
     model = service.models["grid-tdnn-lowlatency"]

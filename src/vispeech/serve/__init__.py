@@ -4,10 +4,11 @@ Start it with ``vispeech serve`` or ``uvicorn`` on :func:`create_app`; ``docs/se
 describes the routes, the stream protocol and the limits.
 """
 
-from vispeech.serve.app import SpeechService, create_app
+from vispeech.serve.app import create_app
 from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache, default_cache_path
 from vispeech.serve.config import ServeConfig
+from vispeech.serve.service import SpeechService
 from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
 
 __all__ = [

@@ -61,7 +61,7 @@ class ServeConfig:
     message costs a token per ``chars_per_token`` characters of text (at least one), per
     ``phone_seconds_per_token`` seconds of phones it adds (at least ``min_message_cost``) or per
     ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
-    least :data:`~vispeech.serve.app.MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
+    least :data:`~vispeech.serve.service.MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
     bytes. ``static_dir``: the built web app (default
     :data:`~vispeech.serve.app.STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
     and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted

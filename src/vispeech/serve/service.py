@@ -1,0 +1,329 @@
+"""The speech service behind the server's routes: its models, cache, rate limit, work pool and
+chat bot, and the calls into the library (no HTTP); the push batcher that runs the phone-stream
+pushes of all sessions together."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import json
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.errors import VispeechError
+from vispeech.frontends.audio import read_upload
+from vispeech.frontends.espeak import check_variant, find_voice, voices
+from vispeech.frontends.text import detect_language
+from vispeech.models.contract import Estimator
+from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
+from vispeech.motion.rigging.calibration import Calibration, load_scale
+from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
+from vispeech.motion.life import with_life
+from vispeech.motion.track import Track
+from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
+from vispeech.serve.bot import ChatBotError
+from vispeech.serve.cache import CacheKey, UtteranceCache
+from vispeech.serve.config import ServeConfig
+from vispeech.serve.pool import WorkPool
+from vispeech.serve.safety import ConnectionCounter, RateLimited, TokenBucket
+from vispeech.serve.schemas import MAX_TEXT_CHARS, AnimateQuery, FramesMessage
+from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
+from vispeech.utterance import Utterance
+
+log = logging.getLogger("vispeech.serve")
+
+LOW_LATENCY_MODEL = "grid-tdnn-lowlatency"
+"""The shipped low-latency network (2 frames of look-ahead): what the stream uses unless told otherwise."""
+
+TEXT_WORK_PER_CHAR = 4e-4
+"""Estimated worker seconds per character of text spoken (the work pool's weight of a job)."""
+PHONE_WORK_PER_SECOND = 0.03
+"""Estimated worker seconds per second of phones pushed."""
+AUDIO_WORK_PER_SECOND = 0.03
+"""Estimated worker seconds per second of audio animated (an upload) or pushed (live audio)."""
+MIN_CHUNK_SECONDS = 0.01
+"""A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
+
+
+class PushBatcher:
+    """Phone-stream pushes of every session, batched: those made in one turn of the event loop, and
+    all that come while a batch runs, go to the pool as one job (:func:`vispeech.streaming.push_together`:
+    one network step per frame for all of the sessions of a model, instead of one each).
+
+    ``batches`` and ``pushes`` count what it ran, ``largest`` is the most pushes one batch held.
+    """
+
+    def __init__(self, service: SpeechService) -> None:
+        self.service = service
+        self._waiting: list[tuple[PhoneStream, list[Phone], float, asyncio.Future]] = []
+        self._scheduled = self._running = False
+        self.batches = self.pushes = self.largest = 0
+
+    async def push(self, stream: PhoneStream, phones: list[Phone], weight: float) -> str | None:
+        """The ``frames`` message (server scale) of ``stream.push(phones)``, or None for no frames."""
+        loop = asyncio.get_running_loop()
+        future = loop.create_future()
+        self._waiting.append((stream, phones, weight, future))
+        if not self._scheduled:
+            self._scheduled = True
+            loop.call_soon(self._flush)  # the pushes of this turn of the loop go together
+        return await future
+
+    def _flush(self) -> None:
+        self._scheduled = False
+        if self._running or not self._waiting:
+            return  # the running batch flushes what waits when it ends
+        batch, self._waiting = self._waiting, []
+        self._running = True
+        asyncio.ensure_future(self._run(batch))
+
+    async def _run(self, batch: list) -> None:
+        try:
+            results = await self.service.pool.run("phone streams", self._frames, [(s, p) for s, p, _, _ in batch],
+                                                  weight=sum(weight for _, _, weight, _ in batch))
+        except BaseException as exc:  # Busy, shutting down: every session of the batch is told
+            results = [exc] * len(batch)
+        self.batches += 1
+        self.pushes += len(batch)
+        self.largest = max(self.largest, len(batch))
+        for (_, _, _, future), result in zip(batch, results):
+            if future.done():
+                continue
+            if isinstance(result, BaseException):
+                future.set_exception(result)
+            else:
+                future.set_result(result)
+        self._running = False
+        self._flush()
+
+    def _frames(self, pushes: list[tuple[PhoneStream, list[Phone]]]) -> list[str | None | VispeechError]:
+        """:func:`~vispeech.streaming.push_together` of ``(stream, phones)`` pairs: each one's ``frames``
+        message (``None`` for none), or its error."""
+        return [result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
+                for (stream, _), result in zip(pushes, push_together(pushes))]
+
+
+class SpeechService:
+    """The models, cache and bot behind the routes (the library calls, without HTTP)."""
+
+    def __init__(self, config: ServeConfig) -> None:
+        self.config = config
+        self.calibration = load_scale(config.scale)
+        check_variant(config.voice)
+        self.models: dict[str, Estimator] = {}
+        self.versions: dict[str, str] = {}
+        for name in RUNNABLE:
+            self._add(name, load_model(name), pretrained_path(name) if name in PRETRAINED else None)
+        if config.default_model not in self.models:
+            raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
+        self.stream_model = self._choose_stream_model(config.stream_model)
+        self.audio_model = self._choose_audio_model(config.audio_model)
+        self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
+        self.bucket = TokenBucket(config.rate_limit, config.burst)
+        self.pool = WorkPool(config.workers, config.max_queue)
+        self.pushes = PushBatcher(self)
+        self.connections = ConnectionCounter(config.max_streams, config.max_streams_per_ip)
+
+    @property
+    def active_streams(self) -> int:
+        return self.connections.total
+
+    @property
+    def chat_languages(self) -> list[str] | None:
+        """The languages the chat bot answers in (``None``: any, or it does not say)."""
+        languages = getattr(self.config.bot, "languages", None)
+        return None if languages is None else list(languages)
+
+    def text_cost(self, text: str) -> float:
+        """Rate-limit tokens a text costs: one per ``chars_per_token`` characters, at least one."""
+        return max(1.0, len(text) / self.config.chars_per_token)
+
+    def audio_cost(self, seconds: float) -> float:
+        """Rate-limit tokens an uploaded recording costs: one per ``audio_seconds_per_token`` seconds, at least one."""
+        return max(1.0, seconds / self.config.audio_seconds_per_token)
+
+    def pay(self, key: str, cost: float) -> None:
+        """Spend ``cost`` of client ``key``'s tokens; :class:`RateLimited` when it has too few."""
+        if not self.bucket.take(key, cost):
+            raise RateLimited(self.bucket)
+
+    def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
+        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's
+        files) and the output scale's gains, so a cached answer is never of another scale."""
+        self.models[name] = model
+        gains = {} if self.calibration is None else self.calibration.gains
+        scale = hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest()[:8]
+        self.versions[name] = f"{model_version(model, folder)}+scale-{scale}"
+
+    def scaled(self, rows: np.ndarray, channels: tuple[str, ...], fps: float) -> np.ndarray:
+        """Frames of a stream (rows over ``channels``) in the server's output scale."""
+        if self.calibration is None or not len(rows):
+            return rows
+        return self.calibration.apply(Track(rows, channels, fps)).values
+
+    def frames_message(self, stream: PhoneStream | LiveAudioStream, start: int, rows: np.ndarray) -> str | None:
+        """Frames of a stream from ``start``, in the server's output scale, as a ``frames`` message
+        (``None`` for none)."""
+        if not len(rows):
+            return None
+        rows = self.scaled(rows, stream.channels, stream.fps)
+        return FramesMessage(start_frame=start, frames=rows.round(6).tolist()).model_dump_json()
+
+    def step(self, stream: PhoneStream | LiveAudioStream, step: Callable, *args) -> str | None:
+        """Run a phone or audio stream's ``push`` / ``finish``: its frames as a :meth:`frames_message`."""
+        return self.frames_message(stream, *step(*args))
+
+    def _choose_stream_model(self, spec: str | None) -> str:
+        if spec is None:
+            if LOW_LATENCY_MODEL in self.models:
+                return LOW_LATENCY_MODEL
+            log.info("%s is not trained: streaming uses %s", LOW_LATENCY_MODEL, self.config.default_model)
+            return self.config.default_model
+        return self._offer(spec)
+
+    def _choose_audio_model(self, spec: str | None) -> str | None:
+        if spec is None:
+            return None
+        if spec == DEFAULT_AUDIO_STREAM_MODEL and spec not in self.models:
+            log.info("%s is not installed: no audio model (start the server with --audio-model)", spec)
+            return None
+        name = self._offer(spec)
+        if self.models[name].input_kind != "audio":
+            raise VispeechError(f"the audio model must animate audio: {name} animates phones")
+        return name
+
+    def _offer(self, spec: str) -> str:
+        """The name of model ``spec``: one offered already, or a trained model's folder, loaded and offered."""
+        if spec in self.models:
+            return spec
+        model = load_model(spec)
+        model.check_fitted()
+        folder = Path(spec)
+        name = model.name if model.name not in self.models else f"{model.name}:{folder.name}"
+        self._add(name, model, folder)
+        return name
+
+    def warm_up(self) -> None:
+        """Load espeak-ng's voices and run the default, stream and audio models once, so a first request is
+        no slower."""
+        for language, text in GREETINGS.items():
+            utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
+            with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
+                animate(utterance.phones, self.models[self.stream_model], self.config.fps)
+        if self.audio_model is not None:
+            stream = LiveAudioStream(self.models[self.audio_model], 48_000, self.config.fps)
+            stream.push(bytes(48_000))
+            stream.finish()
+
+    def model(self, name: str | None, stream: bool = False, audio: bool = False) -> tuple[str, Estimator]:
+        """The model called ``name`` (``None``: the default; the stream model when ``stream``, the audio
+        model when ``audio``)."""
+        if name is None and audio:
+            if self.audio_model is None:
+                raise VispeechError("this server has no audio model: name one (model), or start the server "
+                                    "with --audio-model NAME|FOLDER")
+            name = self.audio_model
+        name = name or (self.stream_model if stream else self.config.default_model)
+        if name not in self.models:
+            raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
+        return name, self.models[name]
+
+    def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
+        name, model = self.model(model_name)
+        voice = find_voice(lang)
+        selector = voice.selector if self.config.voice is None else f"{voice.selector}+{self.config.voice}"
+        return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
+
+    def lookup(self, text: str, lang: str, model_name: str | None, rate: float,
+               life: tuple[str, ...] = (), seed: int = 0) -> dict | None:
+        """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
+        key, _ = self._key(text, lang, model_name, rate)
+        entry = self.cache.get(key)
+        return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
+
+    def speak(self, text: str, lang: str, model_name: str | None, rate: float,
+              life: tuple[str, ...] = (), seed: int = 0) -> dict:
+        """A :class:`SpeakResponse` as a dict, from the cache when the same request was answered before.
+
+        The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
+        added to each answer, so every seed shares the speech's entry and its audio."""
+        key, model = self._key(text, lang, model_name, rate)
+        entry = self.cache.get(key)
+        cached = entry is not None
+        if entry is None:
+            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, variant=self.config.voice)
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
+        return self._answer(entry, text, cached, life=life, seed=seed)
+
+    def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
+        """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
+        name, model = self.model(query.model, audio=query.text is None)
+        fps = query.fps or self.config.fps
+        return CacheKey(query.text or "", query.lang, f"upload:{digest}", 1.0, name, self.versions[name], fps), model
+
+    def lookup_upload(self, digest: str, query: AnimateQuery) -> dict | None:
+        """The cached :class:`SpeakResponse` for this upload as a dict, or ``None`` (nothing computed)."""
+        key, _ = self._upload_key(digest, query)
+        entry = self.cache.get(key)
+        return None if entry is None else self._answer(entry, query.text or "", cached=True)
+
+    def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> dict:
+        """A :class:`SpeakResponse` as a dict for an uploaded recording (``data``, the file's bytes):
+        :func:`vispeech.pipeline.listen`, from the cache when the same file came with the same options."""
+        key, model = self._upload_key(digest, query)
+        entry = self.cache.get(key)
+        cached = entry is not None
+        if entry is None:
+            utterance = listen(read_upload(data), query.text, query.lang, model=model, fps=key.fps)
+            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
+        return self._answer(entry, query.text or "", cached)
+
+    def _answer(self, entry, text: str, cached: bool, life: tuple[str, ...] = (), seed: int = 0) -> dict:
+        animation = json.loads(entry.animation)
+        if life:
+            animation = self._with_life(animation, life, seed)
+        return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": animation, "text": text, "cached": cached}
+
+    def _with_life(self, animation: dict, life: tuple[str, ...], seed: int) -> dict:
+        """Animation JSON (a dict) with the channels of the non-verbal layers ``life`` added (replacing
+        any it had), timed by its phones and in the server's output scale."""
+        phones = PhoneSequence.from_dict(animation["phones"]) if animation.get("phones") else None
+        track = with_life(Track.from_dict(animation), phones, life, seed, scale=self.calibration)
+        return {**animation, **track.to_dict()}
+
+    def reply(self, message: str, lang: str) -> tuple[str, str]:
+        """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
+        to speak it in: the message's or the page's (``lang``).
+
+        A bot with a list of languages (the rule bot) answers in the one the message is written
+        in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``lang``; a
+        bot that answers in any language (an HTTP chat service) is asked in ``lang`` and its
+        reply is spoken in the language the reply is written in, else in ``lang``."""
+        languages = self.chat_languages
+        asked = lang
+        if languages is not None:
+            asked = detect_language(message, languages) or lang
+        reply = self.config.bot.reply(message, asked)
+        if not isinstance(reply, str) or not reply.strip():
+            raise ChatBotError("the chat bot gave no reply")
+        reply = reply.strip()[:MAX_TEXT_CHARS]
+        if languages is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
+            codes = [alias for v in voices() for alias in v.aliases] + [v.language for v in voices()]
+            said = detect_language(reply, codes)
+            asked = lang if said is None else find_voice(said).language
+        return reply, asked
+
+
+
+def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:
+    """An utterance's track (in ``calibration``'s scale) and phones (when it has them) as compact
+    vispeech animation JSON."""
+    phones = None if utterance.phones is None else utterance.phones.to_dict()
+    track = utterance.track if calibration is None else calibration.apply(utterance.track)
+    animation = {"format": ANIMATION_FORMAT, "version": 1, **track.to_dict(), "phones": phones}
+    return json.dumps(animation, separators=(",", ":"))
