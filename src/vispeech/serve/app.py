@@ -211,27 +211,27 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         return JSONResponse({"detail": "internal server error"}, status_code=500)
 
     @app.get("/api/config", response_model=ConfigResponse)
-    async def get_config() -> dict:
+    async def get_config() -> ConfigResponse:
         """What the web app needs: avatar URL, languages, the models that speak text and those that
         animate audio, frame rate."""
-        return {
-            "avatar_url": "/avatar.glb" if config.avatar is not None else None,
-            "avatar_credit": config.avatar_credit,
-            "languages": [v.language for v in sorted(voices(), key=lambda v: (v.phones == "ipa", v.language != "sv"))],
-            "language_names": {v.language: v.name.strip() for v in voices()},
-            "chat_languages": service.chat_languages,
-            "models": [name for name, model in service.models.items() if model.input_kind == "phones"],
-            "audio_models": [name for name, model in service.models.items() if model.input_kind == "audio"],
-            "default_model": config.default_model,
-            "stream_model": service.stream_model,
-            "audio_model": service.audio_model,
-            "fps": config.fps,
-            "max_text": MAX_TEXT_CHARS,
-            "token_required": config.token is not None,
-        }
+        return ConfigResponse(
+            avatar_url="/avatar.glb" if config.avatar is not None else None,
+            avatar_credit=config.avatar_credit,
+            languages=[v.language for v in sorted(voices(), key=lambda v: (v.phones == "ipa", v.language != "sv"))],
+            language_names={v.language: v.name.strip() for v in voices()},
+            chat_languages=service.chat_languages,
+            models=[name for name, model in service.models.items() if model.input_kind == "phones"],
+            audio_models=[name for name, model in service.models.items() if model.input_kind == "audio"],
+            default_model=config.default_model,
+            stream_model=service.stream_model,
+            audio_model=service.audio_model,
+            fps=config.fps,
+            max_text=MAX_TEXT_CHARS,
+            token_required=config.token is not None,
+        )
 
     @app.post("/api/speak", response_model=SpeakResponse, responses=_ERRORS)
-    async def post_speak(request: SpeakRequest, http: Request) -> dict:
+    async def post_speak(request: SpeakRequest, http: Request) -> SpeakResponse:
         """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
         ip = client_key(http.scope)
         service.pay(ip, service.text_cost(request.text))
@@ -242,7 +242,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     @app.post("/api/animate", response_model=SpeakResponse, responses={**_ERRORS, 415: {"model": ErrorResponse}},
               openapi_extra={"requestBody": {"required": True, "content": {
                   kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}})
-    async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request) -> dict:
+    async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request) -> SpeakResponse | JSONResponse:
         """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
         content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
         the audio URL serving the recording as WAV (from the cache when the same file came before)."""
@@ -269,7 +269,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         return Response(wav, media_type="audio/wav", headers={"Cache-Control": "public, max-age=86400"})
 
     @app.post("/api/chat", response_model=ChatResponse, responses={**_ERRORS, 502: {"model": ErrorResponse}})
-    async def post_chat(request: ChatRequest, http: Request) -> dict:
+    async def post_chat(request: ChatRequest, http: Request) -> ChatResponse:
         """The chat bot's reply to ``message``, spoken unless ``speak`` is false."""
         ip = client_key(http.scope)
         service.pay(ip, service.text_cost(request.message))
@@ -282,7 +282,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
             args = (reply, spoken, request.model, 1.0, check_layers(request.life), request.seed)
             speech = (await run_in_threadpool(service.lookup, *args)
                       or await service.pool.run(ip, service.speak, *args, weight=len(reply) * TEXT_WORK_PER_CHAR))
-        return {"reply": reply, "lang": spoken, "speech": speech}
+        return ChatResponse(reply=reply, lang=spoken, speech=speech)
 
     @app.websocket("/api/stream")
     async def stream(websocket: WebSocket) -> None:

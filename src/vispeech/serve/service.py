@@ -27,11 +27,11 @@ from vispeech.motion.life import with_life
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
 from vispeech.serve.bot import ChatBotError
-from vispeech.serve.cache import CacheKey, UtteranceCache
+from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import WorkPool
 from vispeech.serve.safety import ConnectionCounter, RateLimited, TokenBucket
-from vispeech.serve.schemas import MAX_TEXT_CHARS, AnimateQuery, FramesMessage
+from vispeech.serve.schemas import MAX_TEXT_CHARS, AnimateQuery, AnimationJSON, FramesMessage, SpeakResponse
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
 from vispeech.utterance import Utterance
 
@@ -240,15 +240,15 @@ class SpeechService:
         return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
 
     def lookup(self, text: str, lang: str, model_name: str | None, rate: float,
-               life: tuple[str, ...] = (), seed: int = 0) -> dict | None:
-        """The cached :class:`SpeakResponse` for this request as a dict, or ``None`` (nothing computed)."""
+               life: tuple[str, ...] = (), seed: int = 0) -> SpeakResponse | None:
+        """The cached answer to this request, or ``None`` (nothing computed)."""
         key, _ = self._key(text, lang, model_name, rate)
         entry = self.cache.get(key)
         return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
 
     def speak(self, text: str, lang: str, model_name: str | None, rate: float,
-              life: tuple[str, ...] = (), seed: int = 0) -> dict:
-        """A :class:`SpeakResponse` as a dict, from the cache when the same request was answered before.
+              life: tuple[str, ...] = (), seed: int = 0) -> SpeakResponse:
+        """The answer to this request, from the cache when the same request was answered before.
 
         The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
         added to each answer, so every seed shares the speech's entry and its audio."""
@@ -266,14 +266,14 @@ class SpeechService:
         fps = query.fps or self.config.fps
         return CacheKey(query.text or "", query.lang, f"upload:{digest}", 1.0, name, self.versions[name], fps), model
 
-    def lookup_upload(self, digest: str, query: AnimateQuery) -> dict | None:
-        """The cached :class:`SpeakResponse` for this upload as a dict, or ``None`` (nothing computed)."""
+    def lookup_upload(self, digest: str, query: AnimateQuery) -> SpeakResponse | None:
+        """The cached answer for this upload, or ``None`` (nothing computed)."""
         key, _ = self._upload_key(digest, query)
         entry = self.cache.get(key)
         return None if entry is None else self._answer(entry, query.text or "", cached=True)
 
-    def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> dict:
-        """A :class:`SpeakResponse` as a dict for an uploaded recording (``data``, the file's bytes):
+    def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> SpeakResponse:
+        """The answer for an uploaded recording (``data``, the file's bytes):
         :func:`vispeech.pipeline.listen`, from the cache when the same file came with the same options."""
         key, model = self._upload_key(digest, query)
         entry = self.cache.get(key)
@@ -283,18 +283,20 @@ class SpeechService:
             entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
         return self._answer(entry, query.text or "", cached)
 
-    def _answer(self, entry, text: str, cached: bool, life: tuple[str, ...] = (), seed: int = 0) -> dict:
-        animation = json.loads(entry.animation)
+    def _answer(self, entry: CachedUtterance, text: str, cached: bool, life: tuple[str, ...] = (),
+                seed: int = 0) -> SpeakResponse:
+        animation = AnimationJSON.model_validate_json(entry.animation)
         if life:
             animation = self._with_life(animation, life, seed)
-        return {"audio_url": f"/api/audio/{entry.id}.wav", "animation": animation, "text": text, "cached": cached}
+        return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
 
-    def _with_life(self, animation: dict, life: tuple[str, ...], seed: int) -> dict:
-        """Animation JSON (a dict) with the channels of the non-verbal layers ``life`` added (replacing
-        any it had), timed by its phones and in the server's output scale."""
-        phones = PhoneSequence.from_dict(animation["phones"]) if animation.get("phones") else None
-        track = with_life(Track.from_dict(animation), phones, life, seed, scale=self.calibration)
-        return {**animation, **track.to_dict()}
+    def _with_life(self, animation: AnimationJSON, life: tuple[str, ...], seed: int) -> AnimationJSON:
+        """``animation`` with the channels of the non-verbal layers ``life`` added (replacing any it
+        had), timed by its phones and in the server's output scale."""
+        data = animation.model_dump()
+        phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
+        track = with_life(Track.from_dict(data), phones, life, seed, scale=self.calibration)
+        return AnimationJSON.model_validate({**data, **track.to_dict()})
 
     def reply(self, message: str, lang: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
