@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import os
 import re
@@ -32,8 +31,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import FastAPI, Query, Request, WebSocket
-from fastapi.exceptions import RequestValidationError
+from fastapi import FastAPI, HTTPException, Query, Request, WebSocket
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ValidationError
@@ -47,13 +45,12 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import probe_upload
 from vispeech.frontends.espeak import voices
 from vispeech.motion.life import check_layers
-from vispeech.serve.bot import ChatBotError
 from vispeech.serve.config import CONFIG_VARIABLE, ServeConfig
-from vispeech.serve.pool import Busy, Cancelled
+from vispeech.serve.errors import EXCEPTION_HANDLERS, REFUSALS, describe_errors
+from vispeech.serve.pool import Cancelled
 from vispeech.serve.safety import (
     BodySizeLimit,
     HostOriginCheck,
-    RateLimited,
     TokenAuth,
     client_key,
 )
@@ -116,29 +113,6 @@ def app_from_environment() -> FastAPI:
     return create_app(ServeConfig.from_json(text))
 
 
-def describe_errors(errors, skip: int = 0, what: str = "body", kinds: tuple[str, ...] = ("text", "phones")) -> str:
-    """Pydantic errors as one readable line: ``"text: String should have at most 1000 characters"``.
-
-    ``skip`` leading parts of each error's location are left out; an error of the whole
-    input is named ``what``; ``kinds`` are the message types a ``"type"`` may name.
-    """
-    choices = " or ".join(f'"{kind}"' for kind in kinds)
-    parts = []
-    for error in errors[:5]:
-        loc = [str(x) for x in error.get("loc", ())[skip:] if x not in ("body", "query")]
-        if error.get("type") == "json_invalid":
-            parts.append(f"the {what} is not valid JSON")
-        elif not loc and error.get("type") in ("missing", "model_attributes_type", "dict_type", "model_type"):
-            parts.append(f"the {what} must be a JSON object")
-        elif error.get("type") == "union_tag_not_found":
-            parts.append(f'"type" is missing: use {choices}')
-        elif error.get("type") == "union_tag_invalid":
-            parts.append(f'"type" must be {choices}, not {json.dumps(error.get("ctx", {}).get("tag"))[:50]}')
-        else:
-            parts.append(f"{'.'.join(loc) or what}: {error.get('msg', 'invalid')}")
-    return "; ".join(dict.fromkeys(parts))[:500] or "invalid request"
-
-
 def _avatar_bytes(path: Path) -> bytes | None:
     """The head at ``path`` prepared for the page (:func:`~vispeech.motion.head.prepared_head`), or None
     (served as it is) when it cannot be: the reason is logged."""
@@ -175,40 +149,12 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         service.cache.close()
 
     app = FastAPI(title="vispeech", version=vispeech.__version__, lifespan=lifespan,
-                  description="Speech animation: text to audio and ARKit blend-shape animation.")
+                  description="Speech animation: text to audio and ARKit blend-shape animation.",
+                  exception_handlers=EXCEPTION_HANDLERS)
     app.state.service = service
     app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes, paths={"/api/animate": config.max_audio_bytes})
     app.add_middleware(TokenAuth, token=config.token)
     app.add_middleware(HostOriginCheck, allowed_hosts=config.allowed_hosts, allowed_origins=config.allowed_origins)
-
-    @app.exception_handler(RequestValidationError)
-    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return JSONResponse({"detail": describe_errors(exc.errors())}, status_code=422)
-
-    @app.exception_handler(VispeechError)
-    async def refused_input(request: Request, exc: VispeechError) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=400)
-
-    @app.exception_handler(ChatBotError)
-    async def bot_failed(request: Request, exc: ChatBotError) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=502)
-
-    @app.exception_handler(RateLimited)
-    async def rate_limited(request: Request, exc: RateLimited) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=429, headers={"Retry-After": str(exc.retry_after)})
-
-    @app.exception_handler(Busy)
-    async def busy(request: Request, exc: Busy) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=503, headers={"Retry-After": str(exc.retry_after)})
-
-    @app.exception_handler(Cancelled)
-    async def cancelled(request: Request, exc: Cancelled) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=503, headers={"Retry-After": "1"})
-
-    @app.exception_handler(Exception)
-    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("internal error on %s", request.url.path)
-        return JSONResponse({"detail": "internal server error"}, status_code=500)
 
     @app.get("/api/config", response_model=ConfigResponse)
     async def get_config() -> ConfigResponse:
@@ -242,14 +188,13 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     @app.post("/api/animate", response_model=SpeakResponse, responses={**_ERRORS, 415: {"model": ErrorResponse}},
               openapi_extra={"requestBody": {"required": True, "content": {
                   kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}})
-    async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request) -> SpeakResponse | JSONResponse:
+    async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request) -> SpeakResponse:
         """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
         content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
         the audio URL serving the recording as WAV (from the cache when the same file came before)."""
         if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
-            return JSONResponse({"detail": "send the audio file itself as the request body (Content-Type "
-                                           "audio/wav, audio/flac, audio/mpeg, audio/ogg or application/octet-stream), "
-                                           "not a form or JSON"}, status_code=415)
+            raise HTTPException(415, "send the audio file itself as the request body (Content-Type audio/wav, "
+                                "audio/flac, audio/mpeg, audio/ogg or application/octet-stream), not a form or JSON")
         ip = client_key(http.scope)
         service.pay(ip, 1.0)
         data = await http.body()
@@ -265,7 +210,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         """The WAV file of a spoken utterance."""
         wav = service.cache.audio(audio_id) if _AUDIO_ID.match(audio_id) else None
         if wav is None:
-            return JSONResponse({"detail": "no such audio"}, status_code=404)
+            raise HTTPException(404, "no such audio")
         return Response(wav, media_type="audio/wav", headers={"Cache-Control": "public, max-age=86400"})
 
     @app.post("/api/chat", response_model=ChatResponse, responses={**_ERRORS, 502: {"model": ErrorResponse}})
@@ -489,7 +434,7 @@ class _StreamConnection(_Connection):
                 await self._text(message)
             else:
                 await self._phones(message)
-        except (VispeechError, RateLimited, Busy) as exc:
+        except REFUSALS as exc:
             if self.phones is not None and self.phones.closed:
                 self.phones = None
             await _error(self.ws, str(exc))
@@ -645,7 +590,7 @@ class _ListenConnection(_Connection):
                 await self._start(message)
             else:
                 await self._stop()
-        except (VispeechError, RateLimited, Busy) as exc:
+        except REFUSALS as exc:
             await _error(self.ws, str(exc))
         return True
 
@@ -696,7 +641,7 @@ class _ListenConnection(_Connection):
                 seconds += added
             text = await self._run(self.service.step, stream, stream.push, b"".join(pcm),
                                    weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND)
-        except (VispeechError, RateLimited, Busy) as exc:
+        except REFUSALS as exc:
             stream.close()
             self.audio, self.refusing = None, True
             await _error(self.ws, f"{exc}; the audio stream has ended (send a start message to begin another)")

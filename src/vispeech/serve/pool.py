@@ -17,7 +17,9 @@ class Busy(Exception):
 
 
 class Cancelled(Exception):
-    """The job's client went away before it started: it never ran."""
+    """The job's client went away before it started: it never ran (HTTP 503 with ``Retry-After``)."""
+
+    retry_after = 1
 
 
 class _Job:
