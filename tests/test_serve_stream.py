@@ -63,9 +63,9 @@ def receive_until_end(ws) -> list[dict]:
 def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
     import time
 
-    import vispeech.serve.app as app_module
+    import vispeech.serve.stream as stream_module
 
-    original = app_module.speech_messages
+    original = stream_module.speech_messages
 
     def slow_after_first(*args, **kwargs):  # an overloaded server: the second clause comes 1.5 s later
         for i, batch in enumerate(original(*args, **kwargs)):
@@ -73,7 +73,7 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
                 time.sleep(1.5)
             yield batch
 
-    monkeypatch.setattr(app_module, "speech_messages", slow_after_first)
+    monkeypatch.setattr(stream_module, "speech_messages", slow_after_first)
     with client.websocket_connect("/api/stream") as ws:
         ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
         messages = receive_until_end(ws)
@@ -83,7 +83,7 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
     assert 1.5 - first_clause - 0.3 < warnings[0]["seconds"] < 1.5 - first_clause + 0.5  # the sleep past the due time
     assert "overloaded" in warnings[0]["message"] and messages[-1]["type"] == "end"
 
-    monkeypatch.setattr(app_module, "speech_messages", original)
+    monkeypatch.setattr(stream_module, "speech_messages", original)
     with client.websocket_connect("/api/stream") as ws:  # in time: no warning
         ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
         assert "warning" not in [m["type"] for m in receive_until_end(ws)]

@@ -1,0 +1,144 @@
+"""``/api/stream``: texts spoken clause by clause (audio and frames as they are computed), and
+phone streams (timed phones in, frames out)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+from fastapi import APIRouter, WebSocket
+from pydantic import ValidationError
+
+from vispeech.alignment.phones import Phone
+from vispeech.errors import VispeechError
+from vispeech.serve.connection import Connection, message_json, send_error, send_message, serve_connection
+from vispeech.serve.dependencies import Service
+from vispeech.serve.errors import REFUSALS, describe_errors
+from vispeech.serve.schemas import ClientMessage, EndMessage, PhonesMessage, StartMessage, TextMessage, WarningMessage
+from vispeech.serve.service import PHONE_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
+from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
+
+router = APIRouter()
+
+
+@router.websocket("/api/stream")
+async def stream(websocket: WebSocket, service: Service) -> None:
+    """Speech animation as it is computed (see :mod:`vispeech.streaming`)."""
+    await serve_connection(websocket, service, StreamConnection)
+
+
+class StreamConnection(Connection):
+    """An ``/api/stream`` connection: texts spoken clause by clause, phone streams."""
+
+    def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
+        super().__init__(websocket, service, ip)
+        self.phones: PhoneStream | None = None
+
+    def _release(self) -> None:
+        if self.phones is not None:
+            self.phones.close()
+
+    async def _handle(self, event: dict) -> bool:
+        if await self._oversize(event):
+            return False
+        raw = event.get("text")
+        if raw is None:
+            await send_error(self.ws, "send JSON text messages")
+            return True
+        try:
+            message = ClientMessage.validate_json(raw)
+        except ValidationError as exc:
+            await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message"))
+            return True
+        try:
+            if isinstance(message, TextMessage):
+                if self.phones is not None:
+                    raise VispeechError('a phone stream is open: end it with "final": true first')
+                self.service.pay(self.ip, self.service.text_cost(message.text))
+                await self._text(message)
+            else:
+                await self._phones(message)
+        except REFUSALS as exc:
+            if self.phones is not None and self.phones.closed:
+                self.phones = None
+            await send_error(self.ws, str(exc))
+        return True
+
+    async def _text(self, message: TextMessage) -> None:
+        _, model = self.service.model(message.model, stream=True)
+        messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate,
+                                   scale=self.service.calibration, variant=self.config.voice)
+
+        def next_clause() -> tuple[list[str], float | None] | None:
+            batch = next(messages, None)
+            if batch is None:
+                return None
+            begin = next((item["start"] for item in batch if item["type"] == "audio"), None)
+            return [message_json(item) for item in batch], begin
+
+        weights = [len(clause) * TEXT_WORK_PER_CHAR for clause in split_clauses(message.text)]
+        playing = None  # when the first audio chunk left: the client's playback starts no earlier
+        try:
+            while (batch := await self._run(next_clause, weight=weights.pop(0) if weights else 0.0)) is not None:
+                texts, begin = batch
+                now = time.monotonic()
+                if playing is None and begin is not None:
+                    playing = now - begin
+                elif begin is not None and now - playing > begin:
+                    late = now - playing - begin
+                    await send_message(self.ws, WarningMessage(
+                        code="late", seconds=round(late, 3),
+                        message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
+                                "overloaded (buffer more before playing, or try again later)"))
+                for text in texts:
+                    await self.ws.send_text(text)
+        finally:
+            with contextlib.suppress(ValueError):  # still running in its thread
+                messages.close()
+
+    async def _phones(self, message: PhonesMessage) -> None:
+        """Frames for ``message``'s phones, pushed in pieces; with ``final`` the rest and ``end``."""
+        config, stream = self.config, self.phones
+        if stream is not None and message.lang is not None and message.lang != stream.language:
+            raise VispeechError(f"this phone stream is in {stream.language}, not {message.lang}")
+        begin = stream.end if stream is not None else 0.0
+        last = max((p.end for p in message.phones), default=begin)
+        added = max(0.0, last - begin)
+        if added > config.max_message_seconds + 1e-9:
+            raise VispeechError(f"a phones message may add at most {config.max_message_seconds:g} s of phones "
+                                f"(this one adds {added:.1f} s): send them in smaller messages")
+        if last > config.max_stream_seconds + 1e-9:
+            raise VispeechError(f"a phone stream may last at most {config.max_stream_seconds:g} s "
+                                f"(this message ends at {last:.1f} s)")
+        self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
+        if stream is None:
+            name, model = self.service.model(message.model, stream=True)
+            stream = await self._run(open_phone_stream, model, message.lang or "en", config.fps)
+            self.phones = stream
+            await send_message(self.ws, StartMessage(fps=stream.fps, channels=list(stream.channels), sample_rate=None,
+                                              model=name, lookahead=stream.lookahead))
+        phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
+        await self._run(stream.check, phones)  # refused whole before any piece is pushed
+        begin = stream.end
+        for piece in _pieces(phones, begin, config.piece_seconds):
+            weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
+            begin = piece[-1].end if piece else begin
+            if (text := await self.service.pushes.push(stream, piece, weight)) is not None:
+                await self.ws.send_text(text)
+        if message.final:
+            if (text := await self._run(self.service.step, stream, stream.finish)) is not None:
+                await self.ws.send_text(text)
+            self.phones = None
+            await send_message(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
+
+
+def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phone]]:
+    """``phones`` in consecutive groups covering at most ``seconds`` each (a longer phone alone);
+    one empty group for no phones."""
+    pieces: list[list[Phone]] = [[]]
+    for phone in phones:
+        if pieces[-1] and phone.end - begin > seconds:
+            begin = pieces[-1][-1].end
+            pieces.append([])
+        pieces[-1].append(phone)
+    return pieces
