@@ -63,7 +63,7 @@ class ServeConfig:
     ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
     least :data:`~vispeech.serve.service.MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
     bytes. ``static_dir``: the built web app (default
-    :data:`~vispeech.serve.app.STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
+    :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
     and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
     looks it lacks (:func:`vispeech.motion.head.prepared_head`, done once when the app is made);
     ``False`` serves the file as it is.

@@ -1,0 +1,121 @@
+"""The HTTP API: ``GET /api/config``, ``POST /api/speak``, ``POST /api/animate`` (an uploaded
+recording), ``GET /api/audio/<id>.wav`` and ``POST /api/chat``."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from vispeech.frontends.audio import probe_upload
+from vispeech.frontends.espeak import voices
+from vispeech.motion.life import check_layers
+from vispeech.serve.dependencies import ClientIP, Service
+from vispeech.serve.schemas import (
+    MAX_TEXT_CHARS,
+    AnimateQuery,
+    ChatRequest,
+    ChatResponse,
+    ConfigResponse,
+    ErrorResponse,
+    SpeakRequest,
+    SpeakResponse,
+)
+from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
+
+AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "application/octet-stream")
+"""Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
+_FORM_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "application/json")
+_AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
+_ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
+_AUDIO_BODY = {"requestBody": {"required": True, "content": {
+    kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}}
+
+router = APIRouter(prefix="/api")
+
+
+@router.get("/config")
+async def get_config(service: Service) -> ConfigResponse:
+    """What the web app needs: avatar URL, languages, the models that speak text and those that
+    animate audio, frame rate."""
+    config = service.config
+    return ConfigResponse(
+        avatar_url="/avatar.glb" if config.avatar is not None else None,
+        avatar_credit=config.avatar_credit,
+        languages=[v.language for v in sorted(voices(), key=lambda v: (v.phones == "ipa", v.language != "sv"))],
+        language_names={v.language: v.name.strip() for v in voices()},
+        chat_languages=service.chat_languages,
+        models=[name for name, model in service.models.items() if model.input_kind == "phones"],
+        audio_models=[name for name, model in service.models.items() if model.input_kind == "audio"],
+        default_model=config.default_model,
+        stream_model=service.stream_model,
+        audio_model=service.audio_model,
+        fps=config.fps,
+        max_text=MAX_TEXT_CHARS,
+        token_required=config.token is not None,
+    )
+
+
+@router.post("/speak", responses=_ERRORS)
+async def post_speak(request: SpeakRequest, service: Service, ip: ClientIP) -> SpeakResponse:
+    """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
+    service.pay(ip, service.text_cost(request.text))
+    return await _spoken(service, ip, request.text, request.lang, request.model, request.rate,
+                         check_layers(request.life), request.seed)
+
+
+@router.post("/animate", responses={**_ERRORS, 415: {"model": ErrorResponse}}, openapi_extra=_AUDIO_BODY)
+async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request, service: Service,
+                       ip: ClientIP) -> SpeakResponse:
+    """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
+    content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
+    the audio URL serving the recording as WAV (from the cache when the same file came before)."""
+    if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
+        raise HTTPException(415, "send the audio file itself as the request body (Content-Type audio/wav, "
+                            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream), not a form or JSON")
+    service.pay(ip, 1.0)
+    data = await http.body()
+    digest, duration = await run_in_threadpool(probe_upload, data)
+    service.bucket.charge(ip, service.audio_cost(duration) - 1.0)
+    cached = await run_in_threadpool(service.lookup_upload, digest, query)
+    if cached is not None:
+        return cached
+    return await service.pool.run(ip, service.animate_upload, data, digest, query,
+                                  weight=duration * AUDIO_WORK_PER_SECOND)
+
+
+@router.get("/audio/{audio_id}.wav", response_class=Response,
+            responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}})
+def get_audio(audio_id: str, service: Service) -> Response:
+    """The WAV file of a spoken utterance."""
+    wav = service.cache.audio(audio_id) if _AUDIO_ID.match(audio_id) else None
+    if wav is None:
+        raise HTTPException(404, "no such audio")
+    return Response(wav, media_type="audio/wav", headers={"Cache-Control": "public, max-age=86400"})
+
+
+@router.post("/chat", responses={**_ERRORS, 502: {"model": ErrorResponse}})
+async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> ChatResponse:
+    """The chat bot's reply to ``message``, spoken unless ``speak`` is false."""
+    service.pay(ip, service.text_cost(request.message))
+    if request.speak:
+        service.model(request.model)  # an unknown model is refused before the bot is asked
+    reply, spoken = await run_in_threadpool(service.reply, request.message, request.lang)  # may wait on a service
+    speech = None
+    if request.speak:
+        service.bucket.charge(ip, service.text_cost(reply))
+        speech = await _spoken(service, ip, reply, spoken, request.model, 1.0, check_layers(request.life),
+                               request.seed)
+    return ChatResponse(reply=reply, lang=spoken, speech=speech)
+
+
+async def _spoken(service: SpeechService, ip: str, text: str, *args) -> SpeakResponse:
+    """:meth:`SpeechService.speak` of ``text`` and ``args``: from the cache at once when it is there,
+    else in the work pool (a job of ``ip``'s)."""
+    cached = await run_in_threadpool(service.lookup, text, *args)
+    if cached is not None:
+        return cached
+    return await service.pool.run(ip, service.speak, text, *args, weight=len(text) * TEXT_WORK_PER_CHAR)
