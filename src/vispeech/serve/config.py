@@ -65,7 +65,7 @@ class ServeConfig:
     bytes. ``static_dir``: the built web app (default
     :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
     and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
-    looks it lacks (:func:`vispeech.motion.head.prepared_head`, done once when the app is made);
+    looks it lacks (:func:`vispeech.motion.rigging.head.prepared_head`, done once when the app is made);
     ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes

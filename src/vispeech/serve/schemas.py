@@ -108,7 +108,7 @@ class PhonesJSON(BaseModel):
 
 
 class AnimationJSON(BaseModel):
-    """vispeech animation JSON (see :mod:`vispeech.motion.jsonformat`): frame k at ``k / fps`` s."""
+    """vispeech animation JSON (see :mod:`vispeech.motion.formats.animation_json`): frame k at ``k / fps`` s."""
 
     format: Literal["vispeech-animation"] = ANIMATION_FORMAT
     version: int = 1
