@@ -48,7 +48,7 @@ GRID = Path(__file__).resolve().parents[2] / "shared" / "data" / "grid_s1"
 def train_tiny(grid: Path, folder: Path, look_ahead: int) -> Path:
     """The tests' tiny audio-cnn (tests/conftest.py ``tiny_audio_model``), with ``look_ahead`` frames."""
     from vispeech.corpus import align_corpus, read_grid
-    from vispeech.models.contract import Splits
+    from vispeech.models.fitting import Splits
     from vispeech.models.registry import create_model
 
     root = folder / "grid"

@@ -26,7 +26,7 @@ import numpy as np
 
 from vispeech.corpus import CorpusWarning, align_corpus, read_grid
 from vispeech.evaluation import evaluate_models
-from vispeech.models.contract import Splits
+from vispeech.models.fitting import Splits
 from vispeech.models.registry import create_model, family_class
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -125,7 +125,7 @@ def tiny_audio_model(tmp_path_factory) -> Path:
     source = SHARED / "data" / "grid_s1"
     require(source.is_dir(), f"GRID speaker 1 ({source})")
     from vispeech.corpus import align_corpus, read_grid
-    from vispeech.models.contract import Splits
+    from vispeech.models.fitting import Splits
     from vispeech.models.registry import create_model
 
     root = copy_grid_utterances(source, tmp_path_factory.mktemp("grid"), TINY_AUDIO_UTTERANCES)

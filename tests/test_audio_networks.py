@@ -10,7 +10,7 @@ import torch  # noqa: E402
 from vispeech import VispeechError  # noqa: E402
 from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
-from vispeech.models.contract import Splits  # noqa: E402
+from vispeech.models.fitting import Splits  # noqa: E402
 from vispeech.models.networks.audio import AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
 from vispeech.models.registry import create_model, load_model  # noqa: E402
 from vispeech.motion.track import Track  # noqa: E402

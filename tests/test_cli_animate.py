@@ -41,7 +41,7 @@ def audio_model(grid, tmp_path_factory) -> Path:
     """The folder of a tiny ``audio-cnn`` trained for one epoch on 8 GRID utterances (2 to validate)."""
     require_module("torch", "torch (the train extra)")
     from vispeech.corpus import align_corpus, read_grid, split_of
-    from vispeech.models.contract import Splits
+    from vispeech.models.fitting import Splits
     from vispeech.models.registry import create_model
 
     texts = dict(line.split("\t") for line in (grid / "sentences.tsv").read_text().splitlines()[1:])

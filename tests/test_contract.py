@@ -16,7 +16,10 @@ from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import synthesize
-from vispeech.models.contract import FORMAT, FORMAT_VERSION, Estimator, ModelStream, Splits
+from vispeech.models.contract import Estimator
+from vispeech.models.fitting import Splits
+from vispeech.models.persistence import FORMAT, FORMAT_VERSION
+from vispeech.models.streams import ModelStream
 from vispeech.models.networks.network import Network
 from vispeech.models.registry import (
     DATA_FREE, FAMILIES, PRETRAINED, RUNNABLE, create_model, family_class, load_folder, load_model, pretrained_path,

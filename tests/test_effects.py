@@ -129,7 +129,7 @@ def test_augmented_copies_are_other_voices_with_their_motion_in_step():
 
 
 def test_an_audio_network_trains_on_its_augmented_copies(monkeypatch):
-    from vispeech.models.contract import Splits
+    from vispeech.models.fitting import Splits
     from vispeech.models.networks import augmentation
     from vispeech.models.networks.audio import AudioCNNNetwork
 

@@ -10,7 +10,8 @@ from vispeech.alignment.phones import PhoneSequence
 from vispeech.corpus import Corpus, Utterance
 from vispeech.errors import VispeechError
 from vispeech.models.rules import cohen_massaro, ohman
-from vispeech.models.contract import Estimator, Splits
+from vispeech.models.contract import Estimator
+from vispeech.models.fitting import Splits
 from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.dominance_fit import ChannelProblem, FitData, PhoneTying, levenberg_marquardt
 from vispeech.models.registry import load_folder

@@ -17,7 +17,7 @@ from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from vispeech.alignment.phones import Phone, PhoneSequence  # noqa: E402
 from vispeech.errors import VispeechError  # noqa: E402
-from vispeech.models.contract import WindowStream  # noqa: E402
+from vispeech.models.streams import WindowStream  # noqa: E402
 from vispeech.models.registry import create_model  # noqa: E402
 from vispeech.models.rules.cohen_massaro import CohenMassaro  # noqa: E402
 from vispeech.pipeline import animate, speak  # noqa: E402

@@ -23,7 +23,7 @@ from vispeech import VispeechError  # noqa: E402
 from vispeech.cli import main  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
 from vispeech.frontends.encoder import SpeechEncoder  # noqa: E402
-from vispeech.models.contract import Splits  # noqa: E402
+from vispeech.models.fitting import Splits  # noqa: E402
 from vispeech.models.networks.audio import AUDIO_PARAMS, AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
 from vispeech.models.registry import load_model  # noqa: E402
 

@@ -270,7 +270,7 @@ class PhoneStream:
 def push_together(pushes: Sequence[tuple[PhoneStream, Iterable[Phone]]]) -> list[tuple[int, np.ndarray] | VispeechError]:
     """:meth:`PhoneStream.push` of several streams at once (concurrent sessions of a server): each
     stream's phones are checked and fed, the model work of all of them is done together where the
-    model can share it (:meth:`~vispeech.models.contract.ModelStream.advance_together`: one network
+    model can share it (:meth:`~vispeech.models.streams.ModelStream.advance_together`: one network
     step per frame for every stream of the same network), then each stream's frames are
     post-processed. In the place of a stream whose phones are refused is its :class:`VispeechError`
     (that stream is left as it was); the others go on."""

@@ -17,7 +17,8 @@ from importlib import resources
 from pathlib import Path
 
 from vispeech.errors import VispeechError
-from vispeech.models.contract import Estimator, read_config
+from vispeech.models.contract import Estimator
+from vispeech.models.persistence import model_from_config, read_config
 
 FAMILIES: dict[str, str] = {
     "audio-cnn": "vispeech.models.networks.audio:AudioCNNNetwork",
@@ -121,7 +122,7 @@ def model_version(model: Estimator, folder: Path | None = None) -> str:
 def load_folder(folder: Path) -> Estimator:
     """The model saved in ``folder``, whatever its family."""
     config = read_config(folder)
-    return family_class(config["family"])._from_config(folder, config)
+    return model_from_config(family_class(config["family"]), folder, config)
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
 from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, power_spectrogram, warp_frequencies
-from vispeech.models.contract import Splits, show_progress, training_split
+from vispeech.models.fitting import Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.audio_stream import AudioStream, EncoderStream
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel

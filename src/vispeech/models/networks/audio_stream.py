@@ -17,7 +17,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import SAMPLE_RATE, SpectrumStream
-from vispeech.models.contract import ModelStream, ResampledFrames
+from vispeech.models.streams import ModelStream, ResampledFrames
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork

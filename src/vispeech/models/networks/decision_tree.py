@@ -16,7 +16,8 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.contract import Estimator, training_split
+from vispeech.models.contract import Estimator
+from vispeech.models.fitting import training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.networks.kernels import overlap_average, padded_windows

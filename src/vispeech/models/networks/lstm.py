@@ -5,7 +5,7 @@ a linear output per frame, dropout 0.5, mini-batches of 10 utterances (Taylor et
 connected layer and two LSTM layers", 500 units best of 100–3000). Trained like the other
 networks (Adam, early stopping on the validation split); predicted with NumPy
 (:class:`~vispeech.models.networks.kernels.LSTMKernel`). Bidirectional, it needs the whole
-utterance: its stream re-predicts a recent window (:class:`~vispeech.models.contract.WindowStream`).
+utterance: its stream re-predicts a recent window (:class:`~vispeech.models.streams.WindowStream`).
 Taylor et al. found it "significantly worse" than the sliding window.
 """
 

@@ -36,9 +36,12 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.contract import FOLDER_NAMES, Estimator, ModelStream, WindowStream, show_progress, training_split
+from vispeech.models.contract import Estimator
+from vispeech.models.fitting import show_progress, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
+from vispeech.models.persistence import FOLDER_NAMES, write_model
+from vispeech.models.streams import ModelStream, WindowStream
 from vispeech.motion.arkit import ARKIT_NAMES, ARTICULATORY_CHANNELS, MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
@@ -196,7 +199,7 @@ class Network(Estimator):
     # -- fitting ---------------------------------------------------------------------------
 
     def fit(self, corpus, *, progress: bool | None = None) -> Network:
-        """Train on ``corpus`` (see :func:`~vispeech.models.contract.training_split`); returns ``self``.
+        """Train on ``corpus`` (see :func:`~vispeech.models.fitting.training_split`); returns ``self``.
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
         """
@@ -296,7 +299,7 @@ class Network(Estimator):
         from vispeech.models.networks.training import save_state
 
         with atomic_output_dir(folder, replaces=FOLDER_NAMES) as staging:
-            self._write_files(staging)
+            write_model(self, staging)
             save_state(state, module, staging)
 
     def _resumable(self, folder: Path) -> Network:
@@ -389,7 +392,7 @@ class Network(Estimator):
         return getattr(self, "fps_", None)
 
     def stream(self, language: str, fps: float) -> ModelStream:
-        """A re-predicted recent window (:class:`~vispeech.models.contract.WindowStream`), after
+        """A re-predicted recent window (:class:`~vispeech.models.streams.WindowStream`), after
         checking that the network takes ``language``'s phones."""
         self.check_fitted()
         self.encoding_.check(PhoneSequence([], language))

@@ -34,7 +34,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.contract import ModelStream, ResampledFrames, rate_ratio
+from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
 
@@ -230,7 +230,7 @@ class RecurrentStream(ModelStream):
         return np.stack([self._rows[i] for i in np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)])
 
     def _give(self, upto: int) -> tuple[int, np.ndarray]:
-        """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.contract.ResampledFrames`)."""
+        """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.streams.ResampledFrames`)."""
         if upto <= self.emitted or not self._frames.computed:
             return self._empty()
         start, self.emitted = self.emitted, upto

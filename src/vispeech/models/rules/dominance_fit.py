@@ -30,7 +30,7 @@ import numpy as np
 from vispeech.errors import VispeechError
 from vispeech.models.rules.segments import Segments
 from vispeech.phonetics.features import phone_rows
-from vispeech.models.contract import show_progress, training_split
+from vispeech.models.fitting import show_progress, training_split
 from vispeech.models.history import TrainingHistory
 
 TOLERANCE = 1e-4
@@ -71,7 +71,7 @@ class FitData:
 
     @classmethod
     def gather(cls, model, corpus, channels: Sequence[str] | None) -> FitData:
-        """Lay out ``corpus`` (see :func:`~vispeech.models.contract.training_split`) for ``model``
+        """Lay out ``corpus`` (see :func:`~vispeech.models.fitting.training_split`) for ``model``
         (a :class:`~vispeech.models.rules.phone_targets.PhoneTargetModel`); ``channels``
         default to the model's channels that every training track has."""
         train_set, held_out = training_split(corpus)
