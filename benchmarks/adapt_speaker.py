@@ -18,6 +18,7 @@ Prints RMSE (% of each channel's range) and Pearson r per channel.
 from __future__ import annotations
 
 import argparse
+import copy
 import time
 import warnings
 from dataclasses import replace
@@ -66,7 +67,7 @@ def main() -> None:
 
     base = load_model(args.model)
     started = time.perf_counter()
-    adapted = base.with_params(warm_start=True, epochs=args.epochs, patience=8).fit(small, progress=False)
+    adapted = copy.deepcopy(base).set_params(warm_start=True, epochs=args.epochs, patience=8).fit(small, progress=False)
     adapted_s = time.perf_counter() - started
     started = time.perf_counter()
     scratch = create_model(base.family, **{**base.get_params(), "epochs": args.epochs, "patience": 8,

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from conftest import random_sentence, require_module
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.espeak import synthesize
-from vispeech.models.contract import Estimator
+from vispeech.models.contract import Estimator, clone
 from vispeech.models.fitting import Splits
 from vispeech.models.persistence import FORMAT, FORMAT_VERSION
 from vispeech.models.streams import ModelStream
@@ -132,6 +132,11 @@ def test_every_family_obeys_the_contract(family):
         cls(no_such_parameter=1)
     with pytest.raises(TypeError):
         cls({"window": 3})  # hyper-parameters by keyword only
+    assert model.set_params(**model.get_params()) is model and model.get_params() == dict(cls.defaults)
+    with pytest.raises(VispeechError, match=f"model {family} has no parameter 'no_such_parameter'"):
+        model.set_params(no_such_parameter=1)
+    fresh = clone(model)
+    assert type(fresh) is cls and fresh is not model and fresh.get_params() == model.get_params()
     if model.is_fitted:
         track = model.predict(PROBES[0], FPS)
         assert track.channels == model.channels and track.n_frames == PROBES[0].n_frames(FPS)
@@ -234,6 +239,29 @@ def test_save_load_round_trip_reproduces_predict(name, tmp_path):
         assert_same_predictions(model, loaded)
     if name in PRETRAINED:  # the shipped folder itself loads to the same model
         assert_same_predictions(model, load_folder(pretrained_path(name)))
+
+
+def test_set_params_checks_values_and_keeps_what_was_learned():
+    model = tiny_fitted("sliding-window-dtree")
+    before = model.predict(PROBES[0], FPS).values
+    with pytest.raises(VispeechError, match="min_leaf must be a whole number"):
+        model.set_params(min_leaf=0, seed=5)
+    assert model.get_params()["min_leaf"] == 2 and model.get_params()["seed"] == 0  # left as it was
+    assert model.set_params(min_leaf=3) is model and model.get_params()["min_leaf"] == 3 and model.is_fitted
+    np.testing.assert_array_equal(model.predict(PROBES[0], FPS).values, before)
+    fresh = clone(model)
+    assert not fresh.is_fitted and fresh.get_params() == model.get_params() and fresh.name == fresh.family
+
+
+def test_set_params_on_a_rule_model_takes_effect():
+    model = create_model("baseline")
+    phones = PhoneSequence([Phone("sil", 0.0, 0.1), Phone("AA", 0.1, 0.4), Phone("sil", 0.4, 0.5)], "en")
+    open_jaw = model.predict(phones, FPS).select(("jawOpen",)).values.max()
+    with pytest.raises(VispeechError):
+        model.set_params(lead_in=-1)
+    assert model.predict(phones, FPS).select(("jawOpen",)).values.max() == open_jaw
+    model.set_params(targets={"en": {"AA": {"jawOpen": 0.0}}})
+    assert model.predict(phones, FPS).select(("jawOpen",)).values.max() < open_jaw
 
 
 @pytest.mark.parametrize("family", ["cohen-massaro", "ohman", "sliding-window-dtree", *TINY_NETWORKS])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from pathlib import Path
@@ -139,7 +140,7 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
         options[key] = value
     checkpoint = out_dir / CHECKPOINT
     shutil.rmtree(checkpoint, ignore_errors=True)
-    model = base.with_params(**options, warm_start=True, checkpoint_dir=str(checkpoint))
+    model = copy.deepcopy(base).set_params(**options, warm_start=True, checkpoint_dir=str(checkpoint))
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
     if not len(corpus.split("train")):
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
@@ -147,7 +148,7 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
                f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})")
     click.echo(f"before: {_test_score(base, corpus)}")
     model.fit(corpus, progress=not quiet)
-    _save(model.with_params(checkpoint_dir=None, warm_start=False), corpus, out_dir, checkpoint)
+    _save(model.set_params(checkpoint_dir=None, warm_start=False), corpus, out_dir, checkpoint)
 
 
 def _save(model, corpus, out_dir: Path, checkpoint: Path | None) -> None:

@@ -62,20 +62,41 @@ class Estimator(ABC):
     """Every hyper-parameter with its default value."""
 
     def __init__(self, **params: Any) -> None:
-        unknown = sorted(set(params) - set(self.defaults))
-        if unknown:
-            known = ", ".join(sorted(self.defaults)) or "none"
-            raise VispeechError(f"model {self.family} has no parameter {unknown[0]!r} (it has: {known})")
+        self._check_names(params)
         self._params = {key: _plain(params.get(key, value)) for key, value in self.defaults.items()}
         self.name = self.family
         self._check_params()
 
+    def _check_names(self, params: Mapping[str, Any]) -> None:
+        unknown = sorted(set(params) - set(self.defaults))
+        if unknown:
+            known = ", ".join(sorted(self.defaults)) or "none"
+            raise VispeechError(f"model {self.family} has no parameter {unknown[0]!r} (it has: {known})")
+
     def _check_params(self) -> None:
-        """Raise :class:`VispeechError` on a bad hyper-parameter value."""
+        """Raise :class:`VispeechError` on a bad hyper-parameter value (and forget whatever was
+        computed from the values before: it runs again on :meth:`set_params`)."""
 
     def get_params(self) -> dict[str, Any]:
         """A copy of the hyper-parameters."""
         return copy.deepcopy(self._params)
+
+    def set_params(self: _Self, **params: Any) -> _Self:
+        """Change these hyper-parameters, checked as the constructor checks them; returns ``self``.
+
+        What the model learned stays (a warm start fits on from it); on a bad name or value the
+        model is left as it was and :class:`VispeechError` is raised.
+        """
+        self._check_names(params)
+        before = self._params
+        self._params = {**before, **{key: _plain(value) for key, value in params.items()}}
+        try:
+            self._check_params()
+        except VispeechError:
+            self._params = before
+            self._check_params()
+            raise
+        return self
 
     # -- what every family defines ---------------------------------------------------------
 
@@ -171,6 +192,12 @@ class Estimator(ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r} ({self.family}{'' if self.is_fitted else ', not fitted'})>"
+
+
+def clone(model: _Self) -> _Self:
+    """A new, unfitted model of ``model``'s family with the same hyper-parameters (scikit-learn's
+    ``clone``): nothing learned, known by its family's name."""
+    return type(model)(**model.get_params())
 
 
 def _plain(value: Any) -> Any:

@@ -275,19 +275,10 @@ class Network(Estimator):
         self._take_weights(module.state_dict(), state.history)
         return self
 
-    def with_params(self, **params) -> Network:
-        """A copy of this network with these hyper-parameters changed and the same learned state
-        (``warm_start=True`` to adapt a trained network to new data with :meth:`fit`)."""
-        copy_ = type(self)(**{**self.get_params(), **params})
-        if self.is_fitted:
-            copy_._set_learned_state(*self._learned_state())
-        copy_.name = self.name
-        return copy_
-
     def without_checkpoint(self) -> Network:
         """This fitted network with ``checkpoint_dir`` unset, to be saved: a loaded model that kept
         the path would checkpoint (and resume) there when fitted again."""
-        return self.with_params(checkpoint_dir=None)
+        return copy.deepcopy(self).set_params(checkpoint_dir=None)
 
     def _take_weights(self, weights: dict, history: TrainingHistory) -> None:
         self.weights_ = {k: v.detach().numpy().copy() for k, v in weights.items()}

@@ -42,6 +42,7 @@ class PhoneTargetModel(Estimator):
 
     def _check_params(self) -> None:
         self._authored_cache: dict[str, dict[str, np.ndarray]] = {}
+        self.__dict__.pop("_authored_table", None)
         self._authored_table  # noqa: B018  (validates the target overrides)
 
     @property
