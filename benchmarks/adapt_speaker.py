@@ -28,7 +28,8 @@ import numpy as np
 
 from vispeech.corpus import CorpusWarning, align_corpus, read_grid
 from vispeech.evaluation.report import evaluate_models
-from vispeech.models.registry import create_model, load_model
+from vispeech.models.contract import clone
+from vispeech.models.registry import load_model
 from vispeech.motion.track import Track
 
 GRID = Path(__file__).resolve().parents[2] / "shared" / "data" / "grid_s1"
@@ -67,11 +68,10 @@ def main() -> None:
 
     base = load_model(args.model)
     started = time.perf_counter()
-    adapted = copy.deepcopy(base).set_params(warm_start=True, epochs=args.epochs, patience=8).fit(small, progress=False)
+    adapted = copy.deepcopy(base).set_params(epochs=args.epochs, patience=8).fit(small, progress=False, warm_start=True)
     adapted_s = time.perf_counter() - started
     started = time.perf_counter()
-    scratch = create_model(base.family, **{**base.get_params(), "epochs": args.epochs, "patience": 8,
-                                          "checkpoint_dir": None}).fit(small, progress=False)
+    scratch = clone(base).set_params(epochs=args.epochs, patience=8).fit(small, progress=False)
     scratch_s = time.perf_counter() - started
     models = {f"{args.model} (unadapted)": base, "adapted on the new speaker": adapted, "from scratch": scratch}
     channels = [c for c in CHANNELS if c in base.channels]

@@ -55,7 +55,7 @@ def main() -> None:
         corpus = read_grid(args.corpus)
         align_corpus(corpus)
     family, params = ARCHITECTURES[SHIPPED[args.family]]
-    params = {**params, "epochs": args.epochs, "num_threads": args.threads}
+    params = {**params, "epochs": args.epochs}
     if args.channels:
         params["channels"] = [args.channels] * len(family_defaults(family)["channels"])
     training = Splits(corpus.split("train")[: args.train], corpus.split("validation"))
@@ -67,7 +67,7 @@ def main() -> None:
         scores: dict[str, list[float]] = {}
         for seed in args.seeds:
             model = create_model(family, **{**params, "ctc_weight": weight, "seed": seed})
-            model.fit(training, progress=False)
+            model.fit(training, progress=False, num_threads=args.threads)
             if args.save is not None:
                 model.name = f"{family}-ctc-{weight:g}-seed-{seed}"
                 model.save(args.save / model.name)

@@ -29,7 +29,8 @@ from pathlib import Path
 
 from vispeech.corpus import CorpusWarning, align_corpus, read_grid
 from vispeech.evaluation import evaluate_models
-from vispeech.models.registry import PRETRAINED, create_model, family_class
+from vispeech.models.networks.network import Network
+from vispeech.models.registry import PRETRAINED, create_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,14 +95,11 @@ def main() -> None:
     for item in args.param:
         key, _, value = item.partition("=")
         params = {**params, key: json.loads(value)}
-    if "num_threads" in family_class(architecture).defaults:
-        params = {**params, "num_threads": args.threads, "checkpoint_dir": args.checkpoint}
     model = create_model(architecture, **params)
+    run = {"num_threads": args.threads, "checkpoint_dir": args.checkpoint} if isinstance(model, Network) else {}
     start = time.perf_counter()
-    model.fit(corpus, progress=True)
+    model.fit(corpus, progress=True, **run)
     seconds = time.perf_counter() - start
-    if args.checkpoint is not None:
-        model = model.without_checkpoint()
     model.name = args.model
     model.save(output)
     history = model.history_

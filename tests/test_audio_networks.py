@@ -283,7 +283,7 @@ def test_an_audio_network_adapts_to_a_new_speaker(cnn, corpus, held_out):
         return float(np.mean([np.mean((model.predict(clip_of(u), 25).select(["jawOpen"]).values[:, 0]
                                        - u.track["jawOpen"]) ** 2) for u in target]))
 
-    adapted = copy.deepcopy(cnn).set_params(warm_start=True, epochs=8, patience=8).fit(few, progress=False)
+    adapted = copy.deepcopy(cnn).set_params(epochs=8, patience=8).fit(few, progress=False, warm_start=True)
     assert error(adapted) < 0.8 * error(cnn), (error(adapted), error(cnn))
     assert cnn.history_.epochs == 25  # the shipped model is untouched
 
@@ -293,4 +293,4 @@ def test_a_warm_start_refuses_phones_its_ctc_head_does_not_know(encdec, corpus):
 
     swedish = [replace(u, phones=PhoneSequence([Phone("sj", 0.0, 0.5)], "sv")) for u in corpus.train[:2]]
     with pytest.raises(VispeechError, match="CTC head does not know: sj"):
-        copy.deepcopy(encdec).set_params(warm_start=True, epochs=1).fit(Splits(swedish), progress=False)
+        copy.deepcopy(encdec).set_params(epochs=1).fit(Splits(swedish), progress=False, warm_start=True)

@@ -94,7 +94,7 @@ def test_a_captured_corpus_trains_a_model_that_loads_and_predicts(captured, tmp_
     for utterance in utterances:
         assert [w.text for w in utterance.words] == sentences[utterance.id].split()
     model = create_model("tdnn-beskow", **TINY_NETWORKS["tdnn-beskow"], targets=["jawOpen", "mouthClose"],
-                         epochs=2, num_threads=1).fit(utterances, progress=False)
+                         epochs=2).fit(utterances, progress=False, num_threads=1)
     model.save(tmp_path / "model")
     again = load_model(tmp_path / "model")
     track = again.predict(utterances[0].phones, 25.0)

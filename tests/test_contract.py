@@ -63,8 +63,8 @@ def tiny_fitted(family: str) -> Estimator:
     """A model of ``family`` fitted briefly on :func:`tiny_corpus` (networks need torch)."""
     if family in TINY_NETWORKS:
         require_module("torch", "torch (the train extra: pip install vispeech[train])")
-        params = {**TINY_NETWORKS[family], "targets": ["jawOpen", "mouthPucker"], "epochs": 2, "num_threads": 1}
-        return create_model(family, **params).fit(tiny_corpus(), progress=False)
+        params = {**TINY_NETWORKS[family], "targets": ["jawOpen", "mouthPucker"], "epochs": 2}
+        return create_model(family, **params).fit(tiny_corpus(), progress=False, num_threads=1)
     if family == "sliding-window-dtree":
         return create_model(family, min_leaf=2, targets=["jawOpen", "mouthPucker"]).fit(tiny_corpus(), progress=False)
     return create_model(family, max_iterations=2).fit(tiny_corpus(), progress=False)
@@ -174,8 +174,7 @@ def test_authored_rules_refuse_to_fit(family):
 def test_fit_learns_into_underscore_attributes_and_leaves_the_parameters(family, tmp_path):
     if family in TINY_NETWORKS:
         require_module("torch", "torch (the train extra: pip install vispeech[train])")
-        model = create_model(family, **TINY_NETWORKS[family], targets=["jawOpen", "mouthPucker"], epochs=2,
-                             num_threads=1)
+        model = create_model(family, **TINY_NETWORKS[family], targets=["jawOpen", "mouthPucker"], epochs=2)
     elif family == "sliding-window-dtree":
         model = create_model(family, min_leaf=2, targets=["jawOpen", "mouthPucker"])
     else:
@@ -273,6 +272,28 @@ def test_save_load_round_trip_of_a_fitted_model(family, tmp_path):
     assert loaded.get_params() == model.get_params() and loaded.history_ == model.history_
     assert loaded.postprocessing == model.postprocessing == "learned-jaw"
     assert_same_predictions(model, loaded)
+
+
+def test_a_folder_listing_the_retired_run_settings_still_loads(tmp_path):
+    """Before they became keywords of fit, checkpoint_dir, num_threads and warm_start were a
+    network's hyper-parameters; a folder saved then lists them."""
+    model = tiny_fitted("tdnn-lowlatency")
+    folder = model.save(tmp_path / "m")
+    config = json.loads((folder / "config.json").read_text())
+    config["params"] |= {"checkpoint_dir": "/gone", "num_threads": 2, "warm_start": False}
+    (folder / "config.json").write_text(json.dumps(config))
+    loaded = load_model(folder)
+    assert loaded.get_params() == model.get_params()
+    assert_same_predictions(model, loaded)
+
+
+@pytest.mark.parametrize("family", ["cohen-massaro", "ohman", "sliding-window-dtree"])
+def test_a_family_fitted_in_one_go_refuses_a_checkpoint_or_a_warm_start(family, tmp_path):
+    model = create_model(family)
+    with pytest.raises(VispeechError, match=f"model {family} is fitted in one go: it takes no checkpoint_dir"):
+        model.fit(tiny_corpus(), progress=False, checkpoint_dir=tmp_path / "c")
+    with pytest.raises(VispeechError, match=f"model {family} is fitted in one go: it takes no warm_start"):
+        model.fit(tiny_corpus(), progress=False, warm_start=True)
 
 
 @pytest.mark.parametrize("name", RUNNABLE)

@@ -92,8 +92,8 @@ def test_window_kernel_equals_torch(family):
     from vispeech.models.networks.modules import edge_pad, overlap_average, windows
     from vispeech.models.registry import create_model
 
-    model = create_model(family, epochs=2, num_threads=1, targets=["jawOpen", "mouthPucker"],
-                         **TINY_NETWORKS[family]).fit(tiny_corpus(), progress=False)
+    model = create_model(family, epochs=2, targets=["jawOpen", "mouthPucker"],
+                         **TINY_NETWORKS[family]).fit(tiny_corpus(), progress=False, num_threads=1)
     module = model._build_module(model.encoding_.size, len(model.outputs_))
     module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
     module = module.double().eval()
@@ -116,7 +116,7 @@ def test_lstm_kernel_equals_torch(bidirectional):
     from vispeech.models.registry import create_model
 
     model = create_model("lstm-taylor", **{**TINY_NETWORKS["lstm-taylor"], "bidirectional": bidirectional},
-                         epochs=3, num_threads=1, targets=["jawOpen", "mouthPucker"]).fit(tiny_corpus(), progress=False)
+                         epochs=3, targets=["jawOpen", "mouthPucker"]).fit(tiny_corpus(), progress=False, num_threads=1)
     module = model._build_module(model.encoding_.size, len(model.outputs_))
     module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in model.weights_.items()})
     module.eval()

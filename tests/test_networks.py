@@ -54,20 +54,19 @@ def held_out() -> list:
 
 def tiny_thesis(**options) -> SlidingWindowNetwork:
     return SlidingWindowNetwork(**{"input_window": 5, "output_window": 5, "hidden": [16, 16],
-                                   "dropout": [0.1, 0.0], "epochs": 20, "learning_rate": 1e-2,
-                                   "num_threads": 1, **options})
+                                   "dropout": [0.1, 0.0], "epochs": 20, "learning_rate": 1e-2, **options})
 
 
 def tiny_taylor(**options) -> TaylorNetwork:
     return TaylorNetwork(**{"hidden": [32, 32], "dropout": [0.1, 0.1], "epochs": 20, "batch_size": 16,
-                            "learning_rate": 0.05, "num_threads": 1, **options})
+                            "learning_rate": 0.05, **options})
 
 
 def tiny_tdnn(cls: type[TimeDelayNetwork] = TimeDelayNetwork, **options) -> TimeDelayNetwork:
     """A small ``tdnn-beskow`` network (windows of 4 frames each side) or, given another class, its windows."""
     windows = {"look_back": 4, "look_ahead": 4} if cls is TimeDelayNetwork else {}
     return cls(**{"hidden": 8, **windows, "fps": None, "epochs": 20, "batch_size": 3,
-                  "learning_rate": 2e-2, "num_threads": 1, **options})
+                  "learning_rate": 2e-2, **options})
 
 
 @pytest.fixture(scope="module")
@@ -243,10 +242,10 @@ def test_stream_refuses_out_of_order_phones_and_use_after_finish(lowlatency_mode
 
 def test_resume_continues_epochs_exactly(corpus, held_out, tmp_path):
     straight = tiny_thesis(epochs=4, patience=None).fit(corpus, progress=False)
-    first = tiny_thesis(epochs=2, patience=None, checkpoint_dir=str(tmp_path / "ckpt")).fit(corpus, progress=False)
+    first = tiny_thesis(epochs=2, patience=None).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt")
     assert first.history_.epochs == 2
     assert (tmp_path / "ckpt" / "training_state.json").is_file()
-    resumed = tiny_thesis(epochs=4, patience=None, checkpoint_dir=str(tmp_path / "ckpt")).fit(corpus, progress=False)
+    resumed = tiny_thesis(epochs=4, patience=None).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt")
     assert resumed.history_.epochs == 4
     assert resumed.history_.train_loss == straight.history_.train_loss
     phones = held_out[0].phones
@@ -255,7 +254,7 @@ def test_resume_continues_epochs_exactly(corpus, held_out, tmp_path):
 
 
 def test_checkpoint_folder_is_a_loadable_model(corpus, held_out, tmp_path):
-    model = tiny_tdnn(epochs=2, checkpoint_dir=str(tmp_path / "ckpt")).fit(corpus, progress=False)
+    model = tiny_tdnn(epochs=2).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt")
     loaded = load_model(tmp_path / "ckpt")
     assert type(loaded) is TimeDelayNetwork and loaded.history_ == model.history_
     phones = held_out[0].phones
@@ -265,7 +264,7 @@ def test_checkpoint_folder_is_a_loadable_model(corpus, held_out, tmp_path):
 def test_resume_refuses_other_parameters(thesis_model, corpus, tmp_path):
     thesis_model.save(tmp_path / "m")
     with pytest.raises(VispeechError, match="input_window"):
-        tiny_thesis(input_window=7, checkpoint_dir=str(tmp_path / "m")).fit(corpus, progress=False)
+        tiny_thesis(input_window=7).fit(corpus, progress=False, checkpoint_dir=tmp_path / "m")
 
 
 def test_fixed_seed_is_deterministic(corpus, held_out):

@@ -81,7 +81,7 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
             raise VispeechError(f"model {model_name} takes no {flag}")
         options[key] = value
     for key, value in map(_parameter, params):
-        if key not in cls.defaults or key == "checkpoint_dir":
+        if key not in cls.defaults:
             raise VispeechError(f"model {model_name} takes no parameter {key!r}")
         if key in options:
             raise VispeechError(f"{key} is given twice")
@@ -89,8 +89,8 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     neural = issubclass(cls, Network)
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
-    checkpoint = out_dir / CHECKPOINT
-    if neural:
+    checkpoint = out_dir / CHECKPOINT if neural else None
+    if checkpoint is not None:  # fit goes on from what the checkpoint folder holds: the run to resume, or nothing
         if resume is not None:
             source = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
             if source.resolve() != checkpoint.resolve():
@@ -98,7 +98,6 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
                 shutil.copytree(source, checkpoint)
         else:
             shutil.rmtree(checkpoint, ignore_errors=True)
-        options["checkpoint_dir"] = str(checkpoint)
     model = cls(**options)
 
     from vispeech.corpus.corpus import frame_rates_text
@@ -114,10 +113,8 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     click.echo(f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
                f"utterances at {frame_rates_text(corpus.frame_rates)} fps")
 
-    model.fit(corpus, progress=not quiet)
-    if neural:
-        model = model.without_checkpoint()  # the checkpoint folder goes once the model is saved
-    _save(model, corpus, out_dir, checkpoint if neural else None)
+    model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint)
+    _save(model, corpus, out_dir, checkpoint)
 
 
 def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | None, inputs: str | None,
@@ -135,20 +132,20 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
         raise VispeechError(f"--from needs a trained network (phones or audio); {from_model!r} is a {base.family} model")
     options = {key: value for key, value in (("epochs", epochs), ("seed", seed)) if value is not None}
     for key, value in map(_parameter, params):
-        if key not in base.get_params() or key in ("checkpoint_dir", "warm_start"):
+        if key not in base.get_params():
             raise VispeechError(f"model {base.family} takes no parameter {key!r}")
         options[key] = value
     checkpoint = out_dir / CHECKPOINT
     shutil.rmtree(checkpoint, ignore_errors=True)
-    model = copy.deepcopy(base).set_params(**options, warm_start=True, checkpoint_dir=str(checkpoint))
+    model = copy.deepcopy(base).set_params(**options)
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
     if not len(corpus.split("train")):
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
     click.echo(f"{corpus.name}: adapting {base.name} on {len(corpus.split('train'))} utterances "
                f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})")
     click.echo(f"before: {_test_score(base, corpus)}")
-    model.fit(corpus, progress=not quiet)
-    _save(model.set_params(checkpoint_dir=None, warm_start=False), corpus, out_dir, checkpoint)
+    model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint, warm_start=True)
+    _save(model, corpus, out_dir, checkpoint)
 
 
 def _save(model, corpus, out_dir: Path, checkpoint: Path | None) -> None:

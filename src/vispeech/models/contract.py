@@ -132,9 +132,14 @@ class Estimator(ABC):
         return "learned-jaw" if self._has_learned() else "authored"
 
     @abstractmethod
-    def fit(self: _Self, corpus, *, progress: bool | None = None) -> _Self:
-        """Learn from ``corpus``; returns ``self``. ``progress``: bars and lines on stderr
-        (``None``: when stderr is a terminal)."""
+    def fit(self: _Self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> _Self:
+        """Learn from ``corpus``; returns ``self``. The keywords are settings of this run, not
+        hyper-parameters: ``progress``, bars and lines on stderr (``None``: when stderr is a
+        terminal); ``checkpoint_dir``, a folder to keep the run in after every epoch and go on
+        from; ``num_threads``, the most threads it may use (``None``: the library's default);
+        ``warm_start``, start from what the model has learned instead of afresh. A family fitted
+        in one go refuses the second and the last (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
 
     @abstractmethod
     def predict(self, inputs: PhoneSequence, fps: float) -> Track:

@@ -1,6 +1,7 @@
 """What :meth:`~vispeech.models.contract.Estimator.fit` reads and shows: the corpus's training and
-validation utterances (:class:`Splits` for plain lists, :func:`training_split`) and whether to
-show progress (:func:`show_progress`)."""
+validation utterances (:class:`Splits` for plain lists, :func:`training_split`), whether to
+show progress (:func:`show_progress`) and the run settings a family fitted in one go refuses
+(:func:`fitted_in_one_go`)."""
 
 from __future__ import annotations
 
@@ -51,3 +52,11 @@ def show_progress(progress: bool | None) -> bool:
 
         return sys.stderr.isatty()
     return bool(progress)
+
+
+def fitted_in_one_go(family: str, checkpoint_dir, warm_start: bool) -> None:
+    """Raise :class:`VispeechError` when a family fitted in one go (no epochs to keep or go on
+    from) is given a ``checkpoint_dir`` or ``warm_start``."""
+    if checkpoint_dir is not None or warm_start:
+        setting = "checkpoint_dir" if checkpoint_dir is not None else "warm_start"
+        raise VispeechError(f"model {family} is fitted in one go: it takes no {setting}")

@@ -34,6 +34,9 @@ FOLDER_NAMES = (CONFIG, WEIGHTS, "training_state.json", "training_state.safetens
 train``'s loss curve and checkpoint sub-folder); :meth:`Estimator.save` replaces a folder
 holding only these."""
 INPUT_KINDS = ("phones", "audio")
+RETIRED_PARAMS = frozenset({"checkpoint_dir", "num_threads", "warm_start"})
+"""Run settings that were hyper-parameters of the networks before they became keywords of
+:meth:`~vispeech.models.contract.Estimator.fit`: a folder saved then may still list them."""
 
 
 def write_model(model: Estimator, folder: Path) -> None:
@@ -87,8 +90,10 @@ def read_config(folder: Path) -> dict:
 def model_from_config(cls: type[_Model], folder: Path, config: dict) -> _Model:
     """The model of family class ``cls`` that ``folder`` holds, ``config`` being its checked
     ``config.json`` (:func:`read_config`); raises :class:`VispeechError` where they disagree."""
+    # A folder saved before the run settings left the hyper-parameters may list them: dropped.
+    params = {key: value for key, value in config["params"].items() if key not in RETIRED_PARAMS}
     try:
-        model = cls(**config["params"])
+        model = cls(**params)
     except TypeError as exc:
         raise VispeechError(f"corrupt model config in {folder}: {exc}") from None
     model.name = config["name"]

@@ -47,6 +47,7 @@ stream computes them, and the stream equals the offline output.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -229,8 +230,10 @@ class AudioNetwork(Network):
     def _encoding_from_dict(self, data: dict) -> AudioEncoding:
         return AudioEncoding.from_dict(data)
 
-    def fit(self, corpus, *, progress: bool | None = None) -> AudioNetwork:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> AudioNetwork:
         """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
+        The run settings are :meth:`Network.fit`'s.
 
         Learns ``encoding_`` (with the training features' statistics), ``phones_`` (the CTC
         head's labels) and ``phone_language_`` (theirs), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
@@ -238,7 +241,8 @@ class AudioNetwork(Network):
         try:
             if self._params["augment"]:
                 corpus = self._augmented(corpus, progress)
-            return super().fit(corpus, progress=progress)
+            return super().fit(corpus, progress=progress, checkpoint_dir=checkpoint_dir, num_threads=num_threads,
+                               warm_start=warm_start)
         finally:
             self.__dict__.pop("_powers", None)
             self.__dict__.pop("_hidden", None)

@@ -12,12 +12,14 @@ predicted with NumPy alone: scikit-learn is needed to fit (the ``train`` extra),
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator
-from vispeech.models.fitting import training_split
+from vispeech.models.fitting import fitted_in_one_go, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.networks.kernels import overlap_average, padded_windows
@@ -60,7 +62,8 @@ class DecisionTreeRegression(Estimator):
     def lookahead(self) -> int:
         return (self._params["input_window"] + self._params["output_window"]) // 2 - 1
 
-    def fit(self, corpus, *, progress: bool | None = None) -> DecisionTreeRegression:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> DecisionTreeRegression:
         """Grow the tree on every window of the training utterances. ``history_`` holds one
         "epoch": the mean squared error of the fitted frames on the training split and, when there
         is one, on the validation split, and the seconds it took."""
@@ -68,6 +71,7 @@ class DecisionTreeRegression(Estimator):
 
         from sklearn.tree import DecisionTreeRegressor
 
+        fitted_in_one_go(self.family, checkpoint_dir, warm_start)
         started = time.perf_counter()
         train, validation = training_split(corpus)
         p = self._params

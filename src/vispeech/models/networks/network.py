@@ -19,14 +19,15 @@ last frame's pose is subtracted from each utterance; at prediction the mean star
 the training data is added back) and standardised per channel (z-scores over the training
 frames). Training runs on torch (the ``train`` extra); prediction runs on NumPy from the
 learned ``weights_`` (:mod:`vispeech.models.networks.kernels`), so a trained network needs no
-torch. With ``checkpoint_dir`` set, :meth:`fit` writes its training state there after every
-epoch and, when the folder already holds one of the same network, resumes from it.
+torch. Given a ``checkpoint_dir``, :meth:`~Network.fit` writes its training state there after
+every epoch and, when the folder already holds one of the same network, resumes from it.
 """
 
 from __future__ import annotations
 
 import copy
 import json
+import os
 from abc import abstractmethod
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -80,19 +81,14 @@ TRAINING_PARAMS: dict[str, Any] = {
     "epochs": 100,
     "patience": 10,
     "seed": 0,
-    "num_threads": None,
-    "checkpoint_dir": None,
-    "warm_start": False,
 }
-"""Targets, optimiser and training budget: hyper-parameters every network has. ``warm_start``
-(scikit-learn's name): a fitted network's next :meth:`~Network.fit` starts from its weights and
-normalisation instead of afresh, with a fresh optimiser and history (speaker adaptation)."""
+"""Targets, optimiser and training budget: hyper-parameters every network has."""
 
 COMMON_PARAMS: dict[str, Any] = {**PHONE_INPUT_PARAMS, **TRAINING_PARAMS}
 """Hyper-parameters every phone network has (see the module docstring and ``docs/networks.md``)."""
 
-_RUN_PARAMS = frozenset({"epochs", "patience", "num_threads", "checkpoint_dir", "warm_start"})
-"""Hyper-parameters a resumed run may change."""
+_BUDGET_PARAMS = frozenset({"epochs", "patience"})
+"""Hyper-parameters a resumed run may change: the training budget."""
 
 
 def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator | None, size: int,
@@ -198,10 +194,17 @@ class Network(Estimator):
 
     # -- fitting ---------------------------------------------------------------------------
 
-    def fit(self, corpus, *, progress: bool | None = None) -> Network:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> Network:
         """Train on ``corpus`` (see :func:`~vispeech.models.fitting.training_split`); returns ``self``.
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
+        ``checkpoint_dir``: a folder that receives the model and its training state after every
+        epoch (a loadable model folder); when it already holds a run of this network with the
+        same hyper-parameters but the budget (``epochs``, ``patience``), the fit goes on from
+        it. ``num_threads``: torch's threads during the fit (``None``: torch's default).
+        ``warm_start`` (scikit-learn's name): a fitted network starts from its weights and
+        normalisation instead of afresh, with a fresh optimiser and history (speaker adaptation).
         """
         import torch
 
@@ -209,9 +212,9 @@ class Network(Estimator):
 
         train_set, validation_set = training_split(corpus)
         p = self._params
-        checkpoint = Path(p["checkpoint_dir"]) if p["checkpoint_dir"] is not None else None
+        checkpoint = Path(checkpoint_dir) if checkpoint_dir is not None else None
         resume = checkpoint is not None and (checkpoint / "config.json").is_file()
-        warm = p["warm_start"] and self.is_fitted and not resume
+        warm = warm_start and self.is_fitted and not resume
         if resume:
             self._set_learned_state(*self._resumable(checkpoint)._learned_state())
         elif warm:
@@ -261,8 +264,8 @@ class Network(Estimator):
             self._write_checkpoint(checkpoint, module, progress_state)
 
         threads = torch.get_num_threads()
-        if p["num_threads"]:
-            torch.set_num_threads(int(p["num_threads"]))
+        if num_threads:
+            torch.set_num_threads(int(num_threads))
         try:
             state = train(
                 module, optimizer, lambda rng: self._batches(examples, rng), batch_loss, validation_loss,
@@ -274,11 +277,6 @@ class Network(Estimator):
             torch.set_num_threads(threads)
         self._take_weights(module.state_dict(), state.history)
         return self
-
-    def without_checkpoint(self) -> Network:
-        """This fitted network with ``checkpoint_dir`` unset, to be saved: a loaded model that kept
-        the path would checkpoint (and resume) there when fitted again."""
-        return copy.deepcopy(self).set_params(checkpoint_dir=None)
 
     def _take_weights(self, weights: dict, history: TrainingHistory) -> None:
         self.weights_ = {k: v.detach().numpy().copy() for k, v in weights.items()}
@@ -436,7 +434,7 @@ class Network(Estimator):
 
 def _comparable(params: dict) -> dict:
     """``params`` without those a resumed run may change, as JSON would give them back."""
-    return json.loads(json.dumps({k: v for k, v in params.items() if k not in _RUN_PARAMS}))
+    return json.loads(json.dumps({k: v for k, v in params.items() if k not in _BUDGET_PARAMS}))
 
 
 def _ramp(y: np.ndarray) -> np.ndarray:

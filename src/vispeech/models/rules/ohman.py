@@ -17,12 +17,14 @@ consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel trac
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.models.fitting import fitted_in_one_go
 from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
@@ -68,10 +70,12 @@ class Ohman(PhoneTargetModel):
             out += gain * (targets[k] - vowel_track)
         return self._track(out, fps)
 
-    def fit(self, corpus, *, progress: bool | None = None) -> Ohman:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
         squares; returns ``self``. Splits, channels and learned attributes as for
         :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
+        fitted_in_one_go(self.family, checkpoint_dir, warm_start)
         p = self._params
         data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)

@@ -10,6 +10,7 @@ in ``tables_``: per language, arrays over the rows of :func:`~vispeech.targets.t
 from __future__ import annotations
 
 import json
+import os
 from functools import cache, cached_property
 from importlib import resources
 from typing import ClassVar
@@ -93,7 +94,8 @@ class PhoneTargetModel(Estimator):
     def _track(self, values: np.ndarray, fps: float) -> Track:
         return Track(np.clip(values, 0.0, 1.0), self.channels, fps)
 
-    def fit(self, corpus, *, progress: bool | None = None) -> PhoneTargetModel:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> PhoneTargetModel:
         raise VispeechError(f"model {self.family} is data-free: its parameters are authored, not fitted")
 
     def _learned_state(self):
