@@ -69,8 +69,8 @@ def main() -> None:
             model = create_model(family, **{**params, "ctc_weight": weight, "seed": seed})
             model.fit(training, progress=False, num_threads=args.threads)
             if args.save is not None:
-                model.name = f"{family}-ctc-{weight:g}-seed-{seed}"
-                model.save(args.save / model.name)
+                name = f"{family}-ctc-{weight:g}-seed-{seed}"
+                model.save(args.save / name, name=name)
             for split in ("validation", "test"):
                 jaw = evaluate_models(corpus.split(split), {"m": model}, channels=["jawOpen"]).models[0].scores["jawOpen"]
                 scores.setdefault(f"{split}_r", []).append(jaw["r"])

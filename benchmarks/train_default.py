@@ -100,8 +100,7 @@ def main() -> None:
     start = time.perf_counter()
     model.fit(corpus, progress=True, **run)
     seconds = time.perf_counter() - start
-    model.name = args.model
-    model.save(output)
+    model.save(output, name=args.model)
     history = model.history_
     print(f"{args.model} ({architecture}) -> {output}")
     print(f"training: {seconds:.0f} s, {history.epochs} epochs or iterations "

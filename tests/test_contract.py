@@ -266,9 +266,11 @@ def test_set_params_on_a_rule_model_takes_effect():
 @pytest.mark.parametrize("family", ["cohen-massaro", "ohman", "sliding-window-dtree", *TINY_NETWORKS])
 def test_save_load_round_trip_of_a_fitted_model(family, tmp_path):
     model = tiny_fitted(family)
-    model.name = "my-model"
-    loaded = load_model(model.save(tmp_path / "m"))
-    assert type(loaded) is type(model) and loaded.name == "my-model" and loaded.is_fitted
+    assert model.name == family
+    with pytest.raises(AttributeError):
+        model.name = "my-model"  # read-only: a model is named by saving it
+    loaded = load_model(model.save(tmp_path / "m", name="my-model"))
+    assert type(loaded) is type(model) and loaded.name == model.name == "my-model" and loaded.is_fitted
     assert loaded.get_params() == model.get_params() and loaded.history_ == model.history_
     assert loaded.postprocessing == model.postprocessing == "learned-jaw"
     assert_same_predictions(model, loaded)

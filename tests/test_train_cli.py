@@ -100,10 +100,10 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
 
     save = Network.save
 
-    def fail(self, path):  # the checkpoints after every epoch are written, the model at the end is not
+    def fail(self, path, **options):  # the checkpoints after every epoch are written, the model at the end is not
         if path != out / "checkpoint":
             raise VispeechError("disk full")
-        return save(self, path)
+        return save(self, path, **options)
 
     monkeypatch.setattr(Network, "save", fail)
     result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "1",

@@ -151,8 +151,7 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
 def _save(model, corpus, out_dir: Path, checkpoint: Path | None) -> None:
     """Save a fitted model as ``out_dir`` (named after it), drop its training checkpoint, draw its
     loss curve and print the summary."""
-    model.name = out_dir.name
-    model.save(out_dir)
+    model.save(out_dir, name=out_dir.name)
     if checkpoint is not None:
         shutil.rmtree(checkpoint, ignore_errors=True)
     if model.history_.epochs:

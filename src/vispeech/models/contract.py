@@ -64,7 +64,7 @@ class Estimator(ABC):
     def __init__(self, **params: Any) -> None:
         self._check_names(params)
         self._params = {key: _plain(params.get(key, value)) for key, value in self.defaults.items()}
-        self.name = self.family
+        self._name = self.family
         self._check_params()
 
     def _check_names(self, params: Mapping[str, Any]) -> None:
@@ -97,6 +97,12 @@ class Estimator(ABC):
             self._check_params()
             raise
         return self
+
+    @property
+    def name(self) -> str:
+        """What the model is known by: its family's name when new, else the name it was saved
+        under (:meth:`save`) or loaded with (a shipped model's, ``grid-tdnn``)."""
+        return self._name
 
     # -- what every family defines ---------------------------------------------------------
 
@@ -171,16 +177,19 @@ class Estimator(ABC):
             raise VispeechError(f"model {self.name} is not trained: fit it on a corpus (vispeech train) "
                                 "or load a trained one")
 
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the model into folder ``path`` as a whole (:mod:`vispeech.models.persistence`);
+    def save(self, path: str | os.PathLike, *, name: str | None = None) -> Path:
+        """Write the model into folder ``path`` as a whole (:mod:`vispeech.models.persistence`)
+        under ``name`` (``None``: its :attr:`name`), which the model is known by from then on;
         returns the folder.
 
         The new folder replaces ``path`` in one step (:func:`vispeech.files.atomic_output_dir`):
         an existing folder is replaced only when it holds nothing but
         :data:`~vispeech.models.persistence.FOLDER_NAMES`, otherwise :class:`VispeechError`.
         """
+        name = self.name if name is None else name
         with atomic_output_dir(path, replaces=FOLDER_NAMES) as staging:
-            write_model(self, staging)
+            write_model(self, staging, name)
+        self._name = name
         return Path(path)
 
     @classmethod

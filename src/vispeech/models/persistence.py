@@ -39,9 +39,10 @@ RETIRED_PARAMS = frozenset({"checkpoint_dir", "num_threads", "warm_start"})
 :meth:`~vispeech.models.contract.Estimator.fit`: a folder saved then may still list them."""
 
 
-def write_model(model: Estimator, folder: Path) -> None:
-    """Write ``config.json`` (and ``weights.safetensors``) of ``model`` into ``folder``, which
-    exists: the staging folder of a save or of a checkpoint that adds files of its own."""
+def write_model(model: Estimator, folder: Path, name: str) -> None:
+    """Write ``config.json`` (and ``weights.safetensors``) of ``model``, known by ``name``, into
+    ``folder``, which exists: the staging folder of a save or of a checkpoint that adds files of
+    its own."""
     from safetensors.numpy import save as to_safetensors
 
     learned = model._learned_state()
@@ -49,7 +50,7 @@ def write_model(model: Estimator, folder: Path) -> None:
     config = {
         "format": FORMAT,
         "version": FORMAT_VERSION,
-        "name": model.name,
+        "name": name,
         "family": model.family,
         "input": model.input_kind,
         "vispeech": _package_version(),
@@ -96,7 +97,7 @@ def model_from_config(cls: type[_Model], folder: Path, config: dict) -> _Model:
         model = cls(**params)
     except TypeError as exc:
         raise VispeechError(f"corrupt model config in {folder}: {exc}") from None
-    model.name = config["name"]
+    model._name = config["name"]  # known by the name it was saved under
     if config["input"] != model.input_kind:
         raise VispeechError(f"{folder / CONFIG} says input {config['input']}, but {model.family} takes {model.input_kind}")
     if config["state"] is None and config["arrays"]:

@@ -288,7 +288,7 @@ class Network(Estimator):
         from vispeech.models.networks.training import save_state
 
         with atomic_output_dir(folder, replaces=FOLDER_NAMES) as staging:
-            write_model(self, staging)
+            write_model(self, staging, self.name)
             save_state(state, module, staging)
 
     def _resumable(self, folder: Path) -> Network:
