@@ -33,22 +33,29 @@ import os
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
 from vispeech.models.persistence import FOLDER_NAMES, model_from_config, read_config, write_model
 from vispeech.models.streams import ModelStream, WindowStream
 from vispeech.motion.track import Track
 
-_Self = TypeVar("_Self", bound="Estimator")
+if TYPE_CHECKING:
+    from vispeech.alignment.phones import PhoneSequence
+    from vispeech.frontends.audio import AudioClip
+
+InputT = TypeVar("InputT", bound="PhoneSequence | AudioClip")
+"""What a family animates: :class:`~vispeech.alignment.phones.PhoneSequence` or
+:class:`~vispeech.frontends.audio.AudioClip` (its :attr:`Estimator.input_kind` says which at run time)."""
+_Self = TypeVar("_Self", bound="Estimator[Any]")
 
 
-class Estimator(ABC):
-    """Base of every control model; see the module docstring for the contract."""
+class Estimator(ABC, Generic[InputT]):
+    """Base of every control model, generic in what it animates (:data:`InputT`); see the
+    module docstring for the contract."""
 
     family: ClassVar[str] = ""
     """The registered name of the family (``cohen-massaro``, ``tdnn-beskow``, ...)."""
@@ -148,10 +155,10 @@ class Estimator(ABC):
         in one go refuses the second and the last (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
 
     @abstractmethod
-    def predict(self, inputs: PhoneSequence, fps: float) -> Track:
+    def predict(self, inputs: InputT, fps: float) -> Track:
         """A track of ``inputs.n_frames(fps)`` frames from time 0 over :attr:`channels`."""
 
-    def predict_with_closures(self, inputs: Any, fps: float) -> tuple[Track, PhoneSequence | None]:
+    def predict_with_closures(self, inputs: InputT, fps: float) -> tuple[Track, PhoneSequence | None]:
         """:meth:`predict`'s track and the bilabials the model hears in audio, as phones that
         post-processing may shut the lips on; ``None`` (the default) for a model that hears none."""
         return self.predict(inputs, fps), None

@@ -110,7 +110,7 @@ class _Example:
     hidden: np.ndarray | None = None
 
 
-class AudioNetwork(Network):
+class AudioNetwork(Network[AudioClip]):
     """Base of the audio networks: audio inputs, augmentation, the loss, prediction and streaming."""
 
     input_kind = "audio"

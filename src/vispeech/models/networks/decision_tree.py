@@ -27,7 +27,7 @@ from vispeech.motion.arkit import MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
 
-class DecisionTreeRegression(Estimator):
+class DecisionTreeRegression(Estimator[PhoneSequence]):
     """Kim et al.'s sliding-window decision tree; hyper-parameters in :attr:`defaults`."""
 
     family = "sliding-window-dtree"

@@ -11,6 +11,7 @@ Taylor et al. found it "significantly worse" than the sliding window.
 
 from __future__ import annotations
 
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import LSTMKernel
 from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
@@ -29,7 +30,7 @@ FAN: dict = {
 """Hyper-parameters of Taylor et al.'s LSTM baseline (``lstm-taylor``)."""
 
 
-class LSTMNetwork(Network):
+class LSTMNetwork(Network[PhoneSequence]):
     """Taylor et al.'s LSTM baseline. Architecture hyper-parameters: ``dense`` (units of the
     dense layer), ``hidden`` (LSTM units per direction), ``layers``, ``bidirectional``,
     ``dropout``, ``batch_size`` (utterances per update); the others are the common ones."""

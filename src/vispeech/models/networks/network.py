@@ -30,14 +30,14 @@ import json
 import os
 from abc import abstractmethod
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.models.contract import Estimator
+from vispeech.models.contract import Estimator, InputT
 from vispeech.models.fitting import show_progress, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
@@ -109,8 +109,9 @@ def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.rand
     return batches
 
 
-class Network(Estimator):
-    """Base of the networks; families define the torch module, batches, loss and NumPy forward pass."""
+class Network(Estimator[InputT]):
+    """Base of the networks, phones in unless a family says otherwise (the audio networks);
+    families define the torch module, batches, loss and NumPy forward pass."""
 
     def _check_params(self) -> None:
         p = self._params
@@ -395,13 +396,15 @@ class Network(Estimator):
             self._kernel = self._make_kernel()
         return self._kernel
 
-    def predict(self, phones: PhoneSequence, fps: float) -> Track:
-        """Tracks of ``phones.n_frames(fps)`` frames: predicted at the model's rate, resampled to ``fps``."""
+    def predict(self, inputs: InputT, fps: float) -> Track:
+        """Tracks of ``inputs.n_frames(fps)`` frames for phones (the audio networks override
+        this): predicted at the model's rate, resampled to ``fps``."""
+        phones = cast(PhoneSequence, inputs)
         kernel = self.kernel
         phones.validate()
         self.encoding_.check(phones)
-        inputs = self.encoding_.encode(phones, self.fps_)
-        track = Track(self._denormalise(kernel.forward(inputs)), self.channels, self.fps_)
+        encoded = self.encoding_.encode(phones, self.fps_)
+        track = Track(self._denormalise(kernel.forward(encoded)), self.channels, self.fps_)
         n = phones.n_frames(fps)
         if fps != self.fps_ or track.n_frames != n:
             track = track.resample(fps, n_frames=n)

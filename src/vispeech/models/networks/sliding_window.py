@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import WindowKernel
 from vispeech.models.networks.network import COMMON_PARAMS, Network
@@ -65,7 +66,7 @@ THESIS: dict = {
 _ACTIVATIONS = ("tanh", "leaky_relu")
 
 
-class SlidingWindowNetwork(Network):
+class SlidingWindowNetwork(Network[PhoneSequence]):
     """The thesis's sliding-window network.
 
     Window parameters: ``input_window``, ``output_window`` (Kx - Ky even), ``hidden`` (layer

@@ -54,7 +54,7 @@ BESKOW: dict = {
 """Hyper-parameters of ANN 1 (``tdnn-beskow``); ANN 2 (``tdnn-lowlatency``) looks 28 back and 2 ahead."""
 
 
-class TimeDelayNetwork(Network):
+class TimeDelayNetwork(Network[PhoneSequence]):
     """Beskow's recurrent time-delay network, ANN 1 (look-back and look-ahead 15 frames).
 
     Architecture hyper-parameters: ``look_back``, ``look_ahead`` (frames), ``hidden`` (units,

@@ -33,7 +33,7 @@ def family_defaults(family: str) -> dict:
     return {**json.loads(text)[family], "targets": {}}
 
 
-class PhoneTargetModel(Estimator):
+class PhoneTargetModel(Estimator[PhoneSequence]):
     """A rule family: per-phone targets (and, in subclasses, per-phone timing parameters)."""
 
     data_free = True
