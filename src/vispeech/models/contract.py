@@ -1,29 +1,32 @@
 """The model contract: what every control model is and does, whatever its family or input.
 
-A control model is an estimator in scikit-learn's sense:
+A control model is an estimator in scikit-learn's sense, generic in what it animates
+(:data:`InputT`: a :class:`~vispeech.alignment.phones.PhoneSequence` or an
+:class:`~vispeech.frontends.audio.AudioClip`, named at run time by :attr:`Estimator.input_kind`):
 
 - the constructor stores *hyper-parameters* only (the training budget included), given by
   keyword over the family's :attr:`Estimator.defaults`; :meth:`~Estimator.get_params` returns
-  them and never changes after :meth:`~Estimator.fit`;
-- :meth:`~Estimator.fit` ``(corpus, *, progress=None) -> self`` learns from a corpus (an object
-  with ``split("train")`` and ``split("validation")``, or any iterable of utterances with
-  ``.phones`` and ``.track``, all of them used for training); what it learns lives in
-  attributes whose names end in ``_``; data-free families (rules with authored parameters)
-  are ready without it;
-- :meth:`~Estimator.predict` ``(inputs, fps) -> Track`` animates one utterance's inputs
-  (a :class:`~vispeech.alignment.phones.PhoneSequence` for the phone families; audio
-  families take audio through the same call, and :meth:`~Estimator.predict_with_closures`
-  also gives the bilabials they hear); :attr:`~Estimator.is_fitted` says whether it can;
+  them and never changes after :meth:`~Estimator.fit`; :meth:`~Estimator.set_params` changes
+  them, checked as the constructor checks them; :func:`clone` is a new, unfitted model with
+  the same ones;
+- :meth:`~Estimator.fit` ``(corpus, *, progress=None, checkpoint_dir=None, num_threads=None,
+  warm_start=False) -> self`` learns from a corpus (an object with ``split("train")`` and
+  ``split("validation")``, or any iterable of utterances with ``.phones`` and ``.track``, all
+  of them used for training: :mod:`vispeech.models.fitting`); its keywords are settings of the
+  run, never stored; what it learns lives in attributes whose names end in ``_``; data-free
+  families (rules with authored parameters) are ready without it;
+- :meth:`~Estimator.predict` ``(inputs, fps) -> Track`` animates one utterance's inputs, and
+  :meth:`~Estimator.predict_with_closures` also gives the bilabials an audio model hears;
+  :attr:`~Estimator.is_fitted` says whether they can run;
 - :attr:`~Estimator.lookahead` is how many frames of input after frame t a stream needs
   before it gives frame t, and :meth:`~Estimator.stream` predicts incrementally as inputs
-  arrive (:class:`ModelStream`);
+  arrive (:class:`~vispeech.models.streams.ModelStream`, the engine in :mod:`vispeech.models.streams`);
 - :meth:`~Estimator.save` and :meth:`Estimator.load` are the same for every family: a folder
-  with ``config.json`` (``format``, ``version``, ``name``, ``family``, ``input``, ``params``,
-  the learned ``state`` as JSON, the names of the learned ``arrays`` and the recommended
-  ``postprocessing`` preset) and, when there are arrays, ``weights.safetensors``. No pickle.
+  with ``config.json`` and, when there are arrays, ``weights.safetensors``, no pickle
+  (:mod:`vispeech.models.persistence`).
 
-A model is known by one :attr:`~Estimator.name`: its family's for a fresh one, the shipped
-name (``grid-tdnn``) for a shipped one, and whatever name it was saved under otherwise.
+A model is known by one read-only :attr:`~Estimator.name`: its family's for a new one, the
+shipped name (``grid-tdnn``) for a shipped one, and the name it was saved under otherwise.
 """
 
 from __future__ import annotations
