@@ -137,18 +137,12 @@ def test_numpy_phone_posteriors_equal_torch(encdec, cnn):
 
 
 def test_animate_audio_shuts_the_lips_on_the_bilabials_the_head_hears(encdec, held_out, tmp_path):
-    import json
-
     from vispeech.evaluation.closures import model_closed
     from vispeech.pipeline import animate_audio
 
     clip = clip_of(held_out[0])
     assert encdec.predict_with_closures(clip, 25)[1] is None  # closure_threshold 0: off
-    folder = encdec.save(tmp_path / "hearing")
-    config = json.loads((folder / "config.json").read_text())
-    config["params"]["closure_threshold"] = 1e-3  # the tiny network's head is unsure
-    (folder / "config.json").write_text(json.dumps(config))
-    hearing = load_model(folder)
+    hearing = load_model(encdec.save(tmp_path / "hearing")).set_params(closure_threshold=1e-3)  # an unsure head
     raw, heard = hearing.predict_with_closures(clip, 25)
     np.testing.assert_array_equal(raw.values, encdec.predict(clip, 25).values)
     bilabials = [p for p in heard if p.symbol != "sil"]
