@@ -94,57 +94,19 @@ def train(
     import torch
     from tqdm import tqdm
 
-    if state is None:
-        state = TrainingState()
-        rng = seed_everything(seed)
-    else:
-        rng = seed_everything(seed + state.epoch)  # replaced below when the state has generators
-        if state.numpy_rng is not None:
-            rng.bit_generator.state = state.numpy_rng
-        if state.torch_rng is not None:
-            torch.set_rng_state(state.torch_rng)
-        if state.optimizer is not None:
-            optimizer.load_state_dict(state.optimizer)
-    history = state.history
+    state, rng = _resumed(state, seed, optimizer)
     while state.epoch < epochs and (patience is None or state.stale_epochs < patience):
         started = time.perf_counter()
         lr = learning_rate * step_down_factor(state.lr_steps)
         for group in optimizer.param_groups:
             group["lr"] = lr
         module.train()
-        total, weight = 0.0, 0.0
-        bar = tqdm(batches(rng), desc=f"epoch {state.epoch + 1}/{epochs}", unit="batch",
-                   disable=not progress, leave=False)
-        for batch in bar:
-            optimizer.zero_grad()
-            loss, w = batch_loss(batch)
-            if not torch.isfinite(loss):
-                raise VispeechError(f"training diverged in epoch {state.epoch + 1} (loss {loss.item()}); "
-                                    "lower the learning rate")
-            loss.backward()
-            optimizer.step()
-            total += loss.item() * w
-            weight += w
-            bar.set_postfix(loss=f"{total / weight:.4g}")
-        bar.close()
+        train_loss = _epoch_loss(optimizer, batches(rng), batch_loss, f"epoch {state.epoch + 1}/{epochs}",
+                                 state.epoch + 1, progress)
         module.eval()
         with torch.no_grad():
             validation = validation_loss()
-        train_loss = total / max(weight, 1e-12)
-        history.train_loss.append(train_loss)
-        history.validation_loss.append(validation)
-        history.learning_rate.append(lr)
-        history.seconds.append(time.perf_counter() - started)
-        monitored = train_loss if validation is None else validation
-        if monitored < state.best_loss:
-            state.best_loss = monitored
-            state.stale_epochs = 0
-            history.best_epoch = state.epoch
-            state.best_weights = {k: v.detach().clone() for k, v in module.state_dict().items()}
-        else:
-            state.stale_epochs += 1
-        if lr_step_down and history.epochs > 1 and train_loss > history.train_loss[-2]:
-            state.lr_steps += 1
+        _record(state, module, train_loss, validation, lr, time.perf_counter() - started, lr_step_down)
         state.optimizer = optimizer.state_dict()
         state.torch_rng = torch.get_rng_state()
         state.numpy_rng = rng.bit_generator.state
@@ -156,6 +118,68 @@ def train(
     if state.best_weights is not None:
         module.load_state_dict(state.best_weights)
     return state
+
+
+def _resumed(state: TrainingState | None, seed: int,
+             optimizer: torch.optim.Optimizer) -> tuple[TrainingState, np.random.Generator]:
+    """The state to train on (a new one for ``None``) and the NumPy generator, with the random
+    generators and the optimizer restored from ``state`` where it has them."""
+    import torch
+
+    if state is None:
+        return TrainingState(), seed_everything(seed)
+    rng = seed_everything(seed + state.epoch)  # replaced below when the state has generators
+    if state.numpy_rng is not None:
+        rng.bit_generator.state = state.numpy_rng
+    if state.torch_rng is not None:
+        torch.set_rng_state(state.torch_rng)
+    if state.optimizer is not None:
+        optimizer.load_state_dict(state.optimizer)
+    return state, rng
+
+
+def _epoch_loss(optimizer: torch.optim.Optimizer, batches: Iterable,
+                batch_loss: Callable[[object], tuple[torch.Tensor, float]], desc: str, epoch: int,
+                progress: bool) -> float:
+    """One optimiser step per batch; the epoch's training loss (the batches' weighted mean)."""
+    import torch
+    from tqdm import tqdm
+
+    total, weight = 0.0, 0.0
+    bar = tqdm(batches, desc=desc, unit="batch", disable=not progress, leave=False)
+    for batch in bar:
+        optimizer.zero_grad()
+        loss, w = batch_loss(batch)
+        if not torch.isfinite(loss):
+            raise VispeechError(f"training diverged in epoch {epoch} (loss {loss.item()}); lower the learning rate")
+        loss.backward()
+        optimizer.step()
+        total += loss.item() * w
+        weight += w
+        bar.set_postfix(loss=f"{total / weight:.4g}")
+    bar.close()
+    return total / max(weight, 1e-12)
+
+
+def _record(state: TrainingState, module: torch.nn.Module, train_loss: float, validation: float | None,
+            lr: float, seconds: float, lr_step_down: bool) -> None:
+    """Add an epoch to ``state``'s history, keep the weights when they are the best so far, and
+    count a learning-rate step down when ``lr_step_down`` and the training loss rose."""
+    history = state.history
+    history.train_loss.append(train_loss)
+    history.validation_loss.append(validation)
+    history.learning_rate.append(lr)
+    history.seconds.append(seconds)
+    monitored = train_loss if validation is None else validation
+    if monitored < state.best_loss:
+        state.best_loss = monitored
+        state.stale_epochs = 0
+        history.best_epoch = state.epoch
+        state.best_weights = {k: v.detach().clone() for k, v in module.state_dict().items()}
+    else:
+        state.stale_epochs += 1
+    if lr_step_down and history.epochs > 1 and train_loss > history.train_loss[-2]:
+        state.lr_steps += 1
 
 
 def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> None:
