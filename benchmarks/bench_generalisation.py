@@ -32,7 +32,7 @@ from pathlib import Path
 
 from bench_audio_voices import RATES, voice_scores
 
-from vispeech.cli.evaluate import read_aligned_corpus
+from vispeech.cli._corpus_input import read_aligned_corpus
 from vispeech.errors import VispeechError
 from vispeech.evaluation import Evaluation, evaluate_models
 from vispeech.evaluation.floor import LoudnessFloor

@@ -37,7 +37,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from vispeech.cli.evaluate import open_corpus, read_aligned_corpus
+from vispeech.cli._corpus_input import open_corpus, read_aligned_corpus
 from vispeech.corpus import align_corpus
 from vispeech.errors import VispeechError
 from vispeech.evaluation import evaluate_models

@@ -1,7 +1,8 @@
 """The ``vispeech`` command line: a thin layer over the library.
 
 Each sub-command lives in a module of this package named for it (``animate-phones`` lives
-with ``say``); a module is imported only when its command runs or ``--help`` lists it, and
+with ``say``); what several commands share lives here or in a module whose name starts with an
+underscore (no command). A module is imported only when its command runs or ``--help`` lists it, and
 imports what is heavy inside the command, so every command starts quickly. Bad input ends in
 a one-line ``error: ...`` message and exit code 2, and so does a command whose optional
 dependencies (an extra: ``pip install "vispeech[train]"``) are not installed.
@@ -46,6 +47,10 @@ def _command_names() -> set[str]:
 def lang_option(help: str, default: str | None = DEFAULT_LANG, name: str = "lang"):
     """The ``--lang/-l`` option, the same in every command (``name``: the parameter it fills)."""
     return click.option("--lang", "-l", name, default=default, show_default=default is not None, help=help)
+
+
+quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+"""The ``--quiet/-q`` flag of the commands that show progress bars."""
 
 
 def scale_option(default: str):

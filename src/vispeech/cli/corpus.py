@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli.evaluate import cache_option, language_option
+from vispeech.cli._corpus_input import cache_option, language_option
 
 
 @main.group("corpus")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli.evaluate import language_option, open_corpus
+from vispeech.cli._corpus_input import language_option, open_corpus
 from vispeech.errors import VispeechError
 
 

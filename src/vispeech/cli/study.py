@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
-from vispeech.cli.evaluate import cache_option, corpus_option, language_option, quiet_option, read_aligned_corpus
+from vispeech.cli import main, quiet_option
+from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
 from vispeech.corpus.corpus import SPLITS
 
 

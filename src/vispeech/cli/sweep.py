@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli.evaluate import cache_option, corpus_option, language_option, read_aligned_corpus
+from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
 from vispeech.errors import VispeechError
 
 
