@@ -36,7 +36,8 @@ from vispeech.cli._corpus_input import read_aligned_corpus
 from vispeech.errors import VispeechError
 from vispeech.evaluation import Evaluation, evaluate_models
 from vispeech.evaluation.floor import LoudnessFloor
-from vispeech.evaluation.report_folder import evaluation_json, json_ready
+from vispeech.evaluation.report_folder import evaluation_json
+from vispeech.evaluation.report_parts import json_ready
 from vispeech.files import atomic_output_file
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, load_model

@@ -18,18 +18,18 @@ screen and the page can be rebuilt from the command line it shows.
 
 from __future__ import annotations
 
-import csv
 import html
 import json
-import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from vispeech.corpus.corpus import Utterance, frame_rates_text
 from vispeech.evaluation.report import Evaluation
+from vispeech.evaluation.report_parts import (html_figure, html_page, html_table, json_ready, p_text, save_figure,
+                                             write_csv)
 from vispeech.evaluation.statistics import Comparison, compare_models
 from vispeech.files import atomic_output_dir
 from vispeech.motion.track import Track
@@ -96,31 +96,6 @@ def _utterance_table(evaluation: Evaluation) -> tuple[list[str], list[list]]:
             row += [m.scores.per_utterance_rmse_percent[k, j], m.scores.per_utterance_r[k, j]]
         rows.append(row)
     return header, rows
-
-
-def write_csv(path: Path, header: Sequence[str], rows: list[list]) -> None:
-    """``rows`` under ``header`` as a CSV file (NaN as an empty cell)."""
-    with path.open("w", newline="", encoding="utf-8") as out:
-        writer = csv.writer(out)
-        writer.writerow(header)
-        writer.writerows([[_cell(v) for v in row] for row in rows])
-
-
-def _cell(value) -> str:
-    if isinstance(value, float | np.floating):
-        return "" if not math.isfinite(value) else f"{float(value):.6g}"
-    return str(value)
-
-
-def json_ready(value):
-    """JSON-ready ``value``: NaN (a score with nothing to score) becomes null."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_ready(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [json_ready(v) for v in value]
-    return value
 
 
 def evaluation_json(evaluation: Evaluation, comparison: Comparison | None = None) -> dict:
@@ -193,32 +168,6 @@ def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
     return drawn
 
 
-def save_figure(figure, stem: Path) -> None:
-    """``figure`` as ``stem``.png and ``stem``.svg."""
-    for kind in ("png", "svg"):
-        figure.savefig(stem.with_suffix(f".{kind}"), format=kind)
-
-
-def html_table(header: Sequence[str], rows: list[list]) -> str:
-    """An HTML table of ``rows`` under ``header``."""
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(_shown(v))}</td>" for v in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _shown(value) -> str:
-    if isinstance(value, float | np.floating):
-        if not math.isfinite(value):
-            return "–"
-        return f"{value:.3g}" if abs(value) < 1e-3 and value else f"{value:.3f}"
-    return str(value)
-
-
-def p_text(value: float) -> str:
-    """A p value as papers print it."""
-    return "< 0.0001" if value < 1e-4 else f"{value:.4f}"
-
-
 def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[tuple[str, str]], command: str) -> str:
     parts = [f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
              f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
@@ -283,22 +232,3 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                              "onset mean |ms|", "release median (ms)", "release mean |ms|", "passed"], rows))
     parts += [html_figure(stem, caption) for stem, caption in figures]
     return html_page(f"vispeech evaluation: {evaluation.corpus}", parts)
-
-
-REPORT_STYLE = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
-                "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;"
-                "padding:.2em .5em;text-align:right}td:first-child,th:first-child{text-align:left}"
-                "img{max-width:100%}.warning{color:#a40}")
-"""The style of the HTML reports (evaluation, study analysis)."""
-
-
-def html_page(title: str, parts: Sequence[str]) -> str:
-    """An HTML report page: ``title`` and the HTML ``parts`` one after another."""
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{REPORT_STYLE}</style></head><body>" + "\n".join(parts) + "</body></html>\n")
-
-
-def html_figure(stem: str, caption: str) -> str:
-    """A report's figure: ``stem``.png shown, ``stem``.svg linked."""
-    return (f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)} '
-            f'(<a href="{stem}.svg">SVG</a>)</figcaption></figure>')

@@ -49,8 +49,8 @@ import numpy as np
 import pandas as pd
 
 from vispeech.errors import VispeechError
-from vispeech.evaluation.report_folder import (html_figure, html_page, html_table, json_ready, p_text, save_figure,
-                                              write_csv)
+from vispeech.evaluation.report_parts import (html_figure, html_page, html_table, json_ready, p_text, save_figure,
+                                             write_csv)
 from vispeech.files import atomic_output_dir, read_text
 from vispeech.study.answers import PAIRWISE_ANSWERS, RATINGS, TASKS
 
@@ -634,7 +634,7 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
 
 
 def _html_table(header: Sequence[str], rows: list[list]) -> str:
-    """:func:`~vispeech.evaluation.report_folder._table` of rows whose missing numbers are None."""
+    """:func:`~vispeech.evaluation.report_parts.html_table` of rows whose missing numbers are None."""
     return html_table(header, [[math.nan if v is None else v for v in row] for row in rows])
 
 
