@@ -14,7 +14,8 @@ import pytest
 
 from test_cli_say import SAY_FILES, assert_clean_error, run
 from vispeech.batch import JobDefaults, read_job, run_batch
-from vispeech.batch.run import INDEX, RECORD, expected_files
+from vispeech.batch.line import RECORD, expected_files
+from vispeech.batch.run import INDEX
 from vispeech.pipeline import speak, write_outputs
 
 GRID_ID = "bbaf2n"

@@ -6,6 +6,7 @@ is the command over them.
 """
 
 from vispeech.batch.job import BatchLine, JobDefaults, read_job
-from vispeech.batch.run import BatchReport, LineResult, run_batch
+from vispeech.batch.line import LineResult
+from vispeech.batch.run import BatchReport, run_batch
 
 __all__ = ["BatchLine", "BatchReport", "JobDefaults", "LineResult", "read_job", "run_batch"]

@@ -1,11 +1,11 @@
 """A batch on Ray: the same lines and outputs as the local pool, spread over a cluster.
 
-Each line is a Ray task that prepares its inputs (:func:`~vispeech.batch.run.prepare`: speech
+Each line is a Ray task that prepares its inputs (:func:`~vispeech.batch.line.prepare`: speech
 synthesis, reading and aligning a recording, reading an alignment: the I/O and features) and
 hands them, through the object store, to one of ``workers`` stateful actors
 (:class:`_Animator`), each of which loads a model once and animates every line it is given
-(:func:`~vispeech.batch.run.animate_prepared`). The driver (this process) writes each result
-with :func:`~vispeech.batch.run.write_line`, so the files land in the driver's output folder in
+(:func:`~vispeech.batch.line.animate_prepared`). The driver (this process) writes each result
+with :func:`~vispeech.batch.line.write_line`, so the files land in the driver's output folder in
 the same layout, byte for byte what the local pool writes, whichever nodes computed them. Input
 files must be readable at the same paths on every node (a shared file system).
 
@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from vispeech.batch.job import BatchLine
-from vispeech.batch.run import LineResult, animate_prepared, failed, prepare, write_line
+from vispeech.batch.line import LineResult, animate_prepared, failed, prepare, write_line
 
 IN_FLIGHT_PER_WORKER = 4
 """Lines each actor may have queued: bounds the prepared audio held in the object store."""

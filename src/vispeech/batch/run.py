@@ -25,52 +25,21 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import vispeech
 from vispeech.batch.job import BatchLine, JobDefaults, read_job
+from vispeech.batch.line import RECORD, LineResult, expected_files, failed, loaded_model, model_spec, run_line
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
-from vispeech.frontends.audio import AudioClip
-from vispeech.models.contract import Estimator
-from vispeech.models.registry import load_model, model_version, saved_folder
-from vispeech.motion.life import with_life
+from vispeech.models.registry import model_version, saved_folder
 from vispeech.motion.rigging.calibration import SCALES, load_scale
-from vispeech.pipeline import (
-    DEFAULT_MODEL,
-    OUTPUT_FILES,
-    Utterance,
-    animate,
-    animate_audio,
-    default_audio_model,
-    hear,
-    voice,
-    write_outputs,
-)
 
-RECORD = "batch.json"
-"""The file in each line's folder that records its key and inputs."""
 INDEX = "index.jsonl"
 """The file in the output folder that lists every line of the last run."""
 BACKENDS = ("local", "ray")
 """Where lines run: a local pool of processes, or a Ray cluster."""
-
-_models: dict[str, Estimator] = {}  # spec → model, per process
-
-
-@dataclass(frozen=True)
-class LineResult:
-    """What became of one line: ``status`` is ``written``, ``unchanged`` (its outputs were up
-    to date) or ``failed`` (``error`` says why); ``files`` are the names in its folder."""
-
-    number: int
-    id: str
-    status: str
-    key: str | None = None
-    files: tuple[str, ...] = ()
-    error: str | None = None
-    seconds: float = 0.0
 
 
 @dataclass
@@ -89,14 +58,6 @@ class BatchReport:
     def failed(self) -> list[LineResult]:
         """The lines that failed."""
         return [r for r in self.results if r.status == "failed"]
-
-
-def model_spec(line: BatchLine) -> str:
-    """The model a line runs: its own, else the default for its input (an audio model for
-    audio without a transcript, else the default phone model)."""
-    if line.model is not None:
-        return line.model
-    return default_audio_model() if line.kind == "audio" and line.text is None else DEFAULT_MODEL
 
 
 def run_batch(
@@ -161,19 +122,12 @@ def _load_models(specs: set[str]) -> dict[str, str | VispeechError]:
     versions: dict[str, str | VispeechError] = {}
     for spec in sorted(specs):
         try:
-            model = _model(spec)
+            model = loaded_model(spec)
             model.check_fitted()
             versions[spec] = model_version(model, saved_folder(spec))
         except VispeechError as exc:
             versions[spec] = exc
     return versions
-
-
-def _model(spec: str) -> Estimator:
-    """The model ``spec`` names, loaded once per process."""
-    if spec not in _models:
-        _models[spec] = load_model(spec)
-    return _models[spec]
 
 
 def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[LineResult | None, str, str]:
@@ -200,16 +154,6 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
     if not force and _up_to_date(out / line.id, key, expected_files(line)):
         return LineResult(line.number, line.id, "unchanged", key, expected_files(line)), key, record
     return None, key, record
-
-
-def expected_files(line: BatchLine) -> tuple[str, ...]:
-    """The names a line's folder holds once written: its formats that its input has data for
-    (audio for ``speech.wav`` and ``preview.html``, audio and phones for ``phones.TextGrid``), and the record."""
-    has_audio = line.kind != "alignment"
-    has_phones = line.kind != "audio" or line.text is not None
-    names = [name for fmt, name in OUTPUT_FILES.items() if fmt in line.formats
-             and (has_audio or fmt not in ("wav", "preview", "textgrid")) and (has_phones or fmt != "textgrid")]
-    return tuple(sorted([*names, RECORD]))
 
 
 def _file_digest(path: Path, kind: str) -> str:
@@ -246,10 +190,10 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
     workers = min(workers, len(todo))
     if workers == 1:
         for line, key, record in todo:
-            yield _run_line(line, out, key, record)
+            yield run_line(line, out, key, record)
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        pending = {pool.submit(_run_line, line, out, key, record): line for line, key, record in todo}
+        pending = {pool.submit(run_line, line, out, key, record): line for line, key, record in todo}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -260,69 +204,7 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
                     yield failed(line, key=None, error=f"worker failed: {type(exc).__name__}: {exc}")
 
 
-@dataclass
-class Prepared:
-    """A line's inputs made ready for its model: the utterance without its track (text, phones,
-    audio) and, for a recording, its clip; the I/O and feature half of a line."""
-
-    utterance: Utterance
-    clip: AudioClip | None = None
-
-
-def prepare(line: BatchLine) -> Prepared:
-    """Read, synthesise or align what ``line`` animates (espeak-ng speech, a recording and its
-    alignment, an alignment file)."""
-    if line.kind == "text":
-        return Prepared(voice(line.text, line.lang, rate=line.rate, variant=line.voice))
-    if line.kind == "audio":
-        clip = AudioClip.read(line.audio)
-        return Prepared(hear(clip, line.text, line.lang or "en"), clip)
-    from vispeech.alignment.formats import read_alignment
-
-    return Prepared(Utterance(phones=read_alignment(line.alignment, line.lang)))
-
-
-def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
-    """The utterance of a prepared line with its track, animated by the line's model."""
-    model = _model(model_spec(line))
-    utterance = prepared.utterance
-    if prepared.clip is not None:
-        track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
-    else:
-        track = animate(utterance.phones, model, line.fps, line.postprocess)
-    return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed))
-
-
-def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:
-    """Write a line's folder (its formats and its record) as one swap; the names written."""
-    title = line.text or (line.source.name if line.source is not None else None)
-    paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record},
-                          scale=line.scale)
-    return tuple(sorted(p.name for p in paths))
-
-
 def _scale_settings(scale: str) -> str | dict[str, float]:
     """What of the output scale a line's key depends on: its name, or a calibration file's gains."""
     calibration = load_scale(scale)
     return scale if calibration is None or scale in SCALES else calibration.gains
-
-
-def failed(line: BatchLine, key: str | None, error: BaseException | str, seconds: float = 0.0) -> LineResult:
-    """The failed result of a line, with a one-line message for ``error``."""
-    if isinstance(error, VispeechError):
-        error = str(error)
-    elif isinstance(error, OSError):
-        error = f"{error.strerror or error}" + (f" ({error.filename})" if getattr(error, "filename", None) else "")
-    elif isinstance(error, BaseException):
-        error = f"internal error: {type(error).__name__}: {error}"
-    return LineResult(line.number, line.id, "failed", key, error=error, seconds=seconds)
-
-
-def _run_line(line: BatchLine, out: Path, key: str, record: str) -> LineResult:
-    """Prepare, animate and write one line; any error becomes the line's failed result."""
-    started = time.perf_counter()
-    try:
-        files = write_line(line, out, animate_prepared(line, prepare(line)), key, record)
-    except Exception as exc:  # noqa: BLE001 (one line's failure must not stop the batch)
-        return failed(line, key, exc, time.perf_counter() - started)
-    return LineResult(line.number, line.id, "written", key, files, seconds=time.perf_counter() - started)
