@@ -75,6 +75,12 @@ def animate(
     or ``False`` for none.
     """
     check_fps(fps)
+    return _animate(phones, model, fps, postprocessing)
+
+
+def _animate(phones: PhoneSequence, model: str | Estimator, fps: float,
+             postprocessing: PostprocessConfig | bool) -> Track:
+    """:func:`animate` at an ``fps`` already checked."""
     phones.validate()
     check_utterance(phones.duration, len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
@@ -98,12 +104,18 @@ def animate_audio(
     gets the ``audio-closures`` preset's closures on them.
     """
     check_fps(fps)
+    return _animate_audio(clip, model, fps, postprocessing, phones)
+
+
+def _animate_audio(clip: AudioClip, model: str | Estimator, fps: float, postprocessing: PostprocessConfig | bool,
+                   phones: PhoneSequence | None) -> Track:
+    """:func:`animate_audio` at an ``fps`` already checked."""
     check_utterance(clip.duration, 0 if phones is None else len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
     if estimator.input_kind != "audio":
         if phones is None:
             raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
-        return animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
+        return _animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
     if phones is not None:
         return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, "learned-jaw")
     track, heard = estimator.predict_with_closures(clip, fps)
@@ -138,7 +150,7 @@ def speak(
     """
     check_fps(fps)
     utterance = voice(text, language, rate=rate, variant=variant)
-    return replace(utterance, track=animate(utterance.phones, model, fps, postprocessing))
+    return replace(utterance, track=_animate(utterance.phones, model, fps, postprocessing))
 
 
 TRAILING_SILENCE = 0.25
@@ -203,7 +215,7 @@ def listen(
     check_fps(fps)
     utterance = hear(clip, text, language)
     default = default_audio_model() if utterance.phones is None else DEFAULT_MODEL
-    track = animate_audio(clip, default if model is None else model, fps, postprocessing, phones=utterance.phones)
+    track = _animate_audio(clip, default if model is None else model, fps, postprocessing, utterance.phones)
     return replace(utterance, track=track)
 
 
