@@ -144,13 +144,8 @@ def analyse(answers: Path, output: Path, participants: Path | None, exclude_fail
     import sys
 
     from vispeech.files import check_output_dir
-    from vispeech.study.analysis import (
-        ANALYSIS_FILES,
-        analyse_answers,
-        read_answers,
-        read_participants,
-        write_analysis,
-    )
+    from vispeech.study.analysis import analyse_answers, read_answers, read_participants
+    from vispeech.study.report_folder import ANALYSIS_FILES, write_analysis
 
     if exclude_failed_checks and participants is None:
         raise click.UsageError("--exclude-failed-checks needs --participants")
