@@ -120,13 +120,28 @@ def consonant_overlays(
     if not consonants:
         return out
     table = default_targets()
-    visemes = table.values(language)[index]
-    defined = table.defined(language)[index]
     fade_out_lengths = (_default_fade_out(language) if fade_out is None else resolve_spec(fade_out, language))[index]
 
-    fps, n = out.fps, out.n_frames
     starts = np.array([p.start for p in consonants]) - out.start_time
     ends = np.array([p.end for p in consonants]) - out.start_time
+    vowels = [p for p, vowel in zip(phones, rows.features[all_rows, _VOWEL] > 0) if vowel]
+    peak_from, peak_to, rise, fall = _fades(starts, ends, vowels, out, fade_in, fade_out_lengths)
+    lo, hi, strengths = _strengths(peak_from, peak_to, rise, fall, out.n_frames)
+
+    aperture = _viseme_aperture(language)[index]
+    bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
+    order = sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i]))
+    _blend_visemes(out, table.values(language)[index], table.defined(language)[index], order, lo, hi, strengths,
+                   keep_jaw)
+    return out
+
+
+def _fades(starts: np.ndarray, ends: np.ndarray, vowels: list, out: Track, fade_in: float,
+           fade_out_lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per consonant (``starts``, ``ends``: seconds from ``out``'s first frame), in frames: the
+    full-strength stretch (``peak_from`` to ``peak_to``, from its onset to its anchor frame) and
+    the fade-in and fade-out lengths before and after it, cut short by Öhman's rule."""
+    fps, n = out.fps, out.n_frames
     length = (ends - starts) * fps  # phone lengths in frames
     onset = starts * fps
     anchor = anchor_frames(starts, ends, fps, n)
@@ -134,7 +149,6 @@ def consonant_overlays(
     # Öhman's rule: a consonant's fades reach no further than its neighbours' peaks: the
     # full-strength stretch of the next consonant, or the anchor frame of the next vowel
     # (so that a vowel between two bilabials still opens the mouth at its centre)
-    vowels = [p for p, vowel in zip(phones, rows.features[all_rows, _VOWEL] > 0) if vowel]
     vowel_anchor = anchor_frames(
         np.array([p.start for p in vowels]) - out.start_time,
         np.array([p.end for p in vowels]) - out.start_time, fps, n,
@@ -148,12 +162,17 @@ def consonant_overlays(
     next_peak = np.minimum(np.concatenate((peak_from[1:], [np.inf])), next_vowel)
     rise = np.clip(np.minimum(fade_in * length, peak_from - previous_peak), 0.0, None)
     fall = np.clip(np.minimum(fade_out_lengths * length, next_peak - peak_to), 0.0, None)
+    return peak_from, peak_to, rise, fall
 
-    aperture = _viseme_aperture(language)[index]
+
+def _strengths(peak_from: np.ndarray, peak_to: np.ndarray, rise: np.ndarray, fall: np.ndarray,
+               n: int) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Per consonant, the first and last frames it reaches (``lo``, ``hi``, within the ``n``
+    frames) and its strength on each of them: the Bézier fade in, 1 over its peak, the fade out."""
     lo = np.maximum(np.ceil(peak_from - rise), 0).astype(int)
     hi = np.minimum(np.floor(peak_to + fall), n - 1).astype(int)
     counts = np.maximum(hi - lo + 1, 0)
-    owner = np.repeat(np.arange(len(consonants)), counts)  # one entry per (consonant, frame) pair
+    owner = np.repeat(np.arange(len(lo)), counts)  # one entry per (consonant, frame) pair
     k = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + lo[owner]).astype(float)
     rising = k < peak_from[owner]
     y = bezier_ease(
@@ -162,15 +181,20 @@ def consonant_overlays(
     )
     strength = np.where(rising, y, 1.0 - y)
     strength[~rising & (k <= peak_to[owner])] = 1.0
-    offsets = np.concatenate(([0], np.cumsum(counts)))
+    return lo, hi, np.split(strength, np.cumsum(counts)[:-1])
 
+
+def _blend_visemes(out: Track, visemes: np.ndarray, defined: np.ndarray, order: Sequence[int], lo: np.ndarray,
+                   hi: np.ndarray, strengths: Sequence[np.ndarray], keep_jaw: bool) -> None:
+    """Blend each consonant's viseme (its ``defined`` channels) into ``out`` over frames ``lo`` to
+    ``hi`` with its ``strengths``, one after another in ``order``; jawOpen never rises, and with
+    ``keep_jaw`` is left alone, mouthClose keeping the viseme's lip opening under the jaw."""
     columns = np.array([out.channels.index(c) for c in TARGET_CHANNELS])
     jaw, close = TARGET_CHANNELS.index("jawOpen"), TARGET_CHANNELS.index("mouthClose")
     values = out.values
-    bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
-    for i in sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i])):
+    for i in order:
         frames = slice(lo[i], hi[i] + 1)
-        s = strength[offsets[i]:offsets[i + 1], None]
+        s = strengths[i][:, None]
         channels = np.flatnonzero(defined[i])
         if keep_jaw:
             channels = channels[channels != jaw]
@@ -185,7 +209,6 @@ def consonant_overlays(
             k = channels.tolist().index(jaw)
             blended[:, k] = np.minimum(current[:, k], blended[:, k])
         values[frames, cols] = blended
-    return out
 
 
 def upper_lip_overlay(track: Track, phones: PhoneSequence, amount: float) -> Track:
