@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import overload
 
 import numpy as np
 
@@ -170,6 +171,10 @@ TIME_TOLERANCE = 1e-6
 """Seconds: two times closer than this are the same time (phone boundaries, frame times)."""
 
 
+@overload
+def first_frame(seconds: float, fps: float, after: bool = True) -> int: ...
+@overload
+def first_frame(seconds: np.ndarray, fps: float, after: bool = True) -> np.ndarray: ...
 def first_frame(seconds: float | np.ndarray, fps: float, after: bool = True) -> int | np.ndarray:
     """The first frame k whose time ``k / fps`` is at or after ``seconds`` (``after``), or the
     last one at or before it; within :data:`TIME_TOLERANCE` counts as at."""
