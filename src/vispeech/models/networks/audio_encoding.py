@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import numpy as np
 
@@ -120,7 +121,7 @@ class AudioEncoding:
         for frames in features:
             x = np.asarray(frames, dtype=np.float64)
             count, total, squares = count + len(x), total + x.sum(axis=0), squares + (x ** 2).sum(axis=0)
-        mean = total / count
+        mean = cast(np.ndarray, total / count)  # the sums are arrays once a frame came (none: ZeroDivisionError)
         std = np.sqrt(np.maximum(squares / count - mean ** 2, 0.0))
         return replace(self, mean=mean.tolist(), std=np.maximum(std, 1e-3).tolist())
 

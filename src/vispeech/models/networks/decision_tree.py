@@ -100,6 +100,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
                       "feature": t.feature.astype(np.int32), "threshold": t.threshold.astype(np.float64),
                       "value": t.value[:, :, 0].astype(np.float64)}
         losses = [self._mse(split) if split else None for split in (train, validation)]
+        assert losses[0] is not None  # training_split refuses an empty train split
         self.history_ = TrainingHistory([losses[0]], [losses[1]], [0.0], [time.perf_counter() - started], 1)
         return self
 

@@ -22,6 +22,7 @@ with the outputs' overlap average.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TypedDict
 
 import numpy as np
 
@@ -226,12 +227,22 @@ def overlap_average(out: np.ndarray, n: int) -> np.ndarray:
     return total[ky - 1:ky - 1 + n] / ky
 
 
+class _ConvLayer(TypedDict):
+    """One layer of a :class:`ConvStackKernel`: frames (behind, ahead), weights, layer-norm gain and shift."""
+
+    pad: tuple[int, int]
+    weight: np.ndarray
+    bias: np.ndarray
+    gain: np.ndarray
+    shift: np.ndarray
+
+
 class ConvStackKernel:
     """The NumPy forward pass of ``ConvStack`` (1-D convolutions, ReLU, per-frame layer norm)
     with weights under ``prefix``; ``pads[i]`` = frames (behind, ahead) of layer i."""
 
     def __init__(self, weights: Mapping[str, np.ndarray], prefix: str, pads: Sequence[tuple[int, int]]):
-        self.layers = []
+        self.layers: list[_ConvLayer] = []
         for i, pad in enumerate(pads):
             conv = np.asarray(weights[f"{prefix}.convs.{i}.weight"], dtype=np.float32)  # out, in, kernel
             if conv.shape[2] != pad[0] + pad[1] + 1:
@@ -280,7 +291,7 @@ class ConvStackStream:
         return h
 
 
-def _conv_layer(layer: dict, padded: np.ndarray) -> np.ndarray:
+def _conv_layer(layer: _ConvLayer, padded: np.ndarray) -> np.ndarray:
     """One convolution, ReLU and per-frame layer norm over already padded input rows."""
     n = len(padded) - len(layer["weight"]) + 1
     out = np.broadcast_to(layer["bias"], (n, len(layer["bias"]))).copy()
@@ -339,7 +350,7 @@ class AudioCNNKernel:
     def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], fusion_layers: int = 0):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
-        self.gru = None
+        self.gru: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         if "gru.weight_ih_l0" in weights:
             w = lambda name: np.asarray(weights[f"gru.{name}_l0"], dtype=np.float32)  # noqa: E731
             self.gru = (w("weight_ih").T.copy(), w("bias_ih"), w("weight_hh").T.copy(), w("bias_hh"))
@@ -382,6 +393,7 @@ class AudioCNNStream:
             h = rows if self.kernel.fusion is None else self.kernel.fusion.forward(rows)
         h = self.convs.push(h, final)
         if self._state is not None and len(h):
+            assert self.kernel.gru is not None  # a state is kept only for a GRU
             h = _gru(h, *self.kernel.gru, state=self._state)
             self._state = h[-1]
         elif self._state is not None:

@@ -5,6 +5,8 @@ Only training imports this module, and with it torch (the ``train`` extra).
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import torch
 from torch import nn
@@ -61,7 +63,8 @@ def overlap_average(out: torch.Tensor, n_frames: int) -> torch.Tensor:
     Window w predicts frames ``w - Ky + 1 .. w``; every frame gets exactly Ky predictions.
     """
     ky = out.shape[1]
-    total = sum(nn.functional.pad(out[:, k], (0, 0, k, ky - 1 - k)) for k in range(ky))
+    # sum's start, 0, is never the result: there is at least one window (ky >= 1)
+    total = cast(torch.Tensor, sum(nn.functional.pad(out[:, k], (0, 0, k, ky - 1 - k)) for k in range(ky)))
     return total[ky - 1: ky - 1 + n_frames] / ky
 
 
@@ -93,6 +96,9 @@ class RecurrentTimeDelayNet(nn.Module):
 
 class GroupedNetworks(nn.Module):
     """Several networks, each predicting some outputs; outputs come back in the model's order."""
+
+    order: torch.Tensor
+    """The permutation putting the networks' outputs in the model's order (a buffer)."""
 
     def __init__(self, nets: list[RecurrentTimeDelayNet], columns: list[list[int]]):
         super().__init__()

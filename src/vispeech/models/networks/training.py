@@ -16,11 +16,10 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,7 +44,7 @@ class TrainingState:
     best_weights: dict[str, torch.Tensor] | None = None
     optimizer: dict | None = None
     torch_rng: torch.Tensor | None = None
-    numpy_rng: dict | None = None
+    numpy_rng: Mapping[str, Any] | None = None
 
     @property
     def epoch(self) -> int:
@@ -191,7 +190,7 @@ def save_state(state: TrainingState, module: torch.nn.Module, folder: Path) -> N
     tensors |= {f"best.{k}": v for k, v in (state.best_weights or {}).items()}
     optimizer_json = None
     if state.optimizer is not None:
-        per_param = {}
+        per_param: dict[str, dict[str, Any]] = {}
         for pid, values in state.optimizer["state"].items():
             per_param[str(pid)] = {}
             for key, value in values.items():

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
+from typing import cast
 
 import numpy as np
 
@@ -234,6 +235,7 @@ class _Channel:
         """One accepted Levenberg–Marquardt step, then early stopping; True if the kept parameters changed."""
         p = self.problem
         r, jacobian = p.residuals(self.x, True)
+        assert jacobian is not None  # asked for
         gradient = jacobian.T @ r
         normal = jacobian.T @ jacobian
         scale = np.diag(normal).copy()
@@ -339,7 +341,7 @@ def _mean_losses(states: Iterable[_Channel]) -> tuple[float, float | None]:
     states = list(states)
     train = float(np.mean([s.best_train for s in states]))
     held = [s.best_validation for s in states]
-    return train, (None if any(v is None for v in held) else float(np.mean(held)))
+    return train, (None if any(v is None for v in held) else float(np.mean(cast(list[float], held))))
 
 
 def _summary(states: Iterable[_Channel]) -> str:
