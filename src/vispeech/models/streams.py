@@ -13,7 +13,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from fractions import Fraction
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Generic, Self, TypeVar
 
 import numpy as np
 
@@ -23,8 +23,12 @@ from vispeech.errors import VispeechError
 if TYPE_CHECKING:
     from vispeech.models.contract import Estimator
 
+ChunkT = TypeVar("ChunkT")
+"""What a stream's :meth:`~ModelStream.push` takes: phones (``Iterable[Phone]``), or audio samples
+(an audio network's :class:`~vispeech.models.networks.audio_stream.AudioStream`)."""
 
-class ModelStream(ABC):
+
+class ModelStream(ABC, Generic[ChunkT]):
     """Frames for phones that arrive in time order (a recogniser's or a TTS engine's).
 
     :meth:`push` takes the next phones (none overlapping the ones before) and returns
@@ -47,15 +51,18 @@ class ModelStream(ABC):
         """Frames given so far."""
         self.closed = False
 
+    _fed: tuple[int, np.ndarray] | None
+    """What :meth:`feed` left for :meth:`collect` (unset before the first feed)."""
+
     @abstractmethod
-    def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
+    def push(self, phones: ChunkT) -> tuple[int, np.ndarray]:
         """Add phones; the frames that became ready."""
 
     @abstractmethod
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed."""
 
-    def feed(self, phones: Iterable[Phone]) -> None:
+    def feed(self, phones: ChunkT) -> None:
         """Add phones, their frames to be taken with :meth:`collect`: :meth:`push` in two halves,
         so that the model work of several streams can be done together in between
         (:meth:`advance_together`). By default the work is done here."""
@@ -69,7 +76,7 @@ class ModelStream(ABC):
         return fed if fed is not None else self._empty()
 
     @classmethod
-    def advance_together(cls, streams: Sequence[ModelStream]) -> None:
+    def advance_together(cls, streams: Sequence[Self]) -> None:
         """Do the model work that :meth:`feed` left in ``streams`` (all of this class), sharing
         model calls where the class can; by default there is none left."""
 
@@ -81,7 +88,7 @@ class ModelStream(ABC):
         return self.emitted, np.zeros((0, len(self.channels)))
 
 
-class WindowStream(ModelStream):
+class WindowStream(ModelStream[Iterable[Phone]]):
     """Any model streamed by re-predicting a bounded recent window.
 
     Each step predicts the phones from ``context`` seconds before the first frame not yet

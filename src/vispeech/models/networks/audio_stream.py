@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
 
 
-class AudioStream(ModelStream):
+class AudioStream(ModelStream[np.ndarray]):
     """An audio network driven by audio chunks as they arrive (a microphone, a voice service).
 
     :meth:`push` takes float samples at :data:`~vispeech.frontends.features.SAMPLE_RATE` Hz
@@ -38,17 +38,21 @@ class AudioStream(ModelStream):
     frames an approximation of the offline ones.
     """
 
+    model: AudioNetwork
+
     def __init__(self, model: AudioNetwork, fps: float) -> None:
         super().__init__(model, "", fps)
         self.delay = model.delay
         self.lookahead = math.ceil(self.delay * self.fps)
         self._samples = 0  # pushed so far
+        self._encoder: EncoderStream | None
         if model.encoding_.kind == "encoder":
+            assert model.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
             self._encoder = EncoderStream(SpeechEncoder.load(model.encoding_.encoder), model.fps_, model.get_params())
         else:
             self._encoder = None
             self._spectra = SpectrumStream()
-        self._norm_state = None
+        self._norm_state: object = None  # AudioEncoding.normalise's running state
         self._normalised: list[np.ndarray] = []  # feature frames not yet stacked into network inputs
         self._inputs: list[np.ndarray] = []  # network input rows from row _first_input on
         self._first_input = 0
@@ -115,6 +119,7 @@ class AudioStream(ModelStream):
 
     def _add_hidden(self, chunk: np.ndarray, final: bool) -> None:
         """Add the encoder input rows of the hidden states the :class:`EncoderStream` gives."""
+        assert self._encoder is not None  # called only for encoder features
         states = self._encoder.push(chunk, final)
         if states.shape[1]:
             self._inputs.extend(self.model.encoding_.encode(states, states.shape[1]))
@@ -123,9 +128,9 @@ class AudioStream(ModelStream):
         """Compute network frames up to (not including) ``upto`` (an incremental network: all it can)."""
         model = self.model
         if self._incremental is not None:
-            rows = self._inputs[: self._n_model_frames() - self._first_input] if final else self._inputs
+            pending = self._inputs[: self._n_model_frames() - self._first_input] if final else self._inputs
             width = model.encoding_.size
-            out = self._incremental.push(np.stack(rows) if rows else np.zeros((0, width), np.float32), final)
+            out = self._incremental.push(np.stack(pending) if pending else np.zeros((0, width), np.float32), final)
             for row in model._denormalise(out):
                 self._frames.add(row)
             self._first_input += len(self._inputs)

@@ -142,7 +142,7 @@ class LowLatencyNetwork(TimeDelayNetwork):
     defaults = {**BESKOW, "look_back": 28, "look_ahead": 2}
 
 
-class RecurrentStream(ModelStream):
+class RecurrentStream(ModelStream[Iterable[Phone]]):
     """A time-delay network driven phone by phone.
 
     Model frame t (at the model's ``fps_``) is computed once the phones cover frame
@@ -150,6 +150,8 @@ class RecurrentStream(ModelStream):
     frames around ``k / fps`` as :meth:`TimeDelayNetwork.predict` resamples, so the stream's
     frames equal :meth:`~TimeDelayNetwork.predict`'s on the whole sequence.
     """
+
+    model: TimeDelayNetwork
 
     def __init__(self, model: TimeDelayNetwork, language: str, fps: float) -> None:
         super().__init__(model, language, fps)
@@ -183,7 +185,7 @@ class RecurrentStream(ModelStream):
                                                          start_frame=len(self._rows)))
                 # Keep the phone before the first one covering the frame before the next to
                 # encode, so a silence gap after it starts where it ends (as offline).
-                keep = np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right")
+                keep = int(np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right"))
                 self._recent = self._recent[max(keep - 1, 0):]
         self._due = len(self._rows) - model.lookahead
 
