@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, replace
+from typing import Self
 
 import numpy as np
 
@@ -110,7 +111,7 @@ class _Example:
     hidden: np.ndarray | None = None
 
 
-class AudioNetwork(Network[AudioClip]):
+class AudioNetwork(Network[AudioClip, AudioEncoding]):
     """Base of the audio networks: audio inputs, augmentation, the loss, prediction and streaming."""
 
     input_kind = "audio"
@@ -150,6 +151,7 @@ class AudioNetwork(Network[AudioClip]):
         self.phones_ = self._phone_vocabulary(train_set)
         self.phone_language_ = train_set[0].phones.language
         if encoding.kind == "encoder":
+            assert encoding.encoder is not None  # AudioEncoding: kind encoder has its folder
             encoder = SpeechEncoder.load(encoding.encoder)
             encoding = replace(encoding, layers=encoder.layers, width=encoder.width)
             self._hidden = {id(u): self._utterance_hidden(u, encoder) for u in train_set}
@@ -159,7 +161,8 @@ class AudioNetwork(Network[AudioClip]):
 
     @staticmethod
     def _clip(utterance) -> AudioClip:
-        return AudioClip.from_array(*utterance.load_audio(), where=f"audio of {getattr(utterance, 'id', '?')}")
+        samples, sample_rate = utterance.load_audio()
+        return AudioClip.from_array(samples, sample_rate, where=f"audio of {getattr(utterance, 'id', '?')}")
 
     def _utterance_hidden(self, utterance, encoder) -> np.ndarray:
         """The encoder's hidden states of the utterance's audio, float16 (half the memory while fitting)."""
@@ -214,14 +217,15 @@ class AudioNetwork(Network[AudioClip]):
         return tuple(s for s in get_inventory(language).symbols if not is_silence(s))
 
     def _encode_example(self, utterance, n_frames: int) -> _Example:
-        labels = []
+        ids: list[int] = []
         if self.phones_:
             index = {s: i + 1 for i, s in enumerate(self.phones_)}
-            labels = [index[p.symbol] for p in utterance.phones if p.symbol in index]
-        labels = np.asarray(labels, dtype=np.int64)
+            ids = [index[p.symbol] for p in utterance.phones if p.symbol in index]
+        labels = np.asarray(ids, dtype=np.int64)
         if self.encoding_.kind == "encoder":
             hidden = getattr(self, "_hidden", {}).get(id(utterance))
             if hidden is None:
+                assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
                 hidden = self._utterance_hidden(utterance, SpeechEncoder.load(self.encoding_.encoder))
             return _Example([], n_frames, labels, hidden)
         powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
@@ -231,7 +235,7 @@ class AudioNetwork(Network[AudioClip]):
         return AudioEncoding.from_dict(data)
 
     def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> AudioNetwork:
+            num_threads: int | None = None, warm_start: bool = False) -> Self:
         """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
         The run settings are :meth:`Network.fit`'s.
 
@@ -328,6 +332,11 @@ class AudioNetwork(Network[AudioClip]):
         raise NotImplementedError
 
     @property
+    def context(self) -> int:
+        """Network frames before the first frame not yet computed that a stream keeps inputs for."""
+        raise NotImplementedError
+
+    @property
     def delay(self) -> float:
         """Seconds of audio after a frame's time that a stream needs before giving it: the
         look-ahead, the stacked feature frames and half the analysis window (with encoder
@@ -352,6 +361,7 @@ class AudioNetwork(Network[AudioClip]):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
         n_model = clip.n_frames(self.fps_)
         if self.encoding_.kind == "encoder":
+            assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
             source = self._hidden_states(clip, SpeechEncoder.load(self.encoding_.encoder))
         else:
             source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)

@@ -11,10 +11,9 @@ Taylor et al. found it "significantly worse" than the sliding window.
 
 from __future__ import annotations
 
-from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import LSTMKernel
-from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
+from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches
 
 FAN: dict = {
     **COMMON_PARAMS,
@@ -30,7 +29,7 @@ FAN: dict = {
 """Hyper-parameters of Taylor et al.'s LSTM baseline (``lstm-taylor``)."""
 
 
-class LSTMNetwork(Network[PhoneSequence]):
+class LSTMNetwork(PhoneNetwork):
     """Taylor et al.'s LSTM baseline. Architecture hyper-parameters: ``dense`` (units of the
     dense layer), ``hidden`` (LSTM units per direction), ``layers``, ``bidirectional``,
     ``dropout``, ``batch_size`` (utterances per update); the others are the common ones."""

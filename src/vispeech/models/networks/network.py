@@ -1,7 +1,8 @@
 """The shared base of the trainable networks: inputs, targets, fit, predict, learned state.
 
-A network reads per-frame input vectors (:class:`~vispeech.models.networks.encoding.InputEncoding`)
-at its own frame rate (the corpus's unless ``fps`` is set) and predicts target channels:
+A phone network (:class:`PhoneNetwork`) reads per-frame input vectors
+(:class:`~vispeech.models.networks.encoding.InputEncoding`) at its own frame rate (the
+corpus's unless ``fps`` is set) and predicts target channels:
 
 - ``targets="mouth"`` (default): the thesis's 18 reduced mouth channels
   (:data:`THESIS_CHANNELS`; the Left channel of every left/right pair);
@@ -29,8 +30,9 @@ import copy
 import json
 import os
 from abc import abstractmethod
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Generic, Self, TypeVar
 
 import numpy as np
 
@@ -48,6 +50,8 @@ from vispeech.motion.track import Track
 
 if TYPE_CHECKING:
     import torch
+
+    from vispeech.models.networks.audio_encoding import AudioEncoding
 
 THESIS_CHANNELS: tuple[str, ...] = (
     "jawForward", "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker",
@@ -90,9 +94,14 @@ COMMON_PARAMS: dict[str, Any] = {**PHONE_INPUT_PARAMS, **TRAINING_PARAMS}
 _BUDGET_PARAMS = frozenset({"epochs", "patience"})
 """Hyper-parameters a resumed run may change: the training budget."""
 
+EncodingT = TypeVar("EncodingT", bound="InputEncoding | AudioEncoding")
+"""How a family encodes its inputs: :class:`~vispeech.models.networks.encoding.InputEncoding`
+(phones) or :class:`~vispeech.models.networks.audio_encoding.AudioEncoding` (audio)."""
+
 
 def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator | None, size: int,
-                     prepare=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+                     prepare: Callable[[np.ndarray], np.ndarray] | None = None,
+                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Utterance batches of ``size`` (shuffled with ``rng``; in order when it is ``None``): inputs
     (each through ``prepare`` first, e.g. padded for a window) and targets padded at the end to
     the batch's longest, with each utterance's frame count and the mask of its real frames."""
@@ -101,17 +110,21 @@ def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.rand
     for start in range(0, len(order), size):
         chosen = [examples[i] for i in order[start:start + size]]
         longest = max(len(y) for _, y in chosen)
-        inputs = [x if prepare is None else prepare(x) for x, _ in chosen]
-        inputs = np.stack([np.pad(x, ((0, longest - len(y)), (0, 0))) for x, (_, y) in zip(inputs, chosen)])
+        prepared = [x if prepare is None else prepare(x) for x, _ in chosen]
+        inputs = np.stack([np.pad(x, ((0, longest - len(y)), (0, 0))) for x, (_, y) in zip(prepared, chosen)])
         targets = np.stack([np.pad(y, ((0, longest - len(y)), (0, 0))) for _, y in chosen])
         lengths = np.array([len(y) for _, y in chosen])
         batches.append((inputs, targets, lengths, np.arange(longest)[None, :] < lengths[:, None]))
     return batches
 
 
-class Network(Estimator[InputT]):
-    """Base of the networks, phones in unless a family says otherwise (the audio networks);
-    families define the torch module, batches, loss and NumPy forward pass."""
+class Network(Estimator[InputT], Generic[InputT, EncodingT]):
+    """Base of the networks, generic in their inputs and how they encode them (phones:
+    :class:`PhoneNetwork`; audio: the audio networks); families define the torch module,
+    batches, loss and NumPy forward pass."""
+
+    encoding_: EncodingT
+    """The input encoding, learned at fit."""
 
     def _check_params(self) -> None:
         p = self._params
@@ -123,25 +136,27 @@ class Network(Estimator[InputT]):
         self._check_architecture()
         self._kernel = None
 
-    # -- inputs (phones here; audio networks override these) -------------------------------
+    # -- inputs (phones: PhoneNetwork; audio: the audio networks) ---------------------------
 
+    @abstractmethod
     def _check_inputs(self) -> None:
         """Raise :class:`VispeechError` on bad input-encoding parameters."""
-        p = self._params
-        InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], p["position"])
 
-    def _make_encoding(self, train_set: list, corpus) -> InputEncoding:
+    @abstractmethod
+    def _make_encoding(self, train_set: list, corpus) -> EncodingT:
         """The input encoding fitted to the training data."""
-        p = self._params
-        language = p["language"] or getattr(corpus, "language", None) or train_set[0].phones.language
-        return InputEncoding(p["inputs"], language, p["linguistic"], p["position"])
 
-    def _encoding_from_dict(self, data: dict) -> InputEncoding:
-        return InputEncoding.from_dict(data)
+    @abstractmethod
+    def _encoding_from_dict(self, data: dict) -> EncodingT:
+        """The input encoding that ``to_dict`` gave ``data``."""
 
+    @abstractmethod
     def _encode_example(self, utterance, n_frames: int):
         """The inputs of one training utterance over ``n_frames`` frames at ``fps_``."""
-        return self.encoding_.encode(utterance.phones, self.fps_, n_frames=n_frames)
+
+    @abstractmethod
+    def _check_warm(self, train_set: list) -> None:
+        """Raise :class:`VispeechError` when the fitted encoding cannot take ``train_set`` (a warm start)."""
 
     # -- what families define --------------------------------------------------------------
 
@@ -196,7 +211,7 @@ class Network(Estimator[InputT]):
     # -- fitting ---------------------------------------------------------------------------
 
     def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> Network:
+            num_threads: int | None = None, warm_start: bool = False) -> Self:
         """Train on ``corpus`` (see :func:`~vispeech.models.fitting.training_split`); returns ``self``.
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
@@ -217,7 +232,10 @@ class Network(Estimator[InputT]):
         resume = checkpoint is not None and (checkpoint / "config.json").is_file()
         warm = warm_start and self.is_fitted and not resume
         if resume:
-            self._set_learned_state(*self._resumable(checkpoint)._learned_state())
+            assert checkpoint is not None  # resume is a run in the checkpoint folder
+            learned = self._resumable(checkpoint)._learned_state()
+            assert learned is not None  # _resumable takes a fitted run only
+            self._set_learned_state(*learned)
         elif warm:
             missing = [c for c in self.outputs_ if c not in train_set[0].track.channels]
             if missing:
@@ -236,12 +254,14 @@ class Network(Estimator[InputT]):
         if warm:  # start from what the network knows; the history and the best loss are the new data's
             module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
         if resume:
+            assert checkpoint is not None  # resume is a run in the checkpoint folder
             module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
             if (checkpoint / "training_state.json").is_file():
                 state = load_state(checkpoint, module)
             else:  # a plain saved model holds its best weights only: go on with a fresh optimizer
                 state = TrainingState(history=self.history_, best_weights=copy.deepcopy(module.state_dict()),
                                       best_loss=_best_loss(self.history_))
+        optimizer: torch.optim.Optimizer
         if p["optimizer"] == "adam":
             optimizer = torch.optim.Adam(module.parameters(), lr=p["learning_rate"])
         else:
@@ -261,6 +281,8 @@ class Network(Estimator[InputT]):
             return float(sum(loss.item() * w for loss, w in losses) / sum(w for _, w in losses))
 
         def on_epoch(progress_state: TrainingState) -> None:
+            assert checkpoint is not None  # train is given on_epoch only with a checkpoint folder
+            assert progress_state.best_weights is not None  # kept from the first epoch on
             self._take_weights(progress_state.best_weights, progress_state.history)
             self._write_checkpoint(checkpoint, module, progress_state)
 
@@ -292,7 +314,7 @@ class Network(Estimator[InputT]):
             write_model(self, staging, self.name)
             save_state(state, module, staging)
 
-    def _resumable(self, folder: Path) -> Network:
+    def _resumable(self, folder: Path) -> Self:
         """The saved run in ``folder``, if it is one of this network with the same parameters."""
         saved = type(self).load(folder)
         if not saved.is_fitted:
@@ -302,10 +324,6 @@ class Network(Estimator[InputT]):
             changed = sorted(k for k in mine if mine[k] != theirs.get(k))
             raise VispeechError(f"cannot resume from {folder}: parameters differ ({', '.join(changed)})")
         return saved
-
-    def _check_warm(self, train_set: list) -> None:
-        """Raise :class:`VispeechError` when the fitted encoding cannot take ``train_set`` (a warm start)."""
-        self.encoding_.check(train_set[0].phones)
 
     def _prepare(self, train_set: list, corpus) -> None:
         """Fix frame rate, output channels and input encoding from the training data
@@ -381,13 +399,6 @@ class Network(Estimator[InputT]):
         """``fps_`` once fitted: the network predicts at its training frame rate, then resamples."""
         return getattr(self, "fps_", None)
 
-    def stream(self, language: str, fps: float) -> ModelStream:
-        """A re-predicted recent window (:class:`~vispeech.models.streams.WindowStream`), after
-        checking that the network takes ``language``'s phones."""
-        self.check_fitted()
-        self.encoding_.check(PhoneSequence([], language))
-        return WindowStream(self, language, fps)
-
     @property
     def kernel(self):
         """The NumPy forward pass (built once from :attr:`weights_`)."""
@@ -395,20 +406,6 @@ class Network(Estimator[InputT]):
         if self._kernel is None:
             self._kernel = self._make_kernel()
         return self._kernel
-
-    def predict(self, inputs: InputT, fps: float) -> Track:
-        """Tracks of ``inputs.n_frames(fps)`` frames for phones (the audio networks override
-        this): predicted at the model's rate, resampled to ``fps``."""
-        phones = cast(PhoneSequence, inputs)
-        kernel = self.kernel
-        phones.validate()
-        self.encoding_.check(phones)
-        encoded = self.encoding_.encode(phones, self.fps_)
-        track = Track(self._denormalise(kernel.forward(encoded)), self.channels, self.fps_)
-        n = phones.n_frames(fps)
-        if fps != self.fps_ or track.n_frames != n:
-            track = track.resample(fps, n_frames=n)
-        return track
 
     # -- learned state ---------------------------------------------------------------------
 
@@ -433,6 +430,48 @@ class Network(Estimator[InputT]):
             self._make_kernel()
         except (KeyError, ValueError) as exc:
             raise ValueError(f"weights do not fit the config: {exc}") from None
+
+
+class PhoneNetwork(Network[PhoneSequence, InputEncoding]):
+    """Base of the networks that animate phones (:data:`PHONE_INPUT_PARAMS` encode them)."""
+
+    def _check_inputs(self) -> None:
+        p = self._params
+        InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], p["position"])
+
+    def _make_encoding(self, train_set: list, corpus) -> InputEncoding:
+        p = self._params
+        language = p["language"] or getattr(corpus, "language", None) or train_set[0].phones.language
+        return InputEncoding(p["inputs"], language, p["linguistic"], p["position"])
+
+    def _encoding_from_dict(self, data: dict) -> InputEncoding:
+        return InputEncoding.from_dict(data)
+
+    def _encode_example(self, utterance, n_frames: int) -> np.ndarray:
+        return self.encoding_.encode(utterance.phones, self.fps_, n_frames=n_frames)
+
+    def _check_warm(self, train_set: list) -> None:
+        self.encoding_.check(train_set[0].phones)
+
+    def stream(self, language: str, fps: float) -> ModelStream:
+        """A re-predicted recent window (:class:`~vispeech.models.streams.WindowStream`), after
+        checking that the network takes ``language``'s phones."""
+        self.check_fitted()
+        self.encoding_.check(PhoneSequence([], language))
+        return WindowStream(self, language, fps)
+
+    def predict(self, inputs: PhoneSequence, fps: float) -> Track:
+        """Tracks of ``inputs.n_frames(fps)`` frames for phones: predicted at the model's rate,
+        resampled to ``fps``."""
+        kernel = self.kernel
+        inputs.validate()
+        self.encoding_.check(inputs)
+        encoded = self.encoding_.encode(inputs, self.fps_)
+        track = Track(self._denormalise(kernel.forward(encoded)), self.channels, self.fps_)
+        n = inputs.n_frames(fps)
+        if fps != self.fps_ or track.n_frames != n:
+            track = track.resample(fps, n_frames=n)
+        return track
 
 
 def _comparable(params: dict) -> dict:

@@ -23,10 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import WindowKernel
-from vispeech.models.networks.network import COMMON_PARAMS, Network
+from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork
 
 TAYLOR: dict = {
     **COMMON_PARAMS,
@@ -66,7 +65,7 @@ THESIS: dict = {
 _ACTIVATIONS = ("tanh", "leaky_relu")
 
 
-class SlidingWindowNetwork(Network[PhoneSequence]):
+class SlidingWindowNetwork(PhoneNetwork):
     """The thesis's sliding-window network.
 
     Window parameters: ``input_window``, ``output_window`` (Kx - Ky even), ``hidden`` (layer

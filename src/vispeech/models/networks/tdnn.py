@@ -36,7 +36,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_fr
 from vispeech.errors import VispeechError
 from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
-from vispeech.models.networks.network import COMMON_PARAMS, Network, sequence_batches
+from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches
 
 BESKOW: dict = {
     **COMMON_PARAMS,
@@ -54,7 +54,7 @@ BESKOW: dict = {
 """Hyper-parameters of ANN 1 (``tdnn-beskow``); ANN 2 (``tdnn-lowlatency``) looks 28 back and 2 ahead."""
 
 
-class TimeDelayNetwork(Network[PhoneSequence]):
+class TimeDelayNetwork(PhoneNetwork):
     """Beskow's recurrent time-delay network, ANN 1 (look-back and look-ahead 15 frames).
 
     Architecture hyper-parameters: ``look_back``, ``look_ahead`` (frames), ``hidden`` (units,
