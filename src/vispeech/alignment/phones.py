@@ -173,11 +173,16 @@ TIME_TOLERANCE = 1e-6
 
 @overload
 def first_frame(seconds: float, fps: float, after: bool = True) -> int: ...
+
+
 @overload
-def first_frame(seconds: np.ndarray, fps: float, after: bool = True) -> np.ndarray: ...
+def first_frame(seconds: np.ndarray, fps: float, after: bool = True) -> np.ndarray: ...  # a 0-d array gives an int
+
+
 def first_frame(seconds: float | np.ndarray, fps: float, after: bool = True) -> int | np.ndarray:
     """The first frame k whose time ``k / fps`` is at or after ``seconds`` (``after``), or the
-    last one at or before it; within :data:`TIME_TOLERANCE` counts as at."""
+    last one at or before it; within :data:`TIME_TOLERANCE` counts as at. An int for a number,
+    an array of them for an array."""
     position = np.asarray(seconds, dtype=float) * fps
     slack = TIME_TOLERANCE * fps
     frame = np.ceil(position - slack) if after else np.floor(position + slack)
