@@ -44,7 +44,7 @@ def align_corpus(
         if utterance.phones is not None:
             continue
         cached = store.read_json(cache_key(utterance.id)) if store is not None else None
-        if cached and cached.get("aligner") == ALIGNER and cached.get("text") == utterance.text:
+        if isinstance(cached, dict) and cached.get("aligner") == ALIGNER and cached.get("text") == utterance.text:
             utterance.phones = PhoneSequence.from_dict(cached["phones"])
         else:
             todo.append(utterance)

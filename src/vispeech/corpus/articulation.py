@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from vispeech.corpus.corpus import Corpus, Utterance
+from vispeech.corpus.corpus import Corpus, Utterance, recorded_track
 from vispeech.errors import VispeechError
 from vispeech.motion.arkit import ARTICULATORY_CHANNELS
 from vispeech.motion.track import Track
@@ -69,7 +69,8 @@ def articulatory_parameters(utterance: Utterance, frame_size: tuple[int, int] = 
     width_ = np.linalg.norm(head[61] - head[291], axis=1)
     protrusion = (head[0][:, 2] + head[17][:, 2]) / 2 - (head[61][:, 2] + head[291][:, 2]) / 2
     values = np.column_stack([jaw, aperture, width_, protrusion])
-    return Track(values, ARTICULATORY_CHANNELS, utterance.track.fps, utterance.track.start_time)
+    track = recorded_track(utterance)
+    return Track(values, ARTICULATORY_CHANNELS, track.fps, track.start_time)
 
 
 LIP_LANDMARKS: tuple[int, ...] = (13, 14, 78, 308, 0, 17, 61, 291, 37, 267, 84, 314)
@@ -122,9 +123,10 @@ def mouth_frames(corpus: Corpus, frame_size: tuple[int, int] = FRAME_SIZE) -> tu
     :func:`vispeech.motion.rigging.calibration.fit_calibration` fits a head to."""
     scores, gaps, widths = [], [], []
     for utterance in corpus:
-        tracked = np.ones(utterance.track.n_frames, bool) if utterance.frame_mask is None else utterance.frame_mask
+        track = recorded_track(utterance)
+        tracked = np.ones(track.n_frames, bool) if utterance.frame_mask is None else utterance.frame_mask
         parameters = articulatory_parameters(utterance, frame_size)
-        scores.append(utterance.track.values[tracked])
+        scores.append(track.values[tracked])
         gaps.append(parameters["lip_aperture"][tracked])
         widths.append(parameters["lip_width"][tracked])
     if not scores:

@@ -58,7 +58,8 @@ def estimate_offset(gap: np.ndarray, fps: float, samples: np.ndarray, sample_rat
     e = np.where(use, (e - e[use].mean()) / e[use].std(), 0.0)
     reach = int(round(max_lag * ANALYSIS_RATE))
     lags = np.arange(-reach, reach + 1)
-    scores = np.array([np.mean(g[max(0, -lag):m - max(0, lag)] * e[max(0, lag):m - max(0, -lag)]) for lag in lags])
+    scores = np.array([np.mean(g[max(0, -lag):m - max(0, lag)] * e[max(0, lag):m - max(0, -lag)])
+                       for lag in lags.tolist()])
     k = int(np.argmax(scores))
     shift = 0.0
     if 0 < k < len(lags) - 1:

@@ -94,5 +94,7 @@ class CorpusCache:
             if a.dtype.hasobject:
                 raise VispeechError(f"cache entry {key!r}: array {name!r} is not numeric")
         with atomic_output_file(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **arrays)
+            # object arrays are refused above, so pickling is moot; naming allow_pickle keeps the
+            # arrays (**kwds) from being matched against it
+            np.savez(f, allow_pickle=False, **arrays)
         return path

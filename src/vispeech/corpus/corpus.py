@@ -94,12 +94,16 @@ class Corpus:
     @property
     def frame_rates(self) -> tuple[float, ...]:
         """The frame rates of the utterances' tracks, each once, lowest first (``(fps,)`` without utterances)."""
-        return tuple(sorted({_rate(u.track.fps) for u in self.utterances})) or (self.fps,)
+        return tuple(sorted({_rate(recorded_track(u).fps) for u in self.utterances})) or (self.fps,)
 
     @property
     def duration(self) -> float:
         """Total audio duration in seconds."""
-        return float(sum(u.duration for u in self.utterances))
+        total = 0.0
+        for u in self.utterances:
+            assert u.duration is not None, f"utterance {u.id} has no duration"  # every corpus reader sets it
+            total += u.duration
+        return float(total)
 
     def split(self, name: str) -> Corpus:
         """The sub-corpus of split ``name`` (``train``, ``validation``, ``test``; see :func:`split_of`),
@@ -120,7 +124,13 @@ class Corpus:
             raise VispeechError(
                 f"{len(missing)} utterances have no phones (first: {missing[0]}); align the corpus first"
             )
-        return Counter(p.symbol for u in self.utterances for p in u.phones)
+        return Counter(p.symbol for u in self.utterances if u.phones is not None for p in u.phones)
+
+
+def recorded_track(utterance: Utterance) -> Track:
+    """The face track of a corpus utterance (every corpus reader sets one)."""
+    assert utterance.track is not None, f"utterance {utterance.id} has no face track"
+    return utterance.track
 
 
 def _rate(fps: float) -> float:

@@ -22,7 +22,7 @@ import numpy as np
 
 from vispeech.alignment.formats import read_word_alignment
 from vispeech.corpus.cache import CorpusCache, content_hash
-from vispeech.corpus.corpus import Corpus, Utterance, check_durations, common_frame_rate, report_problem
+from vispeech.corpus.corpus import Corpus, Utterance, check_durations, common_frame_rate, recorded_track, report_problem
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import audio_duration
@@ -58,7 +58,7 @@ def read_grid(
     for utterance_id, text in sentences:
         try:
             utterance = _read_utterance(folder, utterance_id, text)
-            if utterances and utterance.track.channels != utterances[0].track.channels:
+            if utterances and recorded_track(utterance).channels != recorded_track(utterances[0]).channels:
                 raise VispeechError("its track's columns differ from the other utterances'")
         except VispeechError as exc:
             report_problem(problems, f"skipped {utterance_id}: {exc}", strict)
@@ -69,8 +69,8 @@ def read_grid(
     return Corpus(
         name=root.resolve().name,
         utterances=utterances,
-        fps=common_frame_rate((u.track for u in utterances), 25.0),
-        channels=utterances[0].track.channels if utterances else (),
+        fps=common_frame_rate((recorded_track(u) for u in utterances), 25.0),
+        channels=recorded_track(utterances[0]).channels if utterances else (),
         language="en",
         root=root,
         problems=problems,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from vispeech.alignment.formats import read_alignment
 from vispeech.corpus.cache import CorpusCache, content_hash
-from vispeech.corpus.corpus import Corpus, Utterance, check_durations, report_problem
+from vispeech.corpus.corpus import Corpus, Utterance, check_durations, recorded_track, report_problem
 from vispeech.corpus.grid import read_face_csv
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import audio_duration
@@ -57,10 +57,10 @@ def read_takes(
         try:
             utterance = _read_take(root, name, language)
             if utterances:
-                first = utterances[0].track
-                if abs(utterance.track.fps - first.fps) > 1e-3:
-                    raise VispeechError(f"its frame rate {utterance.track.fps:g} fps differs from {first.fps:g} fps")
-                if utterance.track.channels != first.channels:
+                first, track = recorded_track(utterances[0]), recorded_track(utterance)
+                if abs(track.fps - first.fps) > 1e-3:
+                    raise VispeechError(f"its frame rate {track.fps:g} fps differs from {first.fps:g} fps")
+                if track.channels != first.channels:
                     raise VispeechError("its CSV columns differ from the first take's")
         except VispeechError as exc:
             report_problem(problems, f"skipped take {name}: {exc}", strict)
@@ -101,6 +101,7 @@ def _read_take(root: Path, name: str, language: str) -> Utterance:
     absent = [what for what, path in expected if path is None]
     if absent:
         raise VispeechError(f"missing {', '.join(absent)}")
+    assert csv_path is not None and audio_path is not None  # none is absent
 
     phones = None
     if textgrid_path is not None:
@@ -109,6 +110,7 @@ def _read_take(root: Path, name: str, language: str) -> Utterance:
         if not text:
             raise VispeechError(f"{textgrid_path.name} has no words tier or no words")
     else:
+        assert text_path is not None  # none is absent: without a TextGrid, the transcript
         try:
             text = " ".join(text_path.read_text(encoding="utf-8-sig").split())
         except (OSError, UnicodeDecodeError) as exc:
