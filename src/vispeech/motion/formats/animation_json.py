@@ -19,6 +19,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from vispeech.files import atomic_output_file, read_json
 from vispeech.limits import MAX_DURATION_S, check_fps, check_track_size
 from vispeech.motion.track import Track
 
-ANIMATION_FORMAT = "vispeech-animation"
+ANIMATION_FORMAT: Final = "vispeech-animation"
 """The ``format`` tag of vispeech animation JSON."""
 
 

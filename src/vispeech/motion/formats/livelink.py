@@ -109,7 +109,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
     if not lines[1:]:
         raise VispeechError(f"Live Link CSV has no frames: {path}")
     check_track_size(len(lines) - 1, len(header) - 2, str(path))
-    channels = [name[0].lower() + name[1:] for name in header[2:]]
+    channels = tuple(name[0].lower() + name[1:] for name in header[2:])
     timecodes, rows = [], []
     for number, line in enumerate(lines[1:], 2):
         fields = line.split(",")

@@ -21,6 +21,7 @@ import struct
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pygltflib
@@ -164,13 +165,13 @@ def extended_glb(base_glb: str | os.PathLike, *, targets: dict[tuple[int, int], 
         for k, primitive in enumerate(gltf.meshes[mesh].primitives):
             count = gltf.accessors[primitive.attributes.POSITION].count
             for name in new:
-                offsets = per_primitive.get(k, {}).get(name)
-                if offsets is None:
+                moved = per_primitive.get(k, {}).get(name)
+                if moved is None:
                     gltf.accessors.append(pygltflib.Accessor(componentType=_FLOAT, count=count, type="VEC3",
                                                              min=[0.0] * 3, max=[0.0] * 3))
                     accessor = len(gltf.accessors) - 1
                 else:
-                    accessor = append_accessor(gltf, blob, np.asarray(offsets, float) @ to_local.T)
+                    accessor = append_accessor(gltf, blob, np.asarray(moved, float) @ to_local.T)
                 primitive.targets.append({"POSITION": accessor})
         extras = gltf.meshes[mesh].extras if gltf.meshes[mesh].extras else {}
         extras["targetNames"] = [*extras.get("targetNames", []), *new]
@@ -208,7 +209,8 @@ def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | o
                                    offset=(value_view.byteOffset or 0) + (sparse.values.byteOffset or 0))
             out[rows_at.astype(np.intp)] = values.reshape(-1, width)
         if accessor.normalized and dtype.kind in "iu":
-            out = np.maximum(out / np.iinfo(dtype).max, -1.0)
+            # kind "i" or "u": an integer dtype, which the dict of component types does not tell the checker
+            out = np.maximum(out / np.iinfo(cast("np.dtype[np.integer]", dtype)).max, -1.0)
         return out
     except (IndexError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise VispeechError(f"{path}: cannot read accessor {index} ({exc})") from None

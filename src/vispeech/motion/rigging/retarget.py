@@ -77,7 +77,7 @@ class PoseTable:
             raise VispeechError(f"pose table {path}: {exc}") from None
 
     @classmethod
-    def from_dict(cls, data: dict, name: str = "") -> PoseTable:
+    def from_dict(cls, data: object, name: str = "") -> PoseTable:
         """Build a table from the JSON structure described in the module docstring."""
         if not isinstance(data, dict):
             raise VispeechError("a pose table must be a JSON object")

@@ -31,6 +31,7 @@ import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -143,6 +144,7 @@ class RigSpace:
         Channels the track lacks are taken to be at the mean (they add nothing).
         """
         self._check_fitted()
+        assert self.mean is not None and self.modes is not None  # fitted
         values = np.tile(self.mean, (track.n_frames, 1))
         for j, channel in enumerate(self.channels):
             if channel in track.channels:
@@ -156,6 +158,7 @@ class RigSpace:
         Values are exact, so they may leave [0, 1] at ±3σ.
         """
         self._check_fitted()
+        assert self.mean is not None and self.modes is not None and self.sd is not None  # fitted
         if not 1 <= n_modes <= len(self.modes):
             raise VispeechError(f"n_modes must be between 1 and {len(self.modes)}, got {n_modes}")
         if any(s == 0 or not math.isfinite(s) for s in sigmas) or len(set(sigmas)) != len(sigmas):
@@ -177,6 +180,7 @@ class RigSpace:
         (:meth:`load_rig`) repeats with the rig's controls.
         """
         poses = self.reference_poses(n_modes, sigmas)
+        assert self.sd is not None and self.explained is not None  # fitted: reference_poses checked
         path = Path(path)
         if path.suffix.lower() == ".csv":
             buffer = io.StringIO()
@@ -211,6 +215,7 @@ class RigSpace:
         and one above the mean. ``clip`` = ``(low, high)`` bounds every retargeted control.
         """
         self._check_fitted()
+        assert self.modes is not None  # fitted
         if not isinstance(poses, Mapping) or MEAN_POSE not in poses:
             raise VispeechError(f"rig poses need a {MEAN_POSE!r} pose")
         mean = _pose(poses[MEAN_POSE], MEAN_POSE)
@@ -251,8 +256,9 @@ class RigSpace:
         if clip is not None and not (isinstance(clip, list) and len(clip) == 2
                                      and all(_is_number(v) for v in clip)):
             raise VispeechError(f"{path}: 'range' must be [low, high]")
+        poses: Any = data.get("poses")  # JSON as read: set_rig checks it
         try:
-            return self.set_rig(data.get("poses"), None if clip is None else tuple(clip))
+            return self.set_rig(poses, None if clip is None else tuple(clip))
         except VispeechError as exc:
             raise VispeechError(f"{path}: {exc}") from None
 
@@ -261,6 +267,7 @@ class RigSpace:
         self._check_fitted()
         if not self.has_rig:
             raise VispeechError("the rig space has no rig poses: set them from the artist's rig-pose file first")
+        assert self.rig_mean is not None and self.sd is not None  # fitted, with a rig
         coordinates = self.project(track)
         out = np.tile(self.rig_mean, (track.n_frames, 1))
         for mode, sides in self.rig_poses.items():
@@ -278,8 +285,9 @@ class RigSpace:
         """Write the space into folder ``path`` atomically: ``rigspace.json`` (channels, rig
         poses) and ``modes.npz`` (mean, modes, sd, explained); returns the folder."""
         self._check_fitted()
+        assert self.mean is not None and self.modes is not None and self.sd is not None and self.explained is not None
         rig = None
-        if self.has_rig:
+        if self.rig_mean is not None:  # has_rig
             poses = {MEAN_POSE: dict(zip(self.rig_controls, map(float, self.rig_mean)))}
             for mode, sides in self.rig_poses.items():
                 for sigma, pose in sides.items():
