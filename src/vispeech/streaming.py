@@ -30,8 +30,9 @@ import base64
 import functools
 import math
 import re
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Generator, Iterable, Sequence
 from dataclasses import replace
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -45,6 +46,10 @@ from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, animate, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
+
+if TYPE_CHECKING:
+    from vispeech.models.networks.audio import AudioNetwork
+    from vispeech.models.streams import ModelStream
 
 MAX_PHONE_SECONDS = 10.0
 """Longest step (seconds) from one phone's end to the next's in a phone stream."""
@@ -95,7 +100,7 @@ def speech_messages(
     chunk_seconds: float = 0.1,
     scale: Calibration | None = None,
     variant: str | None = None,
-) -> Iterator[list[dict]]:
+) -> Generator[list[dict], None, None]:
     """The ``/api/stream`` messages for ``text``, one list per clause, computed as they are asked for.
 
     The first list begins with ``start`` (``fps``, ``channels``, ``sample_rate``, ``model``);
@@ -140,6 +145,7 @@ def speech_messages(
         samples_done += len(pcm)
         frames_done = frame_end
         yield messages
+    assert sample_rate is not None  # spoken_text leaves something to say: there was a clause
     yield [{"type": "end", "n_frames": frames_done, "duration": samples_done / sample_rate}]
 
 
@@ -281,10 +287,10 @@ def push_together(pushes: Sequence[tuple[PhoneStream, Iterable[Phone]]]) -> list
             fed.append(stream)
         except VispeechError as exc:
             fed.append(exc)
-    groups: dict[type, list] = {}
-    for stream in fed:
-        if isinstance(stream, PhoneStream):
-            groups.setdefault(type(stream._inner), []).append(stream._inner)
+    groups: dict[type[ModelStream], list[ModelStream]] = {}
+    for entry in fed:
+        if isinstance(entry, PhoneStream):
+            groups.setdefault(type(entry._inner), []).append(entry._inner)
     for kind, inner in groups.items():
         kind.advance_together(inner)
     return [stream.collect() if isinstance(stream, PhoneStream) else stream for stream in fed]
@@ -322,7 +328,8 @@ class LiveAudioStream:
             raise VispeechError(f"model {model.name}'s post-processing ({model.postprocessing}) needs the whole "
                                 "utterance: it cannot animate live audio")
         self.model = model
-        self._inner = model.stream(None, check_fps(fps))
+        # an audio model that streams is an audio network: its stream takes no language, and is an AudioStream
+        self._inner = cast("AudioNetwork", model).stream(None, check_fps(fps))
         self.fps = self._inner.fps
         self.channels = self._inner.channels
         self.sample_rate = sample_rate

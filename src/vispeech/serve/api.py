@@ -4,7 +4,7 @@ recording), ``GET /api/audio/<id>.wav`` and ``POST /api/chat``."""
 from __future__ import annotations
 
 import re
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
@@ -30,7 +30,9 @@ AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "applicatio
 """Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
 _FORM_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "application/json")
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
-_ERRORS = {code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)}
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)
+}
 _AUDIO_BODY = {"requestBody": {"required": True, "content": {
     kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}}
 

@@ -27,7 +27,8 @@ class ChatBot(Protocol):
     """Anything that answers a chat message in a language (a code of ``vispeech languages``) with
     text; ``languages`` are the codes it answers in, ``None`` for any."""
 
-    languages: tuple[str, ...] | None
+    @property
+    def languages(self) -> tuple[str, ...] | None: ...  # read-only: a class attribute will do
 
     def reply(self, message: str, lang: str) -> str: ...
 

@@ -10,6 +10,7 @@ import threading
 
 from fastapi import WebSocket
 from pydantic import BaseModel
+from starlette.types import Message
 from starlette.websockets import WebSocketDisconnect, WebSocketDisconnected
 
 from vispeech.serve.pool import Cancelled
@@ -103,7 +104,7 @@ class Connection:
                 return
             await self._enqueue(event)
 
-    async def _enqueue(self, event: dict) -> None:
+    async def _enqueue(self, event: Message) -> None:
         await self.inbox.put(event)
 
     async def _next(self) -> dict:

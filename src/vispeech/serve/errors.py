@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
 from fastapi.exceptions import RequestValidationError
 from starlette.requests import Request
-from starlette.responses import JSONResponse
+from starlette.responses import JSONResponse, Response
 
 from vispeech.errors import VispeechError
 from vispeech.serve.bot import ChatBotError
@@ -19,7 +19,8 @@ from vispeech.serve.safety import RateLimited
 
 log = logging.getLogger("vispeech.serve")
 
-Handler = Callable[[Request, Any], Awaitable[JSONResponse]]
+Handler = Callable[[Request, Any], Coroutine[Any, Any, Response]]
+"""An exception handler, as FastAPI takes it."""
 
 REFUSALS = (VispeechError, RateLimited, Busy)
 """The errors a stream message is refused with: the client gets an ``error`` message and may go on."""
@@ -69,7 +70,7 @@ async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": "internal server error"}, status_code=500)
 
 
-EXCEPTION_HANDLERS: dict[type[Exception], Handler] = {
+EXCEPTION_HANDLERS: dict[int | type[Exception], Handler] = {
     RequestValidationError: _invalid_request,
     VispeechError: _answer(400),
     ChatBotError: _answer(502),

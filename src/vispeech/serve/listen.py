@@ -7,6 +7,7 @@ import time
 
 from fastapi import APIRouter, WebSocket
 from pydantic import ValidationError
+from starlette.types import Message
 
 from vispeech.errors import VispeechError
 from vispeech.serve.connection import Connection, send_error, send_message, serve_connection
@@ -61,7 +62,7 @@ class ListenConnection(Connection):
         rate = self.audio.sample_rate if self.audio is not None else 16_000
         return max(self.config.max_chunk_bytes, round(self.config.max_audio_backlog * rate * 2))
 
-    async def _enqueue(self, event: dict) -> None:
+    async def _enqueue(self, event: Message) -> None:
         size = len(event.get("bytes") or event.get("text") or "")
         while self.waiting_bytes and self.waiting_bytes + size > self._backlog_bytes():
             self.room.clear()

@@ -213,6 +213,7 @@ class SpeechService:
         no slower."""
         for language, text in GREETINGS.items():
             utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
+            assert utterance.phones is not None  # speak gives the phones it spoke
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
         if self.audio_model is not None:
@@ -257,7 +258,9 @@ class SpeechService:
         cached = entry is not None
         if entry is None:
             utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, variant=self.config.voice)
-            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
+            wav = utterance.wav_bytes()
+            assert wav is not None  # speak gives the audio it synthesised
+            entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
         return self._answer(entry, text, cached, life=life, seed=seed)
 
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
@@ -280,7 +283,9 @@ class SpeechService:
         cached = entry is not None
         if entry is None:
             utterance = listen(read_upload(data), query.text, query.lang, model=model, fps=key.fps)
-            entry = self.cache.put(key, utterance.wav_bytes(), _animation_json(utterance, self.calibration))
+            wav = utterance.wav_bytes()
+            assert wav is not None  # listen keeps the audio it animated
+            entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
         return self._answer(entry, query.text or "", cached)
 
     def _answer(self, entry: CachedUtterance, text: str, cached: bool, life: tuple[str, ...] = (),
@@ -326,6 +331,7 @@ def _animation_json(utterance: Utterance, calibration: Calibration | None = None
     """An utterance's track (in ``calibration``'s scale) and phones (when it has them) as compact
     vispeech animation JSON."""
     phones = None if utterance.phones is None else utterance.phones.to_dict()
+    assert utterance.track is not None  # an animated utterance
     track = utterance.track if calibration is None else calibration.apply(utterance.track)
     animation = {"format": ANIMATION_FORMAT, "version": 1, **track.to_dict(), "phones": phones}
     return json.dumps(animation, separators=(",", ":"))

@@ -77,14 +77,14 @@ class StreamConnection(Connection):
             return [message_json(item) for item in batch], begin
 
         weights = [len(clause) * TEXT_WORK_PER_CHAR for clause in split_clauses(message.text)]
-        playing = None  # when the first audio chunk left: the client's playback starts no earlier
+        playing: float | None = None  # when the first audio chunk left: the client's playback starts no earlier
         try:
             while (batch := await self._run(next_clause, weight=weights.pop(0) if weights else 0.0)) is not None:
                 texts, begin = batch
                 now = time.monotonic()
                 if playing is None and begin is not None:
                     playing = now - begin
-                elif begin is not None and now - playing > begin:
+                elif begin is not None and playing is not None and now - playing > begin:
                     late = now - playing - begin
                     await send_message(self.ws, WarningMessage(
                         code="late", seconds=round(late, 3),
