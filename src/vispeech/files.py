@@ -20,7 +20,7 @@ from vispeech.errors import VispeechError
 try:
     import fcntl
 except ImportError:  # Windows: no flock, so no clean-up of killed runs' leftovers
-    fcntl = None
+    fcntl = None  # type: ignore[assignment]  # the optional-module idiom: checked for None before use
 
 
 def read_bytes(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> bytes:

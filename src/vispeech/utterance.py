@@ -43,11 +43,14 @@ class Utterance:
     def load_audio(self) -> tuple[np.ndarray, int]:
         """The audio as float samples in [-1, 1] (mono, channels averaged) and its sample rate in Hz."""
         if self.audio is not None:
+            assert self.sample_rate is not None, "synthesised audio comes with its sample rate"
             return np.asarray(self.audio, dtype=np.float32), int(self.sample_rate)
+        assert self.audio_path is not None, f"utterance {self.id!r} has neither audio nor an audio file"
         return read_audio(self.audio_path)
 
     def wav_bytes(self) -> bytes | None:
         """The audio as a 16-bit PCM WAV file in memory (``None`` without synthesised audio)."""
         if self.audio is None:
             return None
+        assert self.sample_rate is not None, "synthesised audio comes with its sample rate"
         return wav_bytes(self.audio, int(self.sample_rate))

@@ -232,18 +232,18 @@ def voices() -> tuple[Voice, ...]:
             engine.close()
     data = Path(espeakng_loader.get_data_path())
     found: dict[str, Voice] = {}
-    aliases: dict[str, tuple[int, str]] = {}  # other code -> (priority, voice code)
+    ranked: dict[str, tuple[int, str]] = {}  # other code -> (priority, voice code)
     for languages, name, identifier in listed:
         code = languages[0][1]
         if code in found or not (data / f"{_dictionary(data, identifier, code)}_dict").is_file():
             continue
         found[code] = Voice(code, name, identifier, IPA)
         for priority, other in languages[1:]:
-            if other not in aliases or priority < aliases[other][0]:
-                aliases[other] = (priority, code)
+            if other not in ranked or priority < ranked[other][0]:
+                ranked[other] = (priority, code)
     found["sv"] = replace(found["sv"], phones="sv")
     found["en"] = replace(found.pop("en-us"), language="en", phones="en")  # the curated English
-    aliases = {other: ("en" if code == "en-us" else code) for other, (_, code) in aliases.items()}
+    aliases = {other: ("en" if code == "en-us" else code) for other, (_, code) in ranked.items()}
     aliases["en-us"] = "en"
     by_voice: dict[str, list[str]] = {}
     for other, code in sorted(aliases.items()):

@@ -154,7 +154,9 @@ def track_face(path: str | os.PathLike, face_model: str | os.PathLike | None = N
             base_options=BaseOptions(model_asset_path=str(model)), running_mode=vision.RunningMode.VIDEO,
             num_faces=1, output_face_blendshapes=True, output_facial_transformation_matrixes=True)
         names: list[str] | None = None
-        rows, points, size = [], [], (stream.codec_context.width, stream.codec_context.height)
+        rows: list[np.ndarray | None] = []  # None: no face in the frame
+        points: list[np.ndarray | None] = []
+        size = (stream.codec_context.width, stream.codec_context.height)
         landmarker = vision.FaceLandmarker.create_from_options(options)
         try:
             for index, frame in enumerate(container.decode(video=0)):

@@ -145,7 +145,8 @@ def phone_rows(language: str) -> PhoneRows:
     """The :class:`PhoneRows` of ``language``."""
     symbols = get_inventory(language).symbols
     keys: dict[tuple[str, bool], int] = {}
-    rows, features = [], []
+    rows: list[str] = []
+    features: list[np.ndarray] = []
     for symbol in symbols:
         for stressed in (False, True):
             keys[symbol, stressed] = len(rows)
