@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from itertools import combinations
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -479,7 +480,9 @@ def analyse_answers(answers: pd.DataFrame, *, participants: pd.DataFrame | None 
             raise VispeechError(f"the {task} answers show one model only ({present[0]}): nothing to compare")
         frame["x"] = frame["x"].cat.set_categories(present)
         frames[task] = frame
-    jobs, main_jobs, sentence_jobs = [], {}, {}
+    jobs: list[tuple[pd.DataFrame, dict]] = []
+    main_jobs: dict[str, int] = {}
+    sentence_jobs: dict[tuple[str, Any], int] = {}
     for task, frame in frames.items():
         main_jobs[task] = len(jobs)
         jobs.append(_job(task, frame, [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],

@@ -282,12 +282,12 @@ def plan_trials(study: Study, seed: int) -> list[Trial]:
     trials: list[Trial] = []
     if study.rating is not None:
         wanted = study.rating.models
-        items = []
+        items: list[list[Face]] = []
         for clip in study.clips:
             faces = [Face(clip.sentence, m, i) for i, m in enumerate(clip.models) if wanted is None or m in wanted]
             if len(faces) >= 2:
                 items.append(faces)
-        checks = []
+        checks: list[Trial] = []
         if study.checks.identical:
             faces = items[int(rng.integers(len(items)))]
             twin = faces[0]
@@ -299,7 +299,7 @@ def plan_trials(study: Study, seed: int) -> list[Trial]:
         trials += _block(rng, [Trial("rating", tuple(f), f[0].sentence) for f in items], checks, study.rating.warmup)
     if study.pairwise is not None:
         comparisons = _pairs(study)
-        items = [Trial("pairwise", (Face(c.sentence, a, c.models.index(a)), Face(c.sentence, b, c.models.index(b))),
+        pairs = [Trial("pairwise", (Face(c.sentence, a, c.models.index(a)), Face(c.sentence, b, c.models.index(b))),
                        c.sentence) for c, a, b in comparisons]
         checks = []
         if study.checks.identical:
@@ -310,9 +310,9 @@ def plan_trials(study: Study, seed: int) -> list[Trial]:
             clip, a, _ = comparisons[int(rng.integers(len(comparisons)))]
             other = clips[_other_sentence(rng, clips, clip.sentence)]
             if a in other.models:
-                faces = (Face(clip.sentence, a, clip.models.index(a)), Face(other.sentence, a, other.models.index(a)))
-                checks.append(Trial("pairwise", faces, clip.sentence, check="mismatched"))
-        trials += _block(rng, items, checks, study.pairwise.warmup)
+                pair = (Face(clip.sentence, a, clip.models.index(a)), Face(other.sentence, a, other.models.index(a)))
+                checks.append(Trial("pairwise", pair, clip.sentence, check="mismatched"))
+        trials += _block(rng, pairs, checks, study.pairwise.warmup)
     return trials
 
 

@@ -63,6 +63,7 @@ def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_di
     rng = np.random.default_rng(seed)
     chosen = sorted(rng.choice(len(corpus), size=min(sentences, len(corpus)), replace=False).tolist())
     arkit = load_scale("arkit")
+    assert arkit is not None  # only the "tracker" scale is None
     clips = []
     with atomic_output_dir(out_dir, replaces=(STUDY_FILE, "clips")) as staging:
         (staging / "clips").mkdir()

@@ -29,6 +29,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import cast
 
 from vispeech.errors import VispeechError
 from vispeech.study.answers import ANSWER_COLUMNS, PAIRWISE_ANSWERS, RATINGS
@@ -233,7 +234,12 @@ def _answer_rows(pid: str, number: int, trial: Trial, value: object, ms: int, at
     if trial.task == "pairwise":
         return [{**common, "left": trial.faces[0].model, "right": trial.faces[1].model, "answer": value}]
     return [{**common, "position": k, "model": face.model, "answer": rating}
-            for k, (face, rating) in enumerate(zip(trial.faces, value))]
+            for k, (face, rating) in enumerate(zip(trial.faces, _ratings(value)))]
+
+
+def _ratings(answer: object) -> list[int]:
+    """A rating trial's stored ``answer``: one rating per face, as :func:`_checked_answer` let in."""
+    return cast(list[int], answer)  # the trial's task, not the value's type, tells a rating answer
 
 
 def check_results(trials: Sequence[Trial], answers: dict[int, object]) -> dict[str, bool | None]:
@@ -243,7 +249,7 @@ def check_results(trials: Sequence[Trial], answers: dict[int, object]) -> dict[s
     mean rating is below the participant's mean over the real items; a pairwise check when the
     answer is the expected one."""
     real = [r for k, t in enumerate(trials) if k in answers and t.task == "rating" and not t.check and not t.warmup
-            for r in answers[k]]
+            for r in _ratings(answers[k])]
     mean = sum(real) / len(real) if real else None
     results: dict[str, bool | None] = {"identical": None, "mismatched": None}
     for k, trial in enumerate(trials):
@@ -253,9 +259,10 @@ def check_results(trials: Sequence[Trial], answers: dict[int, object]) -> dict[s
         if trial.task == "pairwise":
             ok = value == trial.expected
         elif trial.check == "identical":
-            twins = [r for face, r in zip(trial.faces, value) if trial.faces.count(face) > 1]
+            twins = [r for face, r in zip(trial.faces, _ratings(value)) if trial.faces.count(face) > 1]
             ok = max(twins) - min(twins) <= 1
         else:
-            ok = mean is not None and sum(value) / len(value) < mean
+            ratings = _ratings(value)
+            ok = mean is not None and sum(ratings) / len(ratings) < mean
         results[trial.check] = ok if results[trial.check] is None else results[trial.check] and ok
     return results
