@@ -150,6 +150,7 @@ def speak(
     """
     check_fps(fps)
     utterance = voice(text, language, rate=rate, variant=variant)
+    assert utterance.phones is not None  # voice() gives espeak-ng's phones
     return replace(utterance, track=_animate(utterance.phones, model, fps, postprocessing))
 
 
@@ -304,15 +305,18 @@ def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | Non
             if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
                 continue
             if fmt == "wav":
+                assert wav is not None  # skipped above when None
                 (staging / name).write_bytes(wav)
             elif fmt == "textgrid":
                 if wav is None or utterance.phones is None:
                     continue
                 write_textgrid(utterance.phones, staging / name)
             elif fmt == "preview":
+                assert utterance.track is not None  # the track formats need the track
                 html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
                 (staging / name).write_text(html, encoding="utf-8")
             else:
+                assert utterance.track is not None
                 write_track(utterance.track, staging / name, fmt, phones=utterance.phones)
             names.append(name)
         for name, text in extra.items():

@@ -100,15 +100,20 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
     if config.jaw_shift > 0 and "jawOpen" in out.channels:
         out.values[:, out.index("jawOpen")] = shift_range(out["jawOpen"], config.jaw_shift)
     if config.upper_lip > 0:
+        assert phones is not None  # refused above: these steps need phones
         out = upper_lip_overlay(out, phones, config.upper_lip)
     if config.overlays:
+        assert phones is not None
         out = consonant_overlays(out, phones, config.fade_in, config.fade_out, config.overlay_features,
                                  config.keep_jaw)
     if config.vowel_opening > 0:
+        assert phones is not None
         out = open_vowels(out, phones, config.vowel_opening)
     if config.tongue:
+        assert phones is not None
         out = tongue_channels(out, phones)
     if config.jaw_peaks_in_vowels and "jawOpen" in out.channels:
+        assert phones is not None
         jaw = out.index("jawOpen")
         out.values[:, jaw] = confine_peaks(out.values[:, jaw], _vowel_frames(out, phones))
     for channel, ceiling in config.ceilings.items():
