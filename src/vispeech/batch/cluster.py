@@ -16,9 +16,11 @@ files must be readable at the same paths on every node (a shared file system).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from vispeech.batch.job import BatchLine
 from vispeech.batch.line import LineResult, animate_prepared, failed, prepare, write_line
@@ -35,13 +37,15 @@ def execute_on_ray(todo: list[tuple[BatchLine, str, str]], out: Path, workers: i
     started_here = not ray.is_initialized()
     if started_here:
         if address is None:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
         else:
-            ray.init(address=address, log_to_driver=False, logging_level="ERROR")
+            ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
     try:
         prepare_task = ray.remote(num_cpus=1, max_retries=0)(prepare)
         animator = ray.remote(num_cpus=0, max_restarts=1)(_Animator)
-        actors = [animator.remote() for _ in range(workers)]
+        # Any: ray types an actor method's .remote only under @ray.method, and ray is an optional
+        # extra, imported here only
+        actors: list[Any] = [animator.remote() for _ in range(workers)]
         queue = list(reversed(todo))
         pending: dict = {}  # object ref → (line, key, record, start time)
         limit = IN_FLIGHT_PER_WORKER * workers

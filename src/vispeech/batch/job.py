@@ -29,6 +29,7 @@ import csv
 import io
 import json
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,7 +108,7 @@ class BatchLine:
         return self.audio if self.kind == "audio" else self.alignment
 
 
-def read_job(path: str | Path, defaults: JobDefaults = JobDefaults()) -> list[BatchLine]:
+def read_job(path: str | os.PathLike, defaults: JobDefaults = JobDefaults()) -> list[BatchLine]:
     """The lines of the job at ``path``: a folder of inputs, a ``.csv`` or a ``.jsonl`` manifest.
 
     Ids are checked to be unique (a repeat is an error of that line). Raises
@@ -142,7 +143,7 @@ def _csv_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
         raise VispeechError(f"batch manifest {path}: unknown column {unknown[0]!r} (columns: {', '.join(FIELDS)})")
     if not {"text", "audio", "alignment"} & set(columns):
         raise VispeechError(f"batch manifest {path} needs a text, audio or alignment column")
-    records = []
+    records: list[tuple[int, dict | str]] = []
     for number, row in enumerate(reader, start=1):
         if None in row:
             records.append((number, f"has {len(columns) + len(row[None])} cells for {len(columns)} columns"))

@@ -88,12 +88,17 @@ def prepare(line: BatchLine) -> Prepared:
     """Read, synthesise or align what ``line`` animates (espeak-ng speech, a recording and its
     alignment, an alignment file)."""
     if line.kind == "text":
-        return Prepared(voice(line.text, line.lang, rate=line.rate, variant=line.voice))
+        assert line.text is not None  # a text line has its text (read_job)
+        # lang is None on a text line only from a JSON "lang": null, which espeak-ng's voice
+        # lookup refuses as an unknown language (VispeechError), as it did before typing
+        return Prepared(voice(line.text, line.lang, rate=line.rate, variant=line.voice))  # type: ignore[arg-type]
     if line.kind == "audio":
+        assert line.audio is not None  # an audio line has its file (read_job)
         clip = AudioClip.read(line.audio)
         return Prepared(hear(clip, line.text, line.lang or "en"), clip)
     from vispeech.alignment.formats import read_alignment
 
+    assert line.alignment is not None  # the remaining kind, alignment, has its file (read_job)
     return Prepared(Utterance(phones=read_alignment(line.alignment, line.lang)))
 
 
@@ -104,6 +109,7 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
     if prepared.clip is not None:
         track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
     else:
+        assert utterance.phones is not None  # text and alignment lines prepare phones
         track = animate(utterance.phones, model, line.fps, line.postprocess)
     return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed))
 

@@ -109,8 +109,9 @@ def run_batch(
         if progress is not None:
             progress(result)
 
-    report = BatchReport([results[line.number] for line in lines], time.perf_counter() - started, out / INDEX)
-    with atomic_output_file(report.index) as tmp:
+    index = out / INDEX
+    report = BatchReport([results[line.number] for line in lines], time.perf_counter() - started, index)
+    with atomic_output_file(index) as tmp:
         with open(tmp, "w", encoding="utf-8") as f:
             for result in report.results:
                 f.write(json.dumps(asdict(result), ensure_ascii=False) + "\n")
