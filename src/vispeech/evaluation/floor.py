@@ -8,6 +8,8 @@ scores like any model; it is not registered, as nobody should animate a face wit
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from vispeech.errors import VispeechError
@@ -49,7 +51,8 @@ class LoudnessFloor(Estimator):
     def postprocessing(self) -> str:
         return "audio"
 
-    def fit(self, corpus, *, progress: bool | None = None) -> LoudnessFloor:
+    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
+            num_threads: int | None = None, warm_start: bool = False) -> LoudnessFloor:
         raise VispeechError("the loudness floor learns nothing")
 
     def predict(self, clip: AudioClip, fps: float) -> Track:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -169,10 +170,11 @@ def score_channels(
 def _rates(fps: float | Sequence[float], curves: Sequence[np.ndarray]) -> list[float]:
     """One frame rate per curve: ``fps`` for all, or ``fps[i]`` for curve i."""
     if np.ndim(fps) == 0:
-        return [float(fps)] * len(curves)
-    if len(fps) != len(curves):
-        raise VispeechError(f"{len(fps)} frame rates for {len(curves)} curves")
-    return [float(f) for f in fps]
+        return [float(cast(float, fps))] * len(curves)
+    rates = cast(Sequence[float], fps)  # np.ndim told a scalar from a sequence (or an array) of rates
+    if len(rates) != len(curves):
+        raise VispeechError(f"{len(rates)} frame rates for {len(curves)} curves")
+    return [float(f) for f in rates]
 
 
 def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], fps: float | Sequence[float],

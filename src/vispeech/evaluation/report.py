@@ -208,6 +208,7 @@ def model_channels(model: Estimator, corpus: Corpus, channels: Iterable[str] | N
 def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
     """The utterance's recorded curves of ``channels``: track channels as they are,
     articulatory ones measured on its landmarks."""
+    assert utterance.track is not None  # a corpus utterance: its recorded track
     values = np.empty((utterance.track.n_frames, len(channels)))
     measured = None
     for j, channel in enumerate(channels):
@@ -232,6 +233,7 @@ def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bo
     """
     from vispeech.pipeline import animate, animate_audio
 
+    assert utterance.track is not None  # a corpus utterance: its recorded track
     fps = utterance.track.fps
     postprocess = postprocessing and "jawOpen" in model.channels
     if model.input_kind == "audio":
@@ -254,10 +256,16 @@ def _phones(utterance: Utterance) -> PhoneSequence:
     return utterance.phones
 
 
+def _track(utterance: Utterance) -> Track:
+    """The utterance's recorded track (a corpus utterance has one)."""
+    assert utterance.track is not None
+    return utterance.track
+
+
 def scored_frames(utterance: Utterance) -> np.ndarray:
     """Mask of the frames scored: the speech span (the corpus's word timings, else the
     aligned words) without frames the tracker missed."""
-    track = utterance.track
+    track = _track(utterance)
     words = utterance.words or (utterance.phones.words if utterance.phones is not None else [])
     mask = speech_frames(words, track.fps, track.n_frames, track.start_time)
     if utterance.frame_mask is not None:
@@ -291,14 +299,14 @@ def evaluate_models(
     needed = tuple(dict.fromkeys(c for chosen in plans.values() for c in chosen))
     masks = [scored_frames(u) for u in corpus]
     targets = [target_track(u, needed) for u in corpus]
-    closed = [tracked_closed(u.landmarks) if _has_lip_landmarks(u) else None for u in corpus]
+    closed = [tracked_closed(_landmarks(u)) if _has_lip_landmarks(u) else None for u in corpus]
     shapes = None
     if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS))
            for u in corpus):
-        shapes = [lip_shape(u.landmarks)[mask] for u, mask in zip(corpus, masks)]
-    classes = np.concatenate([frame_classes(_phones(u), u.track.fps, len(mask), u.track.start_time)[mask]
+        shapes = [lip_shape(_landmarks(u))[mask] for u, mask in zip(corpus, masks)]
+    classes = np.concatenate([frame_classes(_phones(u), _track(u).fps, len(mask), _track(u).start_time)[mask]
                               for u, mask in zip(corpus, masks)])
-    rates = [u.track.fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
+    rates = [_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
     recorded = recorded_jaw = None
     if "jawOpen" in needed:
         recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
@@ -317,8 +325,8 @@ def evaluate_models(
                 target_arrays.append(target.values[mask][:, columns])
                 predicted_arrays.append(predicted.select(chosen).values[mask])
                 if closures is not None and tracked is not None and lip_opening(predicted) is not None:
-                    closures += count_closures(utterance.phones, utterance.track.fps, tracked,
-                                               model_closed(predicted), mask, utterance.track.start_time)
+                    closures += count_closures(_phones(utterance), _track(utterance).fps, tracked,
+                                               model_closed(predicted), mask, _track(utterance).start_time)
                 else:
                     closures = None
                 bar.update(1)
@@ -327,6 +335,7 @@ def evaluate_models(
             if "jawOpen" in chosen:
                 jaw = chosen.index("jawOpen")
                 predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
+                assert recorded_jaw is not None  # set above: "jawOpen" is among the channels needed
                 dynamics = {**motion_profile(predicted_jaw, rates),
                             "lag_s": best_lag(recorded_jaw, predicted_jaw, rates)}
                 errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
@@ -342,6 +351,12 @@ def evaluate_models(
         bar.close()
     ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]
     return Evaluation(corpus.name, corpus.frame_rates, len(corpus), postprocessing, results, ids, recorded)
+
+
+def _landmarks(utterance: Utterance) -> dict[str, np.ndarray]:
+    """The utterance's landmarks, where the caller has checked it has them."""
+    assert utterance.landmarks is not None
+    return utterance.landmarks
 
 
 def _has_lip_landmarks(utterance: Utterance) -> bool:

@@ -190,7 +190,7 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
         parts.append(html_table(["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
                             [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z]
                              for p in comparison.pairs]))
-    dynamic = [m for m in evaluation.models if m.dynamics]
+    dynamic = [(m.label, m.dynamics) for m in evaluation.models if m.dynamics]
     if dynamic and evaluation.recorded_dynamics:
         parts.append("<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
                      "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
@@ -198,11 +198,11 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
         rec = evaluation.recorded_dynamics
         rows = [["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"],
                  rec["high_frequency_share"]]]
-        rows += [[m.label, m.dynamics["lag_s"], m.dynamics["velocity_rms"], m.dynamics["acceleration_rms"],
-                  m.dynamics["jerk_rms"], m.dynamics["high_frequency_share"]] for m in dynamic]
+        rows += [[label, d["lag_s"], d["velocity_rms"], d["acceleration_rms"], d["jerk_rms"],
+                  d["high_frequency_share"]] for label, d in dynamic]
         parts.append(html_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
                              "energy above 8 Hz"], rows))
-    lipped = [m for m in evaluation.models if m.lips]
+    lipped = [(m.label, m.lips) for m in evaluation.models if m.lips]
     if lipped:
         parts.append("<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
                      "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
@@ -210,19 +210,21 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
                      "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
                      "inner-lip gap.</p>")
         parts.append(html_table(["model", "lip vertex error", "floor", "aperture error"],
-                            [[m.label, m.lips["lve"], m.lips["floor"], m.lips["aperture_mae"]] for m in lipped]))
-    classed = [m for m in evaluation.models if m.by_phone]
+                            [[label, lips["lve"], lips["floor"], lips["aperture_mae"]] for label, lips in lipped]))
+    classed = [(m.label, m.by_phone) for m in evaluation.models if m.by_phone]
     if classed:
         parts.append("<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
                      "that fall in phones of each class.</p>")
-        names = list(classed[0].by_phone)
-        parts.append(html_table(["model", *names], [[m.label, *(m.by_phone[n] for n in names)] for m in classed]))
+        names = list(classed[0][1])
+        parts.append(html_table(["model", *names], [[label, *(by_phone[n] for n in names)]
+                                                    for label, by_phone in classed]))
     closing = [m for m in evaluation.models if m.closures is not None]
     if closing:
         parts.append("<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
                      "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>")
         rows = []
         for m in closing:
+            assert m.closures is not None  # closing: the models with closure counts
             timing = m.closures.timing()
             rows.append([m.label, f"{m.closures.tracked_closures}/{m.closures.bilabials}",
                          f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",

@@ -8,6 +8,7 @@ import html
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -54,7 +55,8 @@ def _shown(value) -> str:
     if isinstance(value, float | np.floating):
         if not math.isfinite(value):
             return "–"
-        return f"{value:.3g}" if abs(value) < 1e-3 and value else f"{value:.3f}"
+        magnitude = cast(float | np.floating, abs(value))  # mypy joins abs() of the two types to object
+        return f"{value:.3g}" if magnitude < 1e-3 and value else f"{value:.3f}"
     return str(value)
 
 

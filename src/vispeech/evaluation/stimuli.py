@@ -67,7 +67,7 @@ def noise_vocode(samples: np.ndarray, sample_rate: int, *, bands: int = 3, low: 
         voiced = carrier * envelope
         gain = np.sqrt(np.mean(speech ** 2) / max(np.mean(voiced ** 2), 1e-20))
         out += voiced * gain
-    level = np.sqrt(np.mean(x ** 2) / max(np.mean(out ** 2), 1e-20))
+    level = np.sqrt(np.mean(x ** 2) / max(float(np.mean(out ** 2)), 1e-20))
     return np.clip(out * level, -1.0, 1.0).astype(np.float32)
 
 
@@ -244,6 +244,7 @@ def _write_mp4(pngs: Iterable[bytes], path: str | os.PathLike, *, fps: float, si
         video.pix_fmt = "yuv420p"
         sound = None
         if audio is not None:
+            assert sample_rate is not None  # audio comes with its sample rate
             sound = container.add_stream("aac", rate=int(sample_rate), layout="mono")
         for png in pngs:
             with Image.open(io.BytesIO(png)) as image:
@@ -251,6 +252,7 @@ def _write_mp4(pngs: Iterable[bytes], path: str | os.PathLike, *, fps: float, si
             container.mux(video.encode(frame))
         container.mux(video.encode())
         if sound is not None:
+            assert sample_rate is not None  # as above: there is sound only for audio, with its rate
             pcm = (np.clip(np.asarray(audio, dtype=np.float64), -1, 1) * 32767).astype(np.int16)
             for begin in range(0, len(pcm), 1024):
                 chunk = av.AudioFrame.from_ndarray(pcm[None, begin:begin + 1024], format="s16", layout="mono")

@@ -12,16 +12,24 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, cast
 
 from vispeech.corpus.corpus import Corpus
 from vispeech.errors import VispeechError
 from vispeech.evaluation.report import evaluate_models
+from vispeech.models.history import TrainingHistory
 
 SWEEPS = {
     "look-ahead": ("tdnn-lowlatency", "look_ahead"),
     "window": ("sliding-window-taylor", "input_window"),
 }
 """What ``vispeech sweep`` varies: name → (default family, hyper-parameter)."""
+
+
+class _Trained(Protocol):
+    """A model trained in epochs (the networks, the decision tree): its training history."""
+
+    history_: TrainingHistory
 
 
 @dataclass(frozen=True)
@@ -54,7 +62,8 @@ def sweep(corpus: Corpus, family: str, parameter: str, values: Sequence[int], pa
         seconds = time.perf_counter() - started
         scores = evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"],
                                  postprocessing=False).models[0].scores["jawOpen"]
-        point = SweepPoint(value, scores["rmse_percent"], scores["r"], model.history_.epochs, seconds)
+        epochs = cast(_Trained, model).history_.epochs
+        point = SweepPoint(value, scores["rmse_percent"], scores["r"], epochs, seconds)
         points.append(point)
         if progress is not None:
             progress(f"{parameter}={value}: jawOpen RMSE {point.rmse_percent:.2f} %, r {point.r:.3f} "
