@@ -64,11 +64,13 @@ def animate(audio: Path, text: str | None, transcribe: bool, whisper_model: Path
 
             text = heard(clip, lang)
         utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
-    utterance = replace(utterance, track=with_life(utterance.track, utterance.phones, layers, seed))
+    assert utterance.track is not None  # listen() animates the clip
+    track = with_life(utterance.track, utterance.phones, layers, seed)
+    utterance = replace(utterance, track=track)
     paths = write_outputs(utterance, out_dir, title=utterance.text or audio.name, scale=scale)
     if transcribe:
         click.echo(f"transcript: {utterance.text}")
-    click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
+    click.echo(f"{track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")
 

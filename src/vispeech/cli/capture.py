@@ -47,6 +47,7 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
             raise VispeechError("--livelink imports one recording as it is: leave out --batch, --sync and --smooth")
         report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=lang)
         offset = report.timecode_offset
+        assert offset is not None  # a Live Link import reports it (NaN without timecode)
         where = ("the video has no timecode: taken to start with the sound" if math.isnan(offset)
                  else f"its first row at {offset:+.3f} s of the sound (timecodes)")
         missing = f", {report.missing} not covered by the CSV (left empty)" if report.missing else ""
@@ -56,12 +57,13 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
         if text is not None:
             raise VispeechError("--batch reads each video's transcript from <name>.txt beside it: leave out --text")
         with click.progressbar(length=1, label="capturing", show_eta=True, show_pos=True, file=sys.stderr) as bar:
-            report = capture_corpus(video, out_dir, language=lang, face_model=face_model, sync=sync, smooth=smooth,
-                                    jobs=jobs, progress=_advance(bar))
-        click.echo(f"{report.captured} captured, {report.skipped} already there, {len(report.failed)} failed -> {out_dir}/")
-        for name, reason in report.failed:
+            summary = capture_corpus(video, out_dir, language=lang, face_model=face_model, sync=sync, smooth=smooth,
+                                     jobs=jobs, progress=_advance(bar))
+        click.echo(f"{summary.captured} captured, {summary.skipped} already there, "
+                   f"{len(summary.failed)} failed -> {out_dir}/")
+        for name, reason in summary.failed:
             click.echo(f"  failed {name}: {reason}")
-        if report.failed:
+        if summary.failed:
             raise SystemExit(1)
         return
     with click.progressbar(length=1, label="tracking", show_eta=True, file=sys.stderr) as bar:

@@ -25,6 +25,7 @@ def _fit_corpus(directory: Path, language: str):
     tracks = []
     for u in corpus:
         keep = slice(None) if u.frame_mask is None else u.frame_mask
+        assert u.track is not None  # a corpus utterance: its recorded track
         tracks.append(Track(u.track.values[keep], u.track.channels, u.track.fps))
     return RigSpace().fit(tracks), corpus
 
@@ -73,7 +74,11 @@ def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | Non
 
     if (space_dir is None) == (corpus_dir is None):
         raise VispeechError("give exactly one of --space and --corpus")
-    space = RigSpace.load(space_dir) if space_dir is not None else _fit_corpus(corpus_dir, language)[0]
+    if space_dir is not None:
+        space = RigSpace.load(space_dir)
+    else:
+        assert corpus_dir is not None  # exactly one of the two, checked above
+        space = _fit_corpus(corpus_dir, language)[0]
     space.load_rig(rig_poses)
     space.save(output)
     click.echo(f"{len(space.rig_controls)} rig controls on modes {', '.join(map(str, space.rig_poses))} -> {output}")

@@ -66,9 +66,12 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
     layers = check_layers(life)
     utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess,
                       variant=variant)
-    utterance = replace(utterance, track=with_life(utterance.track, utterance.phones, layers, seed))
+    phones = utterance.phones
+    assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
+    track = with_life(utterance.track, phones, layers, seed)
+    utterance = replace(utterance, track=track)
     paths = write_outputs(utterance, out_dir, scale=scale)
-    click.echo(f"{utterance.track.n_frames} frames at {fps:g} fps, {utterance.phones.duration:.2f} s -> {out_dir}/")
+    click.echo(f"{track.n_frames} frames at {fps:g} fps, {phones.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")
 

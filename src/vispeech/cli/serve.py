@@ -100,8 +100,9 @@ def serve(host: str, port: int, chat_url: str | None, chat_reply_field: str, all
     click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
                f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
                f"{f', {processes} processes' if processes > 1 else ''}{', token required' if config.token else ''})")
-    options = {"host": host, "port": port, "log_level": log_level, "ws_max_size": config.max_message_bytes,
-               "ws_per_message_deflate": ws_deflate, "timeout_graceful_shutdown": 5}
+    options: dict[str, typing.Any] = {"host": host, "port": port, "log_level": log_level,
+                                      "ws_max_size": config.max_message_bytes,
+                                      "ws_per_message_deflate": ws_deflate, "timeout_graceful_shutdown": 5}
     if processes == 1:
         uvicorn.run(app, **options)
         return

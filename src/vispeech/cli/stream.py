@@ -58,6 +58,7 @@ def stream(text: str | None, audio: Path | None, realtime: bool, chunk_ms: int, 
         if audio is None:
             from vispeech.serve.client import time_stream
 
+            assert text is not None  # TEXT or --audio, checked above
             click.echo(asyncio.run(time_stream(url, text, lang, model, timeout)).summary())
             return
         from vispeech.frontends.audio import AudioClip

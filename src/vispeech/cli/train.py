@@ -71,9 +71,10 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     cls = family_class(model_name)
     if not cls.trainable:
         raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
-    given = {"--epochs": ("epochs", epochs), "--seed": ("seed", seed), "--input": ("inputs", inputs),
-             "--targets": ("targets", _TARGETS.get(targets))}
-    options = {}
+    given: dict[str, tuple[str, object]] = {
+        "--epochs": ("epochs", epochs), "--seed": ("seed", seed), "--input": ("inputs", inputs),
+        "--targets": ("targets", None if targets is None else _TARGETS.get(targets))}
+    options: dict[str, object] = {}
     for flag, (key, value) in given.items():
         if value is None:
             continue
@@ -130,7 +131,8 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
     base = load_model(from_model)
     if not isinstance(base, Network):
         raise VispeechError(f"--from needs a trained network (phones or audio); {from_model!r} is a {base.family} model")
-    options = {key: value for key, value in (("epochs", epochs), ("seed", seed)) if value is not None}
+    options: dict[str, object] = {key: value for key, value in (("epochs", epochs), ("seed", seed))
+                                  if value is not None}
     for key, value in map(_parameter, params):
         if key not in base.get_params():
             raise VispeechError(f"model {base.family} takes no parameter {key!r}")
