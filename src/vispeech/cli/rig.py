@@ -18,6 +18,7 @@ def rig_group() -> None:
 
 def _fit_corpus(directory: Path, language: str):
     """A rig space fitted on the tracked frames of every utterance of a corpus folder, and the corpus."""
+    from vispeech.corpus.corpus import recorded_track
     from vispeech.motion.rigging.rigspace import RigSpace
     from vispeech.motion.track import Track
 
@@ -25,8 +26,8 @@ def _fit_corpus(directory: Path, language: str):
     tracks = []
     for u in corpus:
         keep = slice(None) if u.frame_mask is None else u.frame_mask
-        assert u.track is not None  # a corpus utterance: its recorded track
-        tracks.append(Track(u.track.values[keep], u.track.channels, u.track.fps))
+        track = recorded_track(u)
+        tracks.append(Track(track.values[keep], track.channels, track.fps))
     return RigSpace().fit(tracks), corpus
 
 

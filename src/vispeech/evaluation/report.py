@@ -17,7 +17,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.corpus.articulation import LIP_LANDMARKS, articulatory_parameters, lip_shape
-from vispeech.corpus.corpus import Corpus, Utterance, frame_rates_text
+from vispeech.corpus.corpus import Corpus, Utterance, frame_rates_text, recorded_track
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.evaluation.closures import (
@@ -256,16 +256,10 @@ def _phones(utterance: Utterance) -> PhoneSequence:
     return utterance.phones
 
 
-def _track(utterance: Utterance) -> Track:
-    """The utterance's recorded track (a corpus utterance has one)."""
-    assert utterance.track is not None
-    return utterance.track
-
-
 def scored_frames(utterance: Utterance) -> np.ndarray:
     """Mask of the frames scored: the speech span (the corpus's word timings, else the
     aligned words) without frames the tracker missed."""
-    track = _track(utterance)
+    track = recorded_track(utterance)
     words = utterance.words or (utterance.phones.words if utterance.phones is not None else [])
     mask = speech_frames(words, track.fps, track.n_frames, track.start_time)
     if utterance.frame_mask is not None:
@@ -304,9 +298,9 @@ def evaluate_models(
     if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS))
            for u in corpus):
         shapes = [lip_shape(_landmarks(u))[mask] for u, mask in zip(corpus, masks)]
-    classes = np.concatenate([frame_classes(_phones(u), _track(u).fps, len(mask), _track(u).start_time)[mask]
+    classes = np.concatenate([frame_classes(_phones(u), recorded_track(u).fps, len(mask), recorded_track(u).start_time)[mask]
                               for u, mask in zip(corpus, masks)])
-    rates = [_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
+    rates = [recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
     recorded = recorded_jaw = None
     if "jawOpen" in needed:
         recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
@@ -325,8 +319,8 @@ def evaluate_models(
                 target_arrays.append(target.values[mask][:, columns])
                 predicted_arrays.append(predicted.select(chosen).values[mask])
                 if closures is not None and tracked is not None and lip_opening(predicted) is not None:
-                    closures += count_closures(_phones(utterance), _track(utterance).fps, tracked,
-                                               model_closed(predicted), mask, _track(utterance).start_time)
+                    closures += count_closures(_phones(utterance), recorded_track(utterance).fps, tracked,
+                                               model_closed(predicted), mask, recorded_track(utterance).start_time)
                 else:
                     closures = None
                 bar.update(1)
