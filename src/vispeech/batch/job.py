@@ -36,9 +36,8 @@ from pathlib import Path
 
 from vispeech.errors import VispeechError
 from vispeech.files import read_text
-from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
+from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_variant, find_voice
 from vispeech.limits import check_fps, check_text, parse_json
-from vispeech.frontends.espeak import check_variant, find_voice
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
 

@@ -14,10 +14,16 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
-from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.life import check_layers, with_life
+from vispeech.motion.rigging.calibration import load_scale
 from vispeech.pipeline import (
-    DEFAULT_AUDIO_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, WHISPER_AUDIO_MODEL, check_outputs, listen,
+    DEFAULT_AUDIO_MODEL,
+    DEFAULT_FPS,
+    DEFAULT_MODEL,
+    DEFAULT_SCALE,
+    WHISPER_AUDIO_MODEL,
+    check_outputs,
+    listen,
     write_outputs,
 )
 

@@ -52,10 +52,9 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     """
     from vispeech.batch import JobDefaults, read_job, run_batch
     from vispeech.limits import check_fps
+    from vispeech.motion.life import check_layers
     from vispeech.motion.rigging.calibration import load_scale
     from vispeech.pipeline import check_formats
-
-    from vispeech.motion.life import check_layers
 
     load_scale(scale)
     defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),

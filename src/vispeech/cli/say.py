@@ -9,13 +9,21 @@ import click
 
 from vispeech.cli import lang_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
-from vispeech.limits import check_fps, check_text
 from vispeech.frontends.espeak import check_variant
+from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
-from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.life import check_layers, with_life
+from vispeech.motion.rigging.calibration import load_scale
 from vispeech.pipeline import (
-    DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE, GREETINGS, Utterance, animate, check_outputs, speak, write_outputs,
+    DEFAULT_FPS,
+    DEFAULT_MODEL,
+    DEFAULT_SCALE,
+    GREETINGS,
+    Utterance,
+    animate,
+    check_outputs,
+    speak,
+    write_outputs,
 )
 
 _model_option = click.option(

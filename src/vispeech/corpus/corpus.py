@@ -9,7 +9,6 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-
 from vispeech.corpus.cache import CorpusCache
 from vispeech.errors import VispeechError
 from vispeech.motion.track import Track

@@ -28,6 +28,7 @@ from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import audio_duration
 from vispeech.motion.track import Track
 
+
 def read_grid(
     directory: str | os.PathLike,
     *,

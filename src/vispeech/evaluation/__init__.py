@@ -5,13 +5,29 @@ over the speech span) and counts lip closures; see ``docs/evaluation.md``.
 """
 
 from vispeech.evaluation.closures import (
-    ClosureCounts, count_closures, lip_opening, model_closed, tracked_closed,
+    ClosureCounts,
+    count_closures,
+    lip_opening,
+    model_closed,
+    tracked_closed,
 )
 from vispeech.evaluation.metrics import (
-    ChannelScores, mse, pearson_r, rmse_percent, score_channels, speech_frames, value_range,
+    ChannelScores,
+    mse,
+    pearson_r,
+    rmse_percent,
+    score_channels,
+    speech_frames,
+    value_range,
 )
 from vispeech.evaluation.report import (
-    Evaluation, ModelEvaluation, evaluate_models, model_channels, predict_on_frames, scored_frames, target_track,
+    Evaluation,
+    ModelEvaluation,
+    evaluate_models,
+    model_channels,
+    predict_on_frames,
+    scored_frames,
+    target_track,
 )
 
 __all__ = [

@@ -19,14 +19,29 @@ from vispeech.alignment.phones import TIME_TOLERANCE, PhoneSequence
 from vispeech.corpus.articulation import LIP_LANDMARKS, articulatory_parameters, lip_shape
 from vispeech.corpus.corpus import Corpus, Utterance, frame_rates_text, recorded_track
 from vispeech.errors import VispeechError
-from vispeech.frontends.audio import AudioClip
 from vispeech.evaluation.closures import (
-    BILABIAL_RATE_TARGET, CLOSED_SHARE_TOLERANCE, MODEL_CLOSED, PHONE_CLASSES, TRACKED_CLOSED, ClosureCounts,
-    count_closures, frame_classes, lip_opening, model_closed, tracked_closed,
+    BILABIAL_RATE_TARGET,
+    CLOSED_SHARE_TOLERANCE,
+    MODEL_CLOSED,
+    PHONE_CLASSES,
+    TRACKED_CLOSED,
+    ClosureCounts,
+    count_closures,
+    frame_classes,
+    lip_opening,
+    model_closed,
+    tracked_closed,
 )
 from vispeech.evaluation.metrics import (
-    SPEECH_MARGIN, ChannelScores, best_lag, lip_vertex_error, motion_profile, score_channels, speech_frames,
+    SPEECH_MARGIN,
+    ChannelScores,
+    best_lag,
+    lip_vertex_error,
+    motion_profile,
+    score_channels,
+    speech_frames,
 )
+from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import ARTICULATORY_CHANNELS, MOUTH_CHANNELS
 from vispeech.motion.track import Track

@@ -28,8 +28,15 @@ import numpy as np
 
 from vispeech.corpus.corpus import Utterance, frame_rates_text
 from vispeech.evaluation.report import Evaluation
-from vispeech.evaluation.report_parts import (html_figure, html_page, html_table, json_ready, p_text, save_figure,
-                                             write_csv)
+from vispeech.evaluation.report_parts import (
+    html_figure,
+    html_page,
+    html_table,
+    json_ready,
+    p_text,
+    save_figure,
+    write_csv,
+)
 from vispeech.evaluation.statistics import Comparison, compare_models
 from vispeech.files import atomic_output_dir
 from vispeech.motion.track import Track

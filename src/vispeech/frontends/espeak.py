@@ -31,8 +31,8 @@ loaded between calls.
 
 from __future__ import annotations
 
-import bisect
 import _ctypes
+import bisect
 import ctypes
 import math
 import re

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+
 @dataclass
 class TrainingHistory:
     """Per-epoch losses, learning rates and seconds; ``best_epoch`` counts from 1 (0: none yet)."""

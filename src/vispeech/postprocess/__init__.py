@@ -19,7 +19,11 @@ from vispeech.errors import VispeechError
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 from vispeech.postprocess.overlays import (
-    VOWEL_OPENING, anchor_frames, consonant_overlays, open_vowels, upper_lip_overlay,
+    VOWEL_OPENING,
+    anchor_frames,
+    consonant_overlays,
+    open_vowels,
+    upper_lip_overlay,
 )
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
 from vispeech.postprocess.tongue import tongue_channels

@@ -31,13 +31,12 @@ import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
-from vispeech.phonetics.features import phone_rows
-from vispeech.targets.tables import TARGET_CHANNELS, default_targets, resolve_spec
 from vispeech.motion.arkit import lip_aperture
-from vispeech.motion.track import Track
-from vispeech.phonetics.features import FEATURE_NAMES
-from vispeech.phonetics.inventory import is_vowel
 from vispeech.motion.easing import bezier_ease
+from vispeech.motion.track import Track
+from vispeech.phonetics.features import FEATURE_NAMES, phone_rows
+from vispeech.phonetics.inventory import is_vowel
+from vispeech.targets.tables import TARGET_CHANNELS, default_targets, resolve_spec
 
 DEFAULT_FADE_OUT: Mapping = {
     "default": 1.5,

@@ -29,6 +29,7 @@ from vispeech.motion.track import Track
 from vispeech.phonetics.features import FEATURE_NAMES, phone_rows
 from vispeech.postprocess.overlays import anchor_frames
 
+
 def tongue_targets(features: np.ndarray) -> np.ndarray:
     """Per phone (rows of feature vectors, :data:`~vispeech.phonetics.features.FEATURE_NAMES`), its
     values of :data:`TONGUE_CHANNELS` (see the module docstring)."""

@@ -21,9 +21,9 @@ from vispeech.frontends.espeak import check_variant, find_voice, voices
 from vispeech.frontends.text import detect_language
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
-from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
 from vispeech.motion.life import with_life
+from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
 from vispeech.serve.bot import ChatBotError

@@ -27,13 +27,14 @@ import sqlite3
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import cast
 
 from vispeech.errors import VispeechError
 from vispeech.study.answers import ANSWER_COLUMNS, PAIRWISE_ANSWERS, RATINGS
 from vispeech.study.config import Study, Trial, plan_trials
+
 MAX_MS = 24 * 3600 * 1000
 """The longest time to an answer accepted (ms)."""
 
@@ -67,7 +68,7 @@ class Participant:
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 class StudyStore:

@@ -34,9 +34,9 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches
+from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
 
 BESKOW: dict = {
     **COMMON_PARAMS,

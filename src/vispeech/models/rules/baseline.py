@@ -16,10 +16,10 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
-from vispeech.phonetics.features import phone_rows
-from vispeech.motion.track import Track
-from vispeech.phonetics.inventory import SILENCE
 from vispeech.motion.easing import bezier_ease
+from vispeech.motion.track import Track
+from vispeech.phonetics.features import phone_rows
+from vispeech.phonetics.inventory import SILENCE
 
 
 class Baseline(PhoneTargetModel):

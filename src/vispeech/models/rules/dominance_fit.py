@@ -29,10 +29,10 @@ from typing import cast
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.models.rules.segments import Segments
-from vispeech.phonetics.features import phone_rows
 from vispeech.models.fitting import show_progress, training_split
 from vispeech.models.history import TrainingHistory
+from vispeech.models.rules.segments import Segments
+from vispeech.phonetics.features import phone_rows
 
 TOLERANCE = 1e-4
 """A channel has converged when an accepted step lowers its squared error by less than this fraction."""

@@ -28,11 +28,11 @@ from vispeech.models.fitting import fitted_in_one_go
 from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
-from vispeech.phonetics.features import phone_rows
 from vispeech.motion.easing import smoothstep
-from vispeech.targets.tables import resolve_spec
 from vispeech.motion.track import Track
+from vispeech.phonetics.features import phone_rows
 from vispeech.phonetics.inventory import LANGUAGES, SILENCE
+from vispeech.targets.tables import resolve_spec
 
 
 class Ohman(PhoneTargetModel):

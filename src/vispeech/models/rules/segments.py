@@ -7,8 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
-from vispeech.phonetics.features import phone_rows
-from vispeech.phonetics.features import FEATURE_NAMES
+from vispeech.phonetics.features import FEATURE_NAMES, phone_rows
 
 _VOWEL = FEATURE_NAMES.index("vowel")
 _SILENCE = FEATURE_NAMES.index("silence")
