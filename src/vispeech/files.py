@@ -139,8 +139,14 @@ def _exchange_function() -> Any:
                 number = _SYS_RENAMEAT2[platform.machine().lower()]
                 func = libc.syscall
                 func.restype = ctypes.c_long
-                _swap_function = lambda a, b: func(ctypes.c_long(number), ctypes.c_int(_AT_FDCWD), a,
-                                                   ctypes.c_int(_AT_FDCWD), b, ctypes.c_uint(_RENAME_EXCHANGE))
+                _swap_function = lambda a, b: func(
+                    ctypes.c_long(number),
+                    ctypes.c_int(_AT_FDCWD),
+                    a,
+                    ctypes.c_int(_AT_FDCWD),
+                    b,
+                    ctypes.c_uint(_RENAME_EXCHANGE),
+                )
         except (OSError, AttributeError, TypeError):
             _swap_function = False
     return _swap_function
@@ -280,8 +286,10 @@ def _refuse_foreign(target: Path, allowed: set[str], shown: Path) -> None:
     foreign = sorted(n for n in os.listdir(target) if n not in allowed and not n.startswith(_PREFIX))
     if foreign:
         more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-        raise VispeechError(f"output folder {shown} holds files vispeech did not write "
-                            f"({', '.join(foreign[:3])}{more}): empty it or choose another folder")
+        raise VispeechError(
+            f"output folder {shown} holds files vispeech did not write "
+            f"({', '.join(foreign[:3])}{more}): empty it or choose another folder"
+        )
 
 
 def check_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) -> None:
@@ -308,8 +316,9 @@ def _checked_target(path: str | os.PathLike) -> Path:
     if cwd == target or target in cwd.parents:
         raise VispeechError(f"output folder {shown} holds the current folder: give another folder")
     if os.path.ismount(target):
-        raise VispeechError(f"output folder {shown} is a mount point and cannot be replaced as a whole: "
-                            "give a folder inside it")
+        raise VispeechError(
+            f"output folder {shown} is a mount point and cannot be replaced as a whole: give a folder inside it"
+        )
     return target
 
 

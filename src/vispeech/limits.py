@@ -106,7 +106,7 @@ def json_depth(text: str) -> tuple[int, int]:
     depth = deepest = where = 0
     chunk = 1 << 22
     for start in range(0, codes.size, chunk):
-        part = codes[start:start + chunk]
+        part = codes[start : start + chunk]
         step = (part == 91).astype(np.int64) + (part == 123) - (part == 93) - (part == 125)
         running = np.cumsum(step) + depth
         i = int(np.argmax(running))

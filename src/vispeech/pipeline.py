@@ -50,6 +50,8 @@ def default_audio_model() -> str:
     from vispeech.frontends.whisper import installed
 
     return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
+
+
 DEFAULT_AUDIO_STREAM_MODEL = "grid-audio-cnn"
 """The shipped audio network for live audio: its stream equals its offline output, 126 ms behind."""
 GREETINGS = {
@@ -78,8 +80,9 @@ def animate(
     return _animate(phones, model, fps, postprocessing)
 
 
-def _animate(phones: PhoneSequence, model: str | Estimator, fps: float,
-             postprocessing: PostprocessConfig | bool) -> Track:
+def _animate(
+    phones: PhoneSequence, model: str | Estimator, fps: float, postprocessing: PostprocessConfig | bool
+) -> Track:
     """:func:`animate` at an ``fps`` already checked."""
     phones.validate()
     check_utterance(phones.duration, len(phones))
@@ -107,8 +110,13 @@ def animate_audio(
     return _animate_audio(clip, model, fps, postprocessing, phones)
 
 
-def _animate_audio(clip: AudioClip, model: str | Estimator, fps: float, postprocessing: PostprocessConfig | bool,
-                   phones: PhoneSequence | None) -> Track:
+def _animate_audio(
+    clip: AudioClip,
+    model: str | Estimator,
+    fps: float,
+    postprocessing: PostprocessConfig | bool,
+    phones: PhoneSequence | None,
+) -> Track:
     """:func:`animate_audio` at an ``fps`` already checked."""
     check_utterance(clip.duration, 0 if phones is None else len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
@@ -123,8 +131,9 @@ def _animate_audio(clip: AudioClip, model: str | Estimator, fps: float, postproc
     return _postprocessed(track, heard, postprocessing, preset)
 
 
-def _postprocessed(track: Track, phones: PhoneSequence | None, postprocessing: PostprocessConfig | bool,
-                   preset: str) -> Track:
+def _postprocessed(
+    track: Track, phones: PhoneSequence | None, postprocessing: PostprocessConfig | bool, preset: str
+) -> Track:
     """``track`` post-processed by ``postprocessing`` (a configuration, ``True`` for ``preset``, ``False`` for none)."""
     if postprocessing is False:
         return track
@@ -188,8 +197,11 @@ def spoken_text(text: str) -> str:
 
     spoken = speakable(text)
     if not spoken:
-        raise VispeechError("text is empty" if not text.strip() else
-                            "nothing to say: the text has no words once emoji, markup and links are left out")
+        raise VispeechError(
+            "text is empty"
+            if not text.strip()
+            else "nothing to say: the text has no words once emoji, markup and links are left out"
+        )
     return spoken
 
 
@@ -268,9 +280,15 @@ def check_outputs(out_dir: str | Path, *, extra: Iterable[str] = ()) -> None:
     check_output_dir(out_dir, replaces=(*OUTPUT_FILES.values(), *extra))
 
 
-def write_outputs(utterance: Utterance, out_dir: str | Path, *, title: str | None = None,
-                  formats: Iterable[str] = DEFAULT_OUTPUTS, extra: Mapping[str, str] | None = None,
-                  scale: str | os.PathLike | None = DEFAULT_SCALE) -> list[Path]:
+def write_outputs(
+    utterance: Utterance,
+    out_dir: str | Path,
+    *,
+    title: str | None = None,
+    formats: Iterable[str] = DEFAULT_OUTPUTS,
+    extra: Mapping[str, str] | None = None,
+    scale: str | os.PathLike | None = DEFAULT_SCALE,
+) -> list[Path]:
     """Write an utterance's files as the folder ``out_dir`` and return their paths.
 
     The track is written in the output ``scale`` (:func:`vispeech.motion.rigging.calibration.load_scale`:

@@ -124,8 +124,15 @@ def speech_messages(
         messages: list[dict] = []
         if sample_rate is None:
             sample_rate = speech.sample_rate
-            messages.append({"type": "start", "fps": fps, "channels": list(channels),
-                             "sample_rate": sample_rate, "model": model.name})
+            messages.append(
+                {
+                    "type": "start",
+                    "fps": fps,
+                    "channels": list(channels),
+                    "sample_rate": sample_rate,
+                    "model": model.name,
+                }
+            )
         pcm = to_pcm16(speech.audio)
         clause_start = samples_done / sample_rate
         frame_end = _frames_before((samples_done + len(pcm)) / sample_rate, fps)
@@ -136,11 +143,17 @@ def speech_messages(
             b = min(a + step, len(pcm))
             upto = frame_end if b == len(pcm) else min(frame_end, _frames_before((samples_done + b) / sample_rate, fps))
             if upto > sent:
-                rows = np.round(values[sent - frames_done:upto - frames_done], 6).tolist()
+                rows = np.round(values[sent - frames_done : upto - frames_done], 6).tolist()
                 messages.append({"type": "frames", "start_frame": sent, "frames": rows})
                 sent = upto
-            messages.append({"type": "audio", "seq": seq, "start": (samples_done + a) / sample_rate,
-                             "pcm16": base64.b64encode(pcm[a:b].tobytes()).decode("ascii")})
+            messages.append(
+                {
+                    "type": "audio",
+                    "seq": seq,
+                    "start": (samples_done + a) / sample_rate,
+                    "pcm16": base64.b64encode(pcm[a:b].tobytes()).decode("ascii"),
+                }
+            )
             seq += 1
         samples_done += len(pcm)
         frames_done = frame_end
@@ -237,16 +250,20 @@ class PhoneStream:
             return self.emitted, np.zeros((0, len(self.channels)))
         first = max(self._raw_start, self.emitted - self._context)
         seconds = first / self.fps
-        window = [replace(p, start=max(p.start - seconds, 0.0), end=p.end - seconds)
-                  for p in self._phones if p.end > seconds + TIME_TOLERANCE]
-        raw = Track(np.stack(self._raw[first - self._raw_start:available - self._raw_start]),
-                    self._inner.channels, self.fps)
+        window = [
+            replace(p, start=max(p.start - seconds, 0.0), end=p.end - seconds)
+            for p in self._phones
+            if p.end > seconds + TIME_TOLERANCE
+        ]
+        raw = Track(
+            np.stack(self._raw[first - self._raw_start : available - self._raw_start]), self._inner.channels, self.fps
+        )
         if window:
             raw = postprocess(raw, PhoneSequence(window, self.language), self._config)
-        rows = raw.select(self.channels).values[self.emitted - first:upto - first]
+        rows = raw.select(self.channels).values[self.emitted - first : upto - first]
         start, self.emitted = self.emitted, upto
         keep = max(0, self.emitted - self._context)
-        del self._raw[:max(0, keep - self._raw_start)]
+        del self._raw[: max(0, keep - self._raw_start)]
         self._raw_start = max(self._raw_start, keep)
         keep_after = keep / self.fps
         self._phones = [p for p in self._phones if p.end > keep_after] or self._phones[-1:]
@@ -273,7 +290,9 @@ class PhoneStream:
         return out
 
 
-def push_together(pushes: Sequence[tuple[PhoneStream, Iterable[Phone]]]) -> list[tuple[int, np.ndarray] | VispeechError]:
+def push_together(
+    pushes: Sequence[tuple[PhoneStream, Iterable[Phone]]],
+) -> list[tuple[int, np.ndarray] | VispeechError]:
     """:meth:`PhoneStream.push` of several streams at once (concurrent sessions of a server): each
     stream's phones are checked and fed, the model work of all of them is done together where the
     model can share it (:meth:`~vispeech.models.streams.ModelStream.advance_together`: one network
@@ -321,12 +340,16 @@ class LiveAudioStream:
         if model.input_kind != "audio":
             raise VispeechError(f"model {model.name} animates phones, not audio: use an audio model")
         if not (isinstance(sample_rate, int) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
-            raise VispeechError(f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}.."
-                                f"{MAX_SAMPLE_RATE}, got {sample_rate!r}")
+            raise VispeechError(
+                f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}.."
+                f"{MAX_SAMPLE_RATE}, got {sample_rate!r}"
+            )
         config = self._config = PostprocessConfig.from_preset(model.postprocessing)
         if config.jaw_shift or config.overlays or config.upper_lip or config.jaw_peaks_in_vowels:
-            raise VispeechError(f"model {model.name}'s post-processing ({model.postprocessing}) needs the whole "
-                                "utterance: it cannot animate live audio")
+            raise VispeechError(
+                f"model {model.name}'s post-processing ({model.postprocessing}) needs the whole "
+                "utterance: it cannot animate live audio"
+            )
         self.model = model
         # an audio model that streams is an audio network: its stream takes no language, and is an AudioStream
         self._inner = cast("AudioNetwork", model).stream(None, check_fps(fps))
@@ -338,8 +361,9 @@ class LiveAudioStream:
         if sample_rate != self._inner.sample_rate:
             import soxr
 
-            self._resampler = soxr.ResampleStream(sample_rate, self._inner.sample_rate, 1, dtype="float32",
-                                                  quality="HQ")
+            self._resampler = soxr.ResampleStream(
+                sample_rate, self._inner.sample_rate, 1, dtype="float32", quality="HQ"
+            )
             resampling_delay = resampler_delay(sample_rate, self._inner.sample_rate)
         self.delay = self._inner.delay + resampling_delay
         """Seconds of audio after a frame's time that the stream waits for before giving it."""

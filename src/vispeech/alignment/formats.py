@@ -136,7 +136,8 @@ def _suffix(path: Path) -> str:
     suffix = path.suffix.lower()
     if suffix not in (".textgrid", ".json", *_UNITS_PER_SECOND):
         raise VispeechError(
-            f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)")
+            f"unknown alignment format {path.suffix!r} for {path} (use .TextGrid, .lab, .align or .json)"
+        )
     return suffix
 
 
@@ -249,7 +250,9 @@ class _Tokens:
         if value < 0:
             raise VispeechError(f"{self.path}, line {line}: {what} {value:g} is negative")
         if value > MAX_DURATION_S:
-            raise VispeechError(f"{self.path}, line {line}: {what} {value:g} s is past the limit of {MAX_DURATION_S:g} s")
+            raise VispeechError(
+                f"{self.path}, line {line}: {what} {value:g} s is past the limit of {MAX_DURATION_S:g} s"
+            )
         return value
 
     def count(self, what: str) -> int:
@@ -270,7 +273,7 @@ def _check_textgrid(text: str, path: Path) -> None:
     tokens = _Tokens(text, path)
     tokens.take("string", 'the file type ("ooTextFile")')
     if tokens.take("string", 'the object class ("TextGrid")') != "TextGrid":
-        raise VispeechError(f"{path}: not a TextGrid (object class is not \"TextGrid\")")
+        raise VispeechError(f'{path}: not a TextGrid (object class is not "TextGrid")')
     grid_start = tokens.time("the grid's xmin")
     line = tokens.line()
     grid_end = tokens.time("the grid's xmax")
@@ -293,8 +296,10 @@ def _check_textgrid(text: str, path: Path) -> None:
         if end < start:
             raise VispeechError(f"{path}, line {line}: {label} ends at {end:g}, before its start {start:g}")
         if start < grid_start - TIME_TOLERANCE or end > grid_end + TIME_TOLERANCE:
-            raise VispeechError(f"{path}, line {line}: {label} ({start:g}..{end:g} s) is outside the grid "
-                                f"({grid_start:g}..{grid_end:g} s)")
+            raise VispeechError(
+                f"{path}, line {line}: {label} ({start:g}..{end:g} s) is outside the grid "
+                f"({grid_start:g}..{grid_end:g} s)"
+            )
         if kind not in ("IntervalTier", "TextTier"):
             raise VispeechError(f"{path}, line {line}: {label} has unknown class {kind!r}")
         entries = "intervals" if kind == "IntervalTier" else "points"
@@ -302,33 +307,43 @@ def _check_textgrid(text: str, path: Path) -> None:
         previous = start
         for index in range(1, declared + 1):
             if tokens.peek() != "number":
-                raise VispeechError(f"{path}, line {tokens.line()}: {label} declares {declared} {entries} "
-                                    f"but holds {index - 1}")
+                raise VispeechError(
+                    f"{path}, line {tokens.line()}: {label} declares {declared} {entries} but holds {index - 1}"
+                )
             line = tokens.line()
             if kind == "IntervalTier":
                 low = tokens.time(f"xmin of interval {index} of {label}")
                 high = tokens.time(f"xmax of interval {index} of {label}")
                 tokens.take("string", f"the text of interval {index} of {label}")
                 if high <= low:
-                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
-                                        f"not after its start {low:g}")
+                    raise VispeechError(
+                        f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
+                        f"not after its start {low:g}"
+                    )
                 if low < previous - TIME_TOLERANCE:
-                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} starts at {low:g}, "
-                                        f"before the previous one ends ({previous:g}): out of order or overlapping")
+                    raise VispeechError(
+                        f"{path}, line {line}: interval {index} of {label} starts at {low:g}, "
+                        f"before the previous one ends ({previous:g}): out of order or overlapping"
+                    )
                 if high > end + TIME_TOLERANCE:
-                    raise VispeechError(f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
-                                        f"after the tier's xmax {end:g}")
+                    raise VispeechError(
+                        f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
+                        f"after the tier's xmax {end:g}"
+                    )
                 previous = high
             else:
                 time = tokens.time(f"time of point {index} of {label}")
                 tokens.take("string", f"the mark of point {index} of {label}")
                 if time < previous - TIME_TOLERANCE or time > end + TIME_TOLERANCE:
-                    raise VispeechError(f"{path}, line {line}: point {index} of {label} at {time:g} s is out of "
-                                        f"order or outside the tier")
+                    raise VispeechError(
+                        f"{path}, line {line}: point {index} of {label} at {time:g} s is out of "
+                        f"order or outside the tier"
+                    )
                 previous = time
         if tokens.peek() == "number":
-            raise VispeechError(f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} "
-                                "it declares")
+            raise VispeechError(
+                f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} it declares"
+            )
     if tokens.peek() is not None:
         raise VispeechError(f"{path}, line {tokens.line()}: data after the {n_tiers} declared tiers")
 

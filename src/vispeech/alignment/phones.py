@@ -158,8 +158,13 @@ class PhoneSequence:
         try:
             words = [Word(str(w["text"]), float(w["start"]), float(w["end"])) for w in data.get("words", [])]
             phones = [
-                Phone(str(p["symbol"]), float(p["start"]), float(p["end"]),
-                      None if p.get("word") is None else int(p["word"]), int(p.get("stress", 0)))
+                Phone(
+                    str(p["symbol"]),
+                    float(p["start"]),
+                    float(p["end"]),
+                    None if p.get("word") is None else int(p["word"]),
+                    int(p.get("stress", 0)),
+                )
                 for p in data["phones"]
             ]
             return cls(phones=phones, language=str(data.get("language", "en")), words=words)

@@ -29,8 +29,9 @@ IN_FLIGHT_PER_WORKER = 4
 """Lines each actor may have queued: bounds the prepared audio held in the object store."""
 
 
-def execute_on_ray(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int,
-                   address: str | None) -> Iterator[LineResult]:
+def execute_on_ray(
+    todo: list[tuple[BatchLine, str, str]], out: Path, workers: int, address: str | None
+) -> Iterator[LineResult]:
     """Run ``todo`` (line, key, record) on Ray, yielding each line's result as it is written."""
     import ray
 

@@ -210,8 +210,13 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
     if not _ID.fullmatch(line_id):
         raise VispeechError(f"id {line_id!r} is not a folder name (letters, digits, '.', '_', '-'; at most 128)")
     text, audio, alignment = (record.get(k) for k in ("text", "audio", "alignment"))
-    for key, value in (("text", text), ("audio", audio), ("alignment", alignment), ("lang", record.get("lang")),
-                       ("model", record.get("model"))):
+    for key, value in (
+        ("text", text),
+        ("audio", audio),
+        ("alignment", alignment),
+        ("lang", record.get("lang")),
+        ("model", record.get("model")),
+    ):
         if value is not None and not isinstance(value, str):
             raise VispeechError(f"{key} must be a string, got {json.dumps(value)[:40]}")
     if audio is not None and alignment is not None:
@@ -245,11 +250,22 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
     if not isinstance(formats, list | tuple) or not all(isinstance(f, str) for f in formats):
         raise VispeechError("formats must be a list of format names or a string of them")
     return BatchLine(
-        number=number, id=line_id, kind=kind, text=text, lang=lang,
-        audio=None if audio is None else base / audio, alignment=None if alignment is None else base / alignment,
-        model=record.get("model", defaults.model), fps=fps, rate=rate, formats=check_formats(formats),
-        postprocess=_flag(record.get("postprocess", defaults.postprocess)), scale=defaults.scale,
-        voice=voice if kind == "text" else None, life=defaults.life, seed=defaults.seed,
+        number=number,
+        id=line_id,
+        kind=kind,
+        text=text,
+        lang=lang,
+        audio=None if audio is None else base / audio,
+        alignment=None if alignment is None else base / alignment,
+        model=record.get("model", defaults.model),
+        fps=fps,
+        rate=rate,
+        formats=check_formats(formats),
+        postprocess=_flag(record.get("postprocess", defaults.postprocess)),
+        scale=defaults.scale,
+        voice=voice if kind == "text" else None,
+        life=defaults.life,
+        seed=defaults.seed,
     )
 
 

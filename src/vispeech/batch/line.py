@@ -70,8 +70,13 @@ def expected_files(line: BatchLine) -> tuple[str, ...]:
     (audio for ``speech.wav`` and ``preview.html``, audio and phones for ``phones.TextGrid``), and the record."""
     has_audio = line.kind != "alignment"
     has_phones = line.kind != "audio" or line.text is not None
-    names = [name for fmt, name in OUTPUT_FILES.items() if fmt in line.formats
-             and (has_audio or fmt not in ("wav", "preview", "textgrid")) and (has_phones or fmt != "textgrid")]
+    names = [
+        name
+        for fmt, name in OUTPUT_FILES.items()
+        if fmt in line.formats
+        and (has_audio or fmt not in ("wav", "preview", "textgrid"))
+        and (has_phones or fmt != "textgrid")
+    ]
     return tuple(sorted([*names, RECORD]))
 
 
@@ -117,8 +122,9 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
 def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:
     """Write a line's folder (its formats and its record) as one swap; the names written."""
     title = line.text or (line.source.name if line.source is not None else None)
-    paths = write_outputs(utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record},
-                          scale=line.scale)
+    paths = write_outputs(
+        utterance, out / line.id, title=title, formats=line.formats, extra={RECORD: record}, scale=line.scale
+    )
     return tuple(sorted(p.name for p in paths))
 
 

@@ -142,16 +142,42 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
         digest = None if line.source is None else _file_digest(line.source, line.kind)
     except VispeechError as exc:
         return failed(line, None, exc), "", ""
-    inputs = {"kind": line.kind, "text": line.text, "lang": line.lang,
-              "source": None if line.source is None else str(line.source), "source_sha256": digest}
-    settings = {"model": model_spec(line), "model_version": version, "fps": line.fps,
-                "rate": line.rate, "formats": list(line.formats), "postprocess": line.postprocess,
-                "scale": _scale_settings(line.scale), "voice": line.voice,
-                "life": list(line.life), "seed": line.seed if line.life else None}
+    inputs = {
+        "kind": line.kind,
+        "text": line.text,
+        "lang": line.lang,
+        "source": None if line.source is None else str(line.source),
+        "source_sha256": digest,
+    }
+    settings = {
+        "model": model_spec(line),
+        "model_version": version,
+        "fps": line.fps,
+        "rate": line.rate,
+        "formats": list(line.formats),
+        "postprocess": line.postprocess,
+        "scale": _scale_settings(line.scale),
+        "voice": line.voice,
+        "life": list(line.life),
+        "seed": line.seed if line.life else None,
+    }
     about = {"vispeech": vispeech.__version__, **inputs, **settings, "source": None}
     key = hashlib.sha256(json.dumps(about, sort_keys=True).encode()).hexdigest()[:32]
-    record = json.dumps({"format": "vispeech-batch-line", "version": 1, "id": line.id, "key": key,
-                         "vispeech": vispeech.__version__, **inputs, **settings}, indent=1) + "\n"
+    record = (
+        json.dumps(
+            {
+                "format": "vispeech-batch-line",
+                "version": 1,
+                "id": line.id,
+                "key": key,
+                "vispeech": vispeech.__version__,
+                **inputs,
+                **settings,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     if not force and _up_to_date(out / line.id, key, expected_files(line)):
         return LineResult(line.number, line.id, "unchanged", key, expected_files(line)), key, record
     return None, key, record
@@ -176,8 +202,7 @@ def _up_to_date(folder: Path, key: str, names: tuple[str, ...]) -> bool:
     return isinstance(record, dict) and record.get("key") == key and all((folder / n).is_file() for n in names)
 
 
-def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | None, backend: str,
-             address: str | None):
+def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | None, backend: str, address: str | None):
     """Run the lines, yielding each result as it ends: on Ray (:mod:`vispeech.batch.cluster`), in a
     pool of processes, or in this process when ``workers`` is 1 or there is one line."""
     workers = max(1, workers or os.cpu_count() or 1)

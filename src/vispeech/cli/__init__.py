@@ -25,22 +25,33 @@ _MODULES = {"animate-phones": "say"}
 """Commands that do not live in a module of their own name: command → module of this package."""
 
 EXTRAS = {
-    "torch": "train", "matplotlib": "train", "tqdm": "train", "statsmodels": "train", "pandas": "train",
+    "torch": "train",
+    "matplotlib": "train",
+    "tqdm": "train",
+    "statsmodels": "train",
+    "pandas": "train",
     "sklearn": "train",
-    "fastapi": "serve", "starlette": "serve", "pydantic": "serve", "uvicorn": "serve", "websockets": "serve",
+    "fastapi": "serve",
+    "starlette": "serve",
+    "pydantic": "serve",
+    "uvicorn": "serve",
+    "websockets": "serve",
     "py3langid": "serve",
     "transformers": "encoder",
     "ray": "ray",
-    "mediapipe": "capture", "av": "capture",
-    "playwright": "test", "PIL": "test",
+    "mediapipe": "capture",
+    "av": "capture",
+    "playwright": "test",
+    "PIL": "test",
 }
 """Optional top-level modules → the extra that installs them."""
 
 
 def _command_names() -> set[str]:
     """Every command: one per module of this package, and the commands of :data:`_MODULES`."""
-    modules = {name[:-3] for name in os.listdir(os.path.dirname(__file__))
-               if name.endswith(".py") and not name.startswith("_")}
+    modules = {
+        name[:-3] for name in os.listdir(os.path.dirname(__file__)) if name.endswith(".py") and not name.startswith("_")
+    }
     return modules | {command for command, module in _MODULES.items() if module in modules}
 
 
@@ -56,18 +67,30 @@ quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bar
 def scale_option(default: str):
     """The ``--scale`` option: the output scale tracks are written in (the same in every command)."""
     return click.option(
-        "--scale", default=default, show_default=True,
+        "--scale",
+        default=default,
+        show_default=True,
         help="Output scale: arkit (iPhone Live Link / MetaHuman), tracker (the model's own, for evaluation) "
-             "or a calibration file from `vispeech rig calibrate HEAD.glb` (docs/calibration.md).")
+        "or a calibration file from `vispeech rig calibrate HEAD.glb` (docs/calibration.md).",
+    )
 
 
 def life_options(command):
     """``--life LAYERS`` and ``--seed``: the non-verbal layers a command adds to its tracks."""
-    command = click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
-                           help="Seed of the non-verbal layers: the same seed, the same blinks and sway.")(command)
-    return click.option("--life", default="", metavar="LAYERS",
-                        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, or all "
-                             "(vispeech.motion.life) [default: none].")(command)
+    command = click.option(
+        "--seed",
+        default=0,
+        show_default=True,
+        type=click.IntRange(min=0),
+        help="Seed of the non-verbal layers: the same seed, the same blinks and sway.",
+    )(command)
+    return click.option(
+        "--life",
+        default="",
+        metavar="LAYERS",
+        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, or all "
+        "(vispeech.motion.life) [default: none].",
+    )(command)
 
 
 class _Group(click.Group):
@@ -94,8 +117,10 @@ class _Group(click.Group):
             if top not in EXTRAS:
                 raise
             command = ctx.invoked_subcommand or "this command"
-            click.echo(f"error: vispeech {command} needs {top}, which is not installed: "
-                       f'pip install "vispeech[{EXTRAS[top]}]"', err=True)
+            click.echo(
+                f'error: vispeech {command} needs {top}, which is not installed: pip install "vispeech[{EXTRAS[top]}]"',
+                err=True,
+            )
             sys.exit(2)
         except OSError as exc:
             where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""

@@ -11,14 +11,22 @@ from vispeech.corpus.corpus import Corpus
 from vispeech.errors import VispeechError
 
 corpus_option = click.option(
-    "--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-    help="Corpus folder (GRID layout or a folder of Live Link takes).")
+    "--corpus",
+    "corpus_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Corpus folder (GRID layout or a folder of Live Link takes).",
+)
 language_option = lang_option(
     "Language of a folder of takes (its transcripts and TextGrid symbols): sv or en; a GRID folder is en.",
-    name="language")
+    name="language",
+)
 cache_option = click.option(
-    "--cache", type=click.Path(file_okay=False, path_type=Path), default=None,
-    help="Cache folder for alignments [default: ~/.cache/vispeech/<name>-<hash>, or $VISPEECH_CACHE].")
+    "--cache",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Cache folder for alignments [default: ~/.cache/vispeech/<name>-<hash>, or $VISPEECH_CACHE].",
+)
 
 
 def open_corpus(directory: Path, language: str, cache: Path | None = None) -> Corpus:
@@ -31,8 +39,9 @@ def open_corpus(directory: Path, language: str, cache: Path | None = None) -> Co
         warnings.simplefilter("ignore", CorpusWarning)  # listed in corpus.problems, summed up below
         corpus = read_corpus(directory, language=language, cache=cache)
     if not len(corpus):
-        raise VispeechError(f"corpus {directory} has no usable utterances"
-                            + (f" ({corpus.problems[0]})" if corpus.problems else ""))
+        raise VispeechError(
+            f"corpus {directory} has no usable utterances" + (f" ({corpus.problems[0]})" if corpus.problems else "")
+        )
     if corpus.problems:
         click.echo(f"{len(corpus.problems)} utterances skipped (first: {corpus.problems[0]})", err=True)
     return corpus
@@ -51,8 +60,9 @@ def read_aligned_corpus(directory: Path, language: str, cache: Path | None, prog
         warnings.simplefilter("ignore", CorpusWarning)
         align_corpus(corpus, progress=progress)
     if len(corpus.problems) > skipped:
-        click.echo(f"{len(corpus.problems) - skipped} utterances not aligned (first: {corpus.problems[skipped]})",
-                   err=True)
+        click.echo(
+            f"{len(corpus.problems) - skipped} utterances not aligned (first: {corpus.problems[skipped]})", err=True
+        )
     aligned = [u for u in corpus if u.phones is not None]
     if not aligned:
         raise VispeechError(f"no utterance of corpus {corpus.name} could be aligned")

@@ -12,12 +12,23 @@ from vispeech.cli import lang_option, main
 @main.command("align")
 @click.argument("audio", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("text")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.")
-@lang_option("Language of the speech: en (pocketsphinx) or any other `vispeech languages` lists (DTW against espeak-ng).", name="language")
-@click.option("--method", type=click.Choice(["pocketsphinx", "dtw"]),
-              help="pocketsphinx (English only) or DTW against espeak-ng's speech of TEXT "
-              "(default: pocketsphinx for en, dtw for sv).")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.",
+)
+@lang_option(
+    "Language of the speech: en (pocketsphinx) or any other `vispeech languages` lists (DTW against espeak-ng).",
+    name="language",
+)
+@click.option(
+    "--method",
+    type=click.Choice(["pocketsphinx", "dtw"]),
+    help="pocketsphinx (English only) or DTW against espeak-ng's speech of TEXT "
+    "(default: pocketsphinx for en, dtw for sv).",
+)
 def align_command(audio: Path, text: str, output: Path, language: str, method: str | None) -> None:
     """Align TEXT with the speech in AUDIO (WAV, FLAC) and write its words and phones."""
     from vispeech.alignment.formats import write_alignment

@@ -30,25 +30,45 @@ from vispeech.pipeline import (
 
 @main.command()
 @click.argument("audio", type=click.Path(path_type=Path))
-@click.option("--text", "-t", default=None,
-              help="The transcript, aligned with the audio: its phones drive the model.")
-@click.option("--transcribe", is_flag=True,
-              help="Recognise the transcript with Whisper (the whisper extra), then as --text.")
-@click.option("--whisper-model", type=click.Path(path_type=Path), default=None,
-              help="A CTranslate2 Whisper folder used for this run instead of the installed models: "
-                   "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).")
+@click.option("--text", "-t", default=None, help="The transcript, aligned with the audio: its phones drive the model.")
+@click.option(
+    "--transcribe", is_flag=True, help="Recognise the transcript with Whisper (the whisper extra), then as --text."
+)
+@click.option(
+    "--whisper-model",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="A CTranslate2 Whisper folder used for this run instead of the installed models: "
+    "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).",
+)
 @lang_option("Language of the transcript: any `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
-@click.option("--model", "-m", default=None,
-              help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
-                   f"[default: {WHISPER_AUDIO_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; "
-                   f"{DEFAULT_MODEL} with --text or --transcribe].")
+@click.option(
+    "--model",
+    "-m",
+    default=None,
+    help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
+    f"[default: {WHISPER_AUDIO_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; "
+    f"{DEFAULT_MODEL} with --text or --transcribe].",
+)
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)
 @life_options
-def animate(audio: Path, text: str | None, transcribe: bool, whisper_model: Path | None, lang: str, out_dir: Path,
-            model: str | None, fps: float, no_postprocess: bool, scale: str, life: str, seed: int) -> None:
+def animate(
+    audio: Path,
+    text: str | None,
+    transcribe: bool,
+    whisper_model: Path | None,
+    lang: str,
+    out_dir: Path,
+    model: str | None,
+    fps: float,
+    no_postprocess: bool,
+    scale: str,
+    life: str,
+    seed: int,
+) -> None:
     """Animate the speech in AUDIO (WAV, FLAC, MP3, OGG; at most 10 minutes).
 
     Writes speech.wav, animation.csv/.json, preview.html and, with --text or --transcribe,

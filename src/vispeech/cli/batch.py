@@ -16,32 +16,76 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 
 @main.command()
 @click.argument("job", type=click.Path(path_type=Path))
-@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
-              help="Output folder: one folder per line, and index.jsonl.")
+@click.option(
+    "--output",
+    "-o",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Output folder: one folder per line, and index.jsonl.",
+)
 @lang_option("Language of lines that do not say: any `vispeech languages` lists.")
-@click.option("--model", "-m", default=None,
-              help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
-                   "[default: grid-tdnn; for audio without text grid-audio-whisper with the whisper "
-                   "extra, else grid-audio-encdec].")
-@click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second of lines that do not say.")
-@click.option("--formats", default=",".join(DEFAULT_OUTPUTS), show_default=True,
-              help=f"Files of lines that do not say, comma-separated: {', '.join(OUTPUT_FILES)}.")
+@click.option(
+    "--model",
+    "-m",
+    default=None,
+    help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
+    "[default: grid-tdnn; for audio without text grid-audio-whisper with the whisper "
+    "extra, else grid-audio-encdec].",
+)
+@click.option(
+    "--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second of lines that do not say."
+)
+@click.option(
+    "--formats",
+    default=",".join(DEFAULT_OUTPUTS),
+    show_default=True,
+    help=f"Files of lines that do not say, comma-separated: {', '.join(OUTPUT_FILES)}.",
+)
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings (lines that do not say).")
-@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
-              help="Worker processes [default: one per core].")
-@click.option("--backend", type=click.Choice(["local", "ray"]), default="local", show_default=True,
-              help="Where lines run: a local pool of processes, or Ray (the ray extra).")
-@click.option("--address", default=None,
-              help="With --backend ray: the cluster to join (HEAD:6379 or auto) [default: a local Ray instance].")
+@click.option(
+    "--jobs", "-j", type=click.IntRange(min=1), default=None, help="Worker processes [default: one per core]."
+)
+@click.option(
+    "--backend",
+    type=click.Choice(["local", "ray"]),
+    default="local",
+    show_default=True,
+    help="Where lines run: a local pool of processes, or Ray (the ray extra).",
+)
+@click.option(
+    "--address",
+    default=None,
+    help="With --backend ray: the cluster to join (HEAD:6379 or auto) [default: a local Ray instance].",
+)
 @click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @scale_option(DEFAULT_SCALE)
-@click.option("--voice", "variant", default=None,
-              help="espeak-ng voice variant of text lines that do not say: f1-f5 female, m1-m8 male, ...")
+@click.option(
+    "--voice",
+    "variant",
+    default=None,
+    help="espeak-ng voice variant of text lines that do not say: f1-f5 female, m1-m8 male, ...",
+)
 @life_options
-def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, formats: str, no_postprocess: bool,
-          jobs: int | None, backend: str, address: str | None, force: bool, quiet: bool, scale: str,
-          variant: str | None, life: str, seed: int) -> None:
+def batch(
+    job: Path,
+    out_dir: Path,
+    lang: str,
+    model: str | None,
+    fps: float,
+    formats: str,
+    no_postprocess: bool,
+    jobs: int | None,
+    backend: str,
+    address: str | None,
+    force: bool,
+    quiet: bool,
+    scale: str,
+    variant: str | None,
+    life: str,
+    seed: int,
+) -> None:
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
@@ -57,10 +101,17 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     from vispeech.pipeline import check_formats
 
     load_scale(scale)
-    defaults = JobDefaults(lang=lang, model=model, fps=check_fps(fps, "--fps"),
-                           formats=check_formats(f for f in formats.split(",") if f.strip()),
-                           postprocess=not no_postprocess, scale=scale, voice=variant, life=check_layers(life),
-                           seed=seed)
+    defaults = JobDefaults(
+        lang=lang,
+        model=model,
+        fps=check_fps(fps, "--fps"),
+        formats=check_formats(f for f in formats.split(",") if f.strip()),
+        postprocess=not no_postprocess,
+        scale=scale,
+        voice=variant,
+        life=check_layers(life),
+        seed=seed,
+    )
     lines = read_job(job, defaults)
     if address is not None and backend != "ray":
         raise VispeechError("--address is for --backend ray")
@@ -69,14 +120,29 @@ def batch(job: Path, out_dir: Path, lang: str, model: str | None, fps: float, fo
     workers = jobs or os.cpu_count() or 1
     where = f" on Ray ({address or 'a local instance'})" if backend == "ray" else ""
     click.echo(f"{len(lines)} lines from {job}, {workers} worker{'s' * (workers > 1)}{where} -> {out_dir}/", err=True)
-    with click.progressbar(length=len(lines), label="animating", show_eta=True, show_pos=True,
-                           file=sys.stderr, hidden=quiet,
-                           item_show_func=lambda result: result and result.id) as bar:
-        report = run_batch(lines, out_dir, workers=workers, backend=backend, address=address, force=force,
-                           progress=lambda result: bar.update(1, result))
+    with click.progressbar(
+        length=len(lines),
+        label="animating",
+        show_eta=True,
+        show_pos=True,
+        file=sys.stderr,
+        hidden=quiet,
+        item_show_func=lambda result: result and result.id,
+    ) as bar:
+        report = run_batch(
+            lines,
+            out_dir,
+            workers=workers,
+            backend=backend,
+            address=address,
+            force=force,
+            progress=lambda result: bar.update(1, result),
+        )
     rate = len(lines) / report.seconds if report.seconds > 0 else 0.0
-    click.echo(f"{report.count('written')} written, {report.count('unchanged')} unchanged, "
-               f"{report.count('failed')} failed in {report.seconds:.1f} s ({rate:.1f} lines/s) -> {report.index}")
+    click.echo(
+        f"{report.count('written')} written, {report.count('unchanged')} unchanged, "
+        f"{report.count('failed')} failed in {report.seconds:.1f} s ({rate:.1f} lines/s) -> {report.index}"
+    )
     for result in report.failed:
         click.echo(f"failed: line {result.number} ({result.id}): {result.error}", err=True)
     if report.failed:

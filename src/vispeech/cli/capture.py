@@ -18,22 +18,56 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
 @click.argument("video", type=click.Path(path_type=Path))
 @click.option("--text", "-t", default=None, help="The transcript: aligned with the sound into a phone TextGrid.")
 @lang_option("Language of the transcript (alignment: pocketsphinx for en, DTW on espeak-ng speech otherwise).")
-@click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
-              help="The take's folder (with --batch: the corpus folder).")
-@click.option("--face-model", type=click.Path(path_type=Path, dir_okay=False), envvar=FACE_MODEL_VARIABLE,
-              show_envvar=True, help="MediaPipe's face_landmarker.task (never downloaded).")
-@click.option("--livelink", "livelink_csv", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="An iPhone Live Link Face recording: the app's CSV of this VIDEO; its blend shapes are kept "
-                   "(no tracking) and its timecodes lined up with the video's.")
-@click.option("--batch", is_flag=True,
-              help="VIDEO is a folder of videos, each with its transcript beside it (<name>.txt): capture them all "
-                   "into one corpus folder, in parallel; a rerun skips the takes already there.")
-@click.option("--sync", is_flag=True,
-              help="Move the face track by the estimated audio-video offset (always measured and reported).")
+@click.option(
+    "--output",
+    "-o",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="The take's folder (with --batch: the corpus folder).",
+)
+@click.option(
+    "--face-model",
+    type=click.Path(path_type=Path, dir_okay=False),
+    envvar=FACE_MODEL_VARIABLE,
+    show_envvar=True,
+    help="MediaPipe's face_landmarker.task (never downloaded).",
+)
+@click.option(
+    "--livelink",
+    "livelink_csv",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="An iPhone Live Link Face recording: the app's CSV of this VIDEO; its blend shapes are kept "
+    "(no tracking) and its timecodes lined up with the video's.",
+)
+@click.option(
+    "--batch",
+    is_flag=True,
+    help="VIDEO is a folder of videos, each with its transcript beside it (<name>.txt): capture them all "
+    "into one corpus folder, in parallel; a rerun skips the takes already there.",
+)
+@click.option(
+    "--sync",
+    is_flag=True,
+    help="Move the face track by the estimated audio-video offset (always measured and reported).",
+)
 @click.option("--smooth", is_flag=True, help="Filter tracker jitter (Savitzky-Golay, 0.2 s window).")
-@click.option("--jobs", "-j", default=None, type=click.IntRange(min=1), help="Videos at once with --batch [default: cores].")
-def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model: Path | None,
-            livelink_csv: Path | None, batch: bool, sync: bool, smooth: bool, jobs: int | None) -> None:
+@click.option(
+    "--jobs", "-j", default=None, type=click.IntRange(min=1), help="Videos at once with --batch [default: cores]."
+)
+def capture(
+    video: Path,
+    text: str | None,
+    lang: str,
+    out_dir: Path,
+    face_model: Path | None,
+    livelink_csv: Path | None,
+    batch: bool,
+    sync: bool,
+    smooth: bool,
+    jobs: int | None,
+) -> None:
     """Track the face in VIDEO with MediaPipe and write the take train and evaluate read.
 
     The take holds <name>.wav (16 kHz), <name>.face.csv (blend shapes, head pose and lip, jaw and
@@ -48,8 +82,11 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
         report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=lang)
         offset = report.timecode_offset
         assert offset is not None  # a Live Link import reports it (NaN without timecode)
-        where = ("the video has no timecode: taken to start with the sound" if math.isnan(offset)
-                 else f"its first row at {offset:+.3f} s of the sound (timecodes)")
+        where = (
+            "the video has no timecode: taken to start with the sound"
+            if math.isnan(offset)
+            else f"its first row at {offset:+.3f} s of the sound (timecodes)"
+        )
         missing = f", {report.missing} not covered by the CSV (left empty)" if report.missing else ""
         click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}; {where} -> {out_dir}/")
         return
@@ -57,22 +94,40 @@ def capture(video: Path, text: str | None, lang: str, out_dir: Path, face_model:
         if text is not None:
             raise VispeechError("--batch reads each video's transcript from <name>.txt beside it: leave out --text")
         with click.progressbar(length=1, label="capturing", show_eta=True, show_pos=True, file=sys.stderr) as bar:
-            summary = capture_corpus(video, out_dir, language=lang, face_model=face_model, sync=sync, smooth=smooth,
-                                     jobs=jobs, progress=_advance(bar))
-        click.echo(f"{summary.captured} captured, {summary.skipped} already there, "
-                   f"{len(summary.failed)} failed -> {out_dir}/")
+            summary = capture_corpus(
+                video,
+                out_dir,
+                language=lang,
+                face_model=face_model,
+                sync=sync,
+                smooth=smooth,
+                jobs=jobs,
+                progress=_advance(bar),
+            )
+        click.echo(
+            f"{summary.captured} captured, {summary.skipped} already there, {len(summary.failed)} failed -> {out_dir}/"
+        )
         for name, reason in summary.failed:
             click.echo(f"  failed {name}: {reason}")
         if summary.failed:
             raise SystemExit(1)
         return
     with click.progressbar(length=1, label="tracking", show_eta=True, file=sys.stderr) as bar:
-        report = capture_take(video, out_dir, text=text, language=lang, face_model=face_model, sync=sync,
-                              smooth=smooth, progress=_advance(bar))
+        report = capture_take(
+            video,
+            out_dir,
+            text=text,
+            language=lang,
+            face_model=face_model,
+            sync=sync,
+            smooth=smooth,
+            progress=_advance(bar),
+        )
     missing = f", {report.missing} without a face (left empty in {report.name}.face.csv)" if report.missing else ""
     phones = f", {report.phones} phones aligned" if text is not None else ""
-    click.echo(f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} "
-               f"-> {out_dir}/")
+    click.echo(
+        f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} -> {out_dir}/"
+    )
     if math.isnan(report.offset):
         click.echo("audio-video offset: cannot be told (too short, or the mouth does not move)")
     else:

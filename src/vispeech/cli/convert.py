@@ -13,16 +13,31 @@ from vispeech.motion.formats.registry import FORMATS, read_animation, write_trac
 @main.command("convert")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--to", "fmt", metavar="FORMAT",
-              help=f"Output format: {', '.join(FORMATS)} (default: from OUTPUT's extension).")
+@click.option(
+    "--to", "fmt", metavar="FORMAT", help=f"Output format: {', '.join(FORMATS)} (default: from OUTPUT's extension)."
+)
 @click.option("--fps", type=float, help="Resample to this many frames per second.")
-@click.option("--pose-table", help="Pose table (JSON file or built-in name): retargets the track, or for "
-              "oculus/rhubarb replaces the ARKit -> visemes/shapes table.")
-@click.option("--glb", "base_glb", type=click.Path(path_type=Path),
-              help="Base model with ARKit-named morph targets (needed for gltf and fbx).")
+@click.option(
+    "--pose-table",
+    help="Pose table (JSON file or built-in name): retargets the track, or for "
+    "oculus/rhubarb replaces the ARKit -> visemes/shapes table.",
+)
+@click.option(
+    "--glb",
+    "base_glb",
+    type=click.Path(path_type=Path),
+    help="Base model with ARKit-named morph targets (needed for gltf and fbx).",
+)
 @scale_option("tracker")
-def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float | None,
-                    pose_table: str | None, base_glb: Path | None, scale: str) -> None:
+def convert_command(
+    input_path: Path,
+    output: Path,
+    fmt: str | None,
+    fps: float | None,
+    pose_table: str | None,
+    base_glb: Path | None,
+    scale: str,
+) -> None:
     """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
@@ -45,6 +60,5 @@ def convert_command(input_path: Path, output: Path, fmt: str | None, fps: float 
     if calibration is not None:
         track = calibration.apply(track)
     table = PoseTable.load(pose_table) if pose_table else None
-    write_track(track, output, fmt, phones=animation.phones, audio=animation.audio, base_glb=base_glb,
-                pose_table=table)
+    write_track(track, output, fmt, phones=animation.phones, audio=animation.audio, base_glb=base_glb, pose_table=table)
     click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

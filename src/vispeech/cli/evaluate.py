@@ -15,32 +15,74 @@ from vispeech.files import atomic_output_file, check_output_dir
 
 @main.command("evaluate")
 @corpus_option
-@click.option("--split", default="test", show_default=True, type=click.Choice([*SPLITS, ALL]),
-              help=f"Utterances to score: a split, or {ALL} for the whole corpus (one kept for evaluation "
-                   "only, such as another speaker's).")
-@click.option("--model", "-m", "model_specs", multiple=True, required=True,
-              help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a trained model "
-                   "folder; repeat to compare; `shipped` for every shipped trained model.")
-@click.option("--channels", default=None,
-              help="Comma-separated channels to score [default: the mouth/jaw channels model and corpus share]; "
-                   "jawOpen is always scored when both have it.")
-@click.option("--postprocess/--no-postprocess", default=True, show_default=True,
-              help="Post-process predictions (closures, overlays, ceilings) before scoring.")
-@click.option("--markdown", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Also write the tables to this Markdown file.")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="PNG of jawOpen, recorded and predicted, on one utterance of the split.")
+@click.option(
+    "--split",
+    default="test",
+    show_default=True,
+    type=click.Choice([*SPLITS, ALL]),
+    help=f"Utterances to score: a split, or {ALL} for the whole corpus (one kept for evaluation "
+    "only, such as another speaker's).",
+)
+@click.option(
+    "--model",
+    "-m",
+    "model_specs",
+    multiple=True,
+    required=True,
+    help="Model name (baseline, beskow-rules, cohen-massaro, ohman, ...) or a trained model "
+    "folder; repeat to compare; `shipped` for every shipped trained model.",
+)
+@click.option(
+    "--channels",
+    default=None,
+    help="Comma-separated channels to score [default: the mouth/jaw channels model and corpus share]; "
+    "jawOpen is always scored when both have it.",
+)
+@click.option(
+    "--postprocess/--no-postprocess",
+    default=True,
+    show_default=True,
+    help="Post-process predictions (closures, overlays, ceilings) before scoring.",
+)
+@click.option(
+    "--markdown",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write the tables to this Markdown file.",
+)
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="PNG of jawOpen, recorded and predicted, on one utterance of the split.",
+)
 @click.option("--plot-utterance", default=None, help="Utterance id to plot [default: the split's first].")
-@click.option("--report", "report_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Also write a report folder: report.html with the tables, a repeated-measures ANOVA of "
-                   "per-utterance jawOpen RMSE with pairwise tests and the figures (PNG and SVG), and every "
-                   "score as CSV and JSON (docs/evaluation.md).")
+@click.option(
+    "--report",
+    "report_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Also write a report folder: report.html with the tables, a repeated-measures ANOVA of "
+    "per-utterance jawOpen RMSE with pairwise tests and the figures (PNG and SVG), and every "
+    "score as CSV and JSON (docs/evaluation.md).",
+)
 @language_option
 @cache_option
 @quiet_option
-def evaluate_command(corpus_dir: Path, split: str, model_specs: tuple[str, ...], channels: str | None,
-                     postprocess: bool, markdown: Path | None, plot: Path | None, plot_utterance: str | None,
-                     report_dir: Path | None, language: str, cache: Path | None, quiet: bool) -> None:
+def evaluate_command(
+    corpus_dir: Path,
+    split: str,
+    model_specs: tuple[str, ...],
+    channels: str | None,
+    postprocess: bool,
+    markdown: Path | None,
+    plot: Path | None,
+    plot_utterance: str | None,
+    report_dir: Path | None,
+    language: str,
+    cache: Path | None,
+    quiet: bool,
+) -> None:
     """Score models against the recorded tracks of a corpus split.
 
     Prints, per model and channel, MSE, RMSE as % of the target's range and Pearson r over

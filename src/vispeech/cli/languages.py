@@ -32,12 +32,21 @@ def languages_command(as_json: bool, variants: bool) -> None:
         return
     listed = voices()
     if as_json:
-        click.echo(json.dumps([{"language": v.language, "aliases": list(v.aliases), "phones": v.phones,
-                                "name": v.name.strip()} for v in listed], ensure_ascii=False, indent=1))
+        click.echo(
+            json.dumps(
+                [
+                    {"language": v.language, "aliases": list(v.aliases), "phones": v.phones, "name": v.name.strip()}
+                    for v in listed
+                ],
+                ensure_ascii=False,
+                indent=1,
+            )
+        )
         return
     rows = [("code", "also", "phones", "name")]
-    rows += [(v.language, ",".join(v.aliases), "curated" if v.phones != "ipa" else "ipa", v.name.strip())
-             for v in listed]
+    rows += [
+        (v.language, ",".join(v.aliases), "curated" if v.phones != "ipa" else "ipa", v.name.strip()) for v in listed
+    ]
     widths = [max(len(row[i]) for row in rows) for i in range(3)]
     for row in rows:
         click.echo("  ".join(cell.ljust(width) for cell, width in zip(row, widths)) + "  " + row[-1])

@@ -23,5 +23,7 @@ def models_command() -> None:
     for row in rows:
         click.echo("  ".join(cell.ljust(width) for cell, width in zip(row, widths)) + "  " + row[-1])
     trainable = [family for family in FAMILIES if family_class(family).trainable]
-    click.echo(f"\n{len(PRETRAINED)} shipped, {len(DATA_FREE)} data-free. "
-               f"Train your own with: vispeech train --model {{{','.join(trainable)}}}")
+    click.echo(
+        f"\n{len(PRETRAINED)} shipped, {len(DATA_FREE)} data-free. "
+        f"Train your own with: vispeech train --model {{{','.join(trainable)}}}"
+    )

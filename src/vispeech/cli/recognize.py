@@ -11,8 +11,13 @@ from vispeech.cli import main
 
 @main.command("recognize")
 @click.argument("audio", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="File to write: .TextGrid, .json, .lab or .align.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="File to write: .TextGrid, .json, .lab or .align.",
+)
 def recognize_command(audio: Path, output: Path) -> None:
     """Recognise the English phones spoken in AUDIO (WAV, FLAC) without a transcript and write
     them. Far less accurate than ``vispeech align``: use that when the words are known."""

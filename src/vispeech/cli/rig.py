@@ -32,29 +32,59 @@ def _fit_corpus(directory: Path, language: str):
 
 
 def _space_option(required: bool):
-    return click.option("--space", "-s", "space_dir", type=click.Path(file_okay=False, path_type=Path),
-                        required=required, default=None, help="Rig-space folder (from export-poses --space or import).")
+    return click.option(
+        "--space",
+        "-s",
+        "space_dir",
+        type=click.Path(file_okay=False, path_type=Path),
+        required=required,
+        default=None,
+        help="Rig-space folder (from export-poses --space or import).",
+    )
 
 
 @rig_group.command("export-poses")
-@click.option("--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Corpus whose mouth tracks give the principal modes.")
-@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Pose sheet: .json or .csv.")
+@click.option(
+    "--corpus",
+    "corpus_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Corpus whose mouth tracks give the principal modes.",
+)
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Pose sheet: .json or .csv.",
+)
 @click.option("--modes", "n_modes", default=4, show_default=True, type=click.IntRange(min=1), help="Modes to pose.")
-@click.option("--sigma", default=3.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
-              help="Reference poses at ± this many standard deviations.")
-@click.option("--save-space", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Also save the fitted rig space (modes without rig poses) in this folder.")
+@click.option(
+    "--sigma",
+    default=3.0,
+    show_default=True,
+    type=click.FloatRange(min=0, min_open=True),
+    help="Reference poses at ± this many standard deviations.",
+)
+@click.option(
+    "--save-space",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Also save the fitted rig space (modes without rig poses) in this folder.",
+)
 @language_option
-def export_poses(corpus_dir: Path, output: Path, n_modes: int, sigma: float, save_space: Path | None,
-                 language: str) -> None:
+def export_poses(
+    corpus_dir: Path, output: Path, n_modes: int, sigma: float, save_space: Path | None, language: str
+) -> None:
     """Write the mean and ±3σ poses of the first principal modes of a corpus's mouth, for an artist."""
     space, corpus = _fit_corpus(corpus_dir, language)
     space.write_pose_sheet(output, n_modes, (-sigma, sigma))
     shares = ", ".join(f"{100 * e:.1f}" for e in space.explained[:n_modes])
-    click.echo(f"{corpus.name}: {len(space.channels)} channels; modes 1-{n_modes} explain "
-               f"{100 * space.explained[:n_modes].sum():.1f} % of the variance ({shares} %)")
+    click.echo(
+        f"{corpus.name}: {len(space.channels)} channels; modes 1-{n_modes} explain "
+        f"{100 * space.explained[:n_modes].sum():.1f} % of the variance ({shares} %)"
+    )
     click.echo(f"{1 + 2 * n_modes} poses -> {output}")
     if save_space is not None:
         space.save(save_space)
@@ -64,10 +94,21 @@ def export_poses(corpus_dir: Path, output: Path, n_modes: int, sigma: float, sav
 @rig_group.command("import")
 @click.argument("rig_poses", type=click.Path(dir_okay=False, path_type=Path))
 @_space_option(required=False)
-@click.option("--corpus", "corpus_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Fit the modes on this corpus instead of reading --space.")
-@click.option("--output", "-o", "output", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder to save the rig space with its rig poses in.")
+@click.option(
+    "--corpus",
+    "corpus_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Fit the modes on this corpus instead of reading --space.",
+)
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Folder to save the rig space with its rig poses in.",
+)
 @language_option
 def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | None, output: Path, language: str) -> None:
     """Attach an artist's RIG_POSES (JSON: {"poses": {"mean": {...}, "mode1-3sd": {...}, ...}}) to a rig space."""
@@ -88,10 +129,21 @@ def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | Non
 @rig_group.command("retarget")
 @click.argument("input_path", metavar="INPUT", type=click.Path(dir_okay=False, path_type=Path))
 @_space_option(required=True)
-@click.option("--rig", "rig_poses", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Rig-pose JSON to use instead of the one saved with the space.")
-@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Output track (.json; .csv when the rig controls are ARKit names).")
+@click.option(
+    "--rig",
+    "rig_poses",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Rig-pose JSON to use instead of the one saved with the space.",
+)
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Output track (.json; .csv when the rig controls are ARKit names).",
+)
 def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, output: Path) -> None:
     """Retarget the ARKit track INPUT onto the rig's controls."""
     from vispeech.motion.formats.registry import read_track, write_track
@@ -107,12 +159,28 @@ def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, 
 
 @rig_group.command("calibrate")
 @click.argument("head", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Calibration file to write (.json), for --scale.")
-@click.option("--corpus", "corpus_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Fit to this corpus's training split [default: the shipped sample of grid_s1's frames].")
-@click.option("--frames", "frames_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Fit to these mouth frames (from `vispeech rig mouth-frames`).")
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Calibration file to write (.json), for --scale.",
+)
+@click.option(
+    "--corpus",
+    "corpus_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Fit to this corpus's training split [default: the shipped sample of grid_s1's frames].",
+)
+@click.option(
+    "--frames",
+    "frames_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Fit to these mouth frames (from `vispeech rig mouth-frames`).",
+)
 @language_option
 def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Path | None, language: str) -> None:
     """Fit the gains that make HEAD's lips (a GLB with ARKit morph targets) open and spread as the
@@ -134,18 +202,28 @@ def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Pa
     calibration = type(calibration)(calibration.gains, calibration.head, {**calibration.fit, "frames_from": source})
     calibration.save(output)
     fit = calibration.fit
-    click.echo(f"{head.name}: eye-corner distance {geometry.eye_distance:.4g} (model units); "
-               f"{fit['frames']} frames of {source}")
-    click.echo(f"inner-lip gap, head / human over open frames: median {fit['raw']['median_ratio']:.2f} -> "
-               f"{fit['calibrated']['median_ratio']:.2f}, 90th percentile {fit['raw']['p90_ratio']:.2f} -> "
-               f"{fit['calibrated']['p90_ratio']:.2f}")
+    click.echo(
+        f"{head.name}: eye-corner distance {geometry.eye_distance:.4g} (model units); "
+        f"{fit['frames']} frames of {source}"
+    )
+    click.echo(
+        f"inner-lip gap, head / human over open frames: median {fit['raw']['median_ratio']:.2f} -> "
+        f"{fit['calibrated']['median_ratio']:.2f}, 90th percentile {fit['raw']['p90_ratio']:.2f} -> "
+        f"{fit['calibrated']['p90_ratio']:.2f}"
+    )
     click.echo(f"jawOpen x{calibration.gains.get('jawOpen', 1.0):.2f} ... {len(calibration.gains)} gains -> {output}")
 
 
 @rig_group.command("prepare")
 @click.argument("head", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="The prepared head to write (.glb).")
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The prepared head to write (.glb).",
+)
 def prepare(head: Path, output: Path) -> None:
     """Give HEAD (a GLB with ARKit morph targets) the tongue morph targets it lacks, built from its own
     tongue geometry, and paint lips, brows, lash line and the mouth's depth on flat materials
@@ -155,20 +233,39 @@ def prepare(head: Path, output: Path) -> None:
     if output.resolve() == head.resolve():
         raise VispeechError(f"{output}: write the prepared head to another file than {head.name}")
     report = prepare_head(head, output)
-    click.echo(f"{head.name}: tongue morph targets {', '.join(report.targets) or 'none added'}; "
-               f"painted {', '.join(report.painted) or 'nothing'}")
+    click.echo(
+        f"{head.name}: tongue morph targets {', '.join(report.targets) or 'none added'}; "
+        f"painted {', '.join(report.painted) or 'nothing'}"
+    )
     for note in report.notes:
         click.echo(f"note: {note}")
     click.echo(f"-> {output}")
 
 
 @rig_group.command("mouth-frames")
-@click.option("--corpus", "corpus_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Corpus with lip and eye landmarks (grid_s1).")
-@click.option("--output", "-o", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Sample to write (.npz), for rig calibrate --frames.")
-@click.option("--frames", "n_frames", default=5000, show_default=True, type=click.IntRange(min=10),
-              help="Random tracked frames of the training split to keep.")
+@click.option(
+    "--corpus",
+    "corpus_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Corpus with lip and eye landmarks (grid_s1).",
+)
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Sample to write (.npz), for rig calibrate --frames.",
+)
+@click.option(
+    "--frames",
+    "n_frames",
+    default=5000,
+    show_default=True,
+    type=click.IntRange(min=10),
+    help="Random tracked frames of the training split to keep.",
+)
 @click.option("--seed", default=0, show_default=True, type=int)
 @language_option
 def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: int, language: str) -> None:

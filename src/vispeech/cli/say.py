@@ -27,11 +27,13 @@ from vispeech.pipeline import (
 )
 
 _model_option = click.option(
-    "--model", "-m", default=DEFAULT_MODEL, show_default=True,
+    "--model",
+    "-m",
+    default=DEFAULT_MODEL,
+    show_default=True,
     help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder.",
 )
 _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
-
 
 
 @main.command()
@@ -42,15 +44,35 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @_fps_option
 @click.option("--rate", default=1.0, show_default=True, type=float, help="Speaking-rate factor (1.0 = normal).")
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
-@click.option("--text-file", type=click.Path(path_type=Path), default=None,
-              help="Speak the text of this file (UTF-8; at most 10,000 characters) instead of TEXT.")
+@click.option(
+    "--text-file",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Speak the text of this file (UTF-8; at most 10,000 characters) instead of TEXT.",
+)
 @scale_option(DEFAULT_SCALE)
-@click.option("--voice", "variant", default=None,
-              help="espeak-ng voice variant, an avatar's voice: f1-f5 female, m1-m8 male, ... "
-                   "(`vispeech languages --variants`) [default: the language's own voice].")
+@click.option(
+    "--voice",
+    "variant",
+    default=None,
+    help="espeak-ng voice variant, an avatar's voice: f1-f5 female, m1-m8 male, ... "
+    "(`vispeech languages --variants`) [default: the language's own voice].",
+)
 @life_options
-def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate: float, no_postprocess: bool,
-        text_file: Path | None, scale: str, variant: str | None, life: str, seed: int) -> None:
+def say(
+    text: str | None,
+    lang: str,
+    out_dir: Path,
+    model: str,
+    fps: float,
+    rate: float,
+    no_postprocess: bool,
+    text_file: Path | None,
+    scale: str,
+    variant: str | None,
+    life: str,
+    seed: int,
+) -> None:
     """Speak TEXT and write speech.wav, phones.TextGrid, animation.csv/.json and preview.html.
 
     Without TEXT (or --text-file) a greeting in the chosen language is spoken. Markdown markup,
@@ -72,8 +94,7 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
     load_scale(scale)  # a bad scale, voice or layer is refused before any work
     check_variant(variant)
     layers = check_layers(life)
-    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess,
-                      variant=variant)
+    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, variant=variant)
     phones = utterance.phones
     assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
     track = with_life(utterance.track, phones, layers, seed)
@@ -93,8 +114,17 @@ def say(text: str | None, lang: str, out_dir: Path, model: str, fps: float, rate
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
 @scale_option(DEFAULT_SCALE)
 @life_options
-def animate_phones(alignment: Path, out_dir: Path, lang: str | None, model: str, fps: float, no_postprocess: bool,
-                   scale: str, life: str, seed: int) -> None:
+def animate_phones(
+    alignment: Path,
+    out_dir: Path,
+    lang: str | None,
+    model: str,
+    fps: float,
+    no_postprocess: bool,
+    scale: str,
+    life: str,
+    seed: int,
+) -> None:
     """Animate a phone alignment (TextGrid, HTK .lab, GRID .align or JSON).
 
     Writes OUTPUT/animation.csv (Live Link Face, first row at time 0 of the alignment) and

@@ -37,8 +37,7 @@ def _config_option(field: dataclasses.Field, hint: typing.Any) -> click.Option:
     from the field, the rest from the field's :class:`~vispeech.serve.config.Option`."""
     option = field.metadata["option"]
     if option.negated:
-        return click.Option([option.name, field.name], is_flag=True, flag_value=False, default=True,
-                            help=option.help)
+        return click.Option([option.name, field.name], is_flag=True, flag_value=False, default=True, help=option.help)
     kinds = set(typing.get_args(hint)) - {type(None)} or {hint}
     kind: click.ParamType | type = str
     if kinds & {Path, os.PathLike}:
@@ -50,35 +49,78 @@ def _config_option(field: dataclasses.Field, hint: typing.Any) -> click.Option:
     default = None if field.default is dataclasses.MISSING else field.default
     if default is not None and option.unit != 1:
         default //= option.unit
-    return click.Option([option.name, field.name], type=kind, default=default, show_default=default is not None,
-                        envvar=option.envvar, show_envvar=option.envvar is not None, help=option.help,
-                        callback=None if option.unit == 1 else lambda ctx, param, value: value * option.unit)
+    return click.Option(
+        [option.name, field.name],
+        type=kind,
+        default=default,
+        show_default=default is not None,
+        envvar=option.envvar,
+        show_envvar=option.envvar is not None,
+        help=option.help,
+        callback=None if option.unit == 1 else lambda ctx, param, value: value * option.unit,
+    )
 
 
 @main.command(cls=_ServeCommand)
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (0.0.0.0: every interface).")
 @click.option("--port", default=8000, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
-@click.option("--chat-url",
-              help="External chat service to relay /api/chat messages to (POST JSON) instead of the rule bot.")
-@click.option("--chat-reply-field", default="reply", show_default=True,
-              help="Where the chat service's JSON answer holds the reply (dotted path: choices.0.message.content).")
-@click.option("--allow-host", multiple=True, metavar="NAME",
-              help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
-              "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).")
-@click.option("--allow-origin", multiple=True, metavar="ORIGIN",
-              help="Browser origin (https://app.example.com, or a host name) allowed to use the API and the "
-              "stream, beside the server's own and the allowed hosts (repeatable; * for any). Others get 403.")
-@click.option("--processes", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Server processes sharing the port and the SQLite cache, each with its models and threads "
-              "(limits count per process).")
-@click.option("--ws-deflate/--no-ws-deflate", default=False, show_default=True,
-              help="Compress WebSocket messages (permessage-deflate): less traffic, more CPU per message.")
-@click.option("--log-level", default="info", show_default=True,
-              type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
+@click.option(
+    "--chat-url", help="External chat service to relay /api/chat messages to (POST JSON) instead of the rule bot."
+)
+@click.option(
+    "--chat-reply-field",
+    default="reply",
+    show_default=True,
+    help="Where the chat service's JSON answer holds the reply (dotted path: choices.0.message.content).",
+)
+@click.option(
+    "--allow-host",
+    multiple=True,
+    metavar="NAME",
+    help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
+    "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).",
+)
+@click.option(
+    "--allow-origin",
+    multiple=True,
+    metavar="ORIGIN",
+    help="Browser origin (https://app.example.com, or a host name) allowed to use the API and the "
+    "stream, beside the server's own and the allowed hosts (repeatable; * for any). Others get 403.",
+)
+@click.option(
+    "--processes",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Server processes sharing the port and the SQLite cache, each with its models and threads "
+    "(limits count per process).",
+)
+@click.option(
+    "--ws-deflate/--no-ws-deflate",
+    default=False,
+    show_default=True,
+    help="Compress WebSocket messages (permessage-deflate): less traffic, more CPU per message.",
+)
+@click.option(
+    "--log-level",
+    default="info",
+    show_default=True,
+    type=click.Choice(["critical", "error", "warning", "info", "debug"]),
+    help="Server log level.",
+)
 @scale_option(DEFAULT_SCALE)
-def serve(host: str, port: int, chat_url: str | None, chat_reply_field: str, allow_host: tuple[str, ...],
-          allow_origin: tuple[str, ...], processes: int, ws_deflate: bool, log_level: str,
-          **settings: typing.Any) -> None:
+def serve(
+    host: str,
+    port: int,
+    chat_url: str | None,
+    chat_reply_field: str,
+    allow_host: tuple[str, ...],
+    allow_origin: tuple[str, ...],
+    processes: int,
+    ws_deflate: bool,
+    log_level: str,
+    **settings: typing.Any,
+) -> None:
     """Serve the chat page at http://HOST:PORT/, the players and the JSON / WebSocket APIs.
 
     API documentation is at /docs; docs/serve.md lists the limits. Stop with Ctrl+C.
@@ -90,19 +132,29 @@ def serve(host: str, port: int, chat_url: str | None, chat_reply_field: str, all
     from vispeech.serve.safety import LOOPBACK_HOSTS
 
     bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
-    hosts = tuple(dict.fromkeys((*LOOPBACK_HOSTS, *([host] if host not in ("0.0.0.0", "::", "") else []),
-                                 *allow_host)))
+    hosts = tuple(dict.fromkeys((*LOOPBACK_HOSTS, *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)))
     settings["token"] = settings["token"] or None  # --token "" asks for none
-    config = ServeConfig(**{name: value for name, value in settings.items() if value is not None}, bot=bot,
-                         allowed_hosts=hosts, allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))))
+    config = ServeConfig(
+        **{name: value for name, value in settings.items() if value is not None},
+        bot=bot,
+        allowed_hosts=hosts,
+        allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))),
+    )
     app = create_app(config)  # with several processes: checks the settings and models once, here
     service = app.state.service
-    click.echo(f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
-               f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
-               f"{f', {processes} processes' if processes > 1 else ''}{', token required' if config.token else ''})")
-    options: dict[str, typing.Any] = {"host": host, "port": port, "log_level": log_level,
-                                      "ws_max_size": config.max_message_bytes,
-                                      "ws_per_message_deflate": ws_deflate, "timeout_graceful_shutdown": 5}
+    click.echo(
+        f"vispeech serving on http://{host}:{port}/ (cache {service.cache.path}, "
+        f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
+        f"{f', {processes} processes' if processes > 1 else ''}{', token required' if config.token else ''})"
+    )
+    options: dict[str, typing.Any] = {
+        "host": host,
+        "port": port,
+        "log_level": log_level,
+        "ws_max_size": config.max_message_bytes,
+        "ws_per_message_deflate": ws_deflate,
+        "timeout_graceful_shutdown": 5,
+    }
     if processes == 1:
         uvicorn.run(app, **options)
         return

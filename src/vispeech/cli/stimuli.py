@@ -16,8 +16,14 @@ def stimuli_group() -> None:
 
 @stimuli_group.command("vocode")
 @click.argument("audio", type=click.Path(path_type=Path, dir_okay=False))
-@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, dir_okay=False),
-              help="The degraded speech (.wav).")
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The degraded speech (.wav).",
+)
 @click.option("--bands", default=3, show_default=True, type=click.IntRange(1, 32), help="Vocoder bands.")
 @click.option("--low", default=100.0, show_default=True, type=float, help="Lowest band edge (Hz).")
 @click.option("--high", default=5000.0, show_default=True, type=float, help="Highest band edge (Hz).")
@@ -40,17 +46,42 @@ def vocode(audio: Path, output: Path, bands: int, low: float, high: float, seed:
 
 @stimuli_group.command("render")
 @click.argument("animations", nargs=-1, required=True, type=click.Path(path_type=Path, dir_okay=False))
-@click.option("--audio", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="The sound of the clip (e.g. speech.wav, or one vocoded by `stimuli vocode`).")
-@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, dir_okay=False),
-              help="The clip (.mp4); beside it OUTPUT.json says which animation is where.")
-@click.option("--shuffle", "seed", type=click.IntRange(min=0), default=None,
-              help="Place the animations in a random order from this seed (a trial's; default: as given).")
-@click.option("--head", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="Render on this GLB head (ARKit morph targets) instead of the 2D face.")
+@click.option(
+    "--audio",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="The sound of the clip (e.g. speech.wav, or one vocoded by `stimuli vocode`).",
+)
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The clip (.mp4); beside it OUTPUT.json says which animation is where.",
+)
+@click.option(
+    "--shuffle",
+    "seed",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Place the animations in a random order from this seed (a trial's; default: as given).",
+)
+@click.option(
+    "--head",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="Render on this GLB head (ARKit morph targets) instead of the 2D face.",
+)
 @click.option("--head-as-is", is_flag=True, help="Use --head untouched (no tongue targets or paint added).")
-def render(animations: tuple[Path, ...], audio: Path | None, output: Path, seed: int | None, head: Path | None,
-           head_as_is: bool) -> None:
+def render(
+    animations: tuple[Path, ...],
+    audio: Path | None,
+    output: Path,
+    seed: int | None,
+    head: Path | None,
+    head_as_is: bool,
+) -> None:
     """Render ANIMATIONS (Live Link CSV or vispeech JSON, the same frame rate) on the 2D face, or on
     a GLB head with --head, side by side, with AUDIO, to an MP4 (H.264 + AAC) for a perceptual
     test. Needs Chromium (/usr/bin/chromium, or VISPEECH_CHROMIUM), Playwright and Pillow (the
@@ -71,15 +102,33 @@ def render(animations: tuple[Path, ...], audio: Path | None, output: Path, seed:
     tracks = [read_track(path) for path in animations]
     clip = AudioClip.read(audio) if audio is not None else None
     order = list(range(len(tracks))) if seed is None else np.random.default_rng(seed).permutation(len(tracks)).tolist()
-    render_faces(tracks, output, audio=None if clip is None else clip.samples,
-                 sample_rate=None if clip is None else clip.sample_rate, order=order, head=head,
-                 prepare_head=not head_as_is)
+    render_faces(
+        tracks,
+        output,
+        audio=None if clip is None else clip.samples,
+        sample_rate=None if clip is None else clip.sample_rate,
+        order=order,
+        head=head,
+        prepare_head=not head_as_is,
+    )
     key = output.with_suffix(".json")
     with atomic_output_file(key) as tmp:
-        tmp.write_text(json.dumps({"clip": output.name, "seed": seed, "audio": None if audio is None else str(audio),
-                                   "head": None if head is None else str(head),
-                                   "left_to_right": [str(animations[i]) for i in order]}, indent=2) + "\n",
-                       encoding="utf-8")
+        tmp.write_text(
+            json.dumps(
+                {
+                    "clip": output.name,
+                    "seed": seed,
+                    "audio": None if audio is None else str(audio),
+                    "head": None if head is None else str(head),
+                    "left_to_right": [str(animations[i]) for i in order],
+                },
+                indent=2,
+            )
+            + "\n",
+            encoding="utf-8",
+        )
     frames = max(t.n_frames for t in tracks)
-    click.echo(f"{frames} frames at {tracks[0].fps:g} fps on {head.name if head else 'the 2D face'}, left to right: "
-               f"{', '.join(animations[i].name for i in order)} -> {output} (key: {key.name})")
+    click.echo(
+        f"{frames} frames at {tracks[0].fps:g} fps on {head.name if head else 'the 2D face'}, left to right: "
+        f"{', '.join(animations[i].name for i in order)} -> {output} (key: {key.name})"
+    )

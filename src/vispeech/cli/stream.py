@@ -16,25 +16,57 @@ SERVER = "ws://127.0.0.1:8000"
 
 @main.command()
 @click.argument("text", required=False)
-@click.option("--audio", type=click.Path(path_type=Path, dir_okay=False),
-              help="Replay this audio file (WAV, FLAC, MP3, OGG) as live audio to the server's /api/listen.")
-@click.option("--realtime/--fast", default=True, show_default=True,
-              help="With --audio: send the audio in real time, as a microphone would, or as fast as the server "
-              "takes it.")
-@click.option("--chunk-ms", default=20, show_default=True, type=click.IntRange(1, 1000),
-              help="With --audio: milliseconds of audio in a chunk.")
-@click.option("--fps", type=click.FloatRange(MIN_FPS, MAX_FPS),
-              help="With --audio: frame rate [default: the server's].")
-@click.option("--out", "-o", type=click.Path(path_type=Path, dir_okay=False),
-              help="With --audio: write the frames to this file (format from the extension: .json, .csv, ...).")
-@click.option("--url", help=f"The server's WebSocket URL [default: {SERVER}/api/stream; with --audio "
-              f"{SERVER}/api/listen].")
+@click.option(
+    "--audio",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Replay this audio file (WAV, FLAC, MP3, OGG) as live audio to the server's /api/listen.",
+)
+@click.option(
+    "--realtime/--fast",
+    default=True,
+    show_default=True,
+    help="With --audio: send the audio in real time, as a microphone would, or as fast as the server takes it.",
+)
+@click.option(
+    "--chunk-ms",
+    default=20,
+    show_default=True,
+    type=click.IntRange(1, 1000),
+    help="With --audio: milliseconds of audio in a chunk.",
+)
+@click.option(
+    "--fps", type=click.FloatRange(MIN_FPS, MAX_FPS), help="With --audio: frame rate [default: the server's]."
+)
+@click.option(
+    "--out",
+    "-o",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="With --audio: write the frames to this file (format from the extension: .json, .csv, ...).",
+)
+@click.option(
+    "--url", help=f"The server's WebSocket URL [default: {SERVER}/api/stream; with --audio {SERVER}/api/listen]."
+)
 @lang_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--model", "-m", default=None, help="Model name [default: the server's stream or audio model].")
-@click.option("--timeout", default=60.0, show_default=True, type=float,
-              help="Seconds to wait for the whole stream (with --audio --realtime: beyond the audio's length).")
-def stream(text: str | None, audio: Path | None, realtime: bool, chunk_ms: int, fps: float | None, out: Path | None,
-           url: str | None, lang: str, model: str | None, timeout: float) -> None:
+@click.option(
+    "--timeout",
+    default=60.0,
+    show_default=True,
+    type=float,
+    help="Seconds to wait for the whole stream (with --audio --realtime: beyond the audio's length).",
+)
+def stream(
+    text: str | None,
+    audio: Path | None,
+    realtime: bool,
+    chunk_ms: int,
+    fps: float | None,
+    out: Path | None,
+    url: str | None,
+    lang: str,
+    model: str | None,
+    timeout: float,
+) -> None:
     """Stream TEXT from a `vispeech serve` server, or replay an --audio file to it, and print latency figures.
 
     TEXT: time to the first animation frame and to the first audio chunk, the total time,
@@ -65,8 +97,18 @@ def stream(text: str | None, audio: Path | None, realtime: bool, chunk_ms: int, 
         from vispeech.serve.client import stream_audio
 
         clip = AudioClip.read(audio)
-        result = asyncio.run(stream_audio(url, clip.samples, clip.sample_rate, fps=fps, model=model,
-                                          chunk_seconds=chunk_ms / 1000, realtime=realtime, timeout=timeout))
+        result = asyncio.run(
+            stream_audio(
+                url,
+                clip.samples,
+                clip.sample_rate,
+                fps=fps,
+                model=model,
+                chunk_seconds=chunk_ms / 1000,
+                realtime=realtime,
+                timeout=timeout,
+            )
+        )
     except (OSError, RuntimeError, TimeoutError, WebSocketException) as exc:
         raise VispeechError(f"streaming from {url} failed: {exc}") from None
     if out is not None:

@@ -18,28 +18,71 @@ def study_group() -> None:
 
 @study_group.command("prepare")
 @corpus_option
-@click.option("--model", "-m", "model_specs", multiple=True, required=True,
-              help="A model to show: a shipped name or saved folder, or `recorded` for the corpus's own "
-              "track (repeat: two at least; left to right in each clip).")
-@click.option("--split", default="test", show_default=True, type=click.Choice(list(SPLITS)),
-              help="Where the sentences come from.")
-@click.option("--sentences", default=10, show_default=True, type=click.IntRange(1, 200),
-              help="Sentences (clips) to draw at random from the split.")
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
-              help="Seed of the draw (and of the study's trial order).")
-@click.option("--vocode", is_flag=True, help="Play the speech through the 3-band noise vocoder (stimuli vocode), "
-              "so that the faces matter for understanding it.")
-@click.option("--head", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="Render the faces on this GLB head (ARKit morph targets) instead of the 2D face "
-              "(slower: about 10 heads a second).")
+@click.option(
+    "--model",
+    "-m",
+    "model_specs",
+    multiple=True,
+    required=True,
+    help="A model to show: a shipped name or saved folder, or `recorded` for the corpus's own "
+    "track (repeat: two at least; left to right in each clip).",
+)
+@click.option(
+    "--split", default="test", show_default=True, type=click.Choice(list(SPLITS)), help="Where the sentences come from."
+)
+@click.option(
+    "--sentences",
+    default=10,
+    show_default=True,
+    type=click.IntRange(1, 200),
+    help="Sentences (clips) to draw at random from the split.",
+)
+@click.option(
+    "--seed",
+    default=0,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Seed of the draw (and of the study's trial order).",
+)
+@click.option(
+    "--vocode",
+    is_flag=True,
+    help="Play the speech through the 3-band noise vocoder (stimuli vocode), "
+    "so that the faces matter for understanding it.",
+)
+@click.option(
+    "--head",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="Render the faces on this GLB head (ARKit morph targets) instead of the 2D face "
+    "(slower: about 10 heads a second).",
+)
 @click.option("--title", default="Talking faces", show_default=True, help="The study's title.")
-@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="The study folder: study.toml and clips/.")
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="The study folder: study.toml and clips/.",
+)
 @language_option
 @cache_option
 @quiet_option
-def prepare(corpus_dir: Path, model_specs: tuple[str, ...], split: str, sentences: int, seed: int, vocode: bool,
-            head: Path | None, title: str, output: Path, language: str, cache: Path | None, quiet: bool) -> None:
+def prepare(
+    corpus_dir: Path,
+    model_specs: tuple[str, ...],
+    split: str,
+    sentences: int,
+    seed: int,
+    vocode: bool,
+    head: Path | None,
+    title: str,
+    output: Path,
+    language: str,
+    cache: Path | None,
+    quiet: bool,
+) -> None:
     """Make a study from a recorded corpus: SENTENCES of its SPLIT, each rendered with every
     --model's face side by side (the recording itself as `recorded`) and the sentence's sound
     (2D faces, or --head), and a study.toml with the rating and the pairwise task. Needs
@@ -54,8 +97,17 @@ def prepare(corpus_dir: Path, model_specs: tuple[str, ...], split: str, sentence
     check_output_dir(output, replaces=(STUDY_FILE, "clips"))
     models = {spec: None if spec == RECORDED else load_model(spec) for spec in model_specs}
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet).split(split)
-    path = prepare_study(corpus, models, output, sentences=sentences, seed=seed, vocode=vocode, head=head,
-                         title=title, progress=None if quiet else click.echo)
+    path = prepare_study(
+        corpus,
+        models,
+        output,
+        sentences=sentences,
+        seed=seed,
+        vocode=vocode,
+        head=head,
+        title=title,
+        progress=None if quiet else click.echo,
+    )
     click.echo(f"study -> {path} (run it: vispeech study serve {path})")
 
 
@@ -64,8 +116,12 @@ def _database(study: Path, db: Path | None) -> Path:
     return db if db is not None else study.with_suffix(".sqlite3")
 
 
-_db_option = click.option("--db", type=click.Path(path_type=Path, dir_okay=False), default=None,
-                          help="SQLite file of the answers [default: STUDY.sqlite3 beside STUDY.toml].")
+_db_option = click.option(
+    "--db",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="SQLite file of the answers [default: STUDY.sqlite3 beside STUDY.toml].",
+)
 
 
 @study_group.command("serve")
@@ -73,10 +129,19 @@ _db_option = click.option("--db", type=click.Path(path_type=Path, dir_okay=False
 @_db_option
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (0.0.0.0: every interface).")
 @click.option("--port", default=8010, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
-@click.option("--admin-token", envvar="VISPEECH_STUDY_TOKEN", show_envvar=True,
-              help="Token of the CSV export (/admin/answers.csv) [default: a random one, printed at start].")
-@click.option("--log-level", default="warning", show_default=True,
-              type=click.Choice(["critical", "error", "warning", "info", "debug"]), help="Server log level.")
+@click.option(
+    "--admin-token",
+    envvar="VISPEECH_STUDY_TOKEN",
+    show_envvar=True,
+    help="Token of the CSV export (/admin/answers.csv) [default: a random one, printed at start].",
+)
+@click.option(
+    "--log-level",
+    default="warning",
+    show_default=True,
+    type=click.Choice(["critical", "error", "warning", "info", "debug"]),
+    help="Server log level.",
+)
 def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str | None, log_level: str) -> None:
     """Run the study in STUDY.toml at http://HOST:PORT/ (participants: send them there, with
     ?pid=ID from a recruitment platform for one response set per id). Every answer is committed
@@ -93,16 +158,24 @@ def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str |
     store = StudyStore(_database(study, db), plan)
     token = admin_token or secrets.token_urlsafe(18)
     click.echo(f"study {plan.title!r}: {len(plan.clips)} clips, answers in {store.path}")
-    click.echo(f"participants: http://{host}:{port}/   export: http://{host}:{port}/admin/answers.csv "
-               f"(Authorization: Bearer {'<the admin token>' if admin_token else token})")
+    click.echo(
+        f"participants: http://{host}:{port}/   export: http://{host}:{port}/admin/answers.csv "
+        f"(Authorization: Bearer {'<the admin token>' if admin_token else token})"
+    )
     uvicorn.run(create_app(plan, store, token), host=host, port=port, log_level=log_level)
 
 
 @study_group.command("export")
 @click.argument("study", type=click.Path(path_type=Path, dir_okay=False))
 @_db_option
-@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="Folder for answers.csv and participants.csv (what `study analyse` reads).")
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder for answers.csv and participants.csv (what `study analyse` reads).",
+)
 def export(study: Path, db: Path | None, output: Path) -> None:
     """Write the answers of STUDY.toml's study (one row per answer, per face on a rating
     trial) and one row per participant (intro answers, checks passed) as CSV."""
@@ -122,19 +195,46 @@ def export(study: Path, db: Path | None, output: Path) -> None:
 
 @study_group.command("analyse")
 @click.argument("answers", type=click.Path(path_type=Path, dir_okay=False))
-@click.option("--output", "-o", "output", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="Folder for analysis.json, the CSV tables, the figures and report.html.")
-@click.option("--participants", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="participants.csv of the same export: the checks' pass counts.")
-@click.option("--exclude-failed-checks", is_flag=True,
-              help="Leave out the participants who failed a check (needs --participants).")
-@click.option("--models", default=None, metavar="A,B,...",
-              help="The models in this order, the first the reference level [default: sorted].")
-@click.option("--random-slopes/--no-random-slopes", default=True, show_default=True,
-              help="Random model slopes per participant and sentence, as the thesis (about a minute a task), "
-                   "or random intercepts alone.")
-def analyse(answers: Path, output: Path, participants: Path | None, exclude_failed_checks: bool,
-            models: str | None, random_slopes: bool) -> None:
+@click.option(
+    "--output",
+    "-o",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder for analysis.json, the CSV tables, the figures and report.html.",
+)
+@click.option(
+    "--participants",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="participants.csv of the same export: the checks' pass counts.",
+)
+@click.option(
+    "--exclude-failed-checks",
+    is_flag=True,
+    help="Leave out the participants who failed a check (needs --participants).",
+)
+@click.option(
+    "--models",
+    default=None,
+    metavar="A,B,...",
+    help="The models in this order, the first the reference level [default: sorted].",
+)
+@click.option(
+    "--random-slopes/--no-random-slopes",
+    default=True,
+    show_default=True,
+    help="Random model slopes per participant and sentence, as the thesis (about a minute a task), "
+    "or random intercepts alone.",
+)
+def analyse(
+    answers: Path,
+    output: Path,
+    participants: Path | None,
+    exclude_failed_checks: bool,
+    models: str | None,
+    random_slopes: bool,
+) -> None:
     """Analyse ANSWERS (answers.csv from `vispeech study export`) as the thesis did: a
     cumulative-link mixed model per task (R's ordinal::clmm), the Wald chi-square of the model
     factor, Tukey-adjusted pairs, inferred probabilities, per-sentence models, the
@@ -153,8 +253,13 @@ def analyse(answers: Path, output: Path, participants: Path | None, exclude_fail
     table = read_answers(answers)
     people = read_participants(participants) if participants is not None else None
     order = [m.strip() for m in models.split(",") if m.strip()] if models else None
-    analysis = analyse_answers(table, participants=people, exclude_failed_checks=exclude_failed_checks,
-                               models=order, random_slopes=random_slopes)
+    analysis = analyse_answers(
+        table,
+        participants=people,
+        exclude_failed_checks=exclude_failed_checks,
+        models=order,
+        random_slopes=random_slopes,
+    )
     command = shlex.join(["vispeech", *sys.argv[1:]]) if sys.argv[1:3] == ["study", "analyse"] else ""
     write_analysis(analysis, output, command=command)
     for line in analysis.summary():

@@ -16,16 +16,40 @@ from vispeech.errors import VispeechError
 @click.argument("what", type=click.Choice(["look-ahead", "window"]))
 @corpus_option
 @click.option("--values", required=True, help="Comma-separated whole numbers of frames, e.g. 0,1,2,4,8,15.")
-@click.option("--model", "-m", "family", default=None,
-              help="Family to train [default: tdnn-lowlatency for look-ahead, sliding-window-taylor for window].")
-@click.option("--param", "params", multiple=True, metavar="KEY=VALUE",
-              help="Another hyper-parameter for every model (JSON value), e.g. epochs=30 or hidden=[500,500].")
-@click.option("--output", "-o", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for sweep.csv, sweep.json and the figure (PNG and SVG).")
+@click.option(
+    "--model",
+    "-m",
+    "family",
+    default=None,
+    help="Family to train [default: tdnn-lowlatency for look-ahead, sliding-window-taylor for window].",
+)
+@click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Another hyper-parameter for every model (JSON value), e.g. epochs=30 or hidden=[500,500].",
+)
+@click.option(
+    "--output",
+    "-o",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Folder for sweep.csv, sweep.json and the figure (PNG and SVG).",
+)
 @language_option
 @cache_option
-def sweep_command(what: str, corpus_dir: Path, values: str, family: str | None, params: tuple[str, ...],
-                  out_dir: Path, language: str, cache: Path | None) -> None:
+def sweep_command(
+    what: str,
+    corpus_dir: Path,
+    values: str,
+    family: str | None,
+    params: tuple[str, ...],
+    out_dir: Path,
+    language: str,
+    cache: Path | None,
+) -> None:
     """Train a model per value of the look-ahead (Beskow 2004, Fig. 4) or the input window (Taylor et
     al. 2017, Fig. 11) on the corpus's train split and plot its test-split jawOpen error against it."""
     from vispeech.evaluation.sweep import SWEEPS, plot_sweep, sweep
@@ -52,10 +76,21 @@ def sweep_command(what: str, corpus_dir: Path, values: str, family: str | None, 
     points = sweep(corpus, family, parameter, numbers, options, progress=click.echo)
     with atomic_output_dir(out_dir, replaces=("sweep.csv", "sweep.json", "sweep.png", "sweep.svg")) as staging:
         rows = ["value,rmse_percent,r,epochs,seconds"] + [
-            f"{p.value},{p.rmse_percent:.6g},{p.r:.6g},{p.epochs},{p.seconds:.1f}" for p in points]
+            f"{p.value},{p.rmse_percent:.6g},{p.r:.6g},{p.epochs},{p.seconds:.1f}" for p in points
+        ]
         (staging / "sweep.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-        (staging / "sweep.json").write_text(json.dumps({"family": family, "parameter": parameter, "corpus": corpus.name,
-                                                        "params": options, "points": [vars(p) for p in points]},
-                                                       indent=2), encoding="utf-8")
+        (staging / "sweep.json").write_text(
+            json.dumps(
+                {
+                    "family": family,
+                    "parameter": parameter,
+                    "corpus": corpus.name,
+                    "params": options,
+                    "points": [vars(p) for p in points],
+                },
+                indent=2,
+            ),
+            encoding="utf-8",
+        )
         plot_sweep(points, parameter, family, staging / "sweep")
     click.echo(f"{len(points)} models -> {out_dir}/sweep.png")

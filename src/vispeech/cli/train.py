@@ -23,33 +23,80 @@ LOSS_CURVE = "loss_curve.png"
 
 @main.command("train")
 @corpus_option
-@click.option("--model", "-m", "model_name", default=None,
-              help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
-                   "sliding-window-dtree, lstm-taylor, "
-                   "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).")
-@click.option("--from", "from_model", default=None, metavar="MODEL",
-              help="Adapt this trained network (a shipped name such as grid-tdnn or grid-audio-cnn, or a saved folder) "
-                   "to the corpus instead: it starts from its weights (speaker adaptation).")
+@click.option(
+    "--model",
+    "-m",
+    "model_name",
+    default=None,
+    help="Model family to fit: tdnn-beskow, tdnn-lowlatency, sliding-window-thesis, sliding-window-taylor, "
+    "sliding-window-dtree, lstm-taylor, "
+    "cohen-massaro, ohman (phones in), audio-cnn, audio-encdec (audio in).",
+)
+@click.option(
+    "--from",
+    "from_model",
+    default=None,
+    metavar="MODEL",
+    help="Adapt this trained network (a shipped name such as grid-tdnn or grid-audio-cnn, or a saved folder) "
+    "to the corpus instead: it starts from its weights (speaker adaptation).",
+)
 @click.option("--epochs", type=click.IntRange(min=1), default=None, help="Most epochs in all [default: the model's].")
 @click.option("--seed", type=int, default=None, help="Random seed [default: the model's].")
-@click.option("--input", "inputs", type=click.Choice(["phones", "features"]), default=None,
-              help="Phone one-hot vectors or articulatory feature vectors [default: the model's].")
-@click.option("--targets", type=click.Choice(list(_TARGETS)), default=None,
-              help="ARKit mouth channels or articulatory parameters measured on landmarks [default: the model's].")
-@click.option("--param", "-p", "params", multiple=True, metavar="KEY=VALUE",
-              help="Set any hyper-parameter of the model (docs/networks.md), e.g. --param features=encoder "
-                   "--param encoder=/models/wavlm-base-plus; VALUE is read as JSON (numbers, lists, true, null) "
-                   "or else taken as text. Repeatable.")
-@click.option("--resume", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Go on from a saved model or an interrupted run's output folder.")
-@click.option("--output", "-o", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder to save the trained model in.")
+@click.option(
+    "--input",
+    "inputs",
+    type=click.Choice(["phones", "features"]),
+    default=None,
+    help="Phone one-hot vectors or articulatory feature vectors [default: the model's].",
+)
+@click.option(
+    "--targets",
+    type=click.Choice(list(_TARGETS)),
+    default=None,
+    help="ARKit mouth channels or articulatory parameters measured on landmarks [default: the model's].",
+)
+@click.option(
+    "--param",
+    "-p",
+    "params",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Set any hyper-parameter of the model (docs/networks.md), e.g. --param features=encoder "
+    "--param encoder=/models/wavlm-base-plus; VALUE is read as JSON (numbers, lists, true, null) "
+    "or else taken as text. Repeatable.",
+)
+@click.option(
+    "--resume",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Go on from a saved model or an interrupted run's output folder.",
+)
+@click.option(
+    "--output",
+    "-o",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Folder to save the trained model in.",
+)
 @language_option
 @cache_option
 @quiet_option
-def train_command(corpus_dir: Path, model_name: str | None, from_model: str | None, epochs: int | None,
-                  seed: int | None, inputs: str | None, targets: str | None, params: tuple[str, ...],
-                  resume: Path | None, out_dir: Path, language: str, cache: Path | None, quiet: bool) -> None:
+def train_command(
+    corpus_dir: Path,
+    model_name: str | None,
+    from_model: str | None,
+    epochs: int | None,
+    seed: int | None,
+    inputs: str | None,
+    targets: str | None,
+    params: tuple[str, ...],
+    resume: Path | None,
+    out_dir: Path,
+    language: str,
+    cache: Path | None,
+    quiet: bool,
+) -> None:
     """Fit a model on the train split of a corpus (validation split for early stopping) and save it.
 
     A network keeps its training state in OUTPUT/checkpoint after every epoch, so an
@@ -72,8 +119,11 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     if not cls.trainable:
         raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
     given: dict[str, tuple[str, object]] = {
-        "--epochs": ("epochs", epochs), "--seed": ("seed", seed), "--input": ("inputs", inputs),
-        "--targets": ("targets", None if targets is None else _TARGETS.get(targets))}
+        "--epochs": ("epochs", epochs),
+        "--seed": ("seed", seed),
+        "--input": ("inputs", inputs),
+        "--targets": ("targets", None if targets is None else _TARGETS.get(targets)),
+    }
     options: dict[str, object] = {}
     for flag, (key, value) in given.items():
         if value is None:
@@ -111,28 +161,45 @@ def train_command(corpus_dir: Path, model_name: str | None, from_model: str | No
     sizes = {name: len(corpus.split(name)) for name in ("train", "validation", "test")}
     if not sizes["train"]:
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
-    click.echo(f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
-               f"utterances at {frame_rates_text(corpus.frame_rates)} fps")
+    click.echo(
+        f"{corpus.name}: train {sizes['train']}, validation {sizes['validation']}, test {sizes['test']} "
+        f"utterances at {frame_rates_text(corpus.frame_rates)} fps"
+    )
 
     model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint)
     _save(model, corpus, out_dir, checkpoint)
 
 
-def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | None, inputs: str | None,
-           targets: str | None, params: tuple[str, ...], resume: Path | None, out_dir: Path, language: str,
-           cache: Path | None, quiet: bool) -> None:
+def _adapt(
+    from_model: str,
+    corpus_dir: Path,
+    epochs: int | None,
+    seed: int | None,
+    inputs: str | None,
+    targets: str | None,
+    params: tuple[str, ...],
+    resume: Path | None,
+    out_dir: Path,
+    language: str,
+    cache: Path | None,
+    quiet: bool,
+) -> None:
     """``train --from``: the trained network, warm-started on the corpus, saved; scores before and after."""
     from vispeech.models.networks.network import Network
     from vispeech.models.registry import load_model
 
     if inputs is not None or targets is not None or resume is not None:
-        raise VispeechError("--from keeps the model's inputs and targets and starts afresh: no --input, "
-                            "--targets or --resume")
+        raise VispeechError(
+            "--from keeps the model's inputs and targets and starts afresh: no --input, --targets or --resume"
+        )
     base = load_model(from_model)
     if not isinstance(base, Network):
-        raise VispeechError(f"--from needs a trained network (phones or audio); {from_model!r} is a {base.family} model")
-    options: dict[str, object] = {key: value for key, value in (("epochs", epochs), ("seed", seed))
-                                  if value is not None}
+        raise VispeechError(
+            f"--from needs a trained network (phones or audio); {from_model!r} is a {base.family} model"
+        )
+    options: dict[str, object] = {
+        key: value for key, value in (("epochs", epochs), ("seed", seed)) if value is not None
+    }
     for key, value in map(_parameter, params):
         if key not in base.get_params():
             raise VispeechError(f"model {base.family} takes no parameter {key!r}")
@@ -143,8 +210,10 @@ def _adapt(from_model: str, corpus_dir: Path, epochs: int | None, seed: int | No
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
     if not len(corpus.split("train")):
         raise VispeechError(f"the train split of corpus {corpus.name} has no utterances")
-    click.echo(f"{corpus.name}: adapting {base.name} on {len(corpus.split('train'))} utterances "
-               f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})")
+    click.echo(
+        f"{corpus.name}: adapting {base.name} on {len(corpus.split('train'))} utterances "
+        f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})"
+    )
     click.echo(f"before: {_test_score(base, corpus)}")
     model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint, warm_start=True)
     _save(model, corpus, out_dir, checkpoint)
@@ -171,9 +240,15 @@ def _test_score(model, corpus) -> str:
     shared = [c for c in ("jawOpen", "jaw_opening") if c in model.channels and c in available_channels(test)]
     if not len(test) or not shared:
         return "test split: no jaw channel to score"
-    result = evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False).models[0].scores[shared[0]]
-    return (f"test split ({len(test)} utterances, no post-processing): {shared[0]} r {result['r']:.3f}, "
-            f"RMSE {result['rmse_percent']:.2f} % of range, MSE {result['mse']:.5f}")
+    result = (
+        evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False)
+        .models[0]
+        .scores[shared[0]]
+    )
+    return (
+        f"test split ({len(test)} utterances, no post-processing): {shared[0]} r {result['r']:.3f}, "
+        f"RMSE {result['rmse_percent']:.2f} % of range, MSE {result['mse']:.5f}"
+    )
 
 
 def _parameter(text: str) -> tuple[str, object]:
@@ -197,8 +272,7 @@ def _summary(model, corpus, out_dir: Path) -> None:
         which = "validation"
         if loss is None:
             loss, which = history.train_loss[best - 1], "training"
-        click.echo(f"epochs: {history.epochs}, best {best} ({which} loss {loss:.4g}), "
-                   f"{sum(history.seconds):.1f} s")
+        click.echo(f"epochs: {history.epochs}, best {best} ({which} loss {loss:.4g}), {sum(history.seconds):.1f} s")
     if (out_dir / LOSS_CURVE).is_file():
         click.echo(f"loss curve -> {out_dir / LOSS_CURVE}")
     click.echo(_test_score(model, corpus))

@@ -13,7 +13,8 @@ from vispeech.corpus.read import read_corpus
 from vispeech.corpus.takes import read_takes
 
 __all__ = [
-    "ARTICULATORY_CHANNELS", "with_articulatory_tracks",
+    "ARTICULATORY_CHANNELS",
+    "with_articulatory_tracks",
     "SPLITS",
     "Corpus",
     "CorpusCache",

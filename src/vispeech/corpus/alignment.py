@@ -74,9 +74,7 @@ def align_corpus(
             continue
         utterance.phones = PhoneSequence.from_dict(phones)
         if store is not None:
-            store.write_json(
-                cache_key(utterance.id), {"aligner": ALIGNER, "text": utterance.text, "phones": phones}
-            )
+            store.write_json(cache_key(utterance.id), {"aligner": ALIGNER, "text": utterance.text, "phones": phones})
     return corpus
 
 

@@ -104,9 +104,7 @@ def _head_frame(points: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
     # Image y points down and MediaPipe z away from the camera, so x cross y points out of the face.
     z_axis = np.cross(x_axis, y_axis)
     rotation = np.stack([x_axis, y_axis, z_axis], axis=1)  # (frames, 3 axes, 3 coordinates)
-    return {
-        k: np.einsum("fij,fj->fi", rotation, p - points[1]) / eye_distance for k, p in points.items()
-    }
+    return {k: np.einsum("fij,fj->fi", rotation, p - points[1]) / eye_distance for k, p in points.items()}
 
 
 def with_articulatory_tracks(corpus: Corpus) -> Corpus:

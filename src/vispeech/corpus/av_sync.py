@@ -32,8 +32,14 @@ SMOOTHING_WINDOW = 0.2
 """Seconds of the Savitzky–Golay window (5 frames at 25 fps), polynomial order 2."""
 
 
-def estimate_offset(gap: np.ndarray, fps: float, samples: np.ndarray, sample_rate: int,
-                    mask: np.ndarray | None = None, max_lag: float = 0.3) -> float:
+def estimate_offset(
+    gap: np.ndarray,
+    fps: float,
+    samples: np.ndarray,
+    sample_rate: int,
+    mask: np.ndarray | None = None,
+    max_lag: float = 0.3,
+) -> float:
     """Seconds by which the picture is late against the sound (see the module docstring), from a
     take's per-frame lip ``gap`` at ``fps`` and its sound; ``mask`` marks the frames with a face
     (the others do not count). NaN for a take shorter than :data:`MIN_SECONDS` or one whose
@@ -58,8 +64,9 @@ def estimate_offset(gap: np.ndarray, fps: float, samples: np.ndarray, sample_rat
     e = np.where(use, (e - e[use].mean()) / e[use].std(), 0.0)
     reach = int(round(max_lag * ANALYSIS_RATE))
     lags = np.arange(-reach, reach + 1)
-    scores = np.array([np.mean(g[max(0, -lag):m - max(0, lag)] * e[max(0, lag):m - max(0, -lag)])
-                       for lag in lags.tolist()])
+    scores = np.array(
+        [np.mean(g[max(0, -lag) : m - max(0, lag)] * e[max(0, lag) : m - max(0, -lag)]) for lag in lags.tolist()]
+    )
     k = int(np.argmax(scores))
     shift = 0.0
     if 0 < k < len(lags) - 1:

@@ -51,7 +51,6 @@ TAKE_FILES = ("{name}.wav", "{name}.face.csv", "{name}.csv", "{name}.TextGrid")
 """The files of a captured take, by the video's name."""
 
 
-
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".mpg", ".mpeg")
 """The files :func:`capture_corpus` takes for videos."""
 
@@ -78,9 +77,17 @@ class CaptureReport:
     when the video has no timecode); None for a video capture."""
 
 
-def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: str | None = None,
-                 language: str = "en", face_model: str | os.PathLike | None = None, sync: bool = False,
-                 smooth: bool = False, progress: Callable[[int, int], None] | None = None) -> CaptureReport:
+def capture_take(
+    video: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    text: str | None = None,
+    language: str = "en",
+    face_model: str | os.PathLike | None = None,
+    sync: bool = False,
+    smooth: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> CaptureReport:
     """Write the take of ``video`` into ``out_dir`` (see the module docstring); the folder is
     written whole or not at all (:func:`vispeech.files.atomic_output_dir`) and may already hold
     only this take's files. The audio–video offset is always estimated and reported; ``sync``
@@ -102,21 +109,30 @@ def capture_take(video: str | os.PathLike, out_dir: str | os.PathLike, *, text: 
     frames = np.concatenate([face.values, face.landmarks.reshape(len(found), -1)], axis=1)
     if sync:
         if not np.isfinite(offset):
-            raise VispeechError(f"{video}: cannot tell the sound's offset from the picture (it needs "
-                                f"{MIN_SECONDS:g} s of speech): capture it without --sync")
+            raise VispeechError(
+                f"{video}: cannot tell the sound's offset from the picture (it needs "
+                f"{MIN_SECONDS:g} s of speech): capture it without --sync"
+            )
         frames = shift_frames(frames, offset, face.fps)
     if smooth:
         frames = smooth_frames(frames, face.fps)
     values = frames[:, :width]
-    landmarks = {name: frames[:, width + 3 * i:width + 3 * i + 3] for i, name in enumerate(landmarks)}
+    landmarks = {name: frames[:, width + 3 * i : width + 3 * i + 3] for i, name in enumerate(landmarks)}
     _write_take(out_dir, files, clip, values, face.channels, landmarks, face.fps, phones)
     missing = int((~np.isfinite(values).all(axis=1)).sum())
     return CaptureReport(name, len(values), missing, face.fps, clip.duration, _spoken(phones), offset, sync)
 
 
-def _write_take(out_dir: str | os.PathLike, files: list[str], clip: AudioClip, values: np.ndarray,
-                channels: tuple[str, ...], landmarks: dict[str, np.ndarray], fps: float,
-                phones: PhoneSequence | None) -> None:
+def _write_take(
+    out_dir: str | os.PathLike,
+    files: list[str],
+    clip: AudioClip,
+    values: np.ndarray,
+    channels: tuple[str, ...],
+    landmarks: dict[str, np.ndarray],
+    fps: float,
+    phones: PhoneSequence | None,
+) -> None:
     """Write a take's files (:data:`TAKE_FILES`, named in ``files``) as one folder: the sound, the face
     track with its untracked frames (NaN rows) left empty, the Live Link CSV with them filled in
     from their neighbours (the format has no gaps), and the phones when there are some."""
@@ -144,9 +160,17 @@ class CorpusCaptureReport:
     failed: list[tuple[str, str]] = field(default_factory=list)
 
 
-def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, language: str = "en",
-                   face_model: str | os.PathLike | None = None, sync: bool = False, smooth: bool = False,
-                   jobs: int | None = None, progress: Callable[[int, int], None] | None = None) -> CorpusCaptureReport:
+def capture_corpus(
+    folder: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    language: str = "en",
+    face_model: str | os.PathLike | None = None,
+    sync: bool = False,
+    smooth: bool = False,
+    jobs: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> CorpusCaptureReport:
     """Capture every video in ``folder`` (:data:`VIDEO_SUFFIXES`, with ``<name>.txt`` beside it when
     there is a transcript) into the corpus folder ``out_dir``, ``jobs`` at a time (default: the
     cores), with ``sync`` and ``smooth`` as :func:`capture_take` takes them. A video whose take is
@@ -177,8 +201,7 @@ def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, lan
         progress(done, len(videos))
     face_model = str(face_model) if face_model is not None else None
     with ProcessPoolExecutor(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1))) as pool:
-        futures = {pool.submit(_capture_into, video, out, language, face_model, sync, smooth): video
-                   for video in todo}
+        futures = {pool.submit(_capture_into, video, out, language, face_model, sync, smooth): video for video in todo}
         for future in as_completed(futures):
             failure = future.result()
             if failure is None:
@@ -192,8 +215,9 @@ def capture_corpus(folder: str | os.PathLike, out_dir: str | os.PathLike, *, lan
     return report
 
 
-def _capture_into(video: Path, out: Path, language: str, face_model: str | None, sync: bool,
-                  smooth: bool) -> str | None:
+def _capture_into(
+    video: Path, out: Path, language: str, face_model: str | None, sync: bool, smooth: bool
+) -> str | None:
     """Capture one video into the corpus folder ``out`` (staged beside it, then moved in with its
     ``.face.csv`` last); None, or why it failed."""
     transcript = video.with_suffix(".txt")
@@ -201,8 +225,9 @@ def _capture_into(video: Path, out: Path, language: str, face_model: str | None,
         text = " ".join(transcript.read_text(encoding="utf-8-sig").split()) if transcript.is_file() else None
         with tempfile.TemporaryDirectory(prefix=f".vispeech-capture-{video.stem}-", dir=out) as staging:
             take = Path(staging) / "take"
-            capture_take(video, take, text=text or None, language=language, face_model=face_model, sync=sync,
-                         smooth=smooth)
+            capture_take(
+                video, take, text=text or None, language=language, face_model=face_model, sync=sync, smooth=smooth
+            )
             written = [take / f.format(name=video.stem) for f in TAKE_FILES]
             for path in sorted((p for p in written if p.is_file()), key=lambda p: p.name.endswith(".face.csv")):
                 os.replace(path, out / path.name)
@@ -213,8 +238,14 @@ def _capture_into(video: Path, out: Path, language: str, face_model: str | None,
         return f"{type(exc).__name__}: {exc}"
 
 
-def import_livelink_take(csv: str | os.PathLike, video: str | os.PathLike, out_dir: str | os.PathLike, *,
-                         text: str | None = None, language: str = "en") -> CaptureReport:
+def import_livelink_take(
+    csv: str | os.PathLike,
+    video: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    text: str | None = None,
+    language: str = "en",
+) -> CaptureReport:
     """Write a Live Link Face recording (the app's ``csv`` and its ``video`` with the sound) as a take
     in ``out_dir``, in the layout :func:`capture_take` writes, the iPhone's blend shapes kept as
     they are (no MediaPipe).
@@ -239,14 +270,15 @@ def import_livelink_take(csv: str | os.PathLike, video: str | os.PathLike, out_d
         timecode, rate = stamp
         offset = track.start_time - parse_timecode(timecode, max(1, round(rate or track.fps)), "video timecode")
         if abs(offset) > 10.0:
-            raise VispeechError(f"{csv}: its first timecode is {offset:+.2f} s from the video's ({timecode}): "
-                                "not the same take?")
+            raise VispeechError(
+                f"{csv}: its first timecode is {offset:+.2f} s from the video's ({timecode}): not the same take?"
+            )
     n = int(np.ceil(clip.duration * track.fps - 1e-6))
     source = np.arange(n) - (0.0 if np.isnan(offset) else offset) * track.fps  # row of the CSV at frame k
     values = np.column_stack([np.interp(source, np.arange(track.n_frames), column) for column in track.values.T])
     covered = (source > -0.5) & (source < track.n_frames - 0.5)
     phones = align(clip.samples, clip.sample_rate, text, language) if text is not None else None
-    _write_take(out_dir, files, clip, np.where(covered[:, None], values, np.nan), track.channels, {}, track.fps,
-                phones)
-    return CaptureReport(name, n, int((~covered).sum()), track.fps, clip.duration, _spoken(phones), float("nan"),
-                         False, offset)
+    _write_take(out_dir, files, clip, np.where(covered[:, None], values, np.nan), track.channels, {}, track.fps, phones)
+    return CaptureReport(
+        name, n, int((~covered).sum()), track.fps, clip.duration, _spoken(phones), float("nan"), False, offset
+    )

@@ -161,6 +161,4 @@ def check_durations(track: Track, audio_duration: float) -> None:
     """Raise :class:`VispeechError` if a face track and its audio differ by more than
     :data:`MAX_DURATION_MISMATCH` seconds."""
     if abs(track.duration - audio_duration) > MAX_DURATION_MISMATCH:
-        raise VispeechError(
-            f"face track lasts {track.duration:.2f} s but the audio {audio_duration:.2f} s"
-        )
+        raise VispeechError(f"face track lasts {track.duration:.2f} s but the audio {audio_duration:.2f} s")

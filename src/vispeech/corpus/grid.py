@@ -99,15 +99,19 @@ def _read_utterance(folder: Path, utterance_id: str, text: str) -> Utterance:
         raise VispeechError(f"missing {', '.join(absent)}")
     words = read_word_alignment(paths["align"])
     if [w.text for w in words] != text.split():
-        raise VispeechError(
-            f".align words {' '.join(w.text for w in words)!r} differ from the transcript {text!r}"
-        )
+        raise VispeechError(f".align words {' '.join(w.text for w in words)!r} differ from the transcript {text!r}")
     track, landmarks, mask = read_face_csv(paths["csv"])
     duration = audio_duration(paths["flac"])
     check_durations(track, duration)
     return Utterance(
-        id=utterance_id, text=text, audio_path=paths["flac"], duration=duration, track=track,
-        words=words, landmarks=landmarks, frame_mask=mask,
+        id=utterance_id,
+        text=text,
+        audio_path=paths["flac"],
+        duration=duration,
+        track=track,
+        words=words,
+        landmarks=landmarks,
+        frame_mask=mask,
     )
 
 
@@ -167,8 +171,13 @@ def read_face_csv(path: str | os.PathLike) -> tuple[Track, dict[str, np.ndarray]
     return track, landmarks, mask
 
 
-def write_face_csv(path: str | os.PathLike, values: np.ndarray, channels: Sequence[str],
-                   landmarks: Mapping[str, np.ndarray], fps: float) -> None:
+def write_face_csv(
+    path: str | os.PathLike,
+    values: np.ndarray,
+    channels: Sequence[str],
+    landmarks: Mapping[str, np.ndarray],
+    fps: float,
+) -> None:
     """Write a face track in GRID's layout (what :func:`read_face_csv` reads): ``frame``, ``time``
     (frame / ``fps``), the ``channels`` of ``values`` (frames × channels), then ``<name>_x``,
     ``_y``, ``_z`` of each landmark (frames × 3). A frame with any NaN is untracked: its row holds

@@ -129,6 +129,13 @@ def _read_take(root: Path, name: str, language: str) -> Utterance:
     duration = audio_duration(audio_path)
     check_durations(track, duration)
     return Utterance(
-        id=name, text=text, audio_path=audio_path, duration=duration, track=track,
-        words=list(phones.words) if phones is not None else [], phones=phones, landmarks=landmarks, frame_mask=mask,
+        id=name,
+        text=text,
+        audio_path=audio_path,
+        duration=duration,
+        track=track,
+        words=list(phones.words) if phones is not None else [],
+        phones=phones,
+        landmarks=landmarks,
+        frame_mask=mask,
     )

@@ -26,10 +26,12 @@ def loudness_envelope(clip: AudioClip, fps: float) -> np.ndarray:
     :data:`SILENT_DB`): ``clip.n_frames(fps)`` values, frame k over the samples within half a
     frame of k / fps seconds."""
     samples = clip.samples.astype(np.float64)
-    energy = np.concatenate([[0.0], np.cumsum(samples ** 2)])
+    energy = np.concatenate([[0.0], np.cumsum(samples**2)])
     centres = np.arange(clip.n_frames(fps)) / fps
-    first, last = (np.clip(np.round((centres + side / (2 * fps)) * clip.sample_rate), 0, samples.size).astype(int)
-                   for side in (-1, 1))
+    first, last = (
+        np.clip(np.round((centres + side / (2 * fps)) * clip.sample_rate), 0, samples.size).astype(int)
+        for side in (-1, 1)
+    )
     mean_square = (energy[last] - energy[first]) / np.maximum(last - first, 1)
     return np.maximum(10.0 * np.log10(np.maximum(mean_square, 1e-20)), SILENT_DB)
 
@@ -51,8 +53,15 @@ class LoudnessFloor(Estimator):
     def postprocessing(self) -> str:
         return "audio"
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> LoudnessFloor:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> LoudnessFloor:
         raise VispeechError("the loudness floor learns nothing")
 
     def predict(self, clip: AudioClip, fps: float) -> Track:

@@ -166,7 +166,6 @@ def score_channels(
     )
 
 
-
 def _rates(fps: float | Sequence[float], curves: Sequence[np.ndarray]) -> list[float]:
     """One frame rate per curve: ``fps`` for all, or ``fps[i]`` for curve i."""
     if np.ndim(fps) == 0:
@@ -177,8 +176,12 @@ def _rates(fps: float | Sequence[float], curves: Sequence[np.ndarray]) -> list[f
     return [float(f) for f in rates]
 
 
-def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], fps: float | Sequence[float],
-             max_seconds: float = 0.2) -> float:
+def best_lag(
+    targets: Sequence[np.ndarray],
+    predictions: Sequence[np.ndarray],
+    fps: float | Sequence[float],
+    max_seconds: float = 0.2,
+) -> float:
     """Seconds by which the predictions trail the targets where they correlate best (negative:
     they lead), from per-utterance 1-D arrays pooled: Pearson r of target frame t with predicted
     frame t + lag, for lags up to ``max_seconds`` either way.
@@ -192,8 +195,8 @@ def best_lag(targets: Sequence[np.ndarray], predictions: Sequence[np.ndarray], f
     best, best_r = 0, -np.inf
     for k in range(-reach, reach + 1):
         shifts = [int(round(k * step * rate)) for rate in rates]
-        t = np.concatenate([x[max(0, -lag):len(x) - max(0, lag)] for x, lag in zip(targets, shifts)])
-        p = np.concatenate([y[max(0, lag):len(y) - max(0, -lag)] for y, lag in zip(predictions, shifts)])
+        t = np.concatenate([x[max(0, -lag) : len(x) - max(0, lag)] for x, lag in zip(targets, shifts)])
+        p = np.concatenate([y[max(0, lag) : len(y) - max(0, -lag)] for y, lag in zip(predictions, shifts)])
         if len(t) > 2 and np.std(t) > 0 and np.std(p) > 0:
             r = float(np.corrcoef(t, p)[0, 1])
             if r > best_r:
@@ -214,7 +217,7 @@ def motion_profile(curves: Sequence[np.ndarray], fps: float | Sequence[float]) -
     rates = _rates(fps, curves)
     out = {}
     for order, name in ((1, "velocity"), (2, "acceleration"), (3, "jerk")):
-        steps = [np.diff(c, order) * rate ** order for c, rate in zip(curves, rates) if len(c) > order]
+        steps = [np.diff(c, order) * rate**order for c, rate in zip(curves, rates) if len(c) > order]
         out[f"{name}_rms"] = float(np.sqrt(np.mean(np.concatenate(steps) ** 2))) if steps else float("nan")
     high = total = 0.0
     for c, rate in zip(curves, rates):
@@ -228,8 +231,12 @@ def motion_profile(curves: Sequence[np.ndarray], fps: float | Sequence[float]) -
     return out
 
 
-def lip_vertex_error(tracked_scores: Sequence[np.ndarray], predicted_scores: Sequence[np.ndarray],
-                     shapes: Sequence[np.ndarray], ridge: float = 1e-3) -> dict[str, float]:
+def lip_vertex_error(
+    tracked_scores: Sequence[np.ndarray],
+    predicted_scores: Sequence[np.ndarray],
+    shapes: Sequence[np.ndarray],
+    ridge: float = 1e-3,
+) -> dict[str, float]:
     """The lip vertex error (the field's, Karras et al. / VOCA: per frame the largest distance of a
     lip vertex from its place, then the mean) in 2-D landmark space, for a model that predicts
     blend shapes.

@@ -99,11 +99,18 @@ class Evaluation:
         for result in self.models:
             s = result.scores
             for j, channel in enumerate(s.channels):
-                rows.append([result.label, channel, *_numbers(
-                    s.mse[j], s.rmse_percent[j], s.r[j], s.utterance_rmse_percent[j], s.utterance_r[j])])
+                rows.append(
+                    [
+                        result.label,
+                        channel,
+                        *_numbers(s.mse[j], s.rmse_percent[j], s.r[j], s.utterance_rmse_percent[j], s.utterance_r[j]),
+                    ]
+                )
             if len(s.channels) > 1:
-                means = [np.nanmean(a) if np.isfinite(a).any() else np.nan
-                         for a in (s.mse, s.rmse_percent, s.r, s.utterance_rmse_percent, s.utterance_r)]
+                means = [
+                    np.nanmean(a) if np.isfinite(a).any() else np.nan
+                    for a in (s.mse, s.rmse_percent, s.r, s.utterance_rmse_percent, s.utterance_r)
+                ]
                 rows.append([result.label, "(mean)", *_numbers(*means)])
         return rows
 
@@ -114,18 +121,26 @@ class Evaluation:
             c = result.closures
             if c is None:
                 continue
-            rows.append([
-                result.label, f"{c.model_closures}/{c.tracked_closures}", _fixed(c.bilabial_rate, 1),
-                _fixed(c.model_closed_share, 1), _fixed(c.tracked_closed_share, 1),
-                _fixed(c.model_closed_share - c.tracked_closed_share, 1, signed=True), "yes" if c.passed else "no",
-            ])
+            rows.append(
+                [
+                    result.label,
+                    f"{c.model_closures}/{c.tracked_closures}",
+                    _fixed(c.bilabial_rate, 1),
+                    _fixed(c.model_closed_share, 1),
+                    _fixed(c.tracked_closed_share, 1),
+                    _fixed(c.model_closed_share - c.tracked_closed_share, 1, signed=True),
+                    "yes" if c.passed else "no",
+                ]
+            )
         return rows
 
     def _header(self) -> str:
         frames = self.models[0].scores.frames if self.models else 0
-        return (f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at "
-                f"{frame_rates_text(self.frame_rates)} fps, "
-                f"post-processing {'on' if self.postprocessing else 'off'}")
+        return (
+            f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at "
+            f"{frame_rates_text(self.frame_rates)} fps, "
+            f"post-processing {'on' if self.postprocessing else 'off'}"
+        )
 
     def to_text(self) -> str:
         """The tables as aligned plain text."""
@@ -138,23 +153,30 @@ class Evaluation:
     def to_markdown(self) -> str:
         """The tables as Markdown, with a note on how each figure is computed."""
         parts = [
-            "# Objective evaluation", "", self._header() + ".", "",
+            "# Objective evaluation",
+            "",
+            self._header() + ".",
+            "",
             f"Frames from {SPEECH_MARGIN:g} s before the first word to {SPEECH_MARGIN:g} s after the last, "
             "without untracked frames. MSE and Pearson r pool the frames of all utterances; RMSE % is "
             "the root-mean-square error as a percentage of the target's range over the whole set; "
-            "the (utt.) columns are means over utterances of per-utterance values.", "",
+            "the (utt.) columns are means over utterances of per-utterance values.",
+            "",
             _markdown_table(_METRIC_COLUMNS, self.metric_rows()),
         ]
         closures = self.closure_rows()
         if closures:
             parts += [
-                "", "## Lip closures", "",
+                "",
+                "## Lip closures",
+                "",
                 f"Tracked lips are closed where the inner-lip gap over the eye-corner distance is at most "
                 f"{TRACKED_CLOSED:g}; a model's where jawOpen − mouthClose (or lip_aperture) is at most "
                 f"{MODEL_CLOSED:.0%} of its utterance maximum. /p b m/: of the bilabials on which the tracked "
                 f"lips close (phone ± 1 frame), those the model closes on too (target ≥ "
                 f"{BILABIAL_RATE_TARGET:g} %); closed frames: share of speech frames with closed lips "
-                f"(within {CLOSED_SHARE_TOLERANCE:g} points of the tracked share).", "",
+                f"(within {CLOSED_SHARE_TOLERANCE:g} points of the tracked share).",
+                "",
                 _markdown_table(_CLOSURE_COLUMNS, closures),
             ]
         return "\n".join(parts) + "\n"
@@ -173,14 +195,19 @@ def _fixed(value: float, digits: int, signed: bool = False) -> str:
 def _numbers(mse: float, rmse: float, r: float, utterance_rmse: float, utterance_r: float) -> list[str]:
     return [
         "n/a" if not math.isfinite(mse) else f"{mse:.5f}",
-        _fixed(rmse, 2), _fixed(r, 3), _fixed(utterance_rmse, 2), _fixed(utterance_r, 3),
+        _fixed(rmse, 2),
+        _fixed(r, 3),
+        _fixed(utterance_rmse, 2),
+        _fixed(utterance_r, 3),
     ]
 
 
 def _text_table(columns: Sequence[str], rows: list[list[str]]) -> str:
     widths = [max(len(str(x)) for x in column) for column in zip(columns, *rows)]
-    lines = ["  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
-             for row in [list(columns), *rows]]
+    lines = [
+        "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
+        for row in [list(columns), *rows]
+    ]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(line.rstrip() for line in lines)
 
@@ -259,8 +286,9 @@ def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bo
     times = utterance.track.times
     if predicted.n_frames == len(times) and abs(predicted.start_time - times[0]) < TIME_TOLERANCE:
         return predicted
-    values = np.column_stack([np.interp(times, predicted.times, predicted.values[:, j])
-                              for j in range(len(predicted.channels))])
+    values = np.column_stack(
+        [np.interp(times, predicted.times, predicted.values[:, j]) for j in range(len(predicted.channels))]
+    )
     return Track(values, predicted.channels, fps, float(times[0]))
 
 
@@ -310,12 +338,17 @@ def evaluate_models(
     targets = [target_track(u, needed) for u in corpus]
     closed = [tracked_closed(_landmarks(u)) if _has_lip_landmarks(u) else None for u in corpus]
     shapes = None
-    if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS))
-           for u in corpus):
+    if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS)) for u in corpus):
         shapes = [lip_shape(_landmarks(u))[mask] for u, mask in zip(corpus, masks)]
-    classes = np.concatenate([frame_classes(_phones(u), recorded_track(u).fps, len(mask), recorded_track(u).start_time)[mask]
-                              for u, mask in zip(corpus, masks)])
-    rates = [recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]  # of the utterances with frames scored
+    classes = np.concatenate(
+        [
+            frame_classes(_phones(u), recorded_track(u).fps, len(mask), recorded_track(u).start_time)[mask]
+            for u, mask in zip(corpus, masks)
+        ]
+    )
+    rates = [
+        recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()
+    ]  # of the utterances with frames scored
     recorded = recorded_jaw = None
     if "jawOpen" in needed:
         recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
@@ -334,8 +367,14 @@ def evaluate_models(
                 target_arrays.append(target.values[mask][:, columns])
                 predicted_arrays.append(predicted.select(chosen).values[mask])
                 if closures is not None and tracked is not None and lip_opening(predicted) is not None:
-                    closures += count_closures(_phones(utterance), recorded_track(utterance).fps, tracked,
-                                               model_closed(predicted), mask, recorded_track(utterance).start_time)
+                    closures += count_closures(
+                        _phones(utterance),
+                        recorded_track(utterance).fps,
+                        tracked,
+                        model_closed(predicted),
+                        mask,
+                        recorded_track(utterance).start_time,
+                    )
                 else:
                     closures = None
                 bar.update(1)
@@ -345,13 +384,18 @@ def evaluate_models(
                 jaw = chosen.index("jawOpen")
                 predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
                 assert recorded_jaw is not None  # set above: "jawOpen" is among the channels needed
-                dynamics = {**motion_profile(predicted_jaw, rates),
-                            "lag_s": best_lag(recorded_jaw, predicted_jaw, rates)}
+                dynamics = {
+                    **motion_profile(predicted_jaw, rates),
+                    "lag_s": best_lag(recorded_jaw, predicted_jaw, rates),
+                }
                 errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
                 span = scores.range[jaw]
-                by_phone = {name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
-                            if (classes == k).any() and span > 0 else float("nan")
-                            for k, name in enumerate(PHONE_CLASSES)}
+                by_phone = {
+                    name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
+                    if (classes == k).any() and span > 0
+                    else float("nan")
+                    for k, name in enumerate(PHONE_CLASSES)
+                }
             lips = None
             if shapes is not None and any(len(t) for t in target_arrays):
                 lips = lip_vertex_error(target_arrays, predicted_arrays, shapes)
@@ -369,5 +413,4 @@ def _landmarks(utterance: Utterance) -> dict[str, np.ndarray]:
 
 
 def _has_lip_landmarks(utterance: Utterance) -> bool:
-    return utterance.landmarks is not None and all(
-        f"lm{k}" in utterance.landmarks for k in (13, 14, 33, 263))
+    return utterance.landmarks is not None and all(f"lm{k}" in utterance.landmarks for k in (13, 14, 33, 263))

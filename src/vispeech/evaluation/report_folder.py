@@ -42,31 +42,51 @@ from vispeech.files import atomic_output_dir
 from vispeech.motion.track import Track
 
 REPORT_FILES = (
-    "report.html", "scores.csv", "utterances.csv", "anova.csv", "pairs.csv", "scores.json",
+    "report.html",
+    "scores.csv",
+    "utterances.csv",
+    "anova.csv",
+    "pairs.csv",
+    "scores.json",
     *(f"{name}.{kind}" for name in ("correlation", "utterance_rmse", "trajectory") for kind in ("png", "svg")),
 )
 """What a report folder holds."""
 
 
-def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example: Utterance | None = None,
-                 predictions: Mapping[str, Track] | None = None, command: str = "") -> Path:
+def write_report(
+    evaluation: Evaluation,
+    out_dir: str | os.PathLike,
+    *,
+    example: Utterance | None = None,
+    predictions: Mapping[str, Track] | None = None,
+    command: str = "",
+) -> Path:
     """Write the report folder of ``evaluation`` (see the module docstring); ``example`` and its
     ``predictions`` (tracks on its frames, by model label) make the trajectory figure, and
     ``command`` is shown as how to rebuild the report. Written whole or not at all."""
     comparison = _comparison(evaluation)
     with atomic_output_dir(out_dir, replaces=REPORT_FILES) as staging:
-        write_csv(staging / "scores.csv", ["model", "channel", "mse", "rmse_percent", "r", "utterance_mse",
-                                            "utterance_rmse_percent", "utterance_r"], _score_rows(evaluation))
+        write_csv(
+            staging / "scores.csv",
+            ["model", "channel", "mse", "rmse_percent", "r", "utterance_mse", "utterance_rmse_percent", "utterance_r"],
+            _score_rows(evaluation),
+        )
         write_csv(staging / "utterances.csv", *_utterance_table(evaluation))
         if comparison is not None:
             a = comparison.anova
-            write_csv(staging / "anova.csv", ["score", "F", "df_model", "df_error", "p", "partial_eta_squared",
-                                               "mse", "utterances"],
-                       [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]])
-            write_csv(staging / "pairs.csv", ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
-                       [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs])
-        (staging / "scores.json").write_text(json.dumps(evaluation_json(evaluation, comparison), indent=2, allow_nan=False),
-                                             encoding="utf-8")
+            write_csv(
+                staging / "anova.csv",
+                ["score", "F", "df_model", "df_error", "p", "partial_eta_squared", "mse", "utterances"],
+                [[a.score, a.f, a.df_model, a.df_error, a.p, a.partial_eta_squared, a.mse, a.utterances]],
+            )
+            write_csv(
+                staging / "pairs.csv",
+                ["a", "b", "difference", "t", "p_lsd", "p_tukey", "d_z"],
+                [[p.a, p.b, p.difference, p.t, p.p_lsd, p.p_tukey, p.d_z] for p in comparison.pairs],
+            )
+        (staging / "scores.json").write_text(
+            json.dumps(evaluation_json(evaluation, comparison), indent=2, allow_nan=False), encoding="utf-8"
+        )
         figures = _figures(evaluation, staging, example, predictions or {})
         (staging / "report.html").write_text(_html(evaluation, comparison, figures, command), encoding="utf-8")
     return Path(out_dir)
@@ -74,8 +94,11 @@ def write_report(evaluation: Evaluation, out_dir: str | os.PathLike, *, example:
 
 def _comparison(evaluation: Evaluation) -> Comparison | None:
     """The ANOVA of per-utterance jawOpen RMSE over the models that predict jawOpen (two or more)."""
-    scores = {m.label: m.scores.per_utterance_rmse_percent[:, m.scores.channels.index("jawOpen")]
-              for m in evaluation.models if "jawOpen" in m.scores.channels}
+    scores = {
+        m.label: m.scores.per_utterance_rmse_percent[:, m.scores.channels.index("jawOpen")]
+        for m in evaluation.models
+        if "jawOpen" in m.scores.channels
+    }
     if len(scores) < 2 or len(next(iter(scores.values()))) < 3:
         return None
     return compare_models(scores, "jawOpen RMSE % (per utterance)")
@@ -86,8 +109,18 @@ def _score_rows(evaluation: Evaluation) -> list[list]:
     for m in evaluation.models:
         for channel in m.scores.channels:
             s = m.scores[channel]
-            rows.append([m.label, channel, s["mse"], s["rmse_percent"], s["r"], s["utterance_mse"],
-                         s["utterance_rmse_percent"], s["utterance_r"]])
+            rows.append(
+                [
+                    m.label,
+                    channel,
+                    s["mse"],
+                    s["rmse_percent"],
+                    s["r"],
+                    s["utterance_mse"],
+                    s["utterance_rmse_percent"],
+                    s["utterance_r"],
+                ]
+            )
     return rows
 
 
@@ -113,24 +146,47 @@ def evaluation_json(evaluation: Evaluation, comparison: Comparison | None = None
         closures = None
         if m.closures is not None:
             c = m.closures
-            closures = {"bilabials": c.bilabials, "tracked_closures": c.tracked_closures,
-                        "model_closures": c.model_closures, "bilabial_rate": c.bilabial_rate,
-                        "model_closed_share": c.model_closed_share, "tracked_closed_share": c.tracked_closed_share,
-                        "passed": c.passed, **c.timing()}
-        models.append({"label": m.label, "model": m.model, "scores": {ch: m.scores[ch] for ch in m.scores.channels},
-                       "closures": closures, "jawOpen_dynamics": m.dynamics, "jawOpen_rmse_by_phone_class": m.by_phone,
-                       "lips": m.lips})
-    out = {"corpus": evaluation.corpus, "frame_rates": evaluation.frame_rates, "utterances": evaluation.utterances,
-           "postprocessing": evaluation.postprocessing, "models": models,
-           "recorded_jawOpen_dynamics": evaluation.recorded_dynamics}
+            closures = {
+                "bilabials": c.bilabials,
+                "tracked_closures": c.tracked_closures,
+                "model_closures": c.model_closures,
+                "bilabial_rate": c.bilabial_rate,
+                "model_closed_share": c.model_closed_share,
+                "tracked_closed_share": c.tracked_closed_share,
+                "passed": c.passed,
+                **c.timing(),
+            }
+        models.append(
+            {
+                "label": m.label,
+                "model": m.model,
+                "scores": {ch: m.scores[ch] for ch in m.scores.channels},
+                "closures": closures,
+                "jawOpen_dynamics": m.dynamics,
+                "jawOpen_rmse_by_phone_class": m.by_phone,
+                "lips": m.lips,
+            }
+        )
+    out = {
+        "corpus": evaluation.corpus,
+        "frame_rates": evaluation.frame_rates,
+        "utterances": evaluation.utterances,
+        "postprocessing": evaluation.postprocessing,
+        "models": models,
+        "recorded_jawOpen_dynamics": evaluation.recorded_dynamics,
+    }
     if comparison is not None:
-        out["comparison"] = {"means": comparison.means, "anova": vars(comparison.anova),
-                             "pairs": [vars(p) for p in comparison.pairs]}
+        out["comparison"] = {
+            "means": comparison.means,
+            "anova": vars(comparison.anova),
+            "pairs": [vars(p) for p in comparison.pairs],
+        }
     return json_ready(out)
 
 
-def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
-             predictions: Mapping[str, Track]) -> list[tuple[str, str]]:
+def _figures(
+    evaluation: Evaluation, folder: Path, example: Utterance | None, predictions: Mapping[str, Track]
+) -> list[tuple[str, str]]:
     """Draw the figures into ``folder`` (PNG and SVG); (file stem, caption) of each."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -176,68 +232,124 @@ def _figures(evaluation: Evaluation, folder: Path, example: Utterance | None,
 
 
 def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[tuple[str, str]], command: str) -> str:
-    parts = [f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
-             f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
-             f"{'with' if evaluation.postprocessing else 'without'} post-processing. "
-             "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>"]
+    parts = [
+        f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
+        f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
+        f"{'with' if evaluation.postprocessing else 'without'} post-processing. "
+        "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>",
+    ]
     if command:
         parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
     parts.append("<h2>Scores</h2>")
-    parts.append(html_table(["model", "channel", "MSE", "RMSE %", "r", "utt. RMSE %", "utt. r"],
-                        [[r[0], r[1], r[2], r[3], r[4], r[6], r[7]] for r in _score_rows(evaluation)]))
+    parts.append(
+        html_table(
+            ["model", "channel", "MSE", "RMSE %", "r", "utt. RMSE %", "utt. r"],
+            [[r[0], r[1], r[2], r[3], r[4], r[6], r[7]] for r in _score_rows(evaluation)],
+        )
+    )
     if comparison is not None:
         a = comparison.anova
         parts.append(f"<h2>Do the models differ? {html.escape(a.score)}</h2>")
         parts.append(html_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]))
         parts.append("<p>Repeated-measures ANOVA, the model as the within-utterance factor:</p>")
-        parts.append(html_table(["F", "df", "p", "partial η²"],
-                            [[a.f, f"{a.df_model}, {a.df_error}", p_text(a.p), a.partial_eta_squared]]))
-        parts.append("<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
-                     "mean paired difference over its standard deviation):</p>")
-        parts.append(html_table(["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
-                            [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z]
-                             for p in comparison.pairs]))
+        parts.append(
+            html_table(
+                ["F", "df", "p", "partial η²"],
+                [[a.f, f"{a.df_model}, {a.df_error}", p_text(a.p), a.partial_eta_squared]],
+            )
+        )
+        parts.append(
+            "<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
+            "mean paired difference over its standard deviation):</p>"
+        )
+        parts.append(
+            html_table(
+                ["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
+                [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z] for p in comparison.pairs],
+            )
+        )
     dynamic = [(m.label, m.dynamics) for m in evaluation.models if m.dynamics]
     if dynamic and evaluation.recorded_dynamics:
-        parts.append("<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
-                     "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
-                     "over-smoothing as less.</p>")
+        parts.append(
+            "<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
+            "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
+            "over-smoothing as less.</p>"
+        )
         rec = evaluation.recorded_dynamics
-        rows = [["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"],
-                 rec["high_frequency_share"]]]
-        rows += [[label, d["lag_s"], d["velocity_rms"], d["acceleration_rms"], d["jerk_rms"],
-                  d["high_frequency_share"]] for label, d in dynamic]
-        parts.append(html_table(["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)",
-                             "energy above 8 Hz"], rows))
+        rows = [
+            ["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"], rec["high_frequency_share"]]
+        ]
+        rows += [
+            [label, d["lag_s"], d["velocity_rms"], d["acceleration_rms"], d["jerk_rms"], d["high_frequency_share"]]
+            for label, d in dynamic
+        ]
+        parts.append(
+            html_table(
+                ["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)", "energy above 8 Hz"],
+                rows,
+            )
+        )
     lipped = [(m.label, m.lips) for m in evaluation.models if m.lips]
     if lipped:
-        parts.append("<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
-                     "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
-                     "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
-                     "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
-                     "inner-lip gap.</p>")
-        parts.append(html_table(["model", "lip vertex error", "floor", "aperture error"],
-                            [[label, lips["lve"], lips["floor"], lips["aperture_mae"]] for label, lips in lipped]))
+        parts.append(
+            "<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
+            "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
+            "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
+            "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
+            "inner-lip gap.</p>"
+        )
+        parts.append(
+            html_table(
+                ["model", "lip vertex error", "floor", "aperture error"],
+                [[label, lips["lve"], lips["floor"], lips["aperture_mae"]] for label, lips in lipped],
+            )
+        )
     classed = [(m.label, m.by_phone) for m in evaluation.models if m.by_phone]
     if classed:
-        parts.append("<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
-                     "that fall in phones of each class.</p>")
+        parts.append(
+            "<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
+            "that fall in phones of each class.</p>"
+        )
         names = list(classed[0][1])
-        parts.append(html_table(["model", *names], [[label, *(by_phone[n] for n in names)]
-                                                    for label, by_phone in classed]))
+        parts.append(
+            html_table(["model", *names], [[label, *(by_phone[n] for n in names)] for label, by_phone in classed])
+        )
     closing = [m for m in evaluation.models if m.closures is not None]
     if closing:
-        parts.append("<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
-                     "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>")
+        parts.append(
+            "<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
+            "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>"
+        )
         rows = []
         for m in closing:
             assert m.closures is not None  # closing: the models with closure counts
             timing = m.closures.timing()
-            rows.append([m.label, f"{m.closures.tracked_closures}/{m.closures.bilabials}",
-                         f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
-                         timing["onset_median_ms"], timing["onset_mean_abs_ms"], timing["release_median_ms"],
-                         timing["release_mean_abs_ms"], "yes" if m.closures.passed else "no"])
-        parts.append(html_table(["model", "/p b m/ the speaker closes", "closed by the model too", "onset median (ms)",
-                             "onset mean |ms|", "release median (ms)", "release mean |ms|", "passed"], rows))
+            rows.append(
+                [
+                    m.label,
+                    f"{m.closures.tracked_closures}/{m.closures.bilabials}",
+                    f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
+                    timing["onset_median_ms"],
+                    timing["onset_mean_abs_ms"],
+                    timing["release_median_ms"],
+                    timing["release_mean_abs_ms"],
+                    "yes" if m.closures.passed else "no",
+                ]
+            )
+        parts.append(
+            html_table(
+                [
+                    "model",
+                    "/p b m/ the speaker closes",
+                    "closed by the model too",
+                    "onset median (ms)",
+                    "onset mean |ms|",
+                    "release median (ms)",
+                    "release mean |ms|",
+                    "passed",
+                ],
+                rows,
+            )
+        )
     parts += [html_figure(stem, caption) for stem, caption in figures]
     return html_page(f"vispeech evaluation: {evaluation.corpus}", parts)

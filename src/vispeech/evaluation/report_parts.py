@@ -65,20 +65,26 @@ def p_text(value: float) -> str:
     return "< 0.0001" if value < 1e-4 else f"{value:.4f}"
 
 
-REPORT_STYLE = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
-                "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;"
-                "padding:.2em .5em;text-align:right}td:first-child,th:first-child{text-align:left}"
-                "img{max-width:100%}.warning{color:#a40}")
+REPORT_STYLE = (
+    "body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
+    "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;"
+    "padding:.2em .5em;text-align:right}td:first-child,th:first-child{text-align:left}"
+    "img{max-width:100%}.warning{color:#a40}"
+)
 """The style of the HTML reports (evaluation, study analysis)."""
 
 
 def html_page(title: str, parts: Sequence[str]) -> str:
     """An HTML report page: ``title`` and the HTML ``parts`` one after another."""
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{REPORT_STYLE}</style></head><body>" + "\n".join(parts) + "</body></html>\n")
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+        f"<style>{REPORT_STYLE}</style></head><body>" + "\n".join(parts) + "</body></html>\n"
+    )
 
 
 def html_figure(stem: str, caption: str) -> str:
     """A report's figure: ``stem``.png shown, ``stem``.svg linked."""
-    return (f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)} '
-            f'(<a href="{stem}.svg">SVG</a>)</figcaption></figure>')
+    return (
+        f'<figure><img src="{stem}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)} '
+        f'(<a href="{stem}.svg">SVG</a>)</figcaption></figure>'
+    )

@@ -79,14 +79,15 @@ def compare_models(scores: Mapping[str, np.ndarray], score: str = "score") -> Co
     n, k = matrix.shape
     if n < 3:
         raise VispeechError(f"comparing models needs three utterances at least, got {n}")
-    frame = pd.DataFrame({"utterance": np.repeat(np.arange(n), k), "model": np.tile(np.arange(k), n),
-                          "value": matrix.reshape(-1)})
+    frame = pd.DataFrame(
+        {"utterance": np.repeat(np.arange(n), k), "model": np.tile(np.arange(k), n), "value": matrix.reshape(-1)}
+    )
     table = AnovaRM(frame, "value", "utterance", within=["model"]).fit().anova_table
     f, df_model, df_error, p = (float(table.iloc[0][c]) for c in ("F Value", "Num DF", "Den DF", "Pr > F"))
     grand = matrix.mean()
     ss_model = n * float(((matrix.mean(axis=0) - grand) ** 2).sum())
     residual = matrix - matrix.mean(axis=0) - matrix.mean(axis=1, keepdims=True) + grand
-    ss_error = float((residual ** 2).sum())
+    ss_error = float((residual**2).sum())
     mse = ss_error / df_error
     anova = Anova(score, f, int(df_model), int(df_error), p, ss_model / (ss_model + ss_error), mse, n)
     pairs = []
@@ -98,6 +99,9 @@ def compare_models(scores: Mapping[str, np.ndarray], score: str = "score") -> Co
         q = abs(d) / np.sqrt(mse / n) if mse > 0 else float("inf")
         p_tukey = float(stats.studentized_range.sf(q, k, df_error))
         spread = float(diff.std(ddof=1))
-        pairs.append(PairComparison(labels[i], labels[j], d, float(t), p_lsd, p_tukey,
-                                    d / spread if spread > 0 else float("nan")))
+        pairs.append(
+            PairComparison(
+                labels[i], labels[j], d, float(t), p_lsd, p_tukey, d / spread if spread > 0 else float("nan")
+            )
+        )
     return Comparison({label: float(matrix[:, i].mean()) for i, label in enumerate(labels)}, anova, pairs)

@@ -42,8 +42,16 @@ def band_edges(bands: int = 3, low: float = 100.0, high: float = 5000.0) -> np.n
     return np.geomspace(low, high, bands + 1)
 
 
-def noise_vocode(samples: np.ndarray, sample_rate: int, *, bands: int = 3, low: float = 100.0,
-                 high: float = 5000.0, envelope_cutoff: float = 160.0, seed: int = 0) -> np.ndarray:
+def noise_vocode(
+    samples: np.ndarray,
+    sample_rate: int,
+    *,
+    bands: int = 3,
+    low: float = 100.0,
+    high: float = 5000.0,
+    envelope_cutoff: float = 160.0,
+    seed: int = 0,
+) -> np.ndarray:
     """``samples`` (mono, float in [-1, 1]) through a noise-excited vocoder (see the module
     docstring); the same length, float32. Raises :class:`VispeechError` for bands beyond the
     Nyquist frequency or fewer than one band."""
@@ -51,8 +59,9 @@ def noise_vocode(samples: np.ndarray, sample_rate: int, *, bands: int = 3, low: 
     if bands < 1:
         raise VispeechError(f"a vocoder needs one band at least, got {bands}")
     if not 0 < low < high < sample_rate / 2:
-        raise VispeechError(f"vocoder bands {low:g}-{high:g} Hz must lie below half the sample rate "
-                            f"({sample_rate / 2:g} Hz)")
+        raise VispeechError(
+            f"vocoder bands {low:g}-{high:g} Hz must lie below half the sample rate ({sample_rate / 2:g} Hz)"
+        )
     if x.ndim != 1 or len(x) < 0.05 * sample_rate:
         raise VispeechError("the vocoder takes mono audio of 50 ms or more")
     rng = np.random.default_rng(seed)
@@ -65,9 +74,9 @@ def noise_vocode(samples: np.ndarray, sample_rate: int, *, bands: int = 3, low: 
         envelope = np.maximum(sosfiltfilt(smooth, np.maximum(speech, 0.0)), 0.0)
         carrier = sosfiltfilt(band, rng.standard_normal(len(x)))
         voiced = carrier * envelope
-        gain = np.sqrt(np.mean(speech ** 2) / max(np.mean(voiced ** 2), 1e-20))
+        gain = np.sqrt(np.mean(speech**2) / max(np.mean(voiced**2), 1e-20))
         out += voiced * gain
-    level = np.sqrt(np.mean(x ** 2) / max(float(np.mean(out ** 2)), 1e-20))
+    level = np.sqrt(np.mean(x**2) / max(float(np.mean(out**2)), 1e-20))
     return np.clip(out * level, -1.0, 1.0).astype(np.float32)
 
 
@@ -75,8 +84,15 @@ CHROMIUM_VARIABLE = "VISPEECH_CHROMIUM"
 """The environment variable naming the Chromium executable :func:`render_faces` drives
 (default ``/usr/bin/chromium``, Debian's)."""
 
-CHROMIUM_FLAGS = ("--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync")
+CHROMIUM_FLAGS = (
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+)
 WEBGL_FLAGS = ("--use-angle=swiftshader", "--enable-unsafe-swiftshader")
 """Added to :data:`CHROMIUM_FLAGS` for the 3D head: WebGL drawn on the CPU by SwiftShader."""
 FACE_WIDTH = 320
@@ -110,9 +126,16 @@ _HEAD_PAGE = """<!doctype html><html><head><meta charset="utf-8"><style>body{mar
 <script type="module" src="/static/stimuli.js"></script></head><body></body></html>"""
 
 
-def render_faces(tracks: Sequence[Track], path: str | os.PathLike, *, audio: np.ndarray | None = None,
-                 sample_rate: int | None = None, order: Sequence[int] | None = None,
-                 head: str | os.PathLike | None = None, prepare_head: bool = True) -> Path:
+def render_faces(
+    tracks: Sequence[Track],
+    path: str | os.PathLike,
+    *,
+    audio: np.ndarray | None = None,
+    sample_rate: int | None = None,
+    order: Sequence[int] | None = None,
+    head: str | os.PathLike | None = None,
+    prepare_head: bool = True,
+) -> Path:
     """Render a face driven by each track, side by side in ``order`` (positions → track indices;
     default as given), with ``audio`` as the sound, to an MP4 (H.264 and AAC) at the first track's
     frame rate: a stimulus for a perceptual test, as the thesis showed its avatars. The face is the
@@ -150,22 +173,31 @@ def render_faces(tracks: Sequence[Track], path: str | os.PathLike, *, audio: np.
     channels = [list(t.channels) for t in shown]
     rows = [[t.values[min(k, t.n_frames - 1)].tolist() for t in shown] for k in range(n)]
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=chromium, headless=True,
-                                             args=list(CHROMIUM_FLAGS) + list(WEBGL_FLAGS if glb else ()))
+        browser = playwright.chromium.launch(
+            executable_path=chromium, headless=True, args=list(CHROMIUM_FLAGS) + list(WEBGL_FLAGS if glb else ())
+        )
         try:
             page = browser.new_page(viewport={"width": width * len(shown), "height": height})
             if glb is None:
                 from vispeech.preview.page import face2d_source
 
                 canvases = '<canvas class="face"></canvas>' * len(shown)
-                page.set_content(_PAGE % {"w": width, "h": height, "canvases": canvases, "face2d": face2d_source(),
-                                          "channels": json.dumps(channels)})
+                page.set_content(
+                    _PAGE
+                    % {
+                        "w": width,
+                        "h": height,
+                        "canvases": canvases,
+                        "face2d": face2d_source(),
+                        "channels": json.dumps(channels),
+                    }
+                )
             else:
                 _open_head_page(page, glb, channels, width, height)
 
             def draw(start: int) -> list[str]:
                 """PNG data URLs of frames ``start`` to ``start + _BATCH``."""
-                batch = rows[start:start + _BATCH]
+                batch = rows[start : start + _BATCH]
                 if glb is not None:
                     return page.evaluate("(rows) => window.vispeechStimuli.frames(rows)", batch)
                 times = [k / fps for k in range(start, start + len(batch))]
@@ -203,8 +235,9 @@ def _open_head_page(page, glb: bytes, channels: list[list[str]], width: int, hei
 
     static = Path(str(files("vispeech") / "serve" / "static")).resolve()
     if not (static / "stimuli.js").is_file():
-        raise VispeechError(f"the web app's stimuli.js is not built in {static} (npm run build in web/, "
-                            "or reinstall vispeech)")
+        raise VispeechError(
+            f"the web app's stimuli.js is not built in {static} (npm run build in web/, or reinstall vispeech)"
+        )
 
     def answer(route) -> None:
         name = urlsplit(route.request.url).path
@@ -222,12 +255,21 @@ def _open_head_page(page, glb: bytes, channels: list[list[str]], width: int, hei
     page.route(f"{_ORIGIN}/**", answer)
     page.goto(f"{_ORIGIN}/")
     page.wait_for_function("() => window.vispeechStimuli !== undefined", timeout=30_000)
-    page.evaluate("([c, w, h, bg]) => window.vispeechStimuli.load('/head.glb', c, w, h, bg)",
-                  [channels, width, height, HEAD_BACKGROUND])
+    page.evaluate(
+        "([c, w, h, bg]) => window.vispeechStimuli.load('/head.glb', c, w, h, bg)",
+        [channels, width, height, HEAD_BACKGROUND],
+    )
 
 
-def _write_mp4(pngs: Iterable[bytes], path: str | os.PathLike, *, fps: float, size: tuple[int, int],
-               audio: np.ndarray | None, sample_rate: int | None) -> None:
+def _write_mp4(
+    pngs: Iterable[bytes],
+    path: str | os.PathLike,
+    *,
+    fps: float,
+    size: tuple[int, int],
+    audio: np.ndarray | None,
+    sample_rate: int | None,
+) -> None:
     """Encode ``pngs`` (frames of ``size`` pixels) at ``fps`` with ``audio`` to an MP4 (H.264 and
     AAC) at ``path``, atomically."""
     import io
@@ -238,8 +280,9 @@ def _write_mp4(pngs: Iterable[bytes], path: str | os.PathLike, *, fps: float, si
     from vispeech.files import atomic_output_file
 
     with atomic_output_file(path) as tmp, av.open(str(tmp), "w", format="mp4") as container:
-        video = container.add_stream("libx264" if "libx264" in av.codecs_available else "mpeg4",
-                                     rate=Fraction(fps).limit_denominator(1001))
+        video = container.add_stream(
+            "libx264" if "libx264" in av.codecs_available else "mpeg4", rate=Fraction(fps).limit_denominator(1001)
+        )
         video.width, video.height = size
         video.pix_fmt = "yuv420p"
         sound = None
@@ -255,7 +298,7 @@ def _write_mp4(pngs: Iterable[bytes], path: str | os.PathLike, *, fps: float, si
             assert sample_rate is not None  # as above: there is sound only for audio, with its rate
             pcm = (np.clip(np.asarray(audio, dtype=np.float64), -1, 1) * 32767).astype(np.int16)
             for begin in range(0, len(pcm), 1024):
-                chunk = av.AudioFrame.from_ndarray(pcm[None, begin:begin + 1024], format="s16", layout="mono")
+                chunk = av.AudioFrame.from_ndarray(pcm[None, begin : begin + 1024], format="s16", layout="mono")
                 chunk.sample_rate = int(sample_rate)
                 container.mux(sound.encode(chunk))
             container.mux(sound.encode())

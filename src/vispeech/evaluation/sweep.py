@@ -44,8 +44,14 @@ class SweepPoint:
     seconds: float
 
 
-def sweep(corpus: Corpus, family: str, parameter: str, values: Sequence[int], params: dict | None = None,
-          progress: Callable[[str], None] | None = None) -> list[SweepPoint]:
+def sweep(
+    corpus: Corpus,
+    family: str,
+    parameter: str,
+    values: Sequence[int],
+    params: dict | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[SweepPoint]:
     """Train ``family`` on ``corpus``'s train split (validation split for early stopping) once per
     value of ``parameter`` (other hyper-parameters: ``params``) and score jawOpen on the test split."""
     import time
@@ -60,19 +66,29 @@ def sweep(corpus: Corpus, family: str, parameter: str, values: Sequence[int], pa
         started = time.perf_counter()
         model = create_model(family, **{**(params or {}), parameter: value}).fit(corpus, progress=False)
         seconds = time.perf_counter() - started
-        scores = evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"],
-                                 postprocessing=False).models[0].scores["jawOpen"]
+        scores = (
+            evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"], postprocessing=False)
+            .models[0]
+            .scores["jawOpen"]
+        )
         epochs = cast(_Trained, model).history_.epochs
         point = SweepPoint(value, scores["rmse_percent"], scores["r"], epochs, seconds)
         points.append(point)
         if progress is not None:
-            progress(f"{parameter}={value}: jawOpen RMSE {point.rmse_percent:.2f} %, r {point.r:.3f} "
-                     f"({point.epochs} epochs, {seconds:.0f} s)")
+            progress(
+                f"{parameter}={value}: jawOpen RMSE {point.rmse_percent:.2f} %, r {point.r:.3f} "
+                f"({point.epochs} epochs, {seconds:.0f} s)"
+            )
     return points
 
 
-def plot_sweep(points: Sequence[SweepPoint], parameter: str, family: str, out_stem: str | os.PathLike,
-               frames_per_second: float | None = None) -> list[Path]:
+def plot_sweep(
+    points: Sequence[SweepPoint],
+    parameter: str,
+    family: str,
+    out_stem: str | os.PathLike,
+    frames_per_second: float | None = None,
+) -> list[Path]:
     """jawOpen's RMSE (left axis) and r (right axis) against the value: ``out_stem``.png and .svg."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -82,7 +98,9 @@ def plot_sweep(points: Sequence[SweepPoint], parameter: str, family: str, out_st
     axes = figure.add_subplot()
     values = [p.value for p in points]
     axes.plot(values, [p.rmse_percent for p in points], "o-", color="tab:blue", label="RMSE")
-    axes.set_xlabel(parameter.replace("_", " ") + (f" (frames at {frames_per_second:g} fps)" if frames_per_second else ""))
+    axes.set_xlabel(
+        parameter.replace("_", " ") + (f" (frames at {frames_per_second:g} fps)" if frames_per_second else "")
+    )
     axes.set_ylabel("jawOpen RMSE, % of range", color="tab:blue")
     right = axes.twinx()
     right.plot(values, [p.r for p in points], "s--", color="tab:red", label="r")

@@ -34,7 +34,7 @@ def band_energy(clip: AudioClip) -> np.ndarray:
     freqs = np.linspace(0.0, SAMPLE_RATE / 2, power.shape[1])
     band = (freqs >= BAND_HZ[0]) & (freqs <= BAND_HZ[1])
     window = np.hanning(WINDOW + 1)[:-1]  # the periodic Hann window the spectrogram uses
-    mean_square = 2.0 * power[:, band].sum(axis=1) / (N_FFT * np.sum(window ** 2))  # Parseval, one-sided
+    mean_square = 2.0 * power[:, band].sum(axis=1) / (N_FFT * np.sum(window**2))  # Parseval, one-sided
     return 10.0 * np.log10(np.maximum(mean_square, 1e-15))
 
 

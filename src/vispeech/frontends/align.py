@@ -64,8 +64,9 @@ _Segments = list[tuple[str, list[tuple[str, int, int]]]]
 """Words (pocketsphinx names, fillers included) with their phones: (label, start frame, frames)."""
 
 
-def align(audio: np.ndarray, sample_rate: int, text: str, language: str = "en",
-          method: str | None = None) -> PhoneSequence:
+def align(
+    audio: np.ndarray, sample_rate: int, text: str, language: str = "en", method: str | None = None
+) -> PhoneSequence:
     """Time-align ``text`` with ``audio``: phones and words with start/end in seconds.
 
     ``audio`` holds samples (float in [-1, 1] or int16), mono or ``(samples, channels)``
@@ -120,8 +121,10 @@ def _pocketsphinx_align(clip: AudioClip, text: str) -> PhoneSequence:
     n_phones = sum(len(decoder.lookup_word(w).split()) for w in words)
     needed = n_phones * MIN_PHONE_FRAMES / FRAMES_PER_SECOND
     if clip.duration < needed:
-        raise VispeechError(f"alignment failed: {clip.duration:.2f} s of audio is too short for the "
-                            f"{n_phones} phones of the transcript (at least {needed:.2f} s)")
+        raise VispeechError(
+            f"alignment failed: {clip.duration:.2f} s of audio is too short for the "
+            f"{n_phones} phones of the transcript (at least {needed:.2f} s)"
+        )
     speech_span(clip)  # refuses silence: pocketsphinx would put the words anywhere in it
     raw = padded_pcm(clip)
     with _DECODER_LOCK:
@@ -167,8 +170,10 @@ def _no_path(decoder, raw: bytes, words: list[str]) -> str:
             failed = middle
         else:
             aligned = middle
-    return (f"alignment failed: no path through the audio from word {aligned + 1} of {len(words)} "
-            f"({words[aligned]!r}) on; does the audio say the transcript?")
+    return (
+        f"alignment failed: no path through the audio from word {aligned + 1} of {len(words)} "
+        f"({words[aligned]!r}) on; does the audio say the transcript?"
+    )
 
 
 def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments:
@@ -189,8 +194,9 @@ def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments
 def _decoder():
     from pocketsphinx import Decoder
 
-    return Decoder(samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=BEAM, wbeam=WORD_BEAM, pbeam=BEAM,
-                   loglevel="FATAL")
+    return Decoder(
+        samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=BEAM, wbeam=WORD_BEAM, pbeam=BEAM, loglevel="FATAL"
+    )
 
 
 def decode_utterance(decoder, raw: bytes) -> None:

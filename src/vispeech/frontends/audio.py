@@ -46,8 +46,10 @@ class AudioClip:
         if array.size == 0:
             raise VispeechError(f"{where} is empty")
         if not (isinstance(sample_rate, int | np.integer) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
-            raise VispeechError(f"{where}: sample rate must be a whole number of Hz within "
-                                f"{MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE}, got {sample_rate!r}")
+            raise VispeechError(
+                f"{where}: sample rate must be a whole number of Hz within "
+                f"{MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE}, got {sample_rate!r}"
+            )
         duration = array.size / sample_rate
         if duration > MAX_DURATION_S:
             raise VispeechError(f"{where} lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
@@ -135,16 +137,20 @@ def probe_upload(data: bytes) -> tuple[str, float]:
     try:
         info = soundfile.info(io.BytesIO(data))
     except (RuntimeError, OSError, EOFError) as exc:
-        raise VispeechError("the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
-                            f"{getattr(exc, 'error_string', exc)}") from None
+        raise VispeechError(
+            "the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
+            f"{getattr(exc, 'error_string', exc)}"
+        ) from None
     if info.frames <= 0 or info.samplerate <= 0:
         raise VispeechError("the uploaded audio is empty")
     duration = info.frames / info.samplerate
     if duration > MAX_DURATION_S:
         raise VispeechError(f"the uploaded audio lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
     if info.frames * info.channels > MAX_UPLOAD_SAMPLES:
-        raise VispeechError(f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
-                            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)")
+        raise VispeechError(
+            f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
+            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)"
+        )
     return hashlib.sha256(data).hexdigest(), duration
 
 

@@ -52,22 +52,23 @@ def dtw_align(clip: AudioClip, text: str, language: str) -> PhoneSequence:
 
     start, end = speech_span(clip)
     start, end = max(start - MARGIN_S, 0.0), min(end + MARGIN_S, clip.duration)
-    recording = clip.resampled(SAMPLE_RATE).samples[round(start * SAMPLE_RATE):round(end * SAMPLE_RATE)]
+    recording = clip.resampled(SAMPLE_RATE).samples[round(start * SAMPLE_RATE) : round(end * SAMPLE_RATE)]
     margin = np.zeros(round(MARGIN_S * SAMPLE_RATE), dtype=np.float32)
     cut = AudioClip.from_array(synthetic.audio, synthetic.sample_rate).resampled(SAMPLE_RATE).samples
-    reference = np.concatenate([margin, cut[round(first * SAMPLE_RATE):round(last * SAMPLE_RATE)], margin])
+    reference = np.concatenate([margin, cut[round(first * SAMPLE_RATE) : round(last * SAMPLE_RATE)], margin])
 
     ref_frames, rec_frames = _features(reference), _features(recording)
     if len(ref_frames) * len(rec_frames) > MAX_CELLS:
-        raise VispeechError(f"{end - start:.0f} s of speech against {len(reference) / SAMPLE_RATE:.0f} s of "
-                            f"synthetic speech is too long to warp in one piece; align shorter parts")
+        raise VispeechError(
+            f"{end - start:.0f} s of speech against {len(reference) / SAMPLE_RATE:.0f} s of "
+            f"synthetic speech is too long to warp in one piece; align shorter parts"
+        )
     warp = _warp(ref_frames, rec_frames)
 
     # the synthetic phones from the first spoken one to the last, on the reference's clock
     inner = [p for p in synthetic.phones if p.end > first and p.start < last]
     bounds = np.array([p.start for p in inner] + [last]) - first + MARGIN_S
-    times = _increasing(start + np.interp(bounds * FRAME_RATE, np.arange(len(warp)), warp) / FRAME_RATE,
-                        clip.duration)
+    times = _increasing(start + np.interp(bounds * FRAME_RATE, np.arange(len(warp)), warp) / FRAME_RATE, clip.duration)
     return _phone_sequence(inner, times, synthetic.phones.words, clip.duration, synthetic.phones.language)
 
 
@@ -105,8 +106,9 @@ def _increasing(times: np.ndarray, duration: float) -> np.ndarray:
     return out
 
 
-def _phone_sequence(phones: list[Phone], times: np.ndarray, words: list[Word], duration: float,
-                    language: str) -> PhoneSequence:
+def _phone_sequence(
+    phones: list[Phone], times: np.ndarray, words: list[Word], duration: float, language: str
+) -> PhoneSequence:
     """The synthetic ``phones`` at the warped ``times`` (their starts, then the last end), with
     silence around them, adjacent silences merged, and each word from its first phone to its last."""
     out: list[Phone] = [Phone(SILENCE, 0.0, times[0])] if times[0] > 0 else []

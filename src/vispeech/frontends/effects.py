@@ -35,11 +35,17 @@ def shift_voice(samples: np.ndarray, rate: int, pitch: float = 0.0, formants: fl
     if not 0.7 <= formants <= 1.4:
         raise VispeechError(f"formant factor must lie in [0.7, 1.4], got {formants}")
     sound = parselmouth.Sound(np.asarray(samples, dtype=np.float64), sampling_frequency=rate)
-    median = call(sound.to_pitch(time_step=0.01, pitch_floor=MIN_PITCH, pitch_ceiling=MAX_PITCH),
-                  "Get quantile", 0, 0, 0.5, "Hertz")
+    median = call(
+        sound.to_pitch(time_step=0.01, pitch_floor=MIN_PITCH, pitch_ceiling=MAX_PITCH),
+        "Get quantile",
+        0,
+        0,
+        0.5,
+        "Hertz",
+    )
     target = median * 2 ** (pitch / 12) if np.isfinite(median) else 0.0
     changed = call(sound, "Change gender", MIN_PITCH, MAX_PITCH, formants, target, 1.0, 1.0)
-    out = changed.values[0][:len(samples)]
+    out = changed.values[0][: len(samples)]
     return _limited(np.pad(out, (0, len(samples) - len(out))))
 
 
@@ -62,10 +68,10 @@ def reverberate(samples: np.ndarray, rate: int, rt60: float, wet: float, rng: np
     n = max(2, int(rt60 * rate))
     tail = rng.standard_normal(n) * np.exp(-6.9 * np.arange(n) / n)
     tail[0] = 0.0
-    tail /= np.sqrt(np.sum(tail ** 2))
+    tail /= np.sqrt(np.sum(tail**2))
     x = np.asarray(samples, dtype=np.float64)
-    room = fftconvolve(x, tail)[:len(x)]
-    dry_energy, room_energy = np.sum(x ** 2), np.sum(room ** 2)
+    room = fftconvolve(x, tail)[: len(x)]
+    dry_energy, room_energy = np.sum(x**2), np.sum(room**2)
     if room_energy > 0:
         room *= np.sqrt(dry_energy / room_energy)
     return _limited((1 - wet) * x + wet * room)
@@ -79,7 +85,7 @@ def add_noise(samples: np.ndarray, snr_db: float, rng: np.random.Generator, colo
     f = np.arange(len(spectrum), dtype=np.float64)
     f[0] = 1.0
     noise = np.fft.irfft(spectrum / f ** (colour / 2), n=len(x))
-    power, noise_power = np.mean(x ** 2), np.mean(noise ** 2)
+    power, noise_power = np.mean(x**2), np.mean(noise**2)
     if power == 0 or noise_power == 0:
         return _limited(x)
     return _limited(x + noise * np.sqrt(power / noise_power / 10 ** (snr_db / 10)))
@@ -97,7 +103,7 @@ def telephone(samples: np.ndarray, rate: int) -> np.ndarray:
     peak = max(float(np.max(np.abs(narrow))), 1e-9)
     coded = librosa.mu_expand(librosa.mu_compress(narrow / peak, mu=255, quantize=True), mu=255, quantize=True) * peak
     back = librosa.resample(coded.astype(np.float32), orig_sr=8000, target_sr=rate, res_type="soxr_hq")
-    return _limited(np.pad(back, (0, max(0, len(samples) - len(back))))[:len(samples)])
+    return _limited(np.pad(back, (0, max(0, len(samples) - len(back))))[: len(samples)])
 
 
 CODECS = ("mp3", "opus", "vorbis")
@@ -120,13 +126,19 @@ def lossy(samples: np.ndarray, rate: int, codec: str, quality: float) -> np.ndar
 
         x = librosa.resample(x, orig_sr=rate, target_sr=coding_rate, res_type="soxr_hq")
     buffer = io.BytesIO()
-    soundfile.write(buffer, x, coding_rate, format=container, subtype=subtype,
-                    compression_level=float(np.clip(1.0 - quality, 0.0, 1.0)))
+    soundfile.write(
+        buffer,
+        x,
+        coding_rate,
+        format=container,
+        subtype=subtype,
+        compression_level=float(np.clip(1.0 - quality, 0.0, 1.0)),
+    )
     buffer.seek(0)
     decoded, decoded_rate = soundfile.read(buffer, dtype="float32")
     if decoded_rate != rate:
         import librosa
 
         decoded = librosa.resample(decoded, orig_sr=decoded_rate, target_sr=rate, res_type="soxr_hq")
-    decoded = decoded[:len(samples)]
+    decoded = decoded[: len(samples)]
     return _limited(np.pad(decoded, (0, len(samples) - len(decoded))))

@@ -81,7 +81,9 @@ class SpeechEncoder:
             raise VispeechError(f"speech encoder folder not found: {folder}")
         return _load(str(path.resolve()))
 
-    def hidden_states(self, clip: AudioClip, chunk: float = CHUNK_SECONDS, overlap: float = CHUNK_OVERLAP) -> np.ndarray:
+    def hidden_states(
+        self, clip: AudioClip, chunk: float = CHUNK_SECONDS, overlap: float = CHUNK_OVERLAP
+    ) -> np.ndarray:
         """``(layers, clip.n_frames(50), width)`` float32 hidden states of ``clip`` at 50 fps,
         encoded ``chunk`` seconds at a time with ``overlap`` seconds of context either side."""
         import torch
@@ -96,7 +98,7 @@ class SpeechEncoder:
             for start in range(0, n_frames, per_chunk):
                 stop = min(n_frames, start + per_chunk)
                 first, last = max(0, start - context), min(n_frames, stop + context)
-                piece = samples[first * self.stride:(last - 1) * self.stride + self.receptive]
+                piece = samples[first * self.stride : (last - 1) * self.stride + self.receptive]
                 piece = np.pad(piece, (0, max(0, self.receptive - len(piece))))
                 states = self.model(torch.from_numpy(piece)[None], output_hidden_states=True).hidden_states
                 frames = torch.stack(states)[:, 0].numpy()  # layers, frames of the piece, width
@@ -116,7 +118,9 @@ def _load(folder: str) -> SpeechEncoder:
         raise VispeechError(f"cannot read {config_file}: {exc}") from None
     model_type = config.get("model_type") if isinstance(config, dict) else None
     if model_type not in MODEL_TYPES:
-        raise VispeechError(f"speech encoder {folder} is a {model_type!r} model; vispeech reads {', '.join(MODEL_TYPES)}")
+        raise VispeechError(
+            f"speech encoder {folder} is a {model_type!r} model; vispeech reads {', '.join(MODEL_TYPES)}"
+        )
     extractor_file = Path(folder) / "preprocessor_config.json"
     extractor = json.loads(extractor_file.read_text(encoding="utf-8")) if extractor_file.is_file() else {}
     try:
@@ -131,6 +135,8 @@ def _load(folder: str) -> SpeechEncoder:
     normalize = bool(extractor.get("do_normalize", config.get("feat_extract_norm") == "layer"))
     encoder = SpeechEncoder(folder, model, int(extractor.get("sampling_rate", 16_000)), normalize)
     if encoder.sample_rate / encoder.stride != FRAME_RATE:
-        raise VispeechError(f"speech encoder {folder} gives {encoder.sample_rate / encoder.stride:g} frames/s; "
-                            f"vispeech needs {FRAME_RATE:g}")
+        raise VispeechError(
+            f"speech encoder {folder} gives {encoder.sample_rate / encoder.stride:g} frames/s; "
+            f"vispeech needs {FRAME_RATE:g}"
+        )
     return encoder

@@ -127,9 +127,15 @@ _Callback = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctype
 
 class _VoiceEntry(ctypes.Structure):
     _fields_ = [
-        ("name", ctypes.c_char_p), ("languages", ctypes.c_void_p), ("identifier", ctypes.c_char_p),
-        ("gender", ctypes.c_ubyte), ("age", ctypes.c_ubyte), ("variant", ctypes.c_ubyte),
-        ("xx1", ctypes.c_ubyte), ("score", ctypes.c_int), ("spare", ctypes.c_void_p),
+        ("name", ctypes.c_char_p),
+        ("languages", ctypes.c_void_p),
+        ("identifier", ctypes.c_char_p),
+        ("gender", ctypes.c_ubyte),
+        ("age", ctypes.c_ubyte),
+        ("variant", ctypes.c_ubyte),
+        ("xx1", ctypes.c_ubyte),
+        ("score", ctypes.c_int),
+        ("spare", ctypes.c_void_p),
     ]
 
 
@@ -149,8 +155,14 @@ class _Engine:
         self.lib.espeak_SetVoiceByName.argtypes = [ctypes.c_char_p]
         self.lib.espeak_SetParameter.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int]
         self.lib.espeak_Synth.argtypes = [
-            ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int, ctypes.c_uint,
-            ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p,
+            ctypes.c_void_p,
+            ctypes.c_size_t,
+            ctypes.c_uint,
+            ctypes.c_int,
+            ctypes.c_uint,
+            ctypes.c_uint,
+            ctypes.c_void_p,
+            ctypes.c_void_p,
         ]
         data_parent = str(Path(espeakng_loader.get_data_path()).parent).encode()
         options = _INITIALIZE_PHONEME_EVENTS | (_INITIALIZE_PHONEME_IPA if ipa else 0)
@@ -170,7 +182,11 @@ class _Engine:
         while events and events[i].type != _EVENT_LIST_TERMINATED:
             event = events[i]
             if event.type == _EVENT_PHONEME:  # an IPA name cut at 8 bytes may end in half a character
-                name = event.id.string.decode("utf-8", "ignore") if self.ipa else event.id.string.decode("ascii", "replace")
+                name = (
+                    event.id.string.decode("utf-8", "ignore")
+                    if self.ipa
+                    else event.id.string.decode("ascii", "replace")
+                )
                 self.events.append(("phoneme", event.sample, name))
             elif event.type == _EVENT_WORD:
                 self.events.append(("word", event.sample, event.text_position, event.length))
@@ -202,9 +218,11 @@ class _Engine:
             languages, k = [], 0
             while k < len(raw) and raw[k] != 0:
                 end = raw.index(b"\0", k + 1)
-                languages.append((raw[k], raw[k + 1:end].decode("ascii", "replace").lower()))
+                languages.append((raw[k], raw[k + 1 : end].decode("ascii", "replace").lower()))
                 k = end + 1
-            found.append((languages, entry.name.decode("utf-8", "replace"), entry.identifier.decode("utf-8", "replace")))
+            found.append(
+                (languages, entry.name.decode("utf-8", "replace"), entry.identifier.decode("utf-8", "replace"))
+            )
             i += 1
         return found
 
@@ -249,8 +267,11 @@ def voices() -> tuple[Voice, ...]:
     for other, code in sorted(aliases.items()):
         if other not in found and code in found:
             by_voice.setdefault(code, []).append(other)
-    return tuple(sorted((replace(v, aliases=tuple(by_voice.get(v.language, ()))) for v in found.values()),
-                        key=lambda v: v.language))
+    return tuple(
+        sorted(
+            (replace(v, aliases=tuple(by_voice.get(v.language, ()))) for v in found.values()), key=lambda v: v.language
+        )
+    )
 
 
 def _dictionary(data: Path, identifier: str, code: str) -> str:
@@ -275,7 +296,9 @@ def find_voice(language: str) -> Voice:
     for voice in voices():
         if voice.language == code or code in voice.aliases:
             return voice
-    raise VispeechError(f"unknown language {language!r}: `vispeech languages` lists the {len(voices())} espeak-ng speaks")
+    raise VispeechError(
+        f"unknown language {language!r}: `vispeech languages` lists the {len(voices())} espeak-ng speaks"
+    )
 
 
 def phone_set(language: str) -> str:
@@ -299,12 +322,14 @@ def check_variant(variant: str | None) -> str | None:
     """``variant`` if it is one of :func:`voice_variants` (or ``None``); :class:`VispeechError` otherwise."""
     if variant is None or variant in voice_variants():
         return variant
-    raise VispeechError(f"unknown voice variant {variant!r}: `vispeech languages --variants` lists them "
-                        "(f1-f5 female, m1-m8 male, ...)")
+    raise VispeechError(
+        f"unknown voice variant {variant!r}: `vispeech languages --variants` lists them (f1-f5 female, m1-m8 male, ...)"
+    )
 
 
-def synthesize(text: str, language: str = "en", rate: float = 1.0, *, variant: str | None = None,
-               reproducible: bool = True) -> Speech:
+def synthesize(
+    text: str, language: str = "en", rate: float = 1.0, *, variant: str | None = None, reproducible: bool = True
+) -> Speech:
     """Speak ``text`` with espeak-ng and return the audio with its phones and words.
 
     ``language`` is a code of :func:`voices`: ``"sv"`` and ``"en"`` (voice ``en-us``) give
@@ -348,8 +373,9 @@ def synthesize(text: str, language: str = "en", rate: float = 1.0, *, variant: s
     return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
 
 
-def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate: int, language: str,
-                    spoken: str) -> PhoneSequence:
+def _phone_sequence(
+    text: str, events: list[tuple], n_samples: int, sample_rate: int, language: str, spoken: str
+) -> PhoneSequence:
     """Turn espeak's word and phoneme events into a gap-free, validated phone sequence.
 
     ``language`` is the phone set, ``spoken`` the language code (for warnings)."""
@@ -381,8 +407,11 @@ def _phone_sequence(text: str, events: list[tuple], n_samples: int, sample_rate:
             try:
                 pairs = espeak_ipa_to_symbols(name)
             except VispeechError:
-                warnings.warn(f"espeak-ng phoneme {name!r} ({spoken}) has no IPA phone; it joins the phone "
-                              "before it", PhoneWarning, stacklevel=3)
+                warnings.warn(
+                    f"espeak-ng phoneme {name!r} ({spoken}) has no IPA phone; it joins the phone before it",
+                    PhoneWarning,
+                    stacklevel=3,
+                )
                 pairs = ()
             if not pairs:  # a length mark of its own, or an unknown phoneme: the phone before lasts
                 if phones and stop > start:
@@ -425,8 +454,14 @@ def _merge_retroflexes(phones: list[Phone]) -> list[Phone]:
     merged: list[Phone] = []
     for p in phones:
         last = merged[-1] if merged else None
-        if (last is not None and last.symbol == "r" and p.symbol in _RETROFLEX and p.word is not None
-                and last.word == p.word and abs(last.end - p.start) < TIME_TOLERANCE):
+        if (
+            last is not None
+            and last.symbol == "r"
+            and p.symbol in _RETROFLEX
+            and p.word is not None
+            and last.word == p.word
+            and abs(last.end - p.start) < TIME_TOLERANCE
+        ):
             merged[-1] = replace(p, symbol=_RETROFLEX[p.symbol], start=last.start)
         else:
             merged.append(p)

@@ -61,8 +61,9 @@ def warp_frequencies(power: np.ndarray, alpha: float, boundary: float = 4_800.0)
     nyquist = SAMPLE_RATE / 2
     freqs = np.linspace(0.0, nyquist, power.shape[1])
     knee = boundary * min(alpha, 1.0) / alpha
-    warped = np.where(freqs <= knee, alpha * freqs,
-                      nyquist - (nyquist - alpha * knee) / (nyquist - knee) * (nyquist - freqs))
+    warped = np.where(
+        freqs <= knee, alpha * freqs, nyquist - (nyquist - alpha * knee) / (nyquist - knee) * (nyquist - freqs)
+    )
     # the warped spectrum at f is the original one at warped⁻¹(f)
     source = np.interp(freqs, warped, freqs)
     position = source / nyquist * (power.shape[1] - 1)
@@ -100,17 +101,22 @@ def spectral_features(power: np.ndarray, kind: str = "log-mel", n_mels: int = 80
     return frames if kind == "log-mel" else mfcc(frames, n_mfcc)
 
 
-def audio_features(clip: AudioClip, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13,
-                   warp: float = 1.0) -> np.ndarray:
+def audio_features(
+    clip: AudioClip, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13, warp: float = 1.0
+) -> np.ndarray:
     """Features of ``kind`` for a clip (resampled to :data:`SAMPLE_RATE`), ``(frames, dims)`` at
     :data:`FRAME_RATE`; ``warp`` is a vocal-tract-length factor (:func:`warp_frequencies`)."""
     power = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
     return spectral_features(warp_frequencies(power, warp), kind, n_mels, n_mfcc)
 
 
-def running_normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray, prior_frames: float,
-                      state: tuple[float, np.ndarray, np.ndarray] | None = None,
-                      ) -> tuple[np.ndarray, tuple[float, np.ndarray, np.ndarray]]:
+def running_normalize(
+    features: np.ndarray,
+    mean: np.ndarray,
+    std: np.ndarray,
+    prior_frames: float,
+    state: tuple[float, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, tuple[float, np.ndarray, np.ndarray]]:
     """Causal per-dimension normalisation (speaker and channel normalisation that streams).
 
     Frame t is standardised by the mean and variance of the frames up to t, pooled with a prior
@@ -120,14 +126,17 @@ def running_normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray, p
     """
     x = np.asarray(features, dtype=np.float64)
     if state is None:
-        state = (float(prior_frames), prior_frames * np.asarray(mean, dtype=np.float64),
-                 prior_frames * (np.asarray(std, dtype=np.float64) ** 2 + np.asarray(mean, dtype=np.float64) ** 2))
+        state = (
+            float(prior_frames),
+            prior_frames * np.asarray(mean, dtype=np.float64),
+            prior_frames * (np.asarray(std, dtype=np.float64) ** 2 + np.asarray(mean, dtype=np.float64) ** 2),
+        )
     count, total, squares = state
     counts = count + np.arange(1, len(x) + 1)[:, None]
     sums = total + np.cumsum(x, axis=0)
-    sum_squares = squares + np.cumsum(x ** 2, axis=0)
+    sum_squares = squares + np.cumsum(x**2, axis=0)
     mu = sums / counts
-    sigma = np.sqrt(np.maximum(sum_squares / counts - mu ** 2, 1e-4))
+    sigma = np.sqrt(np.maximum(sum_squares / counts - mu**2, 1e-4))
     out = ((x - mu) / sigma).astype(np.float32)
     if len(x):
         state = (float(counts[-1, 0]), sums[-1], sum_squares[-1])

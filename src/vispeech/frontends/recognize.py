@@ -48,7 +48,7 @@ def recognize_phones(audio: np.ndarray, sample_rate: int) -> PhoneSequence:
     start, end = speech_span(clip)
     start, end = max(start - MARGIN_S, 0.0), min(end + MARGIN_S, clip.duration)
     samples = clip.resampled(SAMPLE_RATE).samples
-    piece = AudioClip(samples[round(start * SAMPLE_RATE):round(end * SAMPLE_RATE)], SAMPLE_RATE)
+    piece = AudioClip(samples[round(start * SAMPLE_RATE) : round(end * SAMPLE_RATE)], SAMPLE_RATE)
     decoder = _decoder()
     with _DECODER_LOCK:
         decode_utterance(decoder, padded_pcm(piece))
@@ -92,8 +92,17 @@ def _decoder():
     import pocketsphinx
 
     model = Path(pocketsphinx.__file__).parent / "model" / "en-us" / "en-us-phone.lm.bin"
-    return pocketsphinx.Decoder(samprate=SAMPLE_RATE, allphone=str(model), lm=None, lw=LANGUAGE_WEIGHT,
-                                wip=PHONE_INSERTION, beam=BEAM, pbeam=BEAM, bestpath=False, loglevel="FATAL")
+    return pocketsphinx.Decoder(
+        samprate=SAMPLE_RATE,
+        allphone=str(model),
+        lm=None,
+        lw=LANGUAGE_WEIGHT,
+        wip=PHONE_INSERTION,
+        beam=BEAM,
+        pbeam=BEAM,
+        bestpath=False,
+        loglevel="FATAL",
+    )
 
 
 def match_phones(reference: PhoneSequence, hypothesis: PhoneSequence) -> tuple[int, list[tuple[Phone, Phone]]]:

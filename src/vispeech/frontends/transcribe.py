@@ -71,12 +71,21 @@ _ANNOTATION = re.compile(r"\[[^\]]*\]|\([^)]*\)|\*[^*]*\*|[♪♫]")
 _WORD_BREAK = re.compile(r"[\s\-‐‑–—/]+")
 _NUMBER = re.compile(r"([$£€]?)(\d{1,3}(?:,\d{3})+|\d+)(?:\.(\d+))?(st|nd|rd|th|s|'s)?(%?)")
 _CURRENCY = {"$": ("dollars", "cents"), "£": ("pounds", "pence"), "€": ("euros", "cents")}
-_ONES = ("zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen fifteen "
-         "sixteen seventeen eighteen nineteen").split()
+_ONES = (
+    "zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen fifteen "
+    "sixteen seventeen eighteen nineteen"
+).split()
 _TENS = "_ _ twenty thirty forty fifty sixty seventy eighty ninety".split()
 _SCALES = ((10**12, "trillion"), (10**9, "billion"), (10**6, "million"), (1000, "thousand"))
-_ORDINALS = {"one": "first", "two": "second", "three": "third", "five": "fifth", "eight": "eighth",
-             "nine": "ninth", "twelve": "twelfth"}
+_ORDINALS = {
+    "one": "first",
+    "two": "second",
+    "three": "third",
+    "five": "fifth",
+    "eight": "eighth",
+    "nine": "ninth",
+    "twelve": "twelfth",
+}
 _WHISPER_CODES = {"cmn": "zh", "nb": "no"}
 """espeak-ng's language codes that Whisper names otherwise."""
 
@@ -98,9 +107,14 @@ def transcribe(clip: AudioClip, language: str = "en", model: str | None = None) 
         raise VispeechError(f"Whisper model {folder} cannot transcribe language {language!r}{only}")
     window = min(max(clip.duration, 0.0), WINDOW_SECONDS)
     segments, _ = whisper.transcribe(
-        clip.resampled(SAMPLE_RATE).samples, language=code, beam_size=BEAM_SIZE, temperature=0.0,
-        condition_on_previous_text=False, vad_filter=True,
-        max_new_tokens=math.ceil(TOKENS_PER_SECOND * window) + EXTRA_TOKENS)
+        clip.resampled(SAMPLE_RATE).samples,
+        language=code,
+        beam_size=BEAM_SIZE,
+        temperature=0.0,
+        condition_on_previous_text=False,
+        vad_filter=True,
+        max_new_tokens=math.ceil(TOKENS_PER_SECOND * window) + EXTRA_TOKENS,
+    )
     heard = " ".join(segment.text.strip() for segment in segments)
     text = aligner_text(heard, language)
     if not text:
@@ -145,12 +159,18 @@ def _spoken_number(currency: str, whole: str, decimals: str | None, suffix: str 
     if len(digits) > MAX_DIGITS:
         return [_ONES[int(d)] for d in digits]
     value = int(digits)
-    year = (not currency and decimals is None and "," not in whole and suffix in (None, "s", "'s")
-            and (1100 <= value <= 1999 or 2010 <= value <= 2099))
+    year = (
+        not currency
+        and decimals is None
+        and "," not in whole
+        and suffix in (None, "s", "'s")
+        and (1100 <= value <= 1999 or 2010 <= value <= 2099)
+    )
     words = _year(value) if year else _cardinal(value)
     if suffix in ("st", "nd", "rd", "th"):
-        words[-1] = _ORDINALS.get(words[-1]) or (words[-1][:-1] + "ieth" if words[-1].endswith("y")
-                                                  else words[-1] + "th")
+        words[-1] = _ORDINALS.get(words[-1]) or (
+            words[-1][:-1] + "ieth" if words[-1].endswith("y") else words[-1] + "th"
+        )
     elif suffix in ("s", "'s"):
         last = words[-1]
         words[-1] = last[:-1] + "ies" if last.endswith("y") else last + ("es" if last.endswith("x") else "s")

@@ -72,8 +72,10 @@ def face_model_path(path: str | os.PathLike | None = None) -> Path:
     :class:`VispeechError` when neither names a file."""
     chosen = path or os.environ.get(FACE_MODEL_VARIABLE)
     if not chosen:
-        raise VispeechError(f"no face model: give --face-model face_landmarker.task or set {FACE_MODEL_VARIABLE} "
-                            "(MediaPipe's Face Landmarker model; vispeech downloads nothing)")
+        raise VispeechError(
+            f"no face model: give --face-model face_landmarker.task or set {FACE_MODEL_VARIABLE} "
+            "(MediaPipe's Face Landmarker model; vispeech downloads nothing)"
+        )
     if not Path(chosen).is_file():
         raise VispeechError(f"face model not found: {chosen}")
     return Path(chosen)
@@ -128,8 +130,11 @@ def video_timecode(path: str | os.PathLike) -> tuple[str, float] | None:
     return None
 
 
-def track_face(path: str | os.PathLike, face_model: str | os.PathLike | None = None,
-               progress: Callable[[int, int], None] | None = None) -> FaceTrack:
+def track_face(
+    path: str | os.PathLike,
+    face_model: str | os.PathLike | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FaceTrack:
     """Track the face in every frame of the video at ``path`` (see the module docstring).
     ``progress(done, total)`` is called after each frame. Raises :class:`VispeechError` for a
     file without a readable video stream, one longer than the audio limit, or no face in any
@@ -151,8 +156,12 @@ def track_face(path: str | os.PathLike, face_model: str | os.PathLike | None = N
             raise VispeechError(f"{path} lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
         total = stream.frames or round(duration * fps)
         options = vision.FaceLandmarkerOptions(
-            base_options=BaseOptions(model_asset_path=str(model)), running_mode=vision.RunningMode.VIDEO,
-            num_faces=1, output_face_blendshapes=True, output_facial_transformation_matrixes=True)
+            base_options=BaseOptions(model_asset_path=str(model)),
+            running_mode=vision.RunningMode.VIDEO,
+            num_faces=1,
+            output_face_blendshapes=True,
+            output_facial_transformation_matrixes=True,
+        )
         names: list[str] | None = None
         rows: list[np.ndarray | None] = []  # None: no face in the frame
         points: list[np.ndarray | None] = []
@@ -162,8 +171,9 @@ def track_face(path: str | os.PathLike, face_model: str | os.PathLike | None = N
             for index, frame in enumerate(container.decode(video=0)):
                 image = np.ascontiguousarray(frame.to_ndarray(format="rgb24"))  # MediaPipe needs packed rows
                 size = (image.shape[1], image.shape[0])
-                found = landmarker.detect_for_video(mp.Image(image_format=mp.ImageFormat.SRGB, data=image),
-                                                    round(index * 1000 / fps))
+                found = landmarker.detect_for_video(
+                    mp.Image(image_format=mp.ImageFormat.SRGB, data=image), round(index * 1000 / fps)
+                )
                 if found.face_blendshapes:
                     scores = [c for c in found.face_blendshapes[0] if c.category_name != "_neutral"]
                     names = names or [c.category_name for c in scores]

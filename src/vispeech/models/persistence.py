@@ -77,8 +77,7 @@ def read_config(folder: Path) -> dict:
             raise ValueError(f"not a {FORMAT} folder")
         if config.get("version") != FORMAT_VERSION:
             raise ValueError(f"format version {config.get('version')!r}; this vispeech reads {FORMAT_VERSION}")
-        for key, kind in (("name", str), ("family", str), ("params", dict), ("arrays", list),
-                          ("postprocessing", str)):
+        for key, kind in (("name", str), ("family", str), ("params", dict), ("arrays", list), ("postprocessing", str)):
             if not isinstance(config.get(key), kind):
                 raise ValueError(f"{key} must be a {kind.__name__}")
         if config.get("input") not in INPUT_KINDS or not isinstance(config.get("state"), dict | None):
@@ -99,7 +98,9 @@ def model_from_config(cls: type[_Model], folder: Path, config: dict) -> _Model:
         raise VispeechError(f"corrupt model config in {folder}: {exc}") from None
     model._name = config["name"]  # known by the name it was saved under
     if config["input"] != model.input_kind:
-        raise VispeechError(f"{folder / CONFIG} says input {config['input']}, but {model.family} takes {model.input_kind}")
+        raise VispeechError(
+            f"{folder / CONFIG} says input {config['input']}, but {model.family} takes {model.input_kind}"
+        )
     if config["state"] is None and config["arrays"]:
         raise VispeechError(f"{folder / CONFIG} lists learned arrays but no learned state")
     if config["state"] is not None:
@@ -111,9 +112,11 @@ def model_from_config(cls: type[_Model], folder: Path, config: dict) -> _Model:
     if config["channels"] is not None and list(model.channels) != config["channels"]:
         raise VispeechError(f"{folder / CONFIG} lists channels that do not match the {model.family} model's")
     if config["postprocessing"] != model.postprocessing:
-        raise VispeechError(f"{folder / CONFIG} recommends post-processing {config['postprocessing']!r}, "
-                            f"but a {'fitted' if model.is_fitted else 'new'} {model.family} model recommends "
-                            f"{model.postprocessing!r}")
+        raise VispeechError(
+            f"{folder / CONFIG} recommends post-processing {config['postprocessing']!r}, "
+            f"but a {'fitted' if model.is_fitted else 'new'} {model.family} model recommends "
+            f"{model.postprocessing!r}"
+        )
     return model
 
 

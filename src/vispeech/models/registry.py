@@ -85,11 +85,14 @@ def load_model(name_or_path: str | os.PathLike) -> Estimator:
     if isinstance(name_or_path, str) and name_or_path in DATA_FREE:
         return create_model(name_or_path)
     if isinstance(name_or_path, str) and name_or_path in FAMILIES:
-        raise VispeechError(f"model {name_or_path} must be trained first (vispeech train --model {name_or_path}); "
-                            f"ready to run: {', '.join(RUNNABLE)}")
+        raise VispeechError(
+            f"model {name_or_path} must be trained first (vispeech train --model {name_or_path}); "
+            f"ready to run: {', '.join(RUNNABLE)}"
+        )
     if not os.path.isdir(name_or_path):
-        raise VispeechError(f"unknown model {str(name_or_path)!r}: not one of {', '.join(RUNNABLE)} "
-                            "nor a saved model folder")
+        raise VispeechError(
+            f"unknown model {str(name_or_path)!r}: not one of {', '.join(RUNNABLE)} nor a saved model folder"
+        )
     return load_folder(Path(name_or_path))
 
 
@@ -151,6 +154,7 @@ def describe_models() -> list[ModelInfo]:
             trained_on, score = card["trained_on"], card["test"]
         else:
             trained_on, score = "authored (data-free)", authored[name]
-        infos.append(ModelInfo(name, model.family, model.input_kind, model.lookahead,
-                               model.frame_rate, trained_on, score))
+        infos.append(
+            ModelInfo(name, model.family, model.input_kind, model.lookahead, model.frame_rate, trained_on, score)
+        )
     return infos

@@ -5,18 +5,57 @@ import numpy as np
 from vispeech.motion.track import Track
 
 ARKIT_NAMES: tuple[str, ...] = (
-    "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
-    "eyeSquintLeft", "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight",
-    "eyeLookOutRight", "eyeLookUpRight", "eyeSquintRight", "eyeWideRight",
-    "jawForward", "jawLeft", "jawRight", "jawOpen",
-    "mouthClose", "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight",
-    "mouthSmileLeft", "mouthSmileRight", "mouthFrownLeft", "mouthFrownRight",
-    "mouthDimpleLeft", "mouthDimpleRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
-    "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft", "mouthLowerDownRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight",
-    "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "noseSneerLeft", "noseSneerRight",
+    "eyeBlinkLeft",
+    "eyeLookDownLeft",
+    "eyeLookInLeft",
+    "eyeLookOutLeft",
+    "eyeLookUpLeft",
+    "eyeSquintLeft",
+    "eyeWideLeft",
+    "eyeBlinkRight",
+    "eyeLookDownRight",
+    "eyeLookInRight",
+    "eyeLookOutRight",
+    "eyeLookUpRight",
+    "eyeSquintRight",
+    "eyeWideRight",
+    "jawForward",
+    "jawLeft",
+    "jawRight",
+    "jawOpen",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthLeft",
+    "mouthRight",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthDimpleLeft",
+    "mouthDimpleRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthPressRight",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "cheekSquintRight",
+    "noseSneerLeft",
+    "noseSneerRight",
     "tongueOut",
 )
 """The 52 ARKit face blend shapes (Apple's order; key by name, never by position)."""
@@ -30,7 +69,8 @@ MORPH_NAMES: tuple[str, ...] = ARKIT_NAMES + TONGUE_CHANNELS[1:]
 """Every channel a head's morph target can carry: the ARKit shapes and vispeech's tongue channels."""
 
 MOUTH_CHANNELS: tuple[str, ...] = tuple(
-    name for name in ARKIT_NAMES if name.startswith(("jaw", "mouth")) or name in ("cheekPuff", "tongueOut"))
+    name for name in ARKIT_NAMES if name.startswith(("jaw", "mouth")) or name in ("cheekPuff", "tongueOut")
+)
 """Jaw, lip, cheek-puff and tongue channels: what speech animation drives."""
 
 ARTICULATORY_CHANNELS: tuple[str, ...] = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
@@ -42,12 +82,17 @@ LIP_CLOSED = 0.05
 """Lip aperture (see :func:`lip_aperture`) at or below which the lips count as closed."""
 
 _APERTURE_TERMS: tuple[tuple[str, float], ...] = (
-    ("jawOpen", 1.0), ("mouthClose", -1.0),
-    ("mouthLowerDownLeft", 0.25), ("mouthLowerDownRight", 0.25),
-    ("mouthUpperUpLeft", 0.15), ("mouthUpperUpRight", 0.15),
+    ("jawOpen", 1.0),
+    ("mouthClose", -1.0),
+    ("mouthLowerDownLeft", 0.25),
+    ("mouthLowerDownRight", 0.25),
+    ("mouthUpperUpLeft", 0.15),
+    ("mouthUpperUpRight", 0.15),
     ("mouthFunnel", 0.1),
-    ("mouthRollLower", -0.5), ("mouthRollUpper", -0.3),
-    ("mouthPressLeft", -0.1), ("mouthPressRight", -0.1),
+    ("mouthRollLower", -0.5),
+    ("mouthRollUpper", -0.3),
+    ("mouthPressLeft", -0.1),
+    ("mouthPressRight", -0.1),
 )
 
 

@@ -44,8 +44,16 @@ LAYERS = ("blink", "gaze", "head", "brows", "breath")
 
 CHANNELS: dict[str, tuple[str, ...]] = {
     "blink": ("eyeBlinkLeft", "eyeBlinkRight"),
-    "gaze": ("eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeLookDownLeft",
-             "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight", "eyeLookDownRight"),
+    "gaze": (
+        "eyeLookInLeft",
+        "eyeLookOutLeft",
+        "eyeLookUpLeft",
+        "eyeLookDownLeft",
+        "eyeLookInRight",
+        "eyeLookOutRight",
+        "eyeLookUpRight",
+        "eyeLookDownRight",
+    ),
     "head": ("headYaw", "headPitch", "headRoll"),
     "brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"),
     "breath": ("breath",),
@@ -79,8 +87,15 @@ def check_layers(layers: str | Iterable[str]) -> tuple[str, ...]:
     return tuple(n for n in LAYERS if n in names)
 
 
-def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
-              layers: Iterable[str] = LAYERS, seed: int = 0, start_time: float = 0.0) -> Track:
+def nonverbal(
+    n_frames: int,
+    fps: float,
+    phones: PhoneSequence | None = None,
+    *,
+    layers: Iterable[str] = LAYERS,
+    seed: int = 0,
+    start_time: float = 0.0,
+) -> Track:
     """The channels of ``layers`` over ``n_frames`` frames at ``fps`` (see the module docstring).
 
     ``phones`` time the nods, the brows and the breaths taken for speech (without them there are
@@ -97,16 +112,18 @@ def nonverbal(n_frames: int, fps: float, phones: PhoneSequence | None = None, *,
         if layer not in chosen:
             continue
         rng = np.random.default_rng([seed, k])
-        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows,
-                  "breath": _breath}[layer](times, rng, phones)
+        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows, "breath": _breath}[layer](
+            times, rng, phones
+        )
         columns.append(values)
         names += CHANNELS[layer]
     values = np.column_stack(columns) if columns else np.zeros((n_frames, 0))
     return Track(values, tuple(names), fps, start_time)
 
 
-def with_life(track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0,
-              scale: Calibration | None = None) -> Track:
+def with_life(
+    track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0, scale: Calibration | None = None
+) -> Track:
     """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had); ``scale``
     puts the added channels in an output scale (for a ``track`` already in it)."""
     life = nonverbal(track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time)
@@ -147,8 +164,9 @@ def _gaze(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
 
 
 def _head(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
-    sway = np.column_stack([amplitude * (0.8 * _noise(times, rng, 2.6) + 0.2 * _noise(times, rng, 0.9))
-                            for amplitude in SWAY])
+    sway = np.column_stack(
+        [amplitude * (0.8 * _noise(times, rng, 2.6) + 0.2 * _noise(times, rng, 0.9)) for amplitude in SWAY]
+    )
     for onset in _stressed_onsets(phones):
         dt = times - onset
         inside = (dt >= 0) & (dt <= NOD_SECONDS)
@@ -183,6 +201,7 @@ def _breath(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
             inhaling = u < REST_INHALE
             w = np.where(inhaling, u / REST_INHALE, (u - REST_INHALE) / (1 - REST_INHALE))
             return REST_DEPTH * np.where(inhaling, 0.5 - 0.5 * np.cos(np.pi * w), 0.5 + 0.5 * np.cos(np.pi * w))
+
         return at
 
     end = times[-1]

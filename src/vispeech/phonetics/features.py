@@ -31,13 +31,33 @@ from vispeech.phonetics.ipa import ipa_features
 FEATURE_NAMES: tuple[str, ...] = (
     # Beskow (2004), in his order
     "vowel",
-    "bilabial", "labiodental", "dental", "alveolar", "retroflex", "velar",
-    "nasal", "fricative", "stop", "release", "voiced",
-    "open", "front", "rounded", "protruded",
+    "bilabial",
+    "labiodental",
+    "dental",
+    "alveolar",
+    "retroflex",
+    "velar",
+    "nasal",
+    "fricative",
+    "stop",
+    "release",
+    "voiced",
+    "open",
+    "front",
+    "rounded",
+    "protruded",
     "stress",
     # extras that tell apart the phones of both inventories
-    "postalveolar", "palatal", "glottal", "lateral", "approximant",
-    "diphthong", "open_mid", "long", "silence", "pause",
+    "postalveolar",
+    "palatal",
+    "glottal",
+    "lateral",
+    "approximant",
+    "diphthong",
+    "open_mid",
+    "long",
+    "silence",
+    "pause",
 )
 """Names of the feature vector's entries, in order."""
 

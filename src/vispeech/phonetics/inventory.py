@@ -68,17 +68,80 @@ class Inventory:
 
 
 _SV_VOWELS = (
-    "i:", "I", "y:", "Y", "e:", "e", "E:", "E", "{:", "{", "2:", "9:", "9",
-    "}:", "u0", "u:", "U", "o:", "O", "A:", "a", "@",
+    "i:",
+    "I",
+    "y:",
+    "Y",
+    "e:",
+    "e",
+    "E:",
+    "E",
+    "{:",
+    "{",
+    "2:",
+    "9:",
+    "9",
+    "}:",
+    "u0",
+    "u:",
+    "U",
+    "o:",
+    "O",
+    "A:",
+    "a",
+    "@",
 )
 _SV_CONSONANTS = (
-    "p", "b", "t", "d", "k", "g", "m", "n", "N", "f", "v", "s", "S", "C", "h", "j", "l", "r",
-    "rt", "rd", "rn", "rs", "rl",
+    "p",
+    "b",
+    "t",
+    "d",
+    "k",
+    "g",
+    "m",
+    "n",
+    "N",
+    "f",
+    "v",
+    "s",
+    "S",
+    "C",
+    "h",
+    "j",
+    "l",
+    "r",
+    "rt",
+    "rd",
+    "rn",
+    "rs",
+    "rl",
 )
 _EN_VOWELS = ("AA", "AE", "AH", "AO", "AW", "AY", "EH", "ER", "EY", "IH", "IY", "OW", "OY", "UH", "UW")
 _EN_CONSONANTS = (
-    "B", "CH", "D", "DH", "F", "G", "HH", "JH", "K", "L", "M", "N", "NG", "P", "R", "S", "SH",
-    "T", "TH", "V", "W", "Y", "Z", "ZH",
+    "B",
+    "CH",
+    "D",
+    "DH",
+    "F",
+    "G",
+    "HH",
+    "JH",
+    "K",
+    "L",
+    "M",
+    "N",
+    "NG",
+    "P",
+    "R",
+    "S",
+    "SH",
+    "T",
+    "TH",
+    "V",
+    "W",
+    "Y",
+    "Z",
+    "ZH",
 )
 
 _INVENTORIES = {
@@ -157,7 +220,9 @@ def guess_language(labels: Iterable[str]) -> str:
             raise VispeechError(f"unknown phone symbol {label!r} (phone {position}): neither ARPAbet, Swedish nor IPA")
     best = max(sets, key=lambda language: sum(parses[language]))
     position = parses[best].index(False)
-    raise VispeechError(f"unknown phone symbol {labels[position]!r} (phone {position}): the other phones are {sets[best]}")
+    raise VispeechError(
+        f"unknown phone symbol {labels[position]!r} (phone {position}): the other phones are {sets[best]}"
+    )
 
 
 def is_vowel(symbol: str, language: str) -> bool:

@@ -53,13 +53,27 @@ DROPPED = frozenset(
     "\u0303\u0325\u030a\u032c\u0329\u030d\u032f\u0311\u0306\u031e\u031d\u0318\u0319\u031f\u0320"
     "\u0308\u033d\u031a\u0339\u031c\u0324\u0330\u033c\u033a\u033b\u0334"
     "\u032a"  # dental, where the letter has no dental base (t̪ d̪ n̪ s̪ ... are bases)
-    "\u0301\u0300\u0302\u030c\u0304\u030b\u030f\u1dc4\u1dc5\u1dc8"  # combining tone marks
-    + _TONE_LETTERS
+    "\u0301\u0300\u0302\u030c\u0304\u030b\u030f\u1dc4\u1dc5\u1dc8" + _TONE_LETTERS  # combining tone marks
 )
 """Diacritics and modifier letters read and dropped (see the module docstring)."""
 
-_ALIASES = {"g": "ɡ", ":": LENGTH, "ɚ": "ə" + RHOTIC, "ɝ": "ɜ" + RHOTIC, "ʦ": "ts", "ʧ": "tʃ",
-            "ʤ": "dʒ", "ʣ": "dz", "ʨ": "tɕ", "ʥ": "dʑ", "ɩ": "ɪ", "ɷ": "ʊ", "ε": "ɛ", "φ": "ɸ", "Φ": "ɸ"}
+_ALIASES = {
+    "g": "ɡ",
+    ":": LENGTH,
+    "ɚ": "ə" + RHOTIC,
+    "ɝ": "ɜ" + RHOTIC,
+    "ʦ": "ts",
+    "ʧ": "tʃ",
+    "ʤ": "dʒ",
+    "ʣ": "dz",
+    "ʨ": "tɕ",
+    "ʥ": "dʑ",
+    "ɩ": "ɪ",
+    "ɷ": "ʊ",
+    "ε": "ɛ",
+    "φ": "ɸ",
+    "Φ": "ɸ",
+}
 """Letters read as others: ASCII g and colon, r-coloured vowels, ligatures, obsolete letters,
 Greek letters for their IPA look-alikes."""
 
@@ -177,7 +191,7 @@ def _segments(text: str) -> list[_Segment]:
             i += 1
             continue
         for size in range(min(longest, len(chars) - i), 0, -1):  # longest base first (t̪, d̪͡z̪ ...)
-            candidate = _untied(chars[i:i + size])
+            candidate = _untied(chars[i : i + size])
             if candidate in letters:
                 break
         else:
@@ -198,21 +212,39 @@ def _group(units: list[dict], trailing_stress: int) -> list[_Segment]:
         unit = units[k]
         following = units[k + 1] if k + 1 < len(units) else None
         glide = _GLIDES.get(following["bases"][0]) if following is not None else None
-        if (following is not None and not unit.get("long") and _is_vowel_base(unit["bases"][0])
-                and (glide or _is_vowel_base(following["bases"][0])) and unit["bases"] != following["bases"]):
-            segments.append(_Segment(unit["bases"] + ((glide,) if glide else following["bases"]),
-                                     rhotic=bool(following.get("rhotic")), stress=unit["stress"] or following["stress"]))
+        if (
+            following is not None
+            and not unit.get("long")
+            and _is_vowel_base(unit["bases"][0])
+            and (glide or _is_vowel_base(following["bases"][0]))
+            and unit["bases"] != following["bases"]
+        ):
+            segments.append(
+                _Segment(
+                    unit["bases"] + ((glide,) if glide else following["bases"]),
+                    rhotic=bool(following.get("rhotic")),
+                    stress=unit["stress"] or following["stress"],
+                )
+            )
             k += 2
             continue
-        segments.append(_Segment(unit["bases"], bool(unit.get("labialised")), bool(unit.get("rhotic")),
-                                 bool(unit.get("long")), unit["stress"]))
+        segments.append(
+            _Segment(
+                unit["bases"],
+                bool(unit.get("labialised")),
+                bool(unit.get("rhotic")),
+                bool(unit.get("long")),
+                unit["stress"],
+            )
+        )
         k += 1
     if trailing_stress and segments and not any(s.stress for s in segments):  # no vowel after the mark
         vowels = [n for n, s in enumerate(segments) if _is_vowel_base(s.bases[0])]
         if vowels:
             n = vowels[-1]
-            segments[n] = _Segment(segments[n].bases, segments[n].labialised, segments[n].rhotic,
-                                   segments[n].long, trailing_stress)
+            segments[n] = _Segment(
+                segments[n].bases, segments[n].labialised, segments[n].rhotic, segments[n].long, trailing_stress
+            )
     return segments
 
 
@@ -258,8 +290,9 @@ def ipa_features(symbol: str) -> dict[str, float]:
     if segment.labialised:
         out.update(rounded=1.0, protruded=1.0)
     if segment.rhotic:
-        out.update(retroflex=1.0, rounded=max(out.get("rounded", 0.0), 0.5),
-                   protruded=max(out.get("protruded", 0.0), 0.5))
+        out.update(
+            retroflex=1.0, rounded=max(out.get("rounded", 0.0), 0.5), protruded=max(out.get("protruded", 0.0), 0.5)
+        )
     if segment.long:
         out["long"] = 1.0
     return {name: value for name, value in out.items() if value}
@@ -270,7 +303,8 @@ def _vowel(letter: str, row: dict[str, int]) -> dict[str, float]:
     central = letter in _CENTRAL
     mid = row["hi"] <= 0 and row["lo"] <= 0
     out = {
-        "vowel": 1.0, "voiced": 1.0,
+        "vowel": 1.0,
+        "voiced": 1.0,
         "open": 0.0 if row["hi"] > 0 else (1.0 if row["lo"] > 0 else 0.5),
         "front": 0.5 if central else (0.0 if row["back"] > 0 else 1.0),
         "open_mid": float(mid and row["tense"] < 0 and letter != "ə"),

@@ -96,8 +96,9 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
     config = config or PostprocessConfig()
     if phones is None:
         if config.overlays or config.upper_lip or config.jaw_peaks_in_vowels or config.vowel_opening or config.tongue:
-            raise VispeechError("post-processing with overlays, upper-lip lift, vowel opening, tongue or jaw "
-                                "confinement needs phones")
+            raise VispeechError(
+                "post-processing with overlays, upper-lip lift, vowel opening, tongue or jaw confinement needs phones"
+            )
     else:
         phones.validate()
     out = track.copy()
@@ -108,8 +109,7 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
         out = upper_lip_overlay(out, phones, config.upper_lip)
     if config.overlays:
         assert phones is not None
-        out = consonant_overlays(out, phones, config.fade_in, config.fade_out, config.overlay_features,
-                                 config.keep_jaw)
+        out = consonant_overlays(out, phones, config.fade_in, config.fade_out, config.overlay_features, config.keep_jaw)
     if config.vowel_opening > 0:
         assert phones is not None
         out = open_vowels(out, phones, config.vowel_opening)

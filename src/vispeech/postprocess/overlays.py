@@ -40,8 +40,12 @@ from vispeech.targets.tables import TARGET_CHANNELS, default_targets, resolve_sp
 
 DEFAULT_FADE_OUT: Mapping = {
     "default": 1.5,
-    "sv:t": 1.0, "sv:d": 1.0, "sv:rt": 1.0, "sv:rd": 1.0,
-    "en:T": 1.0, "en:D": 1.0,
+    "sv:t": 1.0,
+    "sv:d": 1.0,
+    "sv:rt": 1.0,
+    "sv:rd": 1.0,
+    "en:T": 1.0,
+    "en:D": 1.0,
 }
 """Fade-out lengths in phone lengths (a per-phone spec): 1.5 as in the thesis, shorter for /t d/."""
 
@@ -130,13 +134,15 @@ def consonant_overlays(
     aperture = _viseme_aperture(language)[index]
     bilabial = rows.features[index, FEATURE_NAMES.index("bilabial")] > 0
     order = sorted(range(len(consonants)), key=lambda i: (-aperture[i], bilabial[i], starts[i]))
-    _blend_visemes(out, table.values(language)[index], table.defined(language)[index], order, lo, hi, strengths,
-                   keep_jaw)
+    _blend_visemes(
+        out, table.values(language)[index], table.defined(language)[index], order, lo, hi, strengths, keep_jaw
+    )
     return out
 
 
-def _fades(starts: np.ndarray, ends: np.ndarray, vowels: list, out: Track, fade_in: float,
-           fade_out_lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _fades(
+    starts: np.ndarray, ends: np.ndarray, vowels: list, out: Track, fade_in: float, fade_out_lengths: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per consonant (``starts``, ``ends``: seconds from ``out``'s first frame), in frames: the
     full-strength stretch (``peak_from`` to ``peak_to``, from its onset to its anchor frame) and
     the fade-in and fade-out lengths before and after it, cut short by Öhman's rule."""
@@ -150,13 +156,16 @@ def _fades(starts: np.ndarray, ends: np.ndarray, vowels: list, out: Track, fade_
     # (so that a vowel between two bilabials still opens the mouth at its centre)
     vowel_anchor = anchor_frames(
         np.array([p.start for p in vowels]) - out.start_time,
-        np.array([p.end for p in vowels]) - out.start_time, fps, n,
+        np.array([p.end for p in vowels]) - out.start_time,
+        fps,
+        n,
     ).astype(float)
     before = np.searchsorted(vowel_anchor, peak_from, side="left") - 1
     after = np.searchsorted(vowel_anchor, peak_to, side="right")
     previous_vowel = np.where(before >= 0, vowel_anchor[np.maximum(before, 0)], -np.inf) if vowels else -np.inf
-    next_vowel = np.where(after < len(vowels), vowel_anchor[np.minimum(after, len(vowels) - 1)], np.inf) \
-        if vowels else np.inf
+    next_vowel = (
+        np.where(after < len(vowels), vowel_anchor[np.minimum(after, len(vowels) - 1)], np.inf) if vowels else np.inf
+    )
     previous_peak = np.maximum(np.concatenate(([-np.inf], peak_to[:-1])), previous_vowel)
     next_peak = np.minimum(np.concatenate((peak_from[1:], [np.inf])), next_vowel)
     rise = np.clip(np.minimum(fade_in * length, peak_from - previous_peak), 0.0, None)
@@ -164,8 +173,9 @@ def _fades(starts: np.ndarray, ends: np.ndarray, vowels: list, out: Track, fade_
     return peak_from, peak_to, rise, fall
 
 
-def _strengths(peak_from: np.ndarray, peak_to: np.ndarray, rise: np.ndarray, fall: np.ndarray,
-               n: int) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+def _strengths(
+    peak_from: np.ndarray, peak_to: np.ndarray, rise: np.ndarray, fall: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Per consonant, the first and last frames it reaches (``lo``, ``hi``, within the ``n``
     frames) and its strength on each of them: the Bézier fade in, 1 over its peak, the fade out."""
     lo = np.maximum(np.ceil(peak_from - rise), 0).astype(int)
@@ -183,8 +193,16 @@ def _strengths(peak_from: np.ndarray, peak_to: np.ndarray, rise: np.ndarray, fal
     return lo, hi, np.split(strength, np.cumsum(counts)[:-1])
 
 
-def _blend_visemes(out: Track, visemes: np.ndarray, defined: np.ndarray, order: Sequence[int], lo: np.ndarray,
-                   hi: np.ndarray, strengths: Sequence[np.ndarray], keep_jaw: bool) -> None:
+def _blend_visemes(
+    out: Track,
+    visemes: np.ndarray,
+    defined: np.ndarray,
+    order: Sequence[int],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    strengths: Sequence[np.ndarray],
+    keep_jaw: bool,
+) -> None:
     """Blend each consonant's viseme (its ``defined`` channels) into ``out`` over frames ``lo`` to
     ``hi`` with its ``strengths``, one after another in ``order``; jawOpen never rises, and with
     ``keep_jaw`` is left alone, mouthClose keeping the viseme's lip opening under the jaw."""

@@ -39,13 +39,30 @@ def tongue_targets(features: np.ndarray) -> np.ndarray:
     coronal = f["alveolar"] | f["retroflex"] | f["dental"] | f["postalveolar"]
     out = np.where(consonant & f["dental"] & f["fricative"] & ~f["stop"], 0.6, 0.0)
     closure = f["stop"] | f["nasal"] | f["lateral"]
-    tip = np.select([consonant & coronal & closure, consonant & coronal & f["fricative"],
-                     consonant & coronal & f["approximant"]], [1.0, 0.7, 0.5], 0.0)
+    tip = np.select(
+        [consonant & coronal & closure, consonant & coronal & f["fricative"], consonant & coronal & f["approximant"]],
+        [1.0, 0.7, 0.5],
+        0.0,
+    )
     tip = np.where(out > 0, 0.0, tip)
-    body = np.select([consonant & f["velar"] & ~f["approximant"], consonant & f["palatal"] & ~f["postalveolar"],
-                      f["vowel"] & (level["open"] == 0) & (level["front"] >= 1)], [1.0, 0.7, 0.3], 0.0)
-    back = np.select([f["vowel"] & (level["front"] == 0) & (level["open"] == 0), f["vowel"] & (level["front"] == 0),
-                      consonant & f["glottal"] & f["fricative"] & f["voiced"]], [0.5, 0.3, 0.5], 0.0)
+    body = np.select(
+        [
+            consonant & f["velar"] & ~f["approximant"],
+            consonant & f["palatal"] & ~f["postalveolar"],
+            f["vowel"] & (level["open"] == 0) & (level["front"] >= 1),
+        ],
+        [1.0, 0.7, 0.3],
+        0.0,
+    )
+    back = np.select(
+        [
+            f["vowel"] & (level["front"] == 0) & (level["open"] == 0),
+            f["vowel"] & (level["front"] == 0),
+            consonant & f["glottal"] & f["fricative"] & f["voiced"],
+        ],
+        [0.5, 0.3, 0.5],
+        0.0,
+    )
     return np.column_stack([out, tip, body, back])
 
 

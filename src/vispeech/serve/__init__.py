@@ -12,7 +12,18 @@ from vispeech.serve.service import SpeechService
 from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
 
 __all__ = [
-    "CacheKey", "ChatBot", "ChatBotError", "HTTPChatBot", "PhoneStream", "RuleBot", "ServeConfig",
-    "SpeechService", "UtteranceCache", "create_app", "default_cache_path", "open_phone_stream",
-    "speech_messages", "split_clauses",
+    "CacheKey",
+    "ChatBot",
+    "ChatBotError",
+    "HTTPChatBot",
+    "PhoneStream",
+    "RuleBot",
+    "ServeConfig",
+    "SpeechService",
+    "UtteranceCache",
+    "create_app",
+    "default_cache_path",
+    "open_phone_stream",
+    "speech_messages",
+    "split_clauses",
 ]

@@ -33,8 +33,12 @@ _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)
 }
-_AUDIO_BODY = {"requestBody": {"required": True, "content": {
-    kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}}}
+_AUDIO_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES},
+    }
+}
 
 router = APIRouter(prefix="/api")
 
@@ -65,19 +69,24 @@ async def get_config(service: Service) -> ConfigResponse:
 async def post_speak(request: SpeakRequest, service: Service, ip: ClientIP) -> SpeakResponse:
     """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
     service.pay(ip, service.text_cost(request.text))
-    return await _spoken(service, ip, request.text, request.lang, request.model, request.rate,
-                         check_layers(request.life), request.seed)
+    return await _spoken(
+        service, ip, request.text, request.lang, request.model, request.rate, check_layers(request.life), request.seed
+    )
 
 
 @router.post("/animate", responses={**_ERRORS, 415: {"model": ErrorResponse}}, openapi_extra=_AUDIO_BODY)
-async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request, service: Service,
-                       ip: ClientIP) -> SpeakResponse:
+async def post_animate(
+    query: Annotated[AnimateQuery, Query()], http: Request, service: Service, ip: ClientIP
+) -> SpeakResponse:
     """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
     content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
     the audio URL serving the recording as WAV (from the cache when the same file came before)."""
     if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
-        raise HTTPException(415, "send the audio file itself as the request body (Content-Type audio/wav, "
-                            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream), not a form or JSON")
+        raise HTTPException(
+            415,
+            "send the audio file itself as the request body (Content-Type audio/wav, "
+            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream), not a form or JSON",
+        )
     service.pay(ip, 1.0)
     data = await http.body()
     digest, duration = await run_in_threadpool(probe_upload, data)
@@ -85,12 +94,16 @@ async def post_animate(query: Annotated[AnimateQuery, Query()], http: Request, s
     cached = await run_in_threadpool(service.lookup_upload, digest, query)
     if cached is not None:
         return cached
-    return await service.pool.run(ip, service.animate_upload, data, digest, query,
-                                  weight=duration * AUDIO_WORK_PER_SECOND)
+    return await service.pool.run(
+        ip, service.animate_upload, data, digest, query, weight=duration * AUDIO_WORK_PER_SECOND
+    )
 
 
-@router.get("/audio/{audio_id}.wav", response_class=Response,
-            responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}})
+@router.get(
+    "/audio/{audio_id}.wav",
+    response_class=Response,
+    responses={200: {"content": {"audio/wav": {}}}, 404: {"model": ErrorResponse}},
+)
 def get_audio(audio_id: str, service: Service) -> Response:
     """The WAV file of a spoken utterance."""
     wav = service.cache.audio(audio_id) if _AUDIO_ID.match(audio_id) else None
@@ -109,8 +122,7 @@ async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> Cha
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
-        speech = await _spoken(service, ip, reply, spoken, request.model, 1.0, check_layers(request.life),
-                               request.seed)
+        speech = await _spoken(service, ip, reply, spoken, request.model, 1.0, check_layers(request.life), request.seed)
     return ChatResponse(reply=reply, lang=spoken, speech=speech)
 
 

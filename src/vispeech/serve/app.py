@@ -42,9 +42,13 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
     """The FastAPI application serving ``config`` (defaults: see :class:`ServeConfig`)."""
     config = config or ServeConfig()
     site = Site.of(config)  # a missing avatar is refused before the models load
-    app = FastAPI(title="vispeech", version=vispeech.__version__, lifespan=_lifespan,
-                  description="Speech animation: text to audio and ARKit blend-shape animation.",
-                  exception_handlers=EXCEPTION_HANDLERS)
+    app = FastAPI(
+        title="vispeech",
+        version=vispeech.__version__,
+        lifespan=_lifespan,
+        description="Speech animation: text to audio and ARKit blend-shape animation.",
+        exception_handlers=EXCEPTION_HANDLERS,
+    )
     app.state.service = SpeechService(config)
     app.state.site = site
     app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes, paths={"/api/animate": config.max_audio_bytes})

@@ -55,7 +55,7 @@ _REPLIES: dict[str, dict[str, str]] = {
     "sv": {
         "greeting": GREETINGS["sv"],
         "help": "Jag är en talande avatar. Skriv till mig så svarar jag med rösten. "
-                "Fråga gärna vad jag heter eller vad klockan är.",
+        "Fråga gärna vad jag heter eller vad klockan är.",
         "name": "Jag heter {name}.",
         "time": "Klockan är {time}.",
         "thanks": "Varsågod!",
@@ -63,8 +63,7 @@ _REPLIES: dict[str, dict[str, str]] = {
     },
     "en": {
         "greeting": GREETINGS["en"],
-        "help": "I am a talking avatar. Write to me and I will answer out loud. "
-                "You can ask me my name or the time.",
+        "help": "I am a talking avatar. Write to me and I will answer out loud. You can ask me my name or the time.",
         "name": "My name is {name}.",
         "time": "It is {time}.",
         "thanks": "You're welcome!",
@@ -85,14 +84,18 @@ class RuleBot:
     def __init__(self, name: str = "Vera", clock: Callable[[], datetime] = datetime.now) -> None:
         self.name = name
         self.clock = clock
-        self._rules = {lang: [(rule, re.compile(pattern, re.IGNORECASE)) for rule, pattern in rules]
-                       for lang, rules in _RULES.items()}
+        self._rules = {
+            lang: [(rule, re.compile(pattern, re.IGNORECASE)) for rule, pattern in rules]
+            for lang, rules in _RULES.items()
+        }
 
     def reply(self, message: str, lang: str) -> str:
         """The answer to ``message`` in ``lang``."""
         if lang not in self._rules:
-            raise VispeechError(f"the built-in chat bot speaks sv and en, not {lang!r}; connect a chat service "
-                                "(vispeech serve --chat-url) for other languages")
+            raise VispeechError(
+                f"the built-in chat bot speaks sv and en, not {lang!r}; connect a chat service "
+                "(vispeech serve --chat-url) for other languages"
+            )
         rule = next((rule for rule, pattern in self._rules[lang] if pattern.search(message)), "fallback")
         return _REPLIES[lang][rule].format(name=self.name, time=f"{self.clock():%H:%M}")
 
@@ -137,7 +140,9 @@ class HTTPChatBot:
         if self.lang_field is not None:
             payload[self.lang_field] = lang
         request = urllib.request.Request(
-            self.url, data=json.dumps(payload).encode(), method="POST",
+            self.url,
+            data=json.dumps(payload).encode(),
+            method="POST",
             headers={"Content-Type": "application/json", "Accept": "application/json", **self.headers},
         )
         try:

@@ -47,8 +47,15 @@ class CacheKey:
 
     def canonical(self) -> bytes:
         """The key's fields as canonical JSON (what its id is computed from)."""
-        fields = [self.text, self.language, self.voice, float(self.rate),
-                  self.model, self.model_version, float(self.fps)]
+        fields = [
+            self.text,
+            self.language,
+            self.voice,
+            float(self.rate),
+            self.model,
+            self.model_version,
+            float(self.fps),
+        ]
         return json.dumps(fields, ensure_ascii=False).encode("utf-8", "surrogatepass")
 
     def id(self, secret: bytes) -> str:
@@ -88,8 +95,9 @@ class UtteranceCache:
     (least recently used go first; an entry just written stays even when it alone is larger).
     """
 
-    def __init__(self, path: str | os.PathLike | None = None, max_entries: int = 10_000,
-                 max_bytes: int = 512 * 1024 * 1024) -> None:
+    def __init__(
+        self, path: str | os.PathLike | None = None, max_entries: int = 10_000, max_bytes: int = 512 * 1024 * 1024
+    ) -> None:
         if max_entries < 1:
             raise VispeechError(f"max_entries must be at least 1, got {max_entries}")
         if max_bytes < 1:
@@ -161,8 +169,21 @@ class UtteranceCache:
         now = time.time()
         entry_id = self.entry_id(key)
         size = len(wav) + len(animation.encode("utf-8", "surrogatepass"))
-        row = (entry_id, key.text, key.language, key.voice, float(key.rate), key.model, key.model_version,
-               float(key.fps), sqlite3.Binary(wav), animation, now, now, size)
+        row = (
+            entry_id,
+            key.text,
+            key.language,
+            key.voice,
+            float(key.rate),
+            key.model,
+            key.model_version,
+            float(key.fps),
+            sqlite3.Binary(wav),
+            animation,
+            now,
+            now,
+            size,
+        )
         with self._lock, self._db:
             self._db.execute("INSERT OR REPLACE INTO utterances VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", row)
             self._db.execute(
@@ -173,7 +194,8 @@ class UtteranceCache:
             if total > self.max_bytes:
                 doomed = []
                 for old_id, old_size in self._db.execute(
-                        "SELECT id, size FROM utterances WHERE id != ? ORDER BY used ASC", (entry_id,)):
+                    "SELECT id, size FROM utterances WHERE id != ? ORDER BY used ASC", (entry_id,)
+                ):
                     if total <= self.max_bytes:
                         break
                     doomed.append((old_id,))

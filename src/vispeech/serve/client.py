@@ -38,20 +38,23 @@ class StreamTimings:
 
     def summary(self) -> str:
         ms = 1000.0
-        return "\n".join([
-            f"model          {self.model}",
-            f"first frame    {self.first_frame * ms:8.1f} ms",
-            f"first audio    {self.first_audio * ms:8.1f} ms",
-            f"total          {self.total * ms:8.1f} ms  ({self.audio_seconds:.2f} s of audio, "
-            f"{self.n_frames} frames at {self.fps:g} fps)",
-            f"frames late    {self.frames_late} of {self.n_frames}",
-            f"audio late     {self.audio_late} of {self.n_audio} chunks",
-            f"late warnings  {self.warnings}",
-        ])
+        return "\n".join(
+            [
+                f"model          {self.model}",
+                f"first frame    {self.first_frame * ms:8.1f} ms",
+                f"first audio    {self.first_audio * ms:8.1f} ms",
+                f"total          {self.total * ms:8.1f} ms  ({self.audio_seconds:.2f} s of audio, "
+                f"{self.n_frames} frames at {self.fps:g} fps)",
+                f"frames late    {self.frames_late} of {self.n_frames}",
+                f"audio late     {self.audio_late} of {self.n_audio} chunks",
+                f"late warnings  {self.warnings}",
+            ]
+        )
 
 
-async def time_stream(url: str, text: str, lang: str = "en", model: str | None = None,
-                      timeout: float = 60.0) -> StreamTimings:
+async def time_stream(
+    url: str, text: str, lang: str = "en", model: str | None = None, timeout: float = 60.0
+) -> StreamTimings:
     """Send ``text`` to the stream at ``url`` (``ws://host:port/api/stream``) and time the answer.
 
     Raises :class:`RuntimeError` when the server answers with an error or the stream breaks off.
@@ -96,11 +99,17 @@ async def time_stream(url: str, text: str, lang: str = "en", model: str | None =
         1 for arrival, first, count in frames for k in range(first, first + count) if arrival > playback + k / fps
     )
     return StreamTimings(
-        first_frame=frames[0][0], first_audio=audio[0][0], total=total,
-        n_frames=sum(count for _, _, count in frames), fps=fps,
+        first_frame=frames[0][0],
+        first_audio=audio[0][0],
+        total=total,
+        n_frames=sum(count for _, _, count in frames),
+        fps=fps,
         audio_seconds=samples / float(start_message.get("sample_rate") or 22050),
-        frames_late=late, audio_late=sum(1 for arrival, start in audio if arrival > playback + start),
-        n_audio=len(audio), model=str(start_message.get("model", "")), warnings=warnings,
+        frames_late=late,
+        audio_late=sum(1 for arrival, start in audio if arrival > playback + start),
+        n_audio=len(audio),
+        model=str(start_message.get("model", "")),
+        warnings=warnings,
     )
 
 
@@ -144,16 +153,26 @@ class ListenResult:
         ]
         if len(self.delays):
             p50, p95 = np.percentile(self.delays, [50, 95]) * ms
-            lines.append(f"frame delay    p50 {p50:.1f} ms, p95 {p95:.1f} ms, max {self.delays.max() * ms:.1f} ms "
-                         "(audio sent to frame received)")
+            lines.append(
+                f"frame delay    p50 {p50:.1f} ms, p95 {p95:.1f} ms, max {self.delays.max() * ms:.1f} ms "
+                "(audio sent to frame received)"
+            )
         lines.append(f"total          {self.total * ms:.1f} ms")
         lines += [f"warning        {message}" for message in self.warnings]
         return "\n".join(lines)
 
 
-async def stream_audio(url: str, samples: np.ndarray, sample_rate: int, *, fps: float | None = None,
-                       model: str | None = None, chunk_seconds: float = 0.02, realtime: bool = True,
-                       timeout: float = 60.0) -> ListenResult:
+async def stream_audio(
+    url: str,
+    samples: np.ndarray,
+    sample_rate: int,
+    *,
+    fps: float | None = None,
+    model: str | None = None,
+    chunk_seconds: float = 0.02,
+    realtime: bool = True,
+    timeout: float = 60.0,
+) -> ListenResult:
     """Send ``samples`` (mono floats in [-1, 1] or 16-bit integers at ``sample_rate`` Hz) to
     ``url`` (``ws://host:port/api/listen``) as live audio in chunks of ``chunk_seconds``, paced
     in real time when ``realtime`` (else as fast as the server takes them), and time the frames.
@@ -173,8 +192,9 @@ async def stream_audio(url: str, samples: np.ndarray, sample_rate: int, *, fps: 
     warnings: list[str] = []
     seconds = len(pcm) / sample_rate
     async with websockets.connect(url, max_size=None, open_timeout=timeout, close_timeout=2) as ws:
-        await ws.send(json.dumps({"type": "start", "sample_rate": sample_rate, "encoding": "pcm16",
-                                  "fps": fps, "model": model}))
+        await ws.send(
+            json.dumps({"type": "start", "sample_rate": sample_rate, "encoding": "pcm16", "fps": fps, "model": model})
+        )
         async with asyncio.timeout(timeout):
             start = json.loads(await ws.recv())
         if start.get("type") != "start":
@@ -186,7 +206,7 @@ async def stream_audio(url: str, samples: np.ndarray, sample_rate: int, *, fps: 
                 if realtime:
                     await asyncio.sleep(max(0.0, began + i * chunk_seconds - time.perf_counter()))
                 sent.append((time.perf_counter(), min(a + step, len(pcm))))
-                await ws.send(pcm[a:a + step].tobytes())
+                await ws.send(pcm[a : a + step].tobytes())
             await ws.send(json.dumps({"type": "stop"}))
 
         sender = asyncio.create_task(send())
@@ -218,6 +238,14 @@ async def stream_audio(url: str, samples: np.ndarray, sample_rate: int, *, fps: 
         for k in range(first, first + len(rows)):
             sample = min(int(k / float(start["fps"]) * sample_rate), len(pcm) - 1)
             delays.append(arrival - when[min(int(np.searchsorted(ends, sample, side="right")), len(when) - 1)])
-    return ListenResult(start=start, frames=frames.reshape(-1, len(start["channels"])), delays=np.array(delays),
-                        audio_seconds=seconds, chunks=len(sent), chunk_seconds=step / sample_rate, realtime=realtime,
-                        total=total, warnings=warnings)
+    return ListenResult(
+        start=start,
+        frames=frames.reshape(-1, len(start["channels"])),
+        delays=np.array(delays),
+        audio_seconds=seconds,
+        chunks=len(sent),
+        chunk_seconds=step / sample_rate,
+        realtime=realtime,
+        total=total,
+        warnings=warnings,
+    )

@@ -86,44 +86,91 @@ class ServeConfig:
     the GIL back quickly from a busy worker after each socket call.
     """
 
-    avatar: Path | None = field(default=None, metadata=_option(
-        "--avatar", "glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
-        "lacks (vispeech rig prepare)."))
-    avatar_credit: str | None = field(default=None, metadata=_option(
-        "--avatar-credit", 'Credit line shown under the head, e.g. "3D head: ICT-FaceKit (USC ICT), MIT licence".'))
-    prepare_avatar: bool = field(default=True, metadata=_option(
-        "--avatar-as-is", "Serve --avatar untouched (no tongue targets or paint added).", negated=True))
-    cache: str | os.PathLike | None = field(default=None, metadata=_option(
-        "--cache", "SQLite file of the utterance cache [default: serve.sqlite3 in ~/.cache/vispeech]."))
+    avatar: Path | None = field(
+        default=None,
+        metadata=_option(
+            "--avatar",
+            "glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
+            "lacks (vispeech rig prepare).",
+        ),
+    )
+    avatar_credit: str | None = field(
+        default=None,
+        metadata=_option(
+            "--avatar-credit", 'Credit line shown under the head, e.g. "3D head: ICT-FaceKit (USC ICT), MIT licence".'
+        ),
+    )
+    prepare_avatar: bool = field(
+        default=True,
+        metadata=_option(
+            "--avatar-as-is", "Serve --avatar untouched (no tongue targets or paint added).", negated=True
+        ),
+    )
+    cache: str | os.PathLike | None = field(
+        default=None,
+        metadata=_option(
+            "--cache", "SQLite file of the utterance cache [default: serve.sqlite3 in ~/.cache/vispeech]."
+        ),
+    )
     cache_entries: int = 10_000
-    cache_bytes: int = field(default=512 * _MIB, metadata=_option(
-        "--cache-mb", "Largest size of the utterance cache (MiB of audio and animation).", minimum=1, unit=_MIB))
+    cache_bytes: int = field(
+        default=512 * _MIB,
+        metadata=_option(
+            "--cache-mb", "Largest size of the utterance cache (MiB of audio and animation).", minimum=1, unit=_MIB
+        ),
+    )
     bot: ChatBot = field(default_factory=RuleBot)
-    default_model: str = field(default=DEFAULT_MODEL, metadata=_option(
-        "--model", "Default model of /api/speak and /api/chat."))
-    stream_model: str | None = field(default=None, metadata=_option(
-        "--stream-model", "Model name or saved model folder for /api/stream [default: the shipped "
-        "grid-tdnn-lowlatency]."))
-    audio_model: str | None = field(default=DEFAULT_AUDIO_STREAM_MODEL, metadata=_option(
-        "--audio-model", "Audio model name or saved folder for /api/listen and /api/animate without a transcript "
-        "(none when the default is not installed)."))
+    default_model: str = field(
+        default=DEFAULT_MODEL, metadata=_option("--model", "Default model of /api/speak and /api/chat.")
+    )
+    stream_model: str | None = field(
+        default=None,
+        metadata=_option(
+            "--stream-model",
+            "Model name or saved model folder for /api/stream [default: the shipped grid-tdnn-lowlatency].",
+        ),
+    )
+    audio_model: str | None = field(
+        default=DEFAULT_AUDIO_STREAM_MODEL,
+        metadata=_option(
+            "--audio-model",
+            "Audio model name or saved folder for /api/listen and /api/animate without a transcript "
+            "(none when the default is not installed).",
+        ),
+    )
     fps: float = DEFAULT_FPS
-    rate_limit: float = field(default=2.0, metadata=_option(
-        "--rate-limit", "Requests a second per client IP for speak, chat and stream texts (0: no limit).", minimum=0))
+    rate_limit: float = field(
+        default=2.0,
+        metadata=_option(
+            "--rate-limit", "Requests a second per client IP for speak, chat and stream texts (0: no limit).", minimum=0
+        ),
+    )
     burst: int = field(default=20, metadata=_option("--burst", "Requests a client may make at once.", minimum=1))
     max_body_bytes: int = 64 * 1024
     max_message_bytes: int = 64 * 1024
     max_audio_bytes: int = 32 * _MIB
     max_chunk_bytes: int = 32 * 1024
-    max_streams: int = field(default=500, metadata=_option(
-        "--max-streams", "WebSocket connections open at once.", minimum=1))
-    max_streams_per_ip: int = field(default=8, metadata=_option(
-        "--max-streams-per-ip", "WebSocket connections open at once from one client address.", minimum=1))
-    idle_timeout: float = field(default=30.0, metadata=_option(
-        "--idle-timeout", "Seconds a WebSocket may stay silent (with nothing being computed) before it is closed.",
-        minimum=0.1))
-    stream_timeout: float = field(default=600.0, metadata=_option(
-        "--stream-timeout", "Seconds a WebSocket connection may stay open in all.", minimum=1))
+    max_streams: int = field(
+        default=500, metadata=_option("--max-streams", "WebSocket connections open at once.", minimum=1)
+    )
+    max_streams_per_ip: int = field(
+        default=8,
+        metadata=_option(
+            "--max-streams-per-ip", "WebSocket connections open at once from one client address.", minimum=1
+        ),
+    )
+    idle_timeout: float = field(
+        default=30.0,
+        metadata=_option(
+            "--idle-timeout",
+            "Seconds a WebSocket may stay silent (with nothing being computed) before it is closed.",
+            minimum=0.1,
+        ),
+    )
+    stream_timeout: float = field(
+        default=600.0,
+        metadata=_option("--stream-timeout", "Seconds a WebSocket connection may stay open in all.", minimum=1),
+    )
     max_message_seconds: float = 20.0
     max_stream_seconds: float = MAX_STREAM_SECONDS
     chars_per_token: float = 100.0
@@ -133,22 +180,38 @@ class ServeConfig:
     max_audio_speed: float = 4.0
     max_audio_lag: float = 0.5
     max_audio_backlog: float = 2.0
-    workers: int = field(default_factory=_default_workers, metadata=_option(
-        "--workers", "Threads for the CPU-heavy work [default: cores - 1].", minimum=1))
-    max_queue: int = field(default=64, metadata=_option(
-        "--max-queue", "Jobs that may wait for a worker; beyond that requests get 503 (busy).", minimum=1))
+    workers: int = field(
+        default_factory=_default_workers,
+        metadata=_option("--workers", "Threads for the CPU-heavy work [default: cores - 1].", minimum=1),
+    )
+    max_queue: int = field(
+        default=64,
+        metadata=_option(
+            "--max-queue", "Jobs that may wait for a worker; beyond that requests get 503 (busy).", minimum=1
+        ),
+    )
     piece_seconds: float = 1.0
     switch_interval: float | None = 0.0005
     allowed_hosts: tuple[str, ...] = DEFAULT_ALLOWED_HOSTS
     allowed_origins: tuple[str, ...] | None = None
-    token: str | None = field(default=None, metadata=_option(
-        "--token", "Require this bearer token for the API and the stream (pages and /api/config stay open; open a "
-        "page with ?token=... to let it in).", envvar="VISPEECH_TOKEN"))
+    token: str | None = field(
+        default=None,
+        metadata=_option(
+            "--token",
+            "Require this bearer token for the API and the stream (pages and /api/config stay open; open a "
+            "page with ?token=... to let it in).",
+            envvar="VISPEECH_TOKEN",
+        ),
+    )
     static_dir: Path | None = None
     scale: str = DEFAULT_SCALE
-    voice: str | None = field(default=None, metadata=_option(
-        "--voice", "The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages "
-        "--variants`)."))
+    voice: str | None = field(
+        default=None,
+        metadata=_option(
+            "--voice",
+            "The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages --variants`).",
+        ),
+    )
 
     def to_json(self) -> str:
         """The settings as JSON, for the server's other processes (:func:`~vispeech.serve.app.app_from_environment`).
@@ -158,8 +221,14 @@ class ServeConfig:
         data = {k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v for k, v in data.items()}
         bot = self.bot
         if isinstance(bot, HTTPChatBot):
-            data["bot"] = {"url": bot.url, "message_field": bot.message_field, "lang_field": bot.lang_field,
-                           "reply_field": bot.reply_field, "headers": bot.headers, "timeout": bot.timeout}
+            data["bot"] = {
+                "url": bot.url,
+                "message_field": bot.message_field,
+                "lang_field": bot.lang_field,
+                "reply_field": bot.reply_field,
+                "headers": bot.headers,
+                "timeout": bot.timeout,
+            }
         elif type(bot) is RuleBot:
             data["bot"] = None
         else:

@@ -78,15 +78,19 @@ class Connection:
         worker = asyncio.create_task(self._process())
         reader = asyncio.create_task(self._read())
         try:
-            done, _ = await asyncio.wait({worker, reader}, timeout=self.config.stream_timeout,
-                                         return_when=asyncio.FIRST_COMPLETED)
+            done, _ = await asyncio.wait(
+                {worker, reader}, timeout=self.config.stream_timeout, return_when=asyncio.FIRST_COMPLETED
+            )
             self.cancelled.set()
             if worker not in done:
                 worker.cancel()
                 await asyncio.gather(worker, return_exceptions=True)
                 if not done:
-                    await self._close(1001, f"the connection was open {self.config.stream_timeout:g} s, the most "
-                                            "allowed: closing (open a new one to go on)")
+                    await self._close(
+                        1001,
+                        f"the connection was open {self.config.stream_timeout:g} s, the most "
+                        "allowed: closing (open a new one to go on)",
+                    )
         finally:
             self.cancelled.set()
             reader.cancel()

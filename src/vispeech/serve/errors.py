@@ -26,8 +26,9 @@ REFUSALS = (VispeechError, RateLimited, Busy)
 """The errors a stream message is refused with: the client gets an ``error`` message and may go on."""
 
 
-def describe_errors(errors: Sequence[Any], skip: int = 0, what: str = "body",
-                    kinds: tuple[str, ...] = ("text", "phones")) -> str:
+def describe_errors(
+    errors: Sequence[Any], skip: int = 0, what: str = "body", kinds: tuple[str, ...] = ("text", "phones")
+) -> str:
     """Pydantic errors as one readable line: ``"text: String should have at most 1000 characters"``.
 
     ``skip`` leading parts of each error's location are left out; an error of the whole

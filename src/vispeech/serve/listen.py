@@ -122,9 +122,17 @@ class ListenConnection(Connection):
         name, model = self.service.model(message.model, audio=True)
         stream = await self._run(LiveAudioStream, model, message.sample_rate, message.fps or self.config.fps)
         self.audio, self.started, self.warned_fast, self.behind = stream, time.monotonic(), False, False
-        await send_message(self.ws, StartMessage(fps=stream.fps, channels=list(stream.channels),
-                                          sample_rate=stream.sample_rate, model=name, lookahead=stream.lookahead,
-                                          delay=round(stream.delay, 6)))
+        await send_message(
+            self.ws,
+            StartMessage(
+                fps=stream.fps,
+                channels=list(stream.channels),
+                sample_rate=stream.sample_rate,
+                model=name,
+                lookahead=stream.lookahead,
+                delay=round(stream.delay, 6),
+            ),
+        )
 
     async def _stop(self) -> None:
         stream = self.audio
@@ -150,8 +158,10 @@ class ListenConnection(Connection):
             for chunk in chunks:
                 data = chunk["bytes"]
                 if len(data) > config.max_chunk_bytes:
-                    raise VispeechError(f"an audio chunk may have at most {config.max_chunk_bytes} bytes "
-                                        f"(this one has {len(data)}): send smaller chunks")
+                    raise VispeechError(
+                        f"an audio chunk may have at most {config.max_chunk_bytes} bytes "
+                        f"(this one has {len(data)}): send smaller chunks"
+                    )
                 if len(data) % 2:
                     raise VispeechError(f"16-bit PCM has 2 bytes a sample: a chunk of {len(data)} bytes is cut short")
                 added = len(data) / 2 / stream.sample_rate
@@ -160,8 +170,13 @@ class ListenConnection(Connection):
                 self.service.pay(self.ip, max(added, MIN_CHUNK_SECONDS) / config.audio_seconds_per_token)
                 pcm.append(data)
                 seconds += added
-            text = await self._run(self.service.step, stream, stream.push, b"".join(pcm),
-                                   weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND)
+            text = await self._run(
+                self.service.step,
+                stream,
+                stream.push,
+                b"".join(pcm),
+                weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND,
+            )
         except REFUSALS as exc:
             stream.close()
             self.audio, self.refusing = None, True
@@ -174,16 +189,26 @@ class ListenConnection(Connection):
         allowed = FAST_GRACE_SECONDS + config.max_audio_speed * (now - self.started)
         if not self.warned_fast and stream.duration > allowed:
             self.warned_fast = True
-            await send_message(self.ws, WarningMessage(
-                code="too_fast", seconds=round(lead, 3),
-                message=f"audio is arriving faster than {config.max_audio_speed:g} times real time ({lead:.1f} s "
-                        "ahead): frames come as fast as they are computed, not as live audio's would"))
+            await send_message(
+                self.ws,
+                WarningMessage(
+                    code="too_fast",
+                    seconds=round(lead, 3),
+                    message=f"audio is arriving faster than {config.max_audio_speed:g} times real time ({lead:.1f} s "
+                    "ahead): frames come as fast as they are computed, not as live audio's would",
+                ),
+            )
         lag = now - chunks[0]["arrived"]
         if lag > config.max_audio_lag and not self.behind:
             self.behind = True
-            await send_message(self.ws, WarningMessage(
-                code="behind", seconds=round(lag, 3),
-                message=f"the server is {lag:.2f} s behind the audio (more than {config.max_audio_lag:g} s): "
-                        "frames are late"))
+            await send_message(
+                self.ws,
+                WarningMessage(
+                    code="behind",
+                    seconds=round(lag, 3),
+                    message=f"the server is {lag:.2f} s behind the audio (more than {config.max_audio_lag:g} s): "
+                    "frames are late",
+                ),
+            )
         elif lag < config.max_audio_lag / 2:
             self.behind = False

@@ -81,8 +81,7 @@ class WorkPool:
             thread.start()
             self._threads.append(thread)
 
-    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None,
-                  weight: float = 0.0):
+    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None, weight: float = 0.0):
         """``fn(*args)`` on a worker thread; :class:`Busy` when the queue is full, :class:`Cancelled`
         when ``cancelled`` was set before it started."""
         loop = asyncio.get_running_loop()

@@ -29,8 +29,9 @@ class TokenBucket:
     are forgotten.
     """
 
-    def __init__(self, rate: float, burst: int, max_clients: int = 10_000,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, rate: float, burst: int, max_clients: int = 10_000, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         if not (math.isfinite(rate) and rate >= 0) or burst < 1:
             raise ValueError("rate must be >= 0 and burst >= 1")
         self.rate = float(rate)
@@ -76,9 +77,11 @@ class TokenBucket:
         return 1.0 / self.rate if self.enabled else 0.0
 
     def message(self) -> str:
-        return (f"rate limit exceeded: at most {self.rate:g} tokens a second per client "
-                f"(bursts of {self.burst}; a request costs a token per 100 characters of text, "
-                f"second of phones or 4 s of audio); retry in {self.retry_after():.1f} s")
+        return (
+            f"rate limit exceeded: at most {self.rate:g} tokens a second per client "
+            f"(bursts of {self.burst}; a request costs a token per 100 characters of text, "
+            f"second of phones or 4 s of audio); retry in {self.retry_after():.1f} s"
+        )
 
     def _forget_idle(self, now: float) -> None:
         full = [k for k, (tokens, then) in self._buckets.items() if tokens + (now - then) * self.rate >= self.burst]
@@ -94,12 +97,17 @@ async def send_json_error(send, status: int, detail: str, headers: Iterable[tupl
     """Send a complete ``{"detail": ...}`` JSON response through an ASGI ``send``."""
     body = json.dumps({"detail": detail}).encode()
     try:
-        await send({
-            "type": "http.response.start",
-            "status": status,
-            "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                        *headers],
-        })
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                    *headers,
+                ],
+            }
+        )
         await send({"type": "http.response.body", "body": body})
     except Exception:  # noqa: BLE001 (the connection broke first, e.g. the server refused a malformed body)
         log.debug("could not send the %d answer: the connection is gone", status)
@@ -222,9 +230,17 @@ async def _refuse(scope, receive, send, status: int, detail: str, headers: Itera
         return
     if "websocket.http.response" in scope.get("extensions", {}):
         body = json.dumps({"detail": detail}).encode()
-        await send({"type": "websocket.http.response.start", "status": status,
-                    "headers": [(b"content-type", b"application/json"),
-                                (b"content-length", str(len(body)).encode()), *headers]})
+        await send(
+            {
+                "type": "websocket.http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                    *headers,
+                ],
+            }
+        )
         await send({"type": "websocket.http.response.body", "body": body})
     else:
         await send({"type": "websocket.close", "code": 1008, "reason": detail[:120]})
@@ -287,7 +303,9 @@ class HostOriginCheck:
         checks_origin = scope["type"] == "websocket" or scope.get("method", "GET") not in ("GET", "HEAD", "OPTIONS")
         if origin is not None and checks_origin and not self.origin_allowed(origin.decode("latin-1"), raw_host):
             shown = origin.decode("latin-1")[:100]
-            await _refuse(scope, receive, send, 403, f"Origin {shown!r} is not allowed (the server's --allow-origin list)")
+            await _refuse(
+                scope, receive, send, 403, f"Origin {shown!r} is not allowed (the server's --allow-origin list)"
+            )
             return
         await self.app(scope, receive, send)
 
@@ -348,13 +366,20 @@ class TokenAuth:
             await self.app(scope, receive, send_with_cookie)
             return
         if path.startswith("/api/") and path not in OPEN_API_PATHS and not self.authorised(scope):
-            await _refuse(scope, receive, send, 401, "a token is required: send Authorization: Bearer <token>",
-                          [(b"www-authenticate", b'Bearer realm="vispeech"')])
+            await _refuse(
+                scope,
+                receive,
+                send,
+                401,
+                "a token is required: send Authorization: Bearer <token>",
+                [(b"www-authenticate", b'Bearer realm="vispeech"')],
+            )
             return
         await self.app(scope, receive, send)
 
 
 # -- connections -----------------------------------------------------------------------------------
+
 
 class ConnectionCounter:
     """Open WebSocket connections, server-wide and per client IP, against their caps."""

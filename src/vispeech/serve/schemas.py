@@ -41,13 +41,15 @@ def _spoken_language(code: str) -> str:
     return find_voice(code).language
 
 
-Language = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=40),
-                     AfterValidator(_spoken_language)]
+Language = Annotated[
+    str, StringConstraints(strip_whitespace=True, min_length=1, max_length=40), AfterValidator(_spoken_language)
+]
 """A language espeak-ng speaks (``vispeech languages``), read as its own code (``fr`` -> ``fr-fr``)."""
 PhoneSet = Literal["sv", "en", "ipa"]
 """The phone set of timed phones: Swedish, English (ARPAbet) or IPA."""
-Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS),
-                 AfterValidator(_printable)]
+Text = Annotated[
+    str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS), AfterValidator(_printable)
+]
 Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
 Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=False)]
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
@@ -305,8 +307,10 @@ class ErrorMessage(BaseModel):
 
 
 ServerMessage = TypeAdapter(
-    Annotated[StartMessage | FramesMessage | AudioMessage | EndMessage | WarningMessage | ErrorMessage,
-              Field(discriminator="type")]
+    Annotated[
+        StartMessage | FramesMessage | AudioMessage | EndMessage | WarningMessage | ErrorMessage,
+        Field(discriminator="type"),
+    ]
 )
 """Every message the server sends on ``/api/stream`` and ``/api/listen``; validates one (a dict or
 JSON) into its model."""

@@ -84,8 +84,12 @@ class PushBatcher:
 
     async def _run(self, batch: list) -> None:
         try:
-            results = await self.service.pool.run("phone streams", self._frames, [(s, p) for s, p, _, _ in batch],
-                                                  weight=sum(weight for _, _, weight, _ in batch))
+            results = await self.service.pool.run(
+                "phone streams",
+                self._frames,
+                [(s, p) for s, p, _, _ in batch],
+                weight=sum(weight for _, _, weight, _ in batch),
+            )
         except BaseException as exc:  # Busy, shutting down: every session of the batch is told
             results = [exc] * len(batch)
         self.batches += 1
@@ -104,8 +108,10 @@ class PushBatcher:
     def _frames(self, pushes: list[tuple[PhoneStream, list[Phone]]]) -> list[str | None | VispeechError]:
         """:func:`~vispeech.streaming.push_together` of ``(stream, phones)`` pairs: each one's ``frames``
         message (``None`` for none), or its error."""
-        return [result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
-                for (stream, _), result in zip(pushes, push_together(pushes))]
+        return [
+            result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
+            for (stream, _), result in zip(pushes, push_together(pushes))
+        ]
 
 
 class SpeechService:
@@ -226,8 +232,10 @@ class SpeechService:
         model when ``audio``)."""
         if name is None and audio:
             if self.audio_model is None:
-                raise VispeechError("this server has no audio model: name one (model), or start the server "
-                                    "with --audio-model NAME|FOLDER")
+                raise VispeechError(
+                    "this server has no audio model: name one (model), or start the server "
+                    "with --audio-model NAME|FOLDER"
+                )
             name = self.audio_model
         name = name or (self.stream_model if stream else self.config.default_model)
         if name not in self.models:
@@ -240,15 +248,17 @@ class SpeechService:
         selector = voice.selector if self.config.voice is None else f"{voice.selector}+{self.config.voice}"
         return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
 
-    def lookup(self, text: str, lang: str, model_name: str | None, rate: float,
-               life: tuple[str, ...] = (), seed: int = 0) -> SpeakResponse | None:
+    def lookup(
+        self, text: str, lang: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
+    ) -> SpeakResponse | None:
         """The cached answer to this request, or ``None`` (nothing computed)."""
         key, _ = self._key(text, lang, model_name, rate)
         entry = self.cache.get(key)
         return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
 
-    def speak(self, text: str, lang: str, model_name: str | None, rate: float,
-              life: tuple[str, ...] = (), seed: int = 0) -> SpeakResponse:
+    def speak(
+        self, text: str, lang: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
+    ) -> SpeakResponse:
         """The answer to this request, from the cache when the same request was answered before.
 
         The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
@@ -288,8 +298,9 @@ class SpeechService:
             entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
         return self._answer(entry, query.text or "", cached)
 
-    def _answer(self, entry: CachedUtterance, text: str, cached: bool, life: tuple[str, ...] = (),
-                seed: int = 0) -> SpeakResponse:
+    def _answer(
+        self, entry: CachedUtterance, text: str, cached: bool, life: tuple[str, ...] = (), seed: int = 0
+    ) -> SpeakResponse:
         animation = AnimationJSON.model_validate_json(entry.animation)
         if life:
             animation = self._with_life(animation, life, seed)
@@ -324,7 +335,6 @@ class SpeechService:
             said = detect_language(reply, codes)
             asked = lang if said is None else find_voice(said).language
         return reply, asked
-
 
 
 def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:

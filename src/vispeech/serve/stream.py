@@ -66,8 +66,15 @@ class StreamConnection(Connection):
 
     async def _text(self, message: TextMessage) -> None:
         _, model = self.service.model(message.model, stream=True)
-        messages = speech_messages(message.text, message.lang, model, fps=self.config.fps, rate=message.rate,
-                                   scale=self.service.calibration, variant=self.config.voice)
+        messages = speech_messages(
+            message.text,
+            message.lang,
+            model,
+            fps=self.config.fps,
+            rate=message.rate,
+            scale=self.service.calibration,
+            variant=self.config.voice,
+        )
 
         def next_clause() -> tuple[list[str], float | None] | None:
             batch = next(messages, None)
@@ -86,10 +93,15 @@ class StreamConnection(Connection):
                     playing = now - begin
                 elif begin is not None and playing is not None and now - playing > begin:
                     late = now - playing - begin
-                    await send_message(self.ws, WarningMessage(
-                        code="late", seconds=round(late, 3),
-                        message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
-                                "overloaded (buffer more before playing, or try again later)"))
+                    await send_message(
+                        self.ws,
+                        WarningMessage(
+                            code="late",
+                            seconds=round(late, 3),
+                            message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
+                            "overloaded (buffer more before playing, or try again later)",
+                        ),
+                    )
                 for text in texts:
                     await self.ws.send_text(text)
         finally:
@@ -105,18 +117,29 @@ class StreamConnection(Connection):
         last = max((p.end for p in message.phones), default=begin)
         added = max(0.0, last - begin)
         if added > config.max_message_seconds + 1e-9:
-            raise VispeechError(f"a phones message may add at most {config.max_message_seconds:g} s of phones "
-                                f"(this one adds {added:.1f} s): send them in smaller messages")
+            raise VispeechError(
+                f"a phones message may add at most {config.max_message_seconds:g} s of phones "
+                f"(this one adds {added:.1f} s): send them in smaller messages"
+            )
         if last > config.max_stream_seconds + 1e-9:
-            raise VispeechError(f"a phone stream may last at most {config.max_stream_seconds:g} s "
-                                f"(this message ends at {last:.1f} s)")
+            raise VispeechError(
+                f"a phone stream may last at most {config.max_stream_seconds:g} s (this message ends at {last:.1f} s)"
+            )
         self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
         if stream is None:
             name, model = self.service.model(message.model, stream=True)
             stream = await self._run(open_phone_stream, model, message.lang or "en", config.fps)
             self.phones = stream
-            await send_message(self.ws, StartMessage(fps=stream.fps, channels=list(stream.channels), sample_rate=None,
-                                              model=name, lookahead=stream.lookahead))
+            await send_message(
+                self.ws,
+                StartMessage(
+                    fps=stream.fps,
+                    channels=list(stream.channels),
+                    sample_rate=None,
+                    model=name,
+                    lookahead=stream.lookahead,
+                ),
+            )
         phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
         await self._run(stream.check, phones)  # refused whole before any piece is pushed
         begin = stream.end

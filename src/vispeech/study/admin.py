@@ -25,8 +25,9 @@ router = APIRouter(prefix="/admin", dependencies=[Depends(check_admin)])
 
 def _csv(text: str, name: str) -> PlainTextResponse:
     """``text`` as the CSV file ``name`` to download."""
-    return PlainTextResponse(text, media_type="text/csv",
-                             headers={"Content-Disposition": f'attachment; filename="{name}"'})
+    return PlainTextResponse(
+        text, media_type="text/csv", headers={"Content-Disposition": f'attachment; filename="{name}"'}
+    )
 
 
 @router.get("/answers.csv", response_class=PlainTextResponse)

@@ -78,8 +78,15 @@ REQUIRED_COLUMNS = ("participant", "task", "trial", "sentence", "warmup", "check
 # -- R ------------------------------------------------------------------------------------------
 
 
-def fit_clmm(frame: pd.DataFrame, formula: str, *, factors: Sequence[str] = (), term: str | None = None,
-             fallbacks: Sequence[str] = (), proportional_odds: str | None = None) -> dict:
+def fit_clmm(
+    frame: pd.DataFrame,
+    formula: str,
+    *,
+    factors: Sequence[str] = (),
+    term: str | None = None,
+    fallbacks: Sequence[str] = (),
+    proportional_odds: str | None = None,
+) -> dict:
     """Fit the cumulative-link mixed model ``formula`` (R syntax, logit link, flexible thresholds)
     to ``frame`` with R's ``ordinal::clmm``.
 
@@ -104,25 +111,44 @@ def fit_clmm(frame: pd.DataFrame, formula: str, *, factors: Sequence[str] = (), 
     return _run_r([_job("fit", frame, [formula, *fallbacks], factors, term, proportional_odds)])[0][0]
 
 
-def _job(name: str, frame: pd.DataFrame, formulas: Sequence[str], factors: Sequence[str], term: str | None,
-         proportional_odds: str | None) -> tuple[pd.DataFrame, dict]:
+def _job(
+    name: str,
+    frame: pd.DataFrame,
+    formulas: Sequence[str],
+    factors: Sequence[str],
+    term: str | None,
+    proportional_odds: str | None,
+) -> tuple[pd.DataFrame, dict]:
     """``frame`` as text and the job ``clmm.R`` runs on it (see its header)."""
     response = formulas[0].partition("~")[0].strip()
     missing = [c for c in (response, *factors, *([term] if term else [])) if c not in frame.columns]
     if missing:
         raise VispeechError(f"the data has no column {missing[0]!r} (columns: {', '.join(map(str, frame.columns))})")
     levels = _levels(frame[response])
-    values = ([float(v) for v in levels] if pd.api.types.is_numeric_dtype(frame[response])
-              else list(range(1, len(levels) + 1)))
+    values = (
+        [float(v) for v in levels]
+        if pd.api.types.is_numeric_dtype(frame[response])
+        else list(range(1, len(levels) + 1))
+    )
     named = set(factors)
-    factor_levels = {c: [_label(v) for v in _levels(frame[c])] for c in frame.columns
-                     if c != response and (c in named or not pd.api.types.is_numeric_dtype(frame[c]))}
+    factor_levels = {
+        c: [_label(v) for v in _levels(frame[c])]
+        for c in frame.columns
+        if c != response and (c in named or not pd.api.types.is_numeric_dtype(frame[c]))
+    }
     text = frame.copy()
     for column in (response, *factor_levels):
         text[column] = frame[column].map(lambda v: "" if pd.isna(v) else _label(v))
-    return text, {"id": name, "response": response, "levels": [_label(v) for v in levels], "values": values,
-                  "factors": factor_levels, "formulas": list(formulas), "term": term,
-                  "proportional_odds": proportional_odds}
+    return text, {
+        "id": name,
+        "response": response,
+        "levels": [_label(v) for v in levels],
+        "values": values,
+        "factors": factor_levels,
+        "formulas": list(formulas),
+        "term": term,
+        "proportional_odds": proportional_odds,
+    }
 
 
 def _levels(column: pd.Series) -> list:
@@ -145,8 +171,10 @@ def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[
     rscript = shutil.which("Rscript")
     if rscript is None:
         raise VispeechError(f"the study analysis needs R (Rscript was not found): {INSTALL_R}")
-    with (tempfile.TemporaryDirectory(prefix="vispeech-clmm-") as tmp,
-          resources.as_file(resources.files(__package__).joinpath("clmm.R")) as script):
+    with (
+        tempfile.TemporaryDirectory(prefix="vispeech-clmm-") as tmp,
+        resources.as_file(resources.files(__package__).joinpath("clmm.R")) as script,
+    ):
         folder = Path(tmp)
         specs = []
         for k, (frame, spec) in enumerate(jobs):
@@ -156,8 +184,13 @@ def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[
         request, result = folder / "request.json", folder / "result.json"
         request.write_text(json.dumps({"jobs": specs}), encoding="utf-8")
         try:
-            done = subprocess.run([rscript, str(script), str(request), str(result)], capture_output=True, text=True,
-                                  check=False, timeout=R_TIMEOUT)
+            done = subprocess.run(
+                [rscript, str(script), str(request), str(result)],
+                capture_output=True,
+                text=True,
+                check=False,
+                timeout=R_TIMEOUT,
+            )
         except subprocess.TimeoutExpired:
             raise VispeechError(f"R did not finish the models in {R_TIMEOUT} s (try --no-random-slopes)") from None
         except OSError as exc:
@@ -165,8 +198,9 @@ def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[
         lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
         if done.returncode == 3 and lines and lines[-1].startswith("vispeech-missing-r-packages:"):
             names = lines[-1].partition(":")[2].split()
-            raise VispeechError(f"the study analysis needs the R package{'s' if len(names) > 1 else ''} "
-                                f"{', '.join(names)}: {INSTALL_R}")
+            raise VispeechError(
+                f"the study analysis needs the R package{'s' if len(names) > 1 else ''} {', '.join(names)}: {INSTALL_R}"
+            )
         if done.returncode != 0 or not result.is_file():
             why = next((line for line in reversed(lines) if line.startswith("Error")), lines[-1] if lines else "")
             raise VispeechError(f"R failed (exit code {done.returncode}): {why or 'no message'}")
@@ -192,8 +226,9 @@ def read_participants(path: str | os.PathLike) -> pd.DataFrame:
     for column in ("passed_identical", "passed_mismatched"):
         bad = frame.index[~frame[column].isin(["0", "1", ""])]
         if len(bad):
-            raise VispeechError(f"participants file {path}, line {bad[0] + 2}: {column} is "
-                                f"{frame[column][bad[0]]!r}, not 0, 1 or empty")
+            raise VispeechError(
+                f"participants file {path}, line {bad[0] + 2}: {column} is {frame[column][bad[0]]!r}, not 0, 1 or empty"
+            )
     return frame
 
 
@@ -213,8 +248,10 @@ def check_answers(answers: pd.DataFrame, source: str = "answers", first_line: in
     line ``first_line``."""
     missing = [c for c in REQUIRED_COLUMNS if c not in answers.columns]
     if missing:
-        raise VispeechError(f"{source} has no column{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-                            f"(an answers.csv from `vispeech study export` has them)")
+        raise VispeechError(
+            f"{source} has no column{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+            f"(an answers.csv from `vispeech study export` has them)"
+        )
     if not len(answers):
         raise VispeechError(f"{source} holds no answers")
     frame = answers.reset_index(drop=True).astype({c: str for c in REQUIRED_COLUMNS})
@@ -231,20 +268,26 @@ def check_answers(answers: pd.DataFrame, source: str = "answers", first_line: in
     refuse(~frame["task"].isin(TASKS), "task {task!r} is neither rating nor pairwise")
     refuse(~frame["trial"].str.fullmatch(r"\d+"), "trial {trial!r} is not a whole number")
     refuse(~frame["warmup"].isin(["0", "1"]), "warmup {warmup!r} is not 0 or 1")
-    refuse(~frame["check"].isin(["", "identical", "mismatched"]), "check {check!r} is not empty, identical or "
-                                                                  "mismatched")
+    refuse(
+        ~frame["check"].isin(["", "identical", "mismatched"]), "check {check!r} is not empty, identical or mismatched"
+    )
     rating, pairwise = frame["task"] == "rating", frame["task"] == "pairwise"
     refuse(rating & (frame["model"] == ""), "a rating without a model")
-    refuse(rating & ~frame["answer"].isin([str(r) for r in RATINGS]),
-           f"rating {{answer!r}} is not a whole number from {RATINGS[0]} to {RATINGS[-1]}")
+    refuse(
+        rating & ~frame["answer"].isin([str(r) for r in RATINGS]),
+        f"rating {{answer!r}} is not a whole number from {RATINGS[0]} to {RATINGS[-1]}",
+    )
     refuse(pairwise & ((frame["left"] == "") | (frame["right"] == "")), "a pairwise answer without left and right")
-    refuse(pairwise & ~frame["answer"].isin(PAIRWISE_ANSWERS),
-           "pairwise answer {answer!r} is not left, tie or right")
-    refuse(pairwise & (frame["left"] == frame["right"]) & (frame["check"] == ""),
-           "{left!r} on both sides of a pairwise trial that is no check")
+    refuse(pairwise & ~frame["answer"].isin(PAIRWISE_ANSWERS), "pairwise answer {answer!r} is not left, tie or right")
+    refuse(
+        pairwise & (frame["left"] == frame["right"]) & (frame["check"] == ""),
+        "{left!r} on both sides of a pairwise trial that is no check",
+    )
     shown = frame[rating & (frame["check"] != "identical")]
-    refuse(frame.index.isin(shown.index[shown.duplicated(["participant", "task", "trial", "model"])]),
-           "model {model!r} shown twice in trial {trial} of participant {participant!r}")
+    refuse(
+        frame.index.isin(shown.index[shown.duplicated(["participant", "task", "trial", "model"])]),
+        "model {model!r} shown twice in trial {trial} of participant {participant!r}",
+    )
     return frame.astype({"trial": int, "warmup": int})
 
 
@@ -259,21 +302,28 @@ class Exclusions:
     """Per check (``identical``, ``mismatched``): participants who ``passed``, ``failed``, had ``none``."""
 
 
-def _exclude(answers: pd.DataFrame, participants: pd.DataFrame | None,
-             exclude_failed_checks: bool) -> tuple[pd.DataFrame, Exclusions]:
+def _exclude(
+    answers: pd.DataFrame, participants: pd.DataFrame | None, exclude_failed_checks: bool
+) -> tuple[pd.DataFrame, Exclusions]:
     checks: dict[str, dict[str, int]] = {}
     failed: set[str] = set()
     if participants is not None:
         for check in ("identical", "mismatched"):
             column = participants[f"passed_{check}"]
-            checks[check] = {"passed": int((column == "1").sum()), "failed": int((column == "0").sum()),
-                             "none": int((column == "").sum())}
+            checks[check] = {
+                "passed": int((column == "1").sum()),
+                "failed": int((column == "0").sum()),
+                "none": int((column == "").sum()),
+            }
             failed |= set(participants["participant"][column == "0"])
     dropped = tuple(sorted(failed & set(answers["participant"]))) if exclude_failed_checks else ()
     kept = answers[(answers["warmup"] == 0) & (answers["check"] == "") & ~answers["participant"].isin(dropped)]
-    return kept, Exclusions(int((answers["warmup"] == 1).sum()), int(((answers["warmup"] == 0)
-                                                                      & (answers["check"] != "")).sum()),
-                            dropped, checks)
+    return kept, Exclusions(
+        int((answers["warmup"] == 1).sum()),
+        int(((answers["warmup"] == 0) & (answers["check"] != "")).sum()),
+        dropped,
+        checks,
+    )
 
 
 def rating_frame(kept: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
@@ -281,8 +331,15 @@ def rating_frame(kept: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
     (1-9), ``x`` (the model, a categorical over ``models``), ``u`` (participant), ``s``
     (sentence) and ``trial``."""
     rows = kept[kept["task"] == "rating"]
-    frame = pd.DataFrame({"y": rows["answer"].astype(int), "x": pd.Categorical(rows["model"], categories=models),
-                          "u": rows["participant"], "s": rows["sentence"], "trial": rows["trial"]})
+    frame = pd.DataFrame(
+        {
+            "y": rows["answer"].astype(int),
+            "x": pd.Categorical(rows["model"], categories=models),
+            "u": rows["participant"],
+            "s": rows["sentence"],
+            "trial": rows["trial"],
+        }
+    )
     return frame.reset_index(drop=True)
 
 
@@ -291,9 +348,12 @@ def points_frame(kept: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
     model shown, with ``y`` (0, 1, 2), ``x``, ``u``, ``s`` and ``trial`` as in :func:`rating_frame`."""
     rows = kept[kept["task"] == "pairwise"]
     left = rows["answer"].map({"left": POINTS["win"], "tie": POINTS["tie"], "right": POINTS["loss"]})
-    sides = [pd.DataFrame({"y": points, "x": rows[side], "u": rows["participant"], "s": rows["sentence"],
-                           "trial": rows["trial"]})
-             for side, points in (("left", left), ("right", 2 * POINTS["tie"] - left))]
+    sides = [
+        pd.DataFrame(
+            {"y": points, "x": rows[side], "u": rows["participant"], "s": rows["sentence"], "trial": rows["trial"]}
+        )
+        for side, points in (("left", left), ("right", 2 * POINTS["tie"] - left))
+    ]
     frame = pd.concat(sides).sort_index(kind="stable").reset_index(drop=True)
     frame["x"] = pd.Categorical(frame["x"], categories=models)
     return frame
@@ -315,8 +375,16 @@ def win_table(frame: pd.DataFrame, models: Sequence[str]) -> pd.DataFrame:
         outcome = np.sign(both[a] - both[b])
         for name, mask in [*((s, sentence == s) for s in sentences), (ALL_SENTENCES, np.ones(len(both), bool))]:
             o = outcome[mask]
-            rows.append({"sentence": name, "a": a, "b": b, "a_wins": int((o > 0).sum()), "ties": int((o == 0).sum()),
-                         "b_wins": int((o < 0).sum())})
+            rows.append(
+                {
+                    "sentence": name,
+                    "a": a,
+                    "b": b,
+                    "a_wins": int((o > 0).sum()),
+                    "ties": int((o == 0).sum()),
+                    "b_wins": int((o < 0).sum()),
+                }
+            )
     return pd.DataFrame(rows, columns=["sentence", "a", "b", "a_wins", "ties", "b_wins"])
 
 
@@ -362,8 +430,13 @@ class TaskAnalysis:
         scale = (tests.get("scale") or {}).get("x")
         known = [t["p"] for t in (nominal, scale) if t is not None and t["p"] is not None]
         passes = False if any(p < ALPHA for p in known) else True if len(known) == 2 else None
-        return {"formula": FIXED_FORMULA, "nominal": nominal, "scale": scale, "passes": passes,
-                "error": tests.get("error")}
+        return {
+            "formula": FIXED_FORMULA,
+            "nominal": nominal,
+            "scale": scale,
+            "passes": passes,
+            "error": tests.get("error"),
+        }
 
     @property
     def warnings(self) -> list[str]:
@@ -380,18 +453,32 @@ class TaskAnalysis:
             notes.append(f"the proportional-odds check failed to run: {self.proportional_odds['error']}")
         simpler = [s for s, fit in self.sentence_fits.items() if fit.get("formula") == FIXED_FORMULA]
         if simpler:
-            notes.append(f"sentence{'s' if len(simpler) > 1 else ''} {', '.join(simpler)}: {SENTENCE_FORMULA} "
-                         f"failed, {FIXED_FORMULA} fitted instead")
-        notes += [f"sentence {s}: no model ({fit['error']})" for s, fit in self.sentence_fits.items()
-                  if not fit.get("formula")]
+            notes.append(
+                f"sentence{'s' if len(simpler) > 1 else ''} {', '.join(simpler)}: {SENTENCE_FORMULA} "
+                f"failed, {FIXED_FORMULA} fitted instead"
+            )
+        notes += [
+            f"sentence {s}: no model ({fit['error']})"
+            for s, fit in self.sentence_fits.items()
+            if not fit.get("formula")
+        ]
         return notes
 
     def as_json(self) -> dict:
-        return {"task": self.task, "response": self.response, "models": self.models, "answers": self.answers,
-                "participants": self.participants, "sentences": self.sentences, "fit": self.fit,
-                "wald": self.wald, "proportional_odds": self.proportional_odds,
-                "sentence_fits": self.sentence_fits, "wins": self.wins.to_dict("records"),
-                "warnings": self.warnings}
+        return {
+            "task": self.task,
+            "response": self.response,
+            "models": self.models,
+            "answers": self.answers,
+            "participants": self.participants,
+            "sentences": self.sentences,
+            "fit": self.fit,
+            "wald": self.wald,
+            "proportional_odds": self.proportional_odds,
+            "sentence_fits": self.sentence_fits,
+            "wins": self.wins.to_dict("records"),
+            "warnings": self.warnings,
+        }
 
 
 @dataclass
@@ -404,26 +491,40 @@ class StudyAnalysis:
     seconds: float
 
     def as_json(self) -> dict:
-        return json_ready({"tasks": {name: t.as_json() for name, t in self.tasks.items()},
-                       "excluded": {"warmup_rows": self.exclusions.warmup_rows,
-                                    "check_rows": self.exclusions.check_rows,
-                                    "participants": list(self.exclusions.participants)},
-                       "checks": self.exclusions.checks, "versions": self.versions, "seconds": self.seconds})
+        return json_ready(
+            {
+                "tasks": {name: t.as_json() for name, t in self.tasks.items()},
+                "excluded": {
+                    "warmup_rows": self.exclusions.warmup_rows,
+                    "check_rows": self.exclusions.check_rows,
+                    "participants": list(self.exclusions.participants),
+                },
+                "checks": self.exclusions.checks,
+                "versions": self.versions,
+                "seconds": self.seconds,
+            }
+        )
 
     def summary(self) -> list[str]:
         """A few lines for the terminal: per task the Wald χ² and every pair's Tukey p."""
         e = self.exclusions
-        lines = [f"left out: {e.warmup_rows} warm-up rows, {e.check_rows} check rows"
-                 + (f", {len(e.participants)} participants who failed a check" if e.participants else "")]
+        lines = [
+            f"left out: {e.warmup_rows} warm-up rows, {e.check_rows} check rows"
+            + (f", {len(e.participants)} participants who failed a check" if e.participants else "")
+        ]
         for t in self.tasks.values():
-            lines.append(f"{t.task}: {t.answers} answers by {t.participants} participants on {len(t.sentences)} "
-                         f"sentences; models {', '.join(t.models)}")
+            lines.append(
+                f"{t.task}: {t.answers} answers by {t.participants} participants on {len(t.sentences)} "
+                f"sentences; models {', '.join(t.models)}"
+            )
             if t.wald is not None:
                 w = t.wald
                 lines.append(f"  {t.fit['formula']}: Wald chi2({w['df']:g}) = {w['chisq']:.2f}, p {p_phrase(w['p'])}")
             for pair in t.fit.get("pairs", []):
-                lines.append(f"  {pair['a']} - {pair['b']}: {pair['estimate']:+.2f} (SE {pair['se']:.2f}), "
-                             f"Tukey p {p_phrase(pair['p'])}")
+                lines.append(
+                    f"  {pair['a']} - {pair['b']}: {pair['estimate']:+.2f} (SE {pair['se']:.2f}), "
+                    f"Tukey p {p_phrase(pair['p'])}"
+                )
             if t.proportional_odds["nominal"] or t.proportional_odds["scale"]:
                 lines.append(f"  proportional odds: {proportional_odds_phrase(t.proportional_odds)}")
             lines += [f"  warning: {w}" for w in t.warnings]
@@ -442,9 +543,14 @@ def proportional_odds_phrase(po: dict) -> str:
     return f"{verdict} (nominal p {p_phrase(nominal)}, scale p {p_phrase(scale)})"
 
 
-def analyse_answers(answers: pd.DataFrame, *, participants: pd.DataFrame | None = None,
-                    exclude_failed_checks: bool = False, models: Sequence[str] | None = None,
-                    random_slopes: bool = True) -> StudyAnalysis:
+def analyse_answers(
+    answers: pd.DataFrame,
+    *,
+    participants: pd.DataFrame | None = None,
+    exclude_failed_checks: bool = False,
+    models: Sequence[str] | None = None,
+    random_slopes: bool = True,
+) -> StudyAnalysis:
     """Analyse a study's answers (``answers.csv``'s layout, see :func:`check_answers`) task by
     task, as the module docstring says, in one R process.
 
@@ -461,8 +567,11 @@ def analyse_answers(answers: pd.DataFrame, *, participants: pd.DataFrame | None 
     kept, exclusions = _exclude(answers, participants, exclude_failed_checks)
     if not len(kept):
         raise VispeechError("no answers are left once warm-ups and checks are left out")
-    shown = set(kept["model"][kept["task"] == "rating"]) | set(kept["left"][kept["task"] == "pairwise"]) \
+    shown = (
+        set(kept["model"][kept["task"] == "rating"])
+        | set(kept["left"][kept["task"] == "pairwise"])
         | set(kept["right"][kept["task"] == "pairwise"])
+    )
     if models is None:
         order = sorted(shown)
     else:
@@ -485,23 +594,44 @@ def analyse_answers(answers: pd.DataFrame, *, participants: pd.DataFrame | None 
     sentence_jobs: dict[tuple[str, Any], int] = {}
     for task, frame in frames.items():
         main_jobs[task] = len(jobs)
-        jobs.append(_job(task, frame, [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],
-                         ("x", "u", "s"), "x", FIXED_FORMULA))
+        jobs.append(
+            _job(
+                task,
+                frame,
+                [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],
+                ("x", "u", "s"),
+                "x",
+                FIXED_FORMULA,
+            )
+        )
         for sentence, part in frame.groupby("s", sort=True):
             if part["y"].nunique() > 1 and part["x"].nunique() > 1:
                 part = part.assign(x=part["x"].cat.remove_unused_categories())
                 sentence_jobs[(task, sentence)] = len(jobs)
-                jobs.append(_job(f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x",
-                                 None))
+                jobs.append(
+                    _job(f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x", None)
+                )
     results, versions = _run_r(jobs)
     tasks = {}
     for task, frame in frames.items():
         sentences = sorted(frame["s"].unique(), key=str)
-        fits = {s: (results[sentence_jobs[(task, s)]] if (task, s) in sentence_jobs
-                    else {"formula": None, "error": "every answer the same, or one model only"})
-                for s in sentences}
+        fits = {
+            s: (
+                results[sentence_jobs[(task, s)]]
+                if (task, s) in sentence_jobs
+                else {"formula": None, "error": "every answer the same, or one model only"}
+            )
+            for s in sentences
+        }
         present = list(frame["x"].cat.categories)
-        tasks[task] = TaskAnalysis(task, present, len(frame) if task == "rating" else len(frame) // 2,
-                                   frame["u"].nunique(), sentences, results[main_jobs[task]], fits,
-                                   win_table(frame, present))
+        tasks[task] = TaskAnalysis(
+            task,
+            present,
+            len(frame) if task == "rating" else len(frame) // 2,
+            frame["u"].nunique(),
+            sentences,
+            results[main_jobs[task]],
+            fits,
+            win_table(frame, present),
+        )
     return StudyAnalysis(tasks, exclusions, versions, round(time.perf_counter() - started, 2))

@@ -24,34 +24,48 @@ def _clip_url(sentence: str) -> str:
 
 def _progress(running: RunningStudy, participant: Participant) -> Progress:
     """A participant's trials as the page shows them (clips and columns, never models), and how far they are."""
-    views = [TrialView(task=t.task, audio=_clip_url(t.audio),
-                       faces=[FaceView(clip=_clip_url(f.sentence), column=f.column,
-                                       columns=len(running.clips[f.sentence].models)) for f in t.faces])
-             for t in participant.trials]
+    views = [
+        TrialView(
+            task=t.task,
+            audio=_clip_url(t.audio),
+            faces=[
+                FaceView(clip=_clip_url(f.sentence), column=f.column, columns=len(running.clips[f.sentence].models))
+                for f in t.faces
+            ],
+        )
+        for t in participant.trials
+    ]
     return Progress(trials=views, next=participant.answered, finished=participant.finished)
 
 
 @router.get("/api/study", response_model=StudyView)
 def describe(running: Running) -> StudyView:
     study = running.study
-    return StudyView(title=study.title, intro=study.intro, consent=study.consent, thanks=study.thanks,
-                     questions=[QuestionView(**q.model_dump()) for q in study.questions],
-                     rating_question=study.rating.question if study.rating else None,
-                     anchors=study.rating.anchors if study.rating else {},
-                     pairwise_question=study.pairwise.question if study.pairwise else None,
-                     labels=study.labels)
+    return StudyView(
+        title=study.title,
+        intro=study.intro,
+        consent=study.consent,
+        thanks=study.thanks,
+        questions=[QuestionView(**q.model_dump()) for q in study.questions],
+        rating_question=study.rating.question if study.rating else None,
+        anchors=study.rating.anchors if study.rating else {},
+        pairwise_question=study.pairwise.question if study.pairwise else None,
+        labels=study.labels,
+    )
 
 
 @router.post("/api/join", response_model=Progress)
-def join(request: JoinRequest, response: Response, running: Running,
-         vispeech_study: str | None = Cookie(default=None)) -> Progress:
+def join(
+    request: JoinRequest, response: Response, running: Running, vispeech_study: str | None = Cookie(default=None)
+) -> Progress:
     if not request.consent:
         raise StudyError("the study needs your consent to go on", 400)
     store = running.store
     participant = store.rejoin(vispeech_study) if request.pid is None and vispeech_study else None
     if participant is None:
-        participant = store.join(f"pid:{request.pid}" if request.pid else f"random:{secrets.token_hex(16)}",
-                                 request.intro)
+        participant = store.join(
+            f"pid:{request.pid}" if request.pid else f"random:{secrets.token_hex(16)}", request.intro
+        )
     response.set_cookie(COOKIE, participant.id, httponly=True, samesite="strict", max_age=90 * 24 * 3600)
     return _progress(running, participant)
 

@@ -37,8 +37,10 @@ STATIC = Path(__file__).with_name("static")
 
 def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
     """The study's FastAPI app; ``admin_token`` opens the CSV export."""
-    app = FastAPI(title=f"vispeech study: {study.title}",
-                  exception_handlers={StudyError: _refused, RequestValidationError: _invalid})
+    app = FastAPI(
+        title=f"vispeech study: {study.title}",
+        exception_handlers={StudyError: _refused, RequestValidationError: _invalid},
+    )
     app.state.study = RunningStudy(study, store, admin_token)
     app.include_router(api.router)
     app.include_router(admin.router)

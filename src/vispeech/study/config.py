@@ -168,8 +168,10 @@ class Study(_Strict):
         if len({q.id for q in self.questions}) != len(self.questions):
             raise ValueError("each question must have its own id")
         every = set().union(*(c.models for c in self.clips))
-        for task, wanted in (("rating", self.rating and self.rating.models),
-                             ("pairwise", self.pairwise and set(itertools.chain(*(self.pairwise.pairs or []))))):
+        for task, wanted in (
+            ("rating", self.rating and self.rating.models),
+            ("pairwise", self.pairwise and set(itertools.chain(*(self.pairwise.pairs or [])))),
+        ):
             unknown = set(wanted or ()) - every
             if unknown:
                 raise ValueError(f"[{task}] names models no clip shows: {', '.join(sorted(unknown))}")
@@ -265,13 +267,23 @@ class Trial:
         return next((f.sentence for f in self.faces if f.sentence != self.audio), self.audio)
 
     def to_json(self) -> dict:
-        return {"task": self.task, "audio": self.audio, "warmup": self.warmup, "check": self.check,
-                "faces": [[f.sentence, f.model, f.column] for f in self.faces]}
+        return {
+            "task": self.task,
+            "audio": self.audio,
+            "warmup": self.warmup,
+            "check": self.check,
+            "faces": [[f.sentence, f.model, f.column] for f in self.faces],
+        }
 
     @classmethod
     def from_json(cls, data: dict) -> Trial:
-        return cls(task=data["task"], audio=data["audio"], warmup=data["warmup"], check=data["check"],
-                   faces=tuple(Face(s, m, int(c)) for s, m, c in data["faces"]))
+        return cls(
+            task=data["task"],
+            audio=data["audio"],
+            warmup=data["warmup"],
+            check=data["check"],
+            faces=tuple(Face(s, m, int(c)) for s, m, c in data["faces"]),
+        )
 
 
 def plan_trials(study: Study, seed: int) -> list[Trial]:
@@ -299,8 +311,12 @@ def plan_trials(study: Study, seed: int) -> list[Trial]:
         trials += _block(rng, [Trial("rating", tuple(f), f[0].sentence) for f in items], checks, study.rating.warmup)
     if study.pairwise is not None:
         comparisons = _pairs(study)
-        pairs = [Trial("pairwise", (Face(c.sentence, a, c.models.index(a)), Face(c.sentence, b, c.models.index(b))),
-                       c.sentence) for c, a, b in comparisons]
+        pairs = [
+            Trial(
+                "pairwise", (Face(c.sentence, a, c.models.index(a)), Face(c.sentence, b, c.models.index(b))), c.sentence
+            )
+            for c, a, b in comparisons
+        ]
         checks = []
         if study.checks.identical:
             clip, a, _ = comparisons[int(rng.integers(len(comparisons)))]

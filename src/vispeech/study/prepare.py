@@ -31,23 +31,38 @@ RECORDED = "recorded"
 
 STUDY_FILE = "study.toml"
 
-INTRO = ("You will see faces saying short sentences, side by side, and hear what they say. "
-         "Judge how well the lips, jaw and tongue move with the speech, not how the face looks. "
-         "Please use headphones, and play each clip to its end before you answer.")
-CONSENT = ("I agree to take part. My answers are stored without my name and used for research only; "
-           "I may stop at any time.")
+INTRO = (
+    "You will see faces saying short sentences, side by side, and hear what they say. "
+    "Judge how well the lips, jaw and tongue move with the speech, not how the face looks. "
+    "Please use headphones, and play each clip to its end before you answer."
+)
+CONSENT = (
+    "I agree to take part. My answers are stored without my name and used for research only; I may stop at any time."
+)
 QUESTIONS = (
-    ("experience", "Experience in speech animation or visual speech technology",
-     ["None", "Small", "Moderate", "Expert"]),
+    (
+        "experience",
+        "Experience in speech animation or visual speech technology",
+        ["None", "Small", "Moderate", "Expert"],
+    ),
     ("age", "Age", ["Under 20", "20-29", "30-39", "40-49", "50-59", "60 or over"]),
     ("language", "Proficiency in the language spoken", ["None", "Small", "Moderate", "Good", "Native speaker"]),
 )
 """The intro questions of the thesis (Table 4.3), the age in coarser steps."""
 
 
-def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_dir: str | os.PathLike, *,
-                  sentences: int = 10, seed: int = 0, vocode: bool = False, head: str | os.PathLike | None = None,
-                  title: str = "Talking faces", progress: Callable[[str], None] | None = None) -> Path:
+def prepare_study(
+    corpus: Corpus,
+    models: Mapping[str, Estimator | None],
+    out_dir: str | os.PathLike,
+    *,
+    sentences: int = 10,
+    seed: int = 0,
+    vocode: bool = False,
+    head: str | os.PathLike | None = None,
+    title: str = "Talking faces",
+    progress: Callable[[str], None] | None = None,
+) -> Path:
     """Write a study folder: ``clips/<utterance>.mp4`` (the faces of ``models`` left to right,
     with the utterance's sound, through the noise vocoder when ``vocode``; on the 2D face, or on
     the 3D ``head`` (a GLB, prepared as ``serve --avatar`` prepares it)), a key beside each,
@@ -69,14 +84,22 @@ def prepare_study(corpus: Corpus, models: Mapping[str, Estimator | None], out_di
         (staging / "clips").mkdir()
         for n, index in enumerate(chosen, start=1):
             utterance = corpus[index]
-            tracks = [arkit.apply(target_track(utterance, channels) if model is None
-                                  else predict_on_frames(model, utterance)) for model in models.values()]
+            tracks = [
+                arkit.apply(target_track(utterance, channels) if model is None else predict_on_frames(model, utterance))
+                for model in models.values()
+            ]
             samples, rate = utterance.load_audio()
             if vocode:
                 samples = noise_vocode(samples, rate)
             render_faces(tracks, staging / "clips" / f"{utterance.id}.mp4", audio=samples, sample_rate=rate, head=head)
-            key = {"clip": f"{utterance.id}.mp4", "sentence": utterance.id, "text": utterance.text,
-                   "vocoded": vocode, "head": None if head is None else str(head), "left_to_right": list(models)}
+            key = {
+                "clip": f"{utterance.id}.mp4",
+                "sentence": utterance.id,
+                "text": utterance.text,
+                "vocoded": vocode,
+                "head": None if head is None else str(head),
+                "left_to_right": list(models),
+            }
             (staging / "clips" / f"{utterance.id}.json").write_text(json.dumps(key, indent=2) + "\n", encoding="utf-8")
             clips.append((utterance.id, utterance.text))
             if progress is not None:
@@ -101,17 +124,36 @@ def _toml(value: object) -> str:
 
 
 def _study_toml(title: str, clips: list[tuple[str, str]], models: list[str], seed: int) -> str:
-    lines = [f"# Made by `vispeech study prepare`; edit the texts, then `vispeech study serve {STUDY_FILE}`.",
-             f"title = {_toml(title)}", f"intro = {_toml(INTRO)}", f"consent = {_toml(CONSENT)}",
-             f"seed = {seed}", ""]
+    lines = [
+        f"# Made by `vispeech study prepare`; edit the texts, then `vispeech study serve {STUDY_FILE}`.",
+        f"title = {_toml(title)}",
+        f"intro = {_toml(INTRO)}",
+        f"consent = {_toml(CONSENT)}",
+        f"seed = {seed}",
+        "",
+    ]
     for qid, text, choices in QUESTIONS:
         lines += ["[[questions]]", f"id = {_toml(qid)}", f"text = {_toml(text)}", f"choices = {_toml(choices)}", ""]
     for sentence, text in clips:
-        lines += ["[[clips]]", f"sentence = {_toml(sentence)}", f"text = {_toml(text)}",
-                  f"path = {_toml(f'clips/{sentence}.mp4')}", f"models = {_toml(models)}", ""]
-    lines += ["[rating]", 'question = "Please rate how natural the mouth movements are (not the face itself)."',
-              'anchors = { 1 = "Not natural at all", 5 = "Neither", 9 = "Completely natural" }', "warmup = 3", "",
-              "[pairwise]", 'question = "Which face speaks more naturally?"', "warmup = 3", ""]
+        lines += [
+            "[[clips]]",
+            f"sentence = {_toml(sentence)}",
+            f"text = {_toml(text)}",
+            f"path = {_toml(f'clips/{sentence}.mp4')}",
+            f"models = {_toml(models)}",
+            "",
+        ]
+    lines += [
+        "[rating]",
+        'question = "Please rate how natural the mouth movements are (not the face itself)."',
+        'anchors = { 1 = "Not natural at all", 5 = "Neither", 9 = "Completely natural" }',
+        "warmup = 3",
+        "",
+        "[pairwise]",
+        'question = "Which face speaks more naturally?"',
+        "warmup = 3",
+        "",
+    ]
     if len(clips) < 2:
         lines += ["[checks]", "mismatched = false  # it plays another clip's sound: one clip has none to play", ""]
     return "\n".join(lines)

@@ -26,12 +26,24 @@ from vispeech.study.analysis import (
 )
 from vispeech.study.answers import TASKS
 
-_TABLES = ("coefficients", "random", "anova", "pairs", "probabilities", "means", "sentences", "wins",
-           "proportional_odds")
+_TABLES = (
+    "coefficients",
+    "random",
+    "anova",
+    "pairs",
+    "probabilities",
+    "means",
+    "sentences",
+    "wins",
+    "proportional_odds",
+)
 _FIGURES = ("probabilities", "wins")
-ANALYSIS_FILES = ("analysis.json", "report.html",
-                  *(f"{task}_{name}.csv" for task in TASKS for name in _TABLES),
-                  *(f"{task}_{name}.{kind}" for task in TASKS for name in _FIGURES for kind in ("png", "svg")))
+ANALYSIS_FILES = (
+    "analysis.json",
+    "report.html",
+    *(f"{task}_{name}.csv" for task in TASKS for name in _TABLES),
+    *(f"{task}_{name}.{kind}" for task in TASKS for name in _FIGURES for kind in ("png", "svg")),
+)
 """What an analysis folder may hold."""
 
 
@@ -42,8 +54,9 @@ def write_analysis(analysis: StudyAnalysis, out_dir: str | os.PathLike, command:
     ``proportional_odds``, the figures ``probabilities`` and ``wins`` (PNG and SVG), and
     ``report.html``; ``command`` is shown as how to rebuild it."""
     with atomic_output_dir(out_dir, replaces=ANALYSIS_FILES) as staging:
-        (staging / "analysis.json").write_text(json.dumps(analysis.as_json(), indent=2, allow_nan=False) + "\n",
-                                               encoding="utf-8")
+        (staging / "analysis.json").write_text(
+            json.dumps(analysis.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
         figures = []
         for name, task in analysis.tasks.items():
             for table, (header, rows) in _tables(task).items():
@@ -58,25 +71,46 @@ def _tables(task: TaskAnalysis) -> dict[str, tuple[list[str], list[list]]]:
     fit, po = task.fit, task.proportional_odds
     coefficients = [["threshold", c["name"], c["estimate"], c["se"], c["z"], ""] for c in fit.get("thresholds", [])]
     coefficients += [["fixed", c["name"], c["estimate"], c["se"], c["z"], c["p"]] for c in fit.get("fixed", [])]
-    sentences = [[s, f["formula"], p["a"], p["b"], p["estimate"], p["se"], p["z"], p["p"], ""]
-                 for s, f in task.sentence_fits.items() for p in f.get("pairs", [])]
-    sentences += [[s, "", "", "", None, None, None, None, f["error"]] for s, f in task.sentence_fits.items()
-                  if not f.get("formula")]
-    tests = [[kind, "x", t["df"], t["lrt"], t["p"], "yes" if t["p"] is not None and t["p"] >= ALPHA else "no"]
-             for kind, t in (("nominal", po["nominal"]), ("scale", po["scale"])) if t]
+    sentences = [
+        [s, f["formula"], p["a"], p["b"], p["estimate"], p["se"], p["z"], p["p"], ""]
+        for s, f in task.sentence_fits.items()
+        for p in f.get("pairs", [])
+    ]
+    sentences += [
+        [s, "", "", "", None, None, None, None, f["error"]]
+        for s, f in task.sentence_fits.items()
+        if not f.get("formula")
+    ]
+    tests = [
+        [kind, "x", t["df"], t["lrt"], t["p"], "yes" if t["p"] is not None and t["p"] >= ALPHA else "no"]
+        for kind, t in (("nominal", po["nominal"]), ("scale", po["scale"]))
+        if t
+    ]
     return {
         "coefficients": (["kind", "name", "estimate", "se", "z", "p"], coefficients),
-        "random": (["group", "term", "variance", "sd"],
-                   [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])]),
-        "anova": (["formula", "term", "chisq", "df", "p"],
-                  [[fit["formula"], a["term"], a["chisq"], a["df"], a["p"]] for a in fit.get("anova", [])]),
-        "pairs": (["a", "b", "estimate", "se", "z", "p_tukey"],
-                  [[p["a"], p["b"], p["estimate"], p["se"], p["z"], p["p"]] for p in fit.get("pairs", [])]),
-        "probabilities": (["model", task.response, "probability", "se", "lower", "upper"],
-                          [[p["level"], p["response"], p["probability"], p["se"], p["lower"], p["upper"]]
-                           for p in fit.get("probabilities", [])]),
-        "means": (["model", "mean", "se", "lower", "upper"],
-                  [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]] for m in fit.get("means", [])]),
+        "random": (
+            ["group", "term", "variance", "sd"],
+            [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])],
+        ),
+        "anova": (
+            ["formula", "term", "chisq", "df", "p"],
+            [[fit["formula"], a["term"], a["chisq"], a["df"], a["p"]] for a in fit.get("anova", [])],
+        ),
+        "pairs": (
+            ["a", "b", "estimate", "se", "z", "p_tukey"],
+            [[p["a"], p["b"], p["estimate"], p["se"], p["z"], p["p"]] for p in fit.get("pairs", [])],
+        ),
+        "probabilities": (
+            ["model", task.response, "probability", "se", "lower", "upper"],
+            [
+                [p["level"], p["response"], p["probability"], p["se"], p["lower"], p["upper"]]
+                for p in fit.get("probabilities", [])
+            ],
+        ),
+        "means": (
+            ["model", "mean", "se", "lower", "upper"],
+            [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]] for m in fit.get("means", [])],
+        ),
         "sentences": (["sentence", "formula", "a", "b", "estimate", "se", "z", "p_tukey", "error"], sentences),
         "wins": (list(task.wins.columns), task.wins.values.tolist()),
         "proportional_odds": (["test", "term", "df", "lrt", "p", "passes"], tests),
@@ -97,14 +131,14 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
         axes = figure.add_subplot()
         width = 0.7 / len(task.models)
         for i, model in enumerate(task.models):
-            rows = [next(p for p in probabilities if p["level"] == model and p["response"] == level)
-                    for level in levels]
+            rows = [
+                next(p for p in probabilities if p["level"] == model and p["response"] == level) for level in levels
+            ]
             x = np.arange(len(levels)) + (i - (len(task.models) - 1) / 2) * width
             y = np.array([r["probability"] for r in rows], dtype=float)
             low = np.clip([np.nan if r["lower"] is None else r["lower"] for r in rows], 0, 1)
             high = np.clip([np.nan if r["upper"] is None else r["upper"] for r in rows], 0, 1)
-            axes.errorbar(x, y, yerr=[y - low, high - y], marker="o", markersize=4, linewidth=1, capsize=3,
-                          label=model)
+            axes.errorbar(x, y, yerr=[y - low, high - y], marker="o", markersize=4, linewidth=1, capsize=3, label=model)
         axes.set_xticks(np.arange(len(levels)), levels)
         axes.set_xlabel(task.response)
         axes.set_ylabel("inferred probability (95 % CI)")
@@ -113,8 +147,10 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
         axes.set_title(f"{task.task}: {task.fit['formula']}", fontsize=9)
         figure.tight_layout()
         save_figure(figure, folder / f"{task.task}_probabilities")
-        caption = (f"{task.task}: the inferred probability of each {task.response} per model, with 95 % "
-                   "confidence intervals (at random effects 0)")
+        caption = (
+            f"{task.task}: the inferred probability of each {task.response} per model, with 95 % "
+            "confidence intervals (at random effects 0)"
+        )
         drawn.append((f"{task.task}_probabilities", caption))
     pairs = task.wins[["a", "b"]].drop_duplicates().values.tolist()
     if pairs:
@@ -129,8 +165,11 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
             counts = task.wins[(task.wins["a"] == a) & (task.wins["b"] == b)].set_index("sentence").loc[names]
             total = counts[["a_wins", "ties", "b_wins"]].sum(axis=1).replace(0, 1).to_numpy()
             left = np.zeros(len(names))
-            for column, label, colour in (("a_wins", f"{a} better", "tab:blue"), ("ties", "tie", "0.75"),
-                                          ("b_wins", f"{b} better", "tab:orange")):
+            for column, label, colour in (
+                ("a_wins", f"{a} better", "tab:blue"),
+                ("ties", "tie", "0.75"),
+                ("b_wins", f"{b} better", "tab:orange"),
+            ):
                 share = counts[column].to_numpy() / total
                 axes.barh(y, share, left=left, color=colour, label=label, height=0.75)
                 for yy, x0, w, n in zip(y, left, share, counts[column]):
@@ -142,12 +181,21 @@ def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
             axes.set_xlim(0, 1)
             axes.set_xlabel("share of trials", fontsize=8)
             axes.tick_params(axis="x", labelsize=7)
-            axes.legend(fontsize=7, ncol=3, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False,
-                        handlelength=1.2, columnspacing=1.0)
+            axes.legend(
+                fontsize=7,
+                ncol=3,
+                loc="lower center",
+                bbox_to_anchor=(0.5, 1.0),
+                frameon=False,
+                handlelength=1.2,
+                columnspacing=1.0,
+            )
         figure.tight_layout()
         save_figure(figure, folder / f"{task.task}_wins")
-        caption = (f"{task.task}: wins, ties and losses of each pair of models per sentence and over all "
-                   f"({'higher rating' if task.task == 'rating' else 'preferred'} in one trial)")
+        caption = (
+            f"{task.task}: wins, ties and losses of each pair of models per sentence and over all "
+            f"({'higher rating' if task.task == 'rating' else 'preferred'} in one trial)"
+        )
         drawn.append((f"{task.task}_wins", caption))
     return drawn
 
@@ -163,62 +211,103 @@ def _html_p(p: float | None) -> str:
 
 def _html(analysis: StudyAnalysis, figures: list[tuple[str, str]], command: str) -> str:
     e = analysis.exclusions
-    parts = ["<h1>Perceptual study analysis</h1>",
-             f"<p>Left out of the fits: {e.warmup_rows} warm-up rows, {e.check_rows} check rows"
-             + (f", the {len(e.participants)} participants who failed a check" if e.participants else "")
-             + f". R {html.escape(analysis.versions.get('R', '?'))}, ordinal "
-             f"{html.escape(analysis.versions.get('ordinal', '?'))}, "
-             f"car {html.escape(analysis.versions.get('car', '?'))}"
-             f", emmeans {html.escape(analysis.versions.get('emmeans', '?'))}.</p>"]
+    parts = [
+        "<h1>Perceptual study analysis</h1>",
+        f"<p>Left out of the fits: {e.warmup_rows} warm-up rows, {e.check_rows} check rows"
+        + (f", the {len(e.participants)} participants who failed a check" if e.participants else "")
+        + f". R {html.escape(analysis.versions.get('R', '?'))}, ordinal "
+        f"{html.escape(analysis.versions.get('ordinal', '?'))}, "
+        f"car {html.escape(analysis.versions.get('car', '?'))}"
+        f", emmeans {html.escape(analysis.versions.get('emmeans', '?'))}.</p>",
+    ]
     if command:
         parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
     if e.checks:
-        parts.append(_html_table(["check", "passed", "failed", "not shown"],
-                                 [[name, c["passed"], c["failed"], c["none"]] for name, c in e.checks.items()]))
+        parts.append(
+            _html_table(
+                ["check", "passed", "failed", "not shown"],
+                [[name, c["passed"], c["failed"], c["none"]] for name, c in e.checks.items()],
+            )
+        )
     for t in analysis.tasks.values():
         fit = t.fit
-        parts.append(f"<h2>{html.escape(t.task)}: {t.answers} answers by {t.participants} participants on "
-                     f"{len(t.sentences)} sentences</h2>")
+        parts.append(
+            f"<h2>{html.escape(t.task)}: {t.answers} answers by {t.participants} participants on "
+            f"{len(t.sentences)} sentences</h2>"
+        )
         if t.task == "pairwise":
             parts.append("<p>Each answer gives each of its two models points: win 2, tie 1, loss 0.</p>")
         parts += [f"<p class='warning'>{html.escape(w)}</p>" for w in t.warnings]
         if fit.get("formula"):
             c = fit["convergence"]
-            parts.append(f"<p>Cumulative-link mixed model <code>{html.escape(fit['formula'])}</code> "
-                         f"(y: {t.response}, x: model, u: participant, s: sentence; ordinal::clmm, logit link): "
-                         f"{fit['nobs']:g} observations, log-likelihood {fit['log_lik']:.2f}, optimiser "
-                         f"{html.escape(str(c['message']))}, max |gradient| {c['max_grad']:.2g}, condition number of "
-                         f"the Hessian {c['cond_h']:.3g}.</p>")
+            parts.append(
+                f"<p>Cumulative-link mixed model <code>{html.escape(fit['formula'])}</code> "
+                f"(y: {t.response}, x: model, u: participant, s: sentence; ordinal::clmm, logit link): "
+                f"{fit['nobs']:g} observations, log-likelihood {fit['log_lik']:.2f}, optimiser "
+                f"{html.escape(str(c['message']))}, max |gradient| {c['max_grad']:.2g}, condition number of "
+                f"the Hessian {c['cond_h']:.3g}.</p>"
+            )
             w = t.wald
             if w is not None:
-                parts.append(f"<p><b>Do the models differ?</b> Wald χ²({w['df']:g}) = {w['chisq']:.2f}, "
-                             f"p {html.escape(p_phrase(w['p']))} (car::Anova, type II).</p>")
-            parts.append("<p>Pairs (emmeans, Tukey-adjusted; estimate: a − b on the latent logit scale, positive "
-                         f"when a gets higher {t.response}):</p>")
-            parts.append(_html_table(["a", "b", "estimate", "SE", "z", "p (Tukey)"],
-                                     [[p["a"], p["b"], p["estimate"], p["se"], p["z"], _html_p(p["p"])]
-                                      for p in fit.get("pairs", [])]))
+                parts.append(
+                    f"<p><b>Do the models differ?</b> Wald χ²({w['df']:g}) = {w['chisq']:.2f}, "
+                    f"p {html.escape(p_phrase(w['p']))} (car::Anova, type II).</p>"
+                )
+            parts.append(
+                "<p>Pairs (emmeans, Tukey-adjusted; estimate: a − b on the latent logit scale, positive "
+                f"when a gets higher {t.response}):</p>"
+            )
+            parts.append(
+                _html_table(
+                    ["a", "b", "estimate", "SE", "z", "p (Tukey)"],
+                    [[p["a"], p["b"], p["estimate"], p["se"], p["z"], _html_p(p["p"])] for p in fit.get("pairs", [])],
+                )
+            )
             parts.append(f"<p>Inferred mean {t.response} per model (95 % CI):</p>")
-            parts.append(_html_table(["model", "mean", "SE", "lower", "upper"],
-                                     [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]]
-                                      for m in fit.get("means", [])]))
+            parts.append(
+                _html_table(
+                    ["model", "mean", "SE", "lower", "upper"],
+                    [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]] for m in fit.get("means", [])],
+                )
+            )
             parts.append("<p>Coefficients (thresholds θ: logit P(y ≤ k) = θ<sub>k</sub> − x's effect):</p>")
-            parts.append(_html_table(["kind", "name", "estimate", "SE", "z", "p"],
-                                     [[r[0], r[1], r[2], r[3], r[4], _html_p(r[5]) if r[5] != "" else ""]
-                                      for r in _tables(t)["coefficients"][1]]))
-            parts.append(_html_table(["group", "term", "variance", "SD"],
-                                     [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])]))
+            parts.append(
+                _html_table(
+                    ["kind", "name", "estimate", "SE", "z", "p"],
+                    [
+                        [r[0], r[1], r[2], r[3], r[4], _html_p(r[5]) if r[5] != "" else ""]
+                        for r in _tables(t)["coefficients"][1]
+                    ],
+                )
+            )
+            parts.append(
+                _html_table(
+                    ["group", "term", "variance", "SD"],
+                    [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])],
+                )
+            )
             if fit.get("correlations"):
-                parts.append(_html_table(["group", "a", "b", "correlation"],
-                                         [[r["group"], r["a"], r["b"], r["r"]] for r in fit["correlations"]]))
+                parts.append(
+                    _html_table(
+                        ["group", "a", "b", "correlation"],
+                        [[r["group"], r["a"], r["b"], r["r"]] for r in fit["correlations"]],
+                    )
+                )
         if t.proportional_odds["nominal"] or t.proportional_odds["scale"]:
-            parts.append(f"<p>Proportional odds (nominal_test and scale_test of the clm of <code>{FIXED_FORMULA}"
-                         f"</code>): {html.escape(proportional_odds_phrase(t.proportional_odds))}.</p>")
-        per_sentence = [[s, f["formula"], p["a"], p["b"], p["estimate"], _html_p(p["p"])]
-                        for s, f in t.sentence_fits.items() for p in f.get("pairs", [])]
+            parts.append(
+                f"<p>Proportional odds (nominal_test and scale_test of the clm of <code>{FIXED_FORMULA}"
+                f"</code>): {html.escape(proportional_odds_phrase(t.proportional_odds))}.</p>"
+            )
+        per_sentence = [
+            [s, f["formula"], p["a"], p["b"], p["estimate"], _html_p(p["p"])]
+            for s, f in t.sentence_fits.items()
+            for p in f.get("pairs", [])
+        ]
         if per_sentence:
-            parts.append(f"<p>Per sentence (<code>{SENTENCE_FORMULA}</code>, or <code>{FIXED_FORMULA}</code> where "
-                         "that cannot be fitted):</p>")
+            parts.append(
+                f"<p>Per sentence (<code>{SENTENCE_FORMULA}</code>, or <code>{FIXED_FORMULA}</code> where "
+                "that cannot be fitted):</p>"
+            )
             parts.append(_html_table(["sentence", "model", "a", "b", "estimate", "p (Tukey)"], per_sentence))
         parts.append("<p>Wins, ties and losses (a wins: a scored higher than b in one trial):</p>")
         parts.append(_html_table(list(t.wins.columns), t.wins.values.tolist()))

@@ -31,8 +31,12 @@ class StudyView(BaseModel):
 
 class JoinRequest(BaseModel):
     consent: bool
-    pid: str | None = Field(default=None, min_length=1, max_length=200,
-                            description="A recruitment platform's participant id; one response set per id.")
+    pid: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=200,
+        description="A recruitment platform's participant id; one response set per id.",
+    )
     intro: dict[str, str] = Field(default_factory=dict, max_length=50)
 
 

@@ -130,8 +130,10 @@ class StudyStore:
             if found is None:
                 seed = self.study.seed * 1_000_003 + db.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
                 trials = plan_trials(self.study, seed)
-                db.execute("INSERT INTO participants VALUES (?, ?, ?, ?, ?, NULL)",
-                           (pid, seed, json.dumps([t.to_json() for t in trials]), json.dumps(intro), _now()))
+                db.execute(
+                    "INSERT INTO participants VALUES (?, ?, ?, ?, ?, NULL)",
+                    (pid, seed, json.dumps([t.to_json() for t in trials]), json.dumps(intro), _now()),
+                )
                 found = Participant(pid, trials, 0, False)
         return _unfinished(found)
 
@@ -154,8 +156,12 @@ class StudyStore:
             if found is None:
                 raise StudyError("unknown participant: start the study first", 404)
             if trial != found.answered:
-                raise StudyError(f"trial {trial} is not the next one (trial {found.answered} is)"
-                                 if not found.finished else "every trial is already answered", 409)
+                raise StudyError(
+                    f"trial {trial} is not the next one (trial {found.answered} is)"
+                    if not found.finished
+                    else "every trial is already answered",
+                    409,
+                )
             value = _checked_answer(found.trials[trial], answer)
             if not 0 <= int(ms) <= MAX_MS:
                 raise StudyError(f"ms must lie between 0 and {MAX_MS}", 422)
@@ -169,10 +175,12 @@ class StudyStore:
     def export(self) -> tuple[str, str]:
         """``answers.csv`` and ``participants.csv`` (see the module docstring) as text."""
         with self._transaction() as db:
-            people = db.execute("SELECT id, plan, intro, started_at, finished_at FROM participants "
-                                "ORDER BY started_at, id").fetchall()
-            given = db.execute("SELECT participant, trial, answer, ms, answered_at FROM answers "
-                               "ORDER BY participant, trial").fetchall()
+            people = db.execute(
+                "SELECT id, plan, intro, started_at, finished_at FROM participants ORDER BY started_at, id"
+            ).fetchall()
+            given = db.execute(
+                "SELECT participant, trial, answer, ms, answered_at FROM answers ORDER BY participant, trial"
+            ).fetchall()
         by_person: dict[str, list[tuple]] = {}
         for row in given:
             by_person.setdefault(row[0], []).append(row)
@@ -181,9 +189,14 @@ class StudyStore:
         out.writeheader()
         intro_ids = [q.id for q in self.study.questions]
         participants = io.StringIO()
-        summary = csv.DictWriter(participants, ["participant", "started_at", "finished_at", "answered"]
-                                 + [f"intro_{q}" for q in intro_ids] + ["passed_identical", "passed_mismatched"],
-                                 lineterminator="\n", extrasaction="ignore")
+        summary = csv.DictWriter(
+            participants,
+            ["participant", "started_at", "finished_at", "answered"]
+            + [f"intro_{q}" for q in intro_ids]
+            + ["passed_identical", "passed_mismatched"],
+            lineterminator="\n",
+            extrasaction="ignore",
+        )
         summary.writeheader()
         for pid, plan, intro, started, finished in people:
             trials = [Trial.from_json(t) for t in json.loads(plan)]
@@ -192,9 +205,16 @@ class StudyStore:
             for _, trial, _, ms, at in rows:
                 out.writerows(_answer_rows(pid, trial, trials[trial], values[trial], ms, at))
             passed = check_results(trials, values)
-            summary.writerow({"participant": pid, "started_at": started, "finished_at": finished or "",
-                              "answered": len(rows), **{f"intro_{k}": v for k, v in json.loads(intro).items()},
-                              **{f"passed_{k}": "" if v is None else int(v) for k, v in passed.items()}})
+            summary.writerow(
+                {
+                    "participant": pid,
+                    "started_at": started,
+                    "finished_at": finished or "",
+                    "answered": len(rows),
+                    **{f"intro_{k}": v for k, v in json.loads(intro).items()},
+                    **{f"passed_{k}": "" if v is None else int(v) for k, v in passed.items()},
+                }
+            )
         return answers.getvalue(), participants.getvalue()
 
 
@@ -221,21 +241,36 @@ def _checked_answer(trial: Trial, answer: object) -> int | str | list[int]:
             raise StudyError(f"a pairwise answer is one of: {', '.join(PAIRWISE_ANSWERS)}", 422)
         return str(answer)
     low, high = RATINGS[0], RATINGS[-1]
-    if (not isinstance(answer, list) or len(answer) != len(trial.faces)
-            or any(isinstance(a, bool) or a not in RATINGS for a in answer)):
-        raise StudyError(f"a rating answer is one whole number from {low} to {high} per face "
-                         f"({len(trial.faces)} here)", 422)
+    if (
+        not isinstance(answer, list)
+        or len(answer) != len(trial.faces)
+        or any(isinstance(a, bool) or a not in RATINGS for a in answer)
+    ):
+        raise StudyError(
+            f"a rating answer is one whole number from {low} to {high} per face ({len(trial.faces)} here)", 422
+        )
     return list(answer)
 
 
 def _answer_rows(pid: str, number: int, trial: Trial, value: object, ms: int, at: str) -> list[dict]:
-    common = {"participant": pid, "task": trial.task, "trial": number, "sentence": trial.sentence,
-              "audio": trial.audio, "warmup": int(trial.warmup), "check": trial.check, "ms": ms,
-              "answered_at": at, "expected": trial.expected}
+    common = {
+        "participant": pid,
+        "task": trial.task,
+        "trial": number,
+        "sentence": trial.sentence,
+        "audio": trial.audio,
+        "warmup": int(trial.warmup),
+        "check": trial.check,
+        "ms": ms,
+        "answered_at": at,
+        "expected": trial.expected,
+    }
     if trial.task == "pairwise":
         return [{**common, "left": trial.faces[0].model, "right": trial.faces[1].model, "answer": value}]
-    return [{**common, "position": k, "model": face.model, "answer": rating}
-            for k, (face, rating) in enumerate(zip(trial.faces, _ratings(value)))]
+    return [
+        {**common, "position": k, "model": face.model, "answer": rating}
+        for k, (face, rating) in enumerate(zip(trial.faces, _ratings(value)))
+    ]
 
 
 def _ratings(answer: object) -> list[int]:
@@ -249,8 +284,12 @@ def check_results(trials: Sequence[Trial], answers: dict[int, object]) -> dict[s
     when the twin faces' ratings differ by one point at most; a rating mismatched check when its
     mean rating is below the participant's mean over the real items; a pairwise check when the
     answer is the expected one."""
-    real = [r for k, t in enumerate(trials) if k in answers and t.task == "rating" and not t.check and not t.warmup
-            for r in _ratings(answers[k])]
+    real = [
+        r
+        for k, t in enumerate(trials)
+        if k in answers and t.task == "rating" and not t.check and not t.warmup
+        for r in _ratings(answers[k])
+    ]
     mean = sum(real) / len(real) if real else None
     results: dict[str, bool | None] = {"identical": None, "mismatched": None}
     for k, trial in enumerate(trials):

@@ -10,20 +10,34 @@ from __future__ import annotations
 from collections.abc import Mapping
 from types import MappingProxyType
 
-PRESETS: Mapping[str, Mapping] = MappingProxyType({
-    "authored": {},
-    "learned-jaw": {
-        "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ("bilabial", "labiodental"), "keep_jaw": True,
-    },
-    "audio": {
-        "jaw_shift": 0.0, "ceilings": {}, "overlays": False, "jaw_peaks_in_vowels": False, "vowel_opening": 0.0,
-        "tongue": False,
-    },
-    "audio-closures": {
-        "jaw_shift": 0.0, "ceilings": {}, "overlay_features": ("bilabial",), "keep_jaw": True,
-        "jaw_peaks_in_vowels": False, "vowel_opening": 0.0, "tongue": False,
-    },
-})
+PRESETS: Mapping[str, Mapping] = MappingProxyType(
+    {
+        "authored": {},
+        "learned-jaw": {
+            "jaw_shift": 0.0,
+            "ceilings": {},
+            "overlay_features": ("bilabial", "labiodental"),
+            "keep_jaw": True,
+        },
+        "audio": {
+            "jaw_shift": 0.0,
+            "ceilings": {},
+            "overlays": False,
+            "jaw_peaks_in_vowels": False,
+            "vowel_opening": 0.0,
+            "tongue": False,
+        },
+        "audio-closures": {
+            "jaw_shift": 0.0,
+            "ceilings": {},
+            "overlay_features": ("bilabial",),
+            "keep_jaw": True,
+            "jaw_peaks_in_vowels": False,
+            "vowel_opening": 0.0,
+            "tongue": False,
+        },
+    }
+)
 """``authored``: every step with its defaults, tuned for the iPhone-scale authored targets of the
 data-free models (jaw range shift, soft ceilings, all consonant overlays). ``learned-jaw``: for
 models fitted to recordings: no jaw shift or absolute ceilings, overlays only for /p b m/ and

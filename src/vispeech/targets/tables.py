@@ -37,6 +37,7 @@ def _data() -> dict:
 TARGET_CHANNELS: tuple[str, ...] = tuple(_data()["channels"])
 """The ARKit channels every phone has a target for (and the data-free models predict)."""
 
+
 def expand_channel(name: str, channels: Sequence[str] = TARGET_CHANNELS) -> tuple[str, ...]:
     """``name`` itself, or for a pair name such as ``mouthSmile`` its ``Left`` and ``Right`` channels."""
     if name in channels:

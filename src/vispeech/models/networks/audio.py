@@ -122,8 +122,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
     def _check_inputs(self) -> None:
         p = self._params
         self._unfitted_encoding(float(p["fps"]))
-        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight",
-                    "closure_threshold"):
+        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight", "closure_threshold"):
             if not (isinstance(p[key], int | float) and p[key] >= 0):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
         if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1 or p["closure_threshold"] >= 1:
@@ -131,8 +130,9 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         if not (isinstance(p["closure_length"], int | float) and 0.01 <= p["closure_length"] <= 0.5):
             raise VispeechError(f"closure_length must lie in [0.01, 0.5] s, got {p['closure_length']!r}")
         if not (0 <= p["encoder_ahead"] <= 1 and 0.01 <= p["encoder_step"] <= 1 and 0 <= p["encoder_context"] <= 10):
-            raise VispeechError("encoder_ahead must lie in [0, 1] s, encoder_step in [0.01, 1] s and "
-                                "encoder_context in [0, 10] s")
+            raise VispeechError(
+                "encoder_ahead must lie in [0, 1] s, encoder_step in [0.01, 1] s and encoder_context in [0, 10] s"
+            )
         for key in ("pitch_copies", "augment"):
             if not (isinstance(p[key], int) and 0 <= p[key] <= 8):
                 raise VispeechError(f"{key} must be a whole number within 0..8, got {p[key]!r}")
@@ -141,10 +141,13 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         """The audio encoding the parameters ask for at ``fps``, without training statistics."""
         p = self._params
         if p["features"] == "encoder" and fps != ENCODER_RATE:
-            raise VispeechError(f"an audio network on a speech encoder runs at its {ENCODER_RATE:g} fps, got fps {fps:g}")
+            raise VispeechError(
+                f"an audio network on a speech encoder runs at its {ENCODER_RATE:g} fps, got fps {fps:g}"
+            )
         normalize = "global" if p["features"] == "encoder" else p["normalize"]
-        return AudioEncoding(p["features"], p["n_mels"], p["n_mfcc"], fps, normalize, p["prior_seconds"],
-                             encoder=p["encoder"])
+        return AudioEncoding(
+            p["features"], p["n_mels"], p["n_mfcc"], fps, normalize, p["prior_seconds"], encoder=p["encoder"]
+        )
 
     def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
         encoding = self._unfitted_encoding(self.fps_)
@@ -176,7 +179,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         samples = clip.resampled(SAMPLE_RATE).samples
         stream = EncoderStream(encoder, ENCODER_RATE, self._params)
         step = round(self._params["encoder_step"] * SAMPLE_RATE)
-        parts = [stream.push(samples[i:i + step]) for i in range(0, len(samples), step)]
+        parts = [stream.push(samples[i : i + step]) for i in range(0, len(samples), step)]
         parts.append(stream.push(np.zeros(0, dtype=np.float32), final=True))
         return np.concatenate(parts, axis=1)
 
@@ -205,9 +208,11 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             for utterance in train_set:
                 unknown = sorted({p.symbol for p in utterance.phones if p.symbol not in known and not p.is_silence})
                 if unknown:
-                    raise VispeechError(f"utterance {getattr(utterance, 'id', '?')} has phones this model's CTC head "
-                                        f"does not know: {', '.join(unknown[:5])} (it was trained on "
-                                        f"{len(self.phones_)} phones)")
+                    raise VispeechError(
+                        f"utterance {getattr(utterance, 'id', '?')} has phones this model's CTC head "
+                        f"does not know: {', '.join(unknown[:5])} (it was trained on "
+                        f"{len(self.phones_)} phones)"
+                    )
 
     def _phone_vocabulary(self, train_set: list) -> tuple[str, ...]:
         """The phone labels of the CTC head: the language's inventory without silence (none without CTC)."""
@@ -234,8 +239,15 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
     def _encoding_from_dict(self, data: dict) -> AudioEncoding:
         return AudioEncoding.from_dict(data)
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> Self:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> Self:
         """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
         The run settings are :meth:`Network.fit`'s.
 
@@ -245,8 +257,9 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         try:
             if self._params["augment"]:
                 corpus = self._augmented(corpus, progress)
-            return super().fit(corpus, progress=progress, checkpoint_dir=checkpoint_dir, num_threads=num_threads,
-                               warm_start=warm_start)
+            return super().fit(
+                corpus, progress=progress, checkpoint_dir=checkpoint_dir, num_threads=num_threads, warm_start=warm_start
+            )
         finally:
             self.__dict__.pop("_powers", None)
             self.__dict__.pop("_hidden", None)
@@ -279,7 +292,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         warp = self._params["warp"]
         batches = []
         for start in range(0, len(order), size):
-            chosen = [examples[i] for i in order[start:start + size]]
+            chosen = [examples[i] for i in order[start : start + size]]
             inputs = []
             for example, _ in chosen:
                 if example.hidden is not None:
@@ -294,9 +307,15 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             x = np.stack([np.pad(v, ((0, longest - len(v)), (0, 0))) for v in inputs])
             y = np.stack([np.pad(t, ((0, longest - len(t)), (0, 0))) for _, t in chosen])
             labels = [example.labels for example, _ in chosen]
-            batches.append((torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(lengths),
-                            torch.from_numpy(np.concatenate(labels)) if labels else None,
-                            torch.tensor([len(v) for v in labels])))
+            batches.append(
+                (
+                    torch.from_numpy(x),
+                    torch.from_numpy(y),
+                    torch.from_numpy(lengths),
+                    torch.from_numpy(np.concatenate(labels)) if labels else None,
+                    torch.tensor([len(v) for v in labels]),
+                )
+            )
         return batches
 
     def _data_loss(self, module, batch):
@@ -315,8 +334,9 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
                 loss = loss + weight * (diff * both).sum() / (both.sum() * pred.shape[-1]).clamp(min=1)
         if p["ctc_weight"] and logits is not None:
             log_probs = torch.log_softmax(logits, dim=-1).transpose(0, 1)
-            ctc = torch.nn.functional.ctc_loss(log_probs, labels, lengths, label_lengths, blank=0,
-                                               reduction="mean", zero_infinity=True)
+            ctc = torch.nn.functional.ctc_loss(
+                log_probs, labels, lengths, label_lengths, blank=0, reduction="mean", zero_infinity=True
+            )
             loss = loss + p["ctc_weight"] * ctc
         return loss, float(lengths.sum())
 
@@ -373,8 +393,9 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         p = self._params
         if posteriors is None or not p["closure_threshold"] or self.phone_language_ is None:
             return track, None
-        return track, heard_bilabials(posteriors, self.phones_, self.phone_language_, self.fps_,
-                                      p["closure_threshold"], p["closure_length"])
+        return track, heard_bilabials(
+            posteriors, self.phones_, self.phone_language_, self.fps_, p["closure_threshold"], p["closure_length"]
+        )
 
     def stream(self, language: str | None = None, fps: float = 30.0) -> AudioStream:
         """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
@@ -417,8 +438,7 @@ class AudioCNNNetwork(AudioNetwork):
     (context from the past, as far back as it learns to keep, at no cost in look-ahead)."""
 
     family = "audio-cnn"
-    defaults = {**AUDIO_PARAMS, "kernels": [15, 7, 3], "channels": [256, 256, 256], "look_ahead": 8,
-                "recurrent": 0}
+    defaults = {**AUDIO_PARAMS, "kernels": [15, 7, 3], "channels": [256, 256, 256], "look_ahead": 8, "recurrent": 0}
 
     def _check_architecture(self) -> None:
         p = self._params
@@ -448,8 +468,17 @@ class AudioCNNNetwork(AudioNetwork):
 
         p = self._params
         right = [r for _, r in self._pads()]
-        return AudioCNN(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), right, p["dropout"],
-                        len(self.phones_), self.encoding_.layers, p["recurrent"])
+        return AudioCNN(
+            n_inputs,
+            n_outputs,
+            list(p["channels"]),
+            list(p["kernels"]),
+            right,
+            p["dropout"],
+            len(self.phones_),
+            self.encoding_.layers,
+            p["recurrent"],
+        )
 
     def _make_kernel(self) -> AudioCNNKernel:
         return AudioCNNKernel(self.weights_, self._pads(), self.encoding_.layers)
@@ -461,14 +490,23 @@ class EncoderDecoderNetwork(AudioNetwork):
     frames before and waiting ``stream_lookahead`` frames after each new frame."""
 
     family = "audio-encdec"
-    defaults = {**AUDIO_PARAMS, "kernels": [5, 5], "channels": [256, 256], "hidden": 128, "layers": 2,
-                "stream_lookahead": 15, "stream_context": 50}
+    defaults = {
+        **AUDIO_PARAMS,
+        "kernels": [5, 5],
+        "channels": [256, 256],
+        "hidden": 128,
+        "layers": 2,
+        "stream_lookahead": 15,
+        "stream_context": 50,
+    }
 
     def _check_architecture(self) -> None:
         p = self._params
         if not (len(p["kernels"]) == len(p["channels"]) and all(k >= 1 and k % 2 for k in p["kernels"])):
             raise VispeechError("kernels must be odd sizes, one per entry of channels")
-        if not (isinstance(p["hidden"], int) and p["hidden"] >= 1 and isinstance(p["layers"], int) and p["layers"] >= 1):
+        if not (
+            isinstance(p["hidden"], int) and p["hidden"] >= 1 and isinstance(p["layers"], int) and p["layers"] >= 1
+        ):
             raise VispeechError("hidden and layers must be whole numbers >= 1")
 
     def _pads(self) -> list[tuple[int, int]]:
@@ -487,8 +525,17 @@ class EncoderDecoderNetwork(AudioNetwork):
         from vispeech.models.networks.modules import AudioEncoderDecoder
 
         p = self._params
-        return AudioEncoderDecoder(n_inputs, n_outputs, list(p["channels"]), list(p["kernels"]), p["hidden"],
-                                   p["layers"], p["dropout"], len(self.phones_), self.encoding_.layers)
+        return AudioEncoderDecoder(
+            n_inputs,
+            n_outputs,
+            list(p["channels"]),
+            list(p["kernels"]),
+            p["hidden"],
+            p["layers"],
+            p["dropout"],
+            len(self.phones_),
+            self.encoding_.layers,
+        )
 
     def _make_kernel(self) -> EncoderDecoderKernel:
         return EncoderDecoderKernel(self.weights_, self._pads(), self._params["layers"], self.encoding_.layers)

@@ -66,20 +66,30 @@ class AudioEncoding:
         if self.kind not in KINDS:
             raise VispeechError(f"unknown audio feature {self.kind!r} (use {', '.join(KINDS)})")
         if (self.kind == "encoder") != (self.encoder is not None):
-            raise VispeechError("features=encoder needs encoder=FOLDER (a local wav2vec 2.0 / WavLM / HuBERT "
-                                "model folder), and encoder= needs features=encoder")
+            raise VispeechError(
+                "features=encoder needs encoder=FOLDER (a local wav2vec 2.0 / WavLM / HuBERT "
+                "model folder), and encoder= needs features=encoder"
+            )
         if self.kind == "encoder":
             if not (isinstance(self.encoder, str) and self.encoder):
                 raise VispeechError(f"encoder must be the path of a model folder, got {self.encoder!r}")
             if self.normalize != "global":
-                raise VispeechError(f"speech encoder features are normalised globally, got normalize {self.normalize!r}")
+                raise VispeechError(
+                    f"speech encoder features are normalised globally, got normalize {self.normalize!r}"
+                )
         if self.normalize not in NORMALIZATIONS:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
         stack = FRAME_RATE / self.fps
         if not (stack >= 1 and abs(stack - round(stack)) < 1e-9):
-            raise VispeechError(f"an audio network's fps must divide {FRAME_RATE:g} (100, 50, 25, 20, ...), got {self.fps}")
-        if not (isinstance(self.n_mels, int) and 8 <= self.n_mels <= 256 and isinstance(self.n_mfcc, int)
-                and 1 <= self.n_mfcc <= self.n_mels):
+            raise VispeechError(
+                f"an audio network's fps must divide {FRAME_RATE:g} (100, 50, 25, 20, ...), got {self.fps}"
+            )
+        if not (
+            isinstance(self.n_mels, int)
+            and 8 <= self.n_mels <= 256
+            and isinstance(self.n_mfcc, int)
+            and 1 <= self.n_mfcc <= self.n_mels
+        ):
             raise VispeechError("n_mels must be within 8..256 and n_mfcc within 1..n_mels")
 
     @property
@@ -109,8 +119,10 @@ class AudioEncoding:
         spectra, or (``kind="encoder"``) of hidden states ``(layers, frames, width)``, flattened per frame."""
         if self.kind == "encoder":
             if source.shape[0] != self.layers or source.shape[2] != self.width:
-                raise VispeechError(f"the speech encoder gives {source.shape[0]} hidden states of {source.shape[2]} "
-                                    f"values; the model was trained on {self.layers} of {self.width}")
+                raise VispeechError(
+                    f"the speech encoder gives {source.shape[0]} hidden states of {source.shape[2]} "
+                    f"values; the model was trained on {self.layers} of {self.width}"
+                )
             return np.ascontiguousarray(source.transpose(1, 0, 2), dtype=np.float32).reshape(source.shape[1], -1)
         return spectral_features(source, self.kind, self.n_mels, self.n_mfcc)
 
@@ -120,9 +132,9 @@ class AudioEncoding:
         count, total, squares = 0, 0.0, 0.0
         for frames in features:
             x = np.asarray(frames, dtype=np.float64)
-            count, total, squares = count + len(x), total + x.sum(axis=0), squares + (x ** 2).sum(axis=0)
+            count, total, squares = count + len(x), total + x.sum(axis=0), squares + (x**2).sum(axis=0)
         mean = cast(np.ndarray, total / count)  # the sums are arrays once a frame came (none: ZeroDivisionError)
-        std = np.sqrt(np.maximum(squares / count - mean ** 2, 0.0))
+        std = np.sqrt(np.maximum(squares / count - mean**2, 0.0))
         return replace(self, mean=mean.tolist(), std=np.maximum(std, 1e-3).tolist())
 
     def normalise(self, features: np.ndarray, state=None) -> tuple[np.ndarray, object]:
@@ -154,10 +166,19 @@ class AudioEncoding:
         return self.stacked(normalised, n_frames)
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "n_mels": self.n_mels, "n_mfcc": self.n_mfcc, "fps": self.fps,
-                "normalize": self.normalize, "prior_seconds": self.prior_seconds,
-                "mean": list(self.mean), "std": list(self.std),
-                "encoder": self.encoder, "layers": self.layers, "width": self.width}
+        return {
+            "kind": self.kind,
+            "n_mels": self.n_mels,
+            "n_mfcc": self.n_mfcc,
+            "fps": self.fps,
+            "normalize": self.normalize,
+            "prior_seconds": self.prior_seconds,
+            "mean": list(self.mean),
+            "std": list(self.std),
+            "encoder": self.encoder,
+            "layers": self.layers,
+            "width": self.width,
+        }
 
     @classmethod
     def from_dict(cls, data: dict) -> AudioEncoding:

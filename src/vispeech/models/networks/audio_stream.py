@@ -111,7 +111,7 @@ class AudioStream(ModelStream[np.ndarray]):
         if final:
             # as offline: the last feature frame repeated to fill the network frames the audio covers
             n = self._n_model_frames() if self._samples else 0
-            tail = self._normalised or ([self._inputs[-1][-encoding.dims:]] if self._inputs else [])
+            tail = self._normalised or ([self._inputs[-1][-encoding.dims :]] if self._inputs else [])
             while self._first_input + len(self._inputs) < n and tail:
                 rows = (tail + [tail[-1]] * stack)[:stack]
                 self._inputs.append(np.concatenate(rows))
@@ -142,11 +142,11 @@ class AudioStream(ModelStream[np.ndarray]):
         if upto <= start:
             return
         window_start = max(self._first_input, start - model.context)
-        rows = np.stack(self._inputs[window_start - self._first_input:])
+        rows = np.stack(self._inputs[window_start - self._first_input :])
         if final:
             rows = rows[: upto - window_start]
         out = model._denormalise(model.kernel.forward(rows))
-        for row in out[start - window_start: upto - window_start]:
+        for row in out[start - window_start : upto - window_start]:
             self._frames.add(row)
         keep_from = max(self._first_input, self._frames.computed - model.context)
         del self._inputs[: keep_from - self._first_input]
@@ -206,11 +206,11 @@ class EncoderStream:
         if upto <= self._given:
             return np.zeros((self.encoder.layers, 0, self.encoder.width), dtype=np.float32)
         start = max(self._audio_start, self._given - self._context)
-        audio = self._audio[(start - self._audio_start) * self._hop:heard - self._audio_start * self._hop]
+        audio = self._audio[(start - self._audio_start) * self._hop : heard - self._audio_start * self._hop]
         states = self.encoder.hidden_states(AudioClip.from_array(audio, SAMPLE_RATE))
         index = np.minimum(np.arange(self._given - start, upto - start), states.shape[1] - 1)
         self._given = upto
         keep = max(self._audio_start, upto - self._context)
-        self._audio = self._audio[(keep - self._audio_start) * self._hop:]
+        self._audio = self._audio[(keep - self._audio_start) * self._hop :]
         self._audio_start = keep
         return states[:, index]

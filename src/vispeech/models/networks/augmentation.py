@@ -50,7 +50,8 @@ def augmented_copy(utterance, index: int, seed: int = 0):
         x = effects.time_stretch(x, speed)
         n_frames = max(1, int(np.ceil(track.n_frames / speed)))
         track = Track(track.values, track.channels, track.fps * speed, track.start_time / speed).resample(
-            track.fps, n_frames=n_frames)
+            track.fps, n_frames=n_frames
+        )
         phones = phones.scaled(1 / speed) if phones is not None else None
         words = [replace(w, start=w.start / speed, end=w.end / speed) for w in words]
     if rng.random() < P_ROOM:
@@ -62,6 +63,16 @@ def augmented_copy(utterance, index: int, seed: int = 0):
         x = effects.telephone(x, rate)
     elif channel < P_TELEPHONE + P_CODEC:
         x = effects.lossy(x, rate, str(rng.choice(effects.CODECS)), float(rng.uniform(0.0, 0.5)))
-    return replace(utterance, id=f"{getattr(utterance, 'id', '')}~{index}", audio=x, sample_rate=rate,
-                   audio_path=None, duration=len(x) / rate, track=track, phones=phones, words=words,
-                   landmarks=None, frame_mask=None)
+    return replace(
+        utterance,
+        id=f"{getattr(utterance, 'id', '')}~{index}",
+        audio=x,
+        sample_rate=rate,
+        audio_path=None,
+        duration=len(x) / rate,
+        track=track,
+        phones=phones,
+        words=words,
+        landmarks=None,
+        frame_mask=None,
+    )

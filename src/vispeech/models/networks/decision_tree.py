@@ -52,7 +52,9 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
 
     @property
     def channels(self) -> tuple[str, ...]:
-        return getattr(self, "outputs_", ()) or (() if self._params["targets"] == "all" else tuple(self._params["targets"]))
+        return getattr(self, "outputs_", ()) or (
+            () if self._params["targets"] == "all" else tuple(self._params["targets"])
+        )
 
     @property
     def frame_rate(self) -> float | None:
@@ -62,8 +64,15 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
     def lookahead(self) -> int:
         return (self._params["input_window"] + self._params["output_window"]) // 2 - 1
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> DecisionTreeRegression:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> DecisionTreeRegression:
         """Grow the tree on every window of the training utterances. ``history_`` holds one
         "epoch": the mean squared error of the fitted frames on the training split and, when there
         is one, on the validation split, and the seconds it took."""
@@ -79,7 +88,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         self.fps_ = float(p["fps"] or first.track.fps)
         available = tuple(first.track.channels)
         wanted = p["targets"]
-        self.outputs_ = (tuple(c for c in MOUTH_CHANNELS if c in available) if wanted == "all" else tuple(wanted))
+        self.outputs_ = tuple(c for c in MOUTH_CHANNELS if c in available) if wanted == "all" else tuple(wanted)
         missing = [c for c in self.outputs_ if c not in available]
         if missing or not self.outputs_:
             raise VispeechError(f"the corpus tracks lack the target channels {', '.join(missing) or 'of the mouth'}")
@@ -91,14 +100,22 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
             inputs, targets = self._example(utterance)
             x.append(padded_windows(inputs, p["input_window"], ky).reshape(-1, p["input_window"] * inputs.shape[1]))
             padded = np.pad(targets, ((ky - 1, ky - 1), (0, 0)), mode="edge")
-            y.append(np.lib.stride_tricks.sliding_window_view(padded, ky, axis=0)[:len(x[-1])]
-                     .transpose(0, 2, 1).reshape(len(x[-1]), -1))
+            y.append(
+                np.lib.stride_tricks.sliding_window_view(padded, ky, axis=0)[: len(x[-1])]
+                .transpose(0, 2, 1)
+                .reshape(len(x[-1]), -1)
+            )
         tree = DecisionTreeRegressor(min_samples_leaf=p["min_leaf"], random_state=p["seed"]).fit(
-            np.concatenate(x), np.concatenate(y))
+            np.concatenate(x), np.concatenate(y)
+        )
         t = tree.tree_
-        self.tree_ = {"left": t.children_left.astype(np.int32), "right": t.children_right.astype(np.int32),
-                      "feature": t.feature.astype(np.int32), "threshold": t.threshold.astype(np.float64),
-                      "value": t.value[:, :, 0].astype(np.float64)}
+        self.tree_ = {
+            "left": t.children_left.astype(np.int32),
+            "right": t.children_right.astype(np.int32),
+            "feature": t.feature.astype(np.int32),
+            "threshold": t.threshold.astype(np.float64),
+            "value": t.value[:, :, 0].astype(np.float64),
+        }
         losses = [self._mse(split) if split else None for split in (train, validation)]
         assert losses[0] is not None  # training_split refuses an empty train split
         self.history_ = TrainingHistory([losses[0]], [losses[1]], [0.0], [time.perf_counter() - started], 1)
@@ -158,9 +175,15 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
     def _learned_state(self) -> tuple[dict, dict[str, np.ndarray]] | None:
         if not hasattr(self, "tree_"):
             return None
-        return ({"encoding": self.encoding_.to_dict(), "outputs": list(self.outputs_), "fps": self.fps_,
-                 "history": self.history_.to_dict()},
-                {f"tree.{k}": v for k, v in self.tree_.items()})
+        return (
+            {
+                "encoding": self.encoding_.to_dict(),
+                "outputs": list(self.outputs_),
+                "fps": self.fps_,
+                "history": self.history_.to_dict(),
+            },
+            {f"tree.{k}": v for k, v in self.tree_.items()},
+        )
 
     def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
         self.encoding_ = InputEncoding.from_dict(state["encoding"])

@@ -45,11 +45,31 @@ INPUT_KINDS = ("phones", "features")
 _F = {name: i for i, name in enumerate(FEATURE_NAMES)}
 
 _CATEGORIES: tuple[str, ...] = (
-    "vowel", "consonant", "silence",
-    "bilabial", "labiodental", "dental", "alveolar", "postalveolar", "retroflex", "palatal",
-    "velar", "glottal", "nasal", "fricative", "stop", "approximant", "lateral",
-    "voiced_consonant", "voiceless_consonant", "rounded",
-    "front_vowel", "back_vowel", "open_vowel", "close_vowel", "diphthong",
+    "vowel",
+    "consonant",
+    "silence",
+    "bilabial",
+    "labiodental",
+    "dental",
+    "alveolar",
+    "postalveolar",
+    "retroflex",
+    "palatal",
+    "velar",
+    "glottal",
+    "nasal",
+    "fricative",
+    "stop",
+    "approximant",
+    "lateral",
+    "voiced_consonant",
+    "voiceless_consonant",
+    "rounded",
+    "front_vowel",
+    "back_vowel",
+    "open_vowel",
+    "close_vowel",
+    "diphthong",
 )
 _CLASSES: tuple[str, ...] = ("sil", "labial", "coronal", "dorsal", "round", "unround")
 LINGUISTIC_NAMES: tuple[str, ...] = tuple(f"is_{c}" for c in _CATEGORIES) + tuple(

@@ -39,8 +39,14 @@ class RecurrentKernel:
     them and their own added, so the cache holds about one row per phone.
     """
 
-    def __init__(self, weights: Mapping[str, np.ndarray], columns: Sequence[Sequence[int]], back: int, ahead: int,
-                 events: Sequence[int] = ()):
+    def __init__(
+        self,
+        weights: Mapping[str, np.ndarray],
+        columns: Sequence[Sequence[int]],
+        back: int,
+        ahead: int,
+        events: Sequence[int] = (),
+    ):
         self.back = back
         self.window = back + ahead + 1
         self.order = np.argsort([c for group in columns for c in group])
@@ -56,22 +62,26 @@ class RecurrentKernel:
             oldest_first = recurrent.reshape(hidden, delays, hidden)[:, ::-1, :].reshape(hidden, delays * hidden)
             per_frame = np.transpose(conv, (2, 1, 0))  # window, inputs, hidden
             cumulative.append(np.concatenate([np.zeros((1, n_inputs, hidden)), np.cumsum(per_frame, axis=0)]))
-            self.nets.append({
-                "hidden": hidden, "delays": delays,
-                "bias": np.asarray(weights[f"nets.{i}.input.bias"], dtype=np.float64),
-                "conv": np.ascontiguousarray(per_frame.reshape(window * n_inputs, hidden)),
-                "recurrent": np.ascontiguousarray(oldest_first, dtype=np.float32),
-                "recurrent_and_drive": np.concatenate([oldest_first, np.eye(hidden)], axis=1).astype(np.float32),
-                "out_weight": np.asarray(weights[f"nets.{i}.output.weight"], dtype=np.float64).T,
-                "out_bias": np.asarray(weights[f"nets.{i}.output.bias"], dtype=np.float64),
-            })
+            self.nets.append(
+                {
+                    "hidden": hidden,
+                    "delays": delays,
+                    "bias": np.asarray(weights[f"nets.{i}.input.bias"], dtype=np.float64),
+                    "conv": np.ascontiguousarray(per_frame.reshape(window * n_inputs, hidden)),
+                    "recurrent": np.ascontiguousarray(oldest_first, dtype=np.float32),
+                    "recurrent_and_drive": np.concatenate([oldest_first, np.eye(hidden)], axis=1).astype(np.float32),
+                    "out_weight": np.asarray(weights[f"nets.{i}.output.weight"], dtype=np.float64).T,
+                    "out_bias": np.asarray(weights[f"nets.{i}.output.bias"], dtype=np.float64),
+                }
+            )
         self.hidden = sum(net["hidden"] for net in self.nets)
         # C[f, m, :] = Σ_{k<m} W_k[f, :] over every network's hidden units, as inputs × (window+1)·hidden
         self._cumulative = np.concatenate(cumulative, axis=2).transpose(1, 0, 2).reshape(n_inputs, -1)
         self._events = np.asarray(events, dtype=np.intp)
         self._event_terms = np.ascontiguousarray(
             self._cumulative[self._events].reshape(len(self._events), self.window + 1, self.hidden)[:, ::-1],
-            dtype=np.float32)
+            dtype=np.float32,
+        )
         self._bias = np.concatenate([net["bias"] for net in self.nets]).astype(np.float32)
         self._rows: dict[bytes, np.ndarray] = {}
 
@@ -92,7 +102,9 @@ class RecurrentKernel:
         base = self._base_terms(rows)  # per run: G[K - j] at row j, without the event columns
         events: list[list[tuple[int, float]]] = [[] for _ in range(len(rows))]
         set_rows, set_events = np.nonzero(rows[:, self._events])
-        for r, e, weight in zip(set_rows.tolist(), set_events.tolist(), rows[set_rows, self._events[set_events]].tolist()):
+        for r, e, weight in zip(
+            set_rows.tolist(), set_events.tolist(), rows[set_rows, self._events[set_events]].tolist()
+        ):
             events[r].append((e, weight))
         ends = self.back + change  # boundaries between runs, in padded frames
         # the run holding each window's last frame t + k - 1 contributes G[K]
@@ -111,16 +123,22 @@ class RecurrentKernel:
             if lo > hi:
                 continue
             rows_at = slice(k - b + lo, k - b + hi + 1)  # (G_r − G_{r+1})[b − t] for t = lo .. hi
-            view = out[lo:hi + 1]
+            view = out[lo : hi + 1]
             if base[r] is not base[r + 1]:  # a phone's onset and the rest of it share their base terms
                 add(view, base[r][rows_at], out=view)
                 subtract(view, base[r + 1][rows_at], out=view)
             for e, weight in events[r]:
-                add(view, self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
-                    out=view)
+                add(
+                    view,
+                    self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
+                    out=view,
+                )
             for e, weight in events[r + 1]:
-                subtract(view, self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
-                         out=view)
+                subtract(
+                    view,
+                    self._event_terms[e, rows_at] if weight == 1.0 else weight * self._event_terms[e, rows_at],
+                    out=view,
+                )
         out += self._bias
         return out
 
@@ -154,11 +172,13 @@ class RecurrentKernel:
         for net in self.nets:
             hidden, delays, matrix = net["hidden"], net["delays"], net["recurrent_and_drive"]
             buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
-            buffer[delays:] = drive[:, start:start + hidden]
+            buffer[delays:] = drive[:, start : start + hidden]
             flat = buffer.reshape(-1)
             size = (delays + 1) * hidden
             step = np.empty(hidden, dtype=np.float32)
-            windows = np.lib.stride_tricks.as_strided(flat, shape=(n, size), strides=(flat.strides[0] * hidden, flat.strides[0]))
+            windows = np.lib.stride_tricks.as_strided(
+                flat, shape=(n, size), strides=(flat.strides[0] * hidden, flat.strides[0])
+            )
             for window, out in zip(windows, buffer[delays:]):
                 dot(matrix, window, out=step)
                 tanh(step, out=out)
@@ -192,8 +212,13 @@ class WindowKernel:
 
     def __init__(self, weights: Mapping[str, np.ndarray], input_window: int, output_window: int, activation: str):
         layers = sorted({int(key.split(".")[1]) for key in weights if key.startswith("layers.")})
-        self.layers = [(np.asarray(weights[f"layers.{i}.weight"], dtype=np.float64).T,
-                        np.asarray(weights[f"layers.{i}.bias"], dtype=np.float64)) for i in layers]
+        self.layers = [
+            (
+                np.asarray(weights[f"layers.{i}.weight"], dtype=np.float64).T,
+                np.asarray(weights[f"layers.{i}.bias"], dtype=np.float64),
+            )
+            for i in layers
+        ]
         self.input_window, self.output_window = input_window, output_window
         self.activation = activation
 
@@ -223,8 +248,8 @@ def overlap_average(out: np.ndarray, n: int) -> np.ndarray:
     ky = out.shape[1]
     total = np.zeros((len(out) + ky - 1, out.shape[2]))
     for k in range(ky):
-        total[k:k + len(out)] += out[:, k]
-    return total[ky - 1:ky - 1 + n] / ky
+        total[k : k + len(out)] += out[:, k]
+    return total[ky - 1 : ky - 1 + n] / ky
 
 
 class _ConvLayer(TypedDict):
@@ -247,13 +272,15 @@ class ConvStackKernel:
             conv = np.asarray(weights[f"{prefix}.convs.{i}.weight"], dtype=np.float32)  # out, in, kernel
             if conv.shape[2] != pad[0] + pad[1] + 1:
                 raise ValueError(f"layer {i} has a kernel of {conv.shape[2]} frames, expected {sum(pad) + 1}")
-            self.layers.append({
-                "pad": pad,
-                "weight": np.ascontiguousarray(conv.transpose(2, 1, 0)),  # kernel, in, out
-                "bias": np.asarray(weights[f"{prefix}.convs.{i}.bias"], dtype=np.float32),
-                "gain": np.asarray(weights[f"{prefix}.norms.{i}.norm.weight"], dtype=np.float32),
-                "shift": np.asarray(weights[f"{prefix}.norms.{i}.norm.bias"], dtype=np.float32),
-            })
+            self.layers.append(
+                {
+                    "pad": pad,
+                    "weight": np.ascontiguousarray(conv.transpose(2, 1, 0)),  # kernel, in, out
+                    "bias": np.asarray(weights[f"{prefix}.convs.{i}.bias"], dtype=np.float32),
+                    "gain": np.asarray(weights[f"{prefix}.norms.{i}.norm.weight"], dtype=np.float32),
+                    "shift": np.asarray(weights[f"{prefix}.norms.{i}.norm.bias"], dtype=np.float32),
+                }
+            )
         self.behind = sum(layer["pad"][0] for layer in self.layers)
         """Frames of input before frame t that frame t's output depends on."""
         self.ahead = sum(layer["pad"][1] for layer in self.layers)
@@ -284,10 +311,12 @@ class ConvStackStream:
         h = np.asarray(rows, dtype=np.float32)
         for i, layer in enumerate(self.kernel.layers):
             behind, ahead = layer["pad"]
-            buffer = np.concatenate([self._buffers[i], h] + ([np.zeros((ahead, h.shape[1]), np.float32)] if final else []))
+            buffer = np.concatenate(
+                [self._buffers[i], h] + ([np.zeros((ahead, h.shape[1]), np.float32)] if final else [])
+            )
             n = len(buffer) - behind - ahead
             h = _conv_layer(layer, buffer) if n > 0 else np.zeros((0, len(layer["bias"])), np.float32)
-            self._buffers[i] = buffer[max(0, n):] if not final else buffer[:0]
+            self._buffers[i] = buffer[max(0, n) :] if not final else buffer[:0]
         return h
 
 
@@ -296,7 +325,7 @@ def _conv_layer(layer: _ConvLayer, padded: np.ndarray) -> np.ndarray:
     n = len(padded) - len(layer["weight"]) + 1
     out = np.broadcast_to(layer["bias"], (n, len(layer["bias"]))).copy()
     for k, weight in enumerate(layer["weight"]):
-        out += padded[k:k + n] @ weight
+        out += padded[k : k + n] @ weight
     np.maximum(out, 0.0, out=out)
     mean = out.mean(axis=1, keepdims=True)
     var = out.var(axis=1, keepdims=True)
@@ -406,8 +435,9 @@ class EncoderDecoderKernel:
     layers (torch's gate order r, z, n), linear output and CTC head (when it has one); behind a :class:`LayerFusionKernel`
     when it reads ``fusion_layers`` encoder hidden states."""
 
-    def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int,
-                 fusion_layers: int = 0):
+    def __init__(
+        self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int, fusion_layers: int = 0
+    ):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
         self.gru = []
@@ -432,8 +462,14 @@ class EncoderDecoderKernel:
         return (h @ self.out_weight + self.out_bias).astype(np.float64), _posteriors(self.phone_head, h)
 
 
-def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_hh: np.ndarray,
-         state: np.ndarray | None = None) -> np.ndarray:
+def _gru(
+    x: np.ndarray,
+    w_ih: np.ndarray,
+    b_ih: np.ndarray,
+    w_hh: np.ndarray,
+    b_hh: np.ndarray,
+    state: np.ndarray | None = None,
+) -> np.ndarray:
     """One GRU direction over ``x`` (frames × inputs) from ``state`` (zeros by default), as torch computes it."""
     hidden = w_hh.shape[0]
     drive = x @ w_ih + b_ih  # the input terms of every frame at once
@@ -441,8 +477,8 @@ def _gru(x: np.ndarray, w_ih: np.ndarray, b_ih: np.ndarray, w_hh: np.ndarray, b_
     out = np.empty((len(x), hidden), dtype=np.float32)
     for t in range(len(x)):
         recurrent = h @ w_hh + b_hh
-        rz = 1.0 / (1.0 + np.exp(-(drive[t, :2 * hidden] + recurrent[:2 * hidden])))
-        n = np.tanh(drive[t, 2 * hidden:] + rz[:hidden] * recurrent[2 * hidden:])
+        rz = 1.0 / (1.0 + np.exp(-(drive[t, : 2 * hidden] + recurrent[: 2 * hidden])))
+        n = np.tanh(drive[t, 2 * hidden :] + rz[:hidden] * recurrent[2 * hidden :])
         h = (1.0 - rz[hidden:]) * n + rz[hidden:] * h
         out[t] = h
     return out
@@ -460,8 +496,13 @@ class LSTMKernel:
         for k in range(layers):
             directions = []
             for suffix in ("", "_reverse") if bidirectional else ("",):
-                directions.append((w[f"lstm.weight_ih_l{k}{suffix}"].T, w[f"lstm.weight_hh_l{k}{suffix}"].T,
-                                   w[f"lstm.bias_ih_l{k}{suffix}"] + w[f"lstm.bias_hh_l{k}{suffix}"]))
+                directions.append(
+                    (
+                        w[f"lstm.weight_ih_l{k}{suffix}"].T,
+                        w[f"lstm.weight_hh_l{k}{suffix}"].T,
+                        w[f"lstm.bias_ih_l{k}{suffix}"] + w[f"lstm.bias_hh_l{k}{suffix}"],
+                    )
+                )
             self.layers.append(directions)
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
@@ -483,8 +524,8 @@ def _lstm_run(x: np.ndarray, w_in: np.ndarray, w_hidden: np.ndarray, bias: np.nd
     out = np.empty((len(x), n_hidden))
     for t in range(len(x)):
         gates = drive[t] + h @ w_hidden
-        i, f = 1 / (1 + np.exp(-gates[:n_hidden])), 1 / (1 + np.exp(-gates[n_hidden:2 * n_hidden]))
-        g, o = np.tanh(gates[2 * n_hidden:3 * n_hidden]), 1 / (1 + np.exp(-gates[3 * n_hidden:]))
+        i, f = 1 / (1 + np.exp(-gates[:n_hidden])), 1 / (1 + np.exp(-gates[n_hidden : 2 * n_hidden]))
+        g, o = np.tanh(gates[2 * n_hidden : 3 * n_hidden]), 1 / (1 + np.exp(-gates[3 * n_hidden :]))
         c = f * c + i * g
         h = o * np.tanh(c)
         out[t] = h

@@ -62,7 +62,9 @@ class LSTMNetwork(PhoneNetwork):
     def _batches(self, examples, rng):
         import torch
 
-        return [tuple(map(torch.from_numpy, batch)) for batch in sequence_batches(examples, rng, self._params["batch_size"])]
+        return [
+            tuple(map(torch.from_numpy, batch)) for batch in sequence_batches(examples, rng, self._params["batch_size"])
+        ]
 
     def _data_loss(self, module, batch):
         from vispeech.models.networks.training import sequence_loss

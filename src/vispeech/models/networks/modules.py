@@ -19,8 +19,17 @@ class WindowMLP(nn.Module):
     N(0, 0.05²), biases 0 (the thesis); ``"default"`` keeps torch's initialisation.
     """
 
-    def __init__(self, n_inputs: int, n_outputs: int, input_window: int, output_window: int,
-                 hidden: list[int], activation: str, dropout: list[float], init: str):
+    def __init__(
+        self,
+        n_inputs: int,
+        n_outputs: int,
+        input_window: int,
+        output_window: int,
+        hidden: list[int],
+        activation: str,
+        dropout: list[float],
+        init: str,
+    ):
         super().__init__()
         self.output_window, self.n_outputs = output_window, n_outputs
         layers: list[nn.Module] = []
@@ -65,7 +74,7 @@ def overlap_average(out: torch.Tensor, n_frames: int) -> torch.Tensor:
     ky = out.shape[1]
     # sum's start, 0, is never the result: there is at least one window (ky >= 1)
     total = cast(torch.Tensor, sum(nn.functional.pad(out[:, k], (0, 0, k, ky - 1 - k)) for k in range(ky)))
-    return total[ky - 1: ky - 1 + n_frames] / ky
+    return total[ky - 1 : ky - 1 + n_frames] / ky
 
 
 class RecurrentTimeDelayNet(nn.Module):
@@ -170,8 +179,18 @@ class AudioCNN(nn.Module):
     a linear output and an optional CTC head, behind a :class:`LayerFusion` when it reads
     ``fusion_layers`` encoder hidden states."""
 
-    def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], right: list[int],
-                 dropout: float, n_phones: int, fusion_layers: int = 0, recurrent: int = 0):
+    def __init__(
+        self,
+        n_inputs: int,
+        n_outputs: int,
+        channels: list[int],
+        kernels: list[int],
+        right: list[int],
+        dropout: float,
+        n_phones: int,
+        fusion_layers: int = 0,
+        recurrent: int = 0,
+    ):
         super().__init__()
         self.fusion, width = _fused(n_inputs, fusion_layers)
         self.encoder = ConvStack(width, channels, kernels, right, dropout)
@@ -193,13 +212,29 @@ class AudioEncoderDecoder(nn.Module):
     decoder over whole utterances, a linear output and an optional CTC head on the decoder,
     behind a :class:`LayerFusion` when it reads ``fusion_layers`` encoder hidden states."""
 
-    def __init__(self, n_inputs: int, n_outputs: int, channels: list[int], kernels: list[int], hidden: int,
-                 layers: int, dropout: float, n_phones: int, fusion_layers: int = 0):
+    def __init__(
+        self,
+        n_inputs: int,
+        n_outputs: int,
+        channels: list[int],
+        kernels: list[int],
+        hidden: int,
+        layers: int,
+        dropout: float,
+        n_phones: int,
+        fusion_layers: int = 0,
+    ):
         super().__init__()
         self.fusion, width = _fused(n_inputs, fusion_layers)
         self.encoder = ConvStack(width, channels, kernels, [(k - 1) // 2 for k in kernels], dropout)
-        self.decoder = nn.GRU(channels[-1], hidden, num_layers=layers, batch_first=True, bidirectional=True,
-                              dropout=dropout if layers > 1 else 0.0)
+        self.decoder = nn.GRU(
+            channels[-1],
+            hidden,
+            num_layers=layers,
+            batch_first=True,
+            bidirectional=True,
+            dropout=dropout if layers > 1 else 0.0,
+        )
         self.output = nn.Linear(2 * hidden, n_outputs)
         self.ctc = nn.Linear(2 * hidden, n_phones + 1) if n_phones else None
 
@@ -216,13 +251,20 @@ class DeepLSTM(nn.Module):
     (bidirectional) LSTM layers of ``hidden`` units, a linear output (Fan et al. 2015 as Taylor
     et al. 2017 ran it). ``lengths`` (batch) marks each sequence's real frames."""
 
-    def __init__(self, n_inputs: int, n_outputs: int, dense: int, hidden: int, layers: int, bidirectional: bool,
-                 dropout: float) -> None:
+    def __init__(
+        self, n_inputs: int, n_outputs: int, dense: int, hidden: int, layers: int, bidirectional: bool, dropout: float
+    ) -> None:
         super().__init__()
         self.dense = nn.Linear(n_inputs, dense)
         self.dropout = nn.Dropout(dropout)
-        self.lstm = nn.LSTM(dense, hidden, num_layers=layers, batch_first=True, bidirectional=bidirectional,
-                            dropout=dropout if layers > 1 else 0.0)
+        self.lstm = nn.LSTM(
+            dense,
+            hidden,
+            num_layers=layers,
+            batch_first=True,
+            bidirectional=bidirectional,
+            dropout=dropout if layers > 1 else 0.0,
+        )
         self.output = nn.Linear(hidden * (2 if bidirectional else 1), n_outputs)
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor | None = None) -> torch.Tensor:

@@ -54,11 +54,24 @@ if TYPE_CHECKING:
     from vispeech.models.networks.audio_encoding import AudioEncoding
 
 THESIS_CHANNELS: tuple[str, ...] = (
-    "jawForward", "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker",
-    "mouthSmileLeft", "mouthDimpleLeft", "mouthStretchLeft",
-    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
-    "mouthPressLeft", "mouthLowerDownLeft", "mouthUpperUpLeft",
-    "cheekPuff", "cheekSquintLeft", "noseSneerLeft",
+    "jawForward",
+    "jawOpen",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthSmileLeft",
+    "mouthDimpleLeft",
+    "mouthStretchLeft",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthLowerDownLeft",
+    "mouthUpperUpLeft",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "noseSneerLeft",
 )
 """The thesis's 18 output channels, in its order (Left kept of each pair)."""
 
@@ -99,16 +112,19 @@ EncodingT = TypeVar("EncodingT", bound="InputEncoding | AudioEncoding")
 (phones) or :class:`~vispeech.models.networks.audio_encoding.AudioEncoding` (audio)."""
 
 
-def sequence_batches(examples: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator | None, size: int,
-                     prepare: Callable[[np.ndarray], np.ndarray] | None = None,
-                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def sequence_batches(
+    examples: list[tuple[np.ndarray, np.ndarray]],
+    rng: np.random.Generator | None,
+    size: int,
+    prepare: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Utterance batches of ``size`` (shuffled with ``rng``; in order when it is ``None``): inputs
     (each through ``prepare`` first, e.g. padded for a window) and targets padded at the end to
     the batch's longest, with each utterance's frame count and the mask of its real frames."""
     order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
     batches = []
     for start in range(0, len(order), size):
-        chosen = [examples[i] for i in order[start:start + size]]
+        chosen = [examples[i] for i in order[start : start + size]]
         longest = max(len(y) for _, y in chosen)
         prepared = [x if prepare is None else prepare(x) for x, _ in chosen]
         inputs = np.stack([np.pad(x, ((0, longest - len(y)), (0, 0))) for x, (_, y) in zip(prepared, chosen)])
@@ -193,7 +209,8 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         if not self._params["mirror"]:
             return outputs
         twins = tuple(
-            c[: -len("Left")] + "Right" for c in outputs
+            c[: -len("Left")] + "Right"
+            for c in outputs
             if c.endswith("Left") and c[: -len("Left")] + "Right" not in outputs
         )
         return outputs + twins
@@ -210,8 +227,15 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
 
     # -- fitting ---------------------------------------------------------------------------
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> Self:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> Self:
         """Train on ``corpus`` (see :func:`~vispeech.models.fitting.training_split`); returns ``self``.
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
@@ -259,8 +283,11 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
             if (checkpoint / "training_state.json").is_file():
                 state = load_state(checkpoint, module)
             else:  # a plain saved model holds its best weights only: go on with a fresh optimizer
-                state = TrainingState(history=self.history_, best_weights=copy.deepcopy(module.state_dict()),
-                                      best_loss=_best_loss(self.history_))
+                state = TrainingState(
+                    history=self.history_,
+                    best_weights=copy.deepcopy(module.state_dict()),
+                    best_loss=_best_loss(self.history_),
+                )
         optimizer: torch.optim.Optimizer
         if p["optimizer"] == "adam":
             optimizer = torch.optim.Adam(module.parameters(), lr=p["learning_rate"])
@@ -291,9 +318,18 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
             torch.set_num_threads(int(num_threads))
         try:
             state = train(
-                module, optimizer, lambda rng: self._batches(examples, rng), batch_loss, validation_loss,
-                epochs=p["epochs"], learning_rate=p["learning_rate"], patience=p["patience"],
-                lr_step_down=p["lr_step_down"], seed=p["seed"], progress=show_progress(progress), state=state,
+                module,
+                optimizer,
+                lambda rng: self._batches(examples, rng),
+                batch_loss,
+                validation_loss,
+                epochs=p["epochs"],
+                learning_rate=p["learning_rate"],
+                patience=p["patience"],
+                lr_step_down=p["lr_step_down"],
+                seed=p["seed"],
+                progress=show_progress(progress),
+                state=state,
                 on_epoch=on_epoch if checkpoint is not None else None,
             )
         finally:
@@ -384,7 +420,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         """The predicted column each mirrored twin copies, and which output channels are ARKit's."""
         key = (self.outputs_, self.channels)
         if getattr(self, "_columns_for", None) != key:
-            twins = [self.outputs_.index(c[: -len("Right")] + "Left") for c in self.channels[len(self.outputs_):]]
+            twins = [self.outputs_.index(c[: -len("Right")] + "Left") for c in self.channels[len(self.outputs_) :]]
             self._columns = (twins, np.array([c in ARKIT_NAMES for c in self.channels]))
             self._columns_for = key
         return self._columns
@@ -412,8 +448,12 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
     def _learned_state(self) -> tuple[dict, dict[str, np.ndarray]] | None:
         if not hasattr(self, "weights_"):
             return None
-        state = {"encoding": self.encoding_.to_dict(), "outputs": list(self.outputs_), "fps": self.fps_,
-                 "history": self.history_.to_dict()}
+        state = {
+            "encoding": self.encoding_.to_dict(),
+            "outputs": list(self.outputs_),
+            "fps": self.fps_,
+            "history": self.history_.to_dict(),
+        }
         arrays = {f"module.{k}": v for k, v in self.weights_.items()}
         arrays |= {f"stats.{k}": v for k, v in self.stats_.items()}
         return state, arrays

@@ -83,8 +83,9 @@ class SlidingWindowNetwork(PhoneNetwork):
         p = self._params
         kx, ky = p["input_window"], p["output_window"]
         if not (isinstance(kx, int) and isinstance(ky, int) and 1 <= ky <= kx and (kx - ky) % 2 == 0):
-            raise VispeechError(f"windows must satisfy 1 <= output_window <= input_window with an even "
-                                f"difference, got {kx} and {ky}")
+            raise VispeechError(
+                f"windows must satisfy 1 <= output_window <= input_window with an even difference, got {kx} and {ky}"
+            )
         if p["activation"] not in _ACTIVATIONS:
             raise VispeechError(f"unknown activation {p['activation']!r} (use {' or '.join(_ACTIVATIONS)})")
         layers = 2 if p["hidden"] is None else len(p["hidden"])
@@ -99,8 +100,9 @@ class SlidingWindowNetwork(PhoneNetwork):
         p = self._params
         kx = p["input_window"]
         hidden = p["hidden"] or [max(1, round(0.5 * kx * n_inputs)), kx * n_outputs]
-        return WindowMLP(n_inputs, n_outputs, kx, p["output_window"], list(hidden), p["activation"],
-                         list(p["dropout"]), p["init"])
+        return WindowMLP(
+            n_inputs, n_outputs, kx, p["output_window"], list(hidden), p["activation"], list(p["dropout"]), p["init"]
+        )
 
     @property
     def _pad(self) -> int:
@@ -125,9 +127,13 @@ class SlidingWindowNetwork(PhoneNetwork):
         size = self._params["batch_size"]
         # Windows are gathered batch by batch (in _data_loss), never all at once.
         return [
-            (x_all, torch.from_numpy(x_starts[chunk][:, None] + np.arange(kx)),
-             y_all, torch.from_numpy(y_starts[chunk][:, None] + np.arange(ky)))
-            for chunk in (order[i:i + size] for i in range(0, len(order), size))
+            (
+                x_all,
+                torch.from_numpy(x_starts[chunk][:, None] + np.arange(kx)),
+                y_all,
+                torch.from_numpy(y_starts[chunk][:, None] + np.arange(ky)),
+            )
+            for chunk in (order[i : i + size] for i in range(0, len(order), size))
         ]
 
     def _data_loss(self, module, batch):

@@ -109,8 +109,9 @@ class TimeDelayNetwork(PhoneNetwork):
 
     def _make_kernel(self) -> RecurrentKernel:
         events = [i for i, name in enumerate(self.encoding_.names) if ">" in name]  # phone-onset transitions
-        return RecurrentKernel(self.weights_, self._group_columns(), self._params["look_back"],
-                               self._params["look_ahead"], events)
+        return RecurrentKernel(
+            self.weights_, self._group_columns(), self._params["look_back"], self._params["look_ahead"], events
+        )
 
     def _pad(self, inputs: np.ndarray) -> np.ndarray:
         return np.pad(inputs, ((self._params["look_back"], self._params["look_ahead"]), (0, 0)), mode="edge")
@@ -118,8 +119,10 @@ class TimeDelayNetwork(PhoneNetwork):
     def _batches(self, examples, rng):
         import torch
 
-        return [(torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(mask))
-                for x, y, _, mask in sequence_batches(examples, rng, self._params["batch_size"], self._pad)]
+        return [
+            (torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(mask))
+            for x, y, _, mask in sequence_batches(examples, rng, self._params["batch_size"], self._pad)
+        ]
 
     def _data_loss(self, module, batch):
         from vispeech.models.networks.training import sequence_loss
@@ -181,12 +184,13 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
             sequence = PhoneSequence(self._recent, self.language)
             known = sequence.n_frames(model.fps_)
             if known > len(self._rows):
-                self._rows.extend(model.encoding_.encode(sequence, model.fps_, n_frames=known,
-                                                         start_frame=len(self._rows)))
+                self._rows.extend(
+                    model.encoding_.encode(sequence, model.fps_, n_frames=known, start_frame=len(self._rows))
+                )
                 # Keep the phone before the first one covering the frame before the next to
                 # encode, so a silence gap after it starts where it ends (as offline).
                 keep = int(np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right"))
-                self._recent = self._recent[max(keep - 1, 0):]
+                self._recent = self._recent[max(keep - 1, 0) :]
         self._due = len(self._rows) - model.lookahead
 
     def collect(self) -> tuple[int, np.ndarray]:

@@ -100,8 +100,9 @@ def train(
         for group in optimizer.param_groups:
             group["lr"] = lr
         module.train()
-        train_loss = _epoch_loss(optimizer, batches(rng), batch_loss, f"epoch {state.epoch + 1}/{epochs}",
-                                 state.epoch + 1, progress)
+        train_loss = _epoch_loss(
+            optimizer, batches(rng), batch_loss, f"epoch {state.epoch + 1}/{epochs}", state.epoch + 1, progress
+        )
         module.eval()
         with torch.no_grad():
             validation = validation_loss()
@@ -119,8 +120,9 @@ def train(
     return state
 
 
-def _resumed(state: TrainingState | None, seed: int,
-             optimizer: torch.optim.Optimizer) -> tuple[TrainingState, np.random.Generator]:
+def _resumed(
+    state: TrainingState | None, seed: int, optimizer: torch.optim.Optimizer
+) -> tuple[TrainingState, np.random.Generator]:
     """The state to train on (a new one for ``None``) and the NumPy generator, with the random
     generators and the optimizer restored from ``state`` where it has them."""
     import torch
@@ -137,9 +139,14 @@ def _resumed(state: TrainingState | None, seed: int,
     return state, rng
 
 
-def _epoch_loss(optimizer: torch.optim.Optimizer, batches: Iterable,
-                batch_loss: Callable[[object], tuple[torch.Tensor, float]], desc: str, epoch: int,
-                progress: bool) -> float:
+def _epoch_loss(
+    optimizer: torch.optim.Optimizer,
+    batches: Iterable,
+    batch_loss: Callable[[object], tuple[torch.Tensor, float]],
+    desc: str,
+    epoch: int,
+    progress: bool,
+) -> float:
     """One optimiser step per batch; the epoch's training loss (the batches' weighted mean)."""
     import torch
     from tqdm import tqdm
@@ -160,8 +167,15 @@ def _epoch_loss(optimizer: torch.optim.Optimizer, batches: Iterable,
     return total / max(weight, 1e-12)
 
 
-def _record(state: TrainingState, module: torch.nn.Module, train_loss: float, validation: float | None,
-            lr: float, seconds: float, lr_step_down: bool) -> None:
+def _record(
+    state: TrainingState,
+    module: torch.nn.Module,
+    train_loss: float,
+    validation: float | None,
+    lr: float,
+    seconds: float,
+    lr_step_down: bool,
+) -> None:
     """Add an epoch to ``state``'s history, keep the weights when they are the best so far, and
     count a learning-rate step down when ``lr_step_down`` and the training loss rose."""
     history = state.history
@@ -245,8 +259,9 @@ def load_state(folder: Path, module: torch.nn.Module) -> TrainingState:
     )
 
 
-def sequence_loss(pred: torch.Tensor, target: torch.Tensor, motion_weight: float = 0.0,
-                  mask: torch.Tensor | None = None) -> torch.Tensor:
+def sequence_loss(
+    pred: torch.Tensor, target: torch.Tensor, motion_weight: float = 0.0, mask: torch.Tensor | None = None
+) -> torch.Tensor:
     """MSE over all values plus ``motion_weight`` x the thesis's motion term.
 
     ``pred`` and ``target`` are ``(batch, frames, channels)``; the motion term is the mean over

@@ -89,8 +89,15 @@ class CohenMassaro(PhoneTargetModel):
         out = np.einsum("fkc,fkc->fc", d, seg.targets[idx]) / d.sum(axis=1)
         return self._track(out, fps)
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> CohenMassaro:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> CohenMassaro:
         """Estimate T, α, θ, φ and c per phone symbol and channel by least squares; returns ``self``.
 
         Fits the ``train`` split of a corpus with splits and stops each channel early on its
@@ -119,17 +126,25 @@ class CohenMassaro(PhoneTargetModel):
         # α is defined up to a common factor: hold that of the phone with the most frames
         anchor = np.argmax(np.bincount(np.concatenate([tying.column[r.own_rows] for r in data.train]), minlength=n))
         lower[n + anchor] = upper[n + anchor] = 0.0
+
         def start(j: int, m: int) -> tuple[tuple, np.ndarray]:
             base = (targets[:, m], log_alpha[:, m], theta[:, m], phi[:, m], c[:, m])
             with np.errstate(divide="ignore"):
-                x0 = np.concatenate([means[:, j], log_alpha[first, m], np.log(theta[first, m]),
-                                     np.log(phi[first, m]), np.log(c[first, m])])
+                x0 = np.concatenate(
+                    [
+                        means[:, j],
+                        log_alpha[first, m],
+                        np.log(theta[first, m]),
+                        np.log(phi[first, m]),
+                        np.log(c[first, m]),
+                    ]
+                )
             return base, x0
 
         fitted = fit_channels(self, data, start, lower, upper, train, held, progress)
         learned = {name: values.copy() for name, values in authored.items()}
         for channel, m in zip(data.channels, columns):
-            blocks = [fitted[channel][k * n:(k + 1) * n] for k in range(5)]
+            blocks = [fitted[channel][k * n : (k + 1) * n] for k in range(5)]
             exponent = tying.expand(learned["c"][:, m], np.exp(blocks[4]))
             learned["targets"][:, m] = tying.expand(learned["targets"][:, m], blocks[0])
             learned["alpha"][:, m] = tying.expand(learned["alpha"][:, m], np.exp(blocks[1]))
@@ -181,17 +196,18 @@ class _Design:
         shifted[3] = np.where(self.before, shifted[3], -1)  # φ before it
         self.columns = shifted
 
-    def residuals(self, base: tuple[np.ndarray, ...], channel: int, x: np.ndarray,
-                  jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    def residuals(
+        self, base: tuple[np.ndarray, ...], channel: int, x: np.ndarray, jacobian: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """z − y on these frames for parameters ``x`` (T, log α, log θ, log φ, log c per
         fitted symbol) over the per-row tables ``base`` (T, log α, θ, φ, c), and ∂z/∂x."""
         n = len(self.tying)
-        blocks = [x[k * n:(k + 1) * n] for k in range(5)]
+        blocks = [x[k * n : (k + 1) * n] for k in range(5)]
         expand = self.tying.expand
         target = expand(base[0], blocks[0])[self.rows]
         log_alpha = expand(base[1], blocks[1])[self.rows]
         theta, phi, c = (expand(base[k], np.exp(blocks[k]))[self.rows] for k in (2, 3, 4))
-        powered = self.distance ** c
+        powered = self.distance**c
         d = _dominance(log_alpha, theta, phi, powered, self.before, self.valid)
         d /= d.sum(axis=1, keepdims=True)
         z = np.einsum("fk,fk->f", d, target)

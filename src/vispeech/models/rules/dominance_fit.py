@@ -352,8 +352,14 @@ def _summary(states: Iterable[_Channel]) -> str:
 
 
 def fit_channels(
-    model, data: FitData, start: Callable[[int, int], tuple[tuple, np.ndarray]], lower: np.ndarray,
-    upper: np.ndarray, train, held, progress: bool | None,
+    model,
+    data: FitData,
+    start: Callable[[int, int], tuple[tuple, np.ndarray]],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    train,
+    held,
+    progress: bool | None,
 ) -> dict[str, np.ndarray]:
     """Solve each fitted channel's least-squares problem for ``model`` (a Cohen–Massaro or Öhman
     model) with its ``max_iterations`` and ``patience``; returns the parameters per channel.
@@ -366,11 +372,16 @@ def fit_channels(
     problems = {}
     for j, channel in enumerate(data.channels):
         base, x0 = start(j, model.channels.index(channel))
-        problems[channel] = ChannelProblem(x0, lower, upper, partial(train.residuals, base, j),
-                                           None if held is None else partial(held.residuals, base, j))
+        problems[channel] = ChannelProblem(
+            x0,
+            lower,
+            upper,
+            partial(train.residuals, base, j),
+            None if held is None else partial(held.residuals, base, j),
+        )
     params = model.get_params()
     fitted, model.history_ = levenberg_marquardt(
-        problems, max_iterations=params["max_iterations"], patience=params["patience"],
-        progress=show_progress(progress))
+        problems, max_iterations=params["max_iterations"], patience=params["patience"], progress=show_progress(progress)
+    )
     model.fitted_channels_ = data.channels
     return fitted

@@ -53,8 +53,7 @@ class Ohman(PhoneTargetModel):
             raise VispeechError("ohman w_c values must lie in [0, 1]")
 
     def _authored_tables(self, language: str) -> dict[str, np.ndarray]:
-        return {**super()._authored_tables(language),
-                "w_c": resolve_spec(self._params["w_c"], language, self.channels)}
+        return {**super()._authored_tables(language), "w_c": resolve_spec(self._params["w_c"], language, self.channels)}
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
@@ -70,8 +69,15 @@ class Ohman(PhoneTargetModel):
             out += gain * (targets[k] - vowel_track)
         return self._track(out, fps)
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> Ohman:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
         squares; returns ``self``. Splits, channels and learned attributes as for
         :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
@@ -88,6 +94,7 @@ class Ohman(PhoneTargetModel):
         targets, w = authored["targets"], authored["w_c"]
         means = tying.frame_means(data.train, targets[tying.first_rows][:, columns])
         lower, upper = np.zeros(n + n_w), np.ones(n + n_w)
+
         def start(j: int, m: int) -> tuple[tuple, np.ndarray]:
             return (targets[:, m], w[:, m]), np.concatenate([means[:, j], w[factors.first_rows, m]])
 
@@ -147,7 +154,8 @@ class _Design:
         blends = [_Blend.of(r.segments) for r in recordings]
         names = ("anchors", "shift", "consonants", "strength")
         self.anchors, self.shift, self.consonants, self.strength = (
-            np.concatenate([getattr(b, name) for b in blends]) for name in names)
+            np.concatenate([getattr(b, name) for b in blends]) for name in names
+        )
         self.values = np.concatenate([r.values for r in recordings])
         self.tying, self.factors = tying, factors
         n = len(tying)
@@ -158,8 +166,9 @@ class _Design:
             np.where(self.strength > 0, factors.columns(self.consonants, offset=n), -1),
         )
 
-    def residuals(self, base: tuple[np.ndarray, np.ndarray], channel: int, x: np.ndarray,
-                  jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    def residuals(
+        self, base: tuple[np.ndarray, np.ndarray], channel: int, x: np.ndarray, jacobian: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """z − y on these frames for parameters ``x`` (targets of the fitted symbols, then w_c
         of the fitted consonants) over the per-row tables ``base`` (targets, w_c), and ∂z/∂x."""
         n = len(self.tying)

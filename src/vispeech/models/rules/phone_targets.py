@@ -82,8 +82,11 @@ class PhoneTargetModel(Estimator[PhoneSequence]):
         """Raise :class:`VispeechError` on bad ``channels``, ``max_iterations`` or ``patience``."""
         p = self._params
         if p["channels"] is not None:
-            unknown = [c for c in ([p["channels"]] if isinstance(p["channels"], str) else p["channels"])
-                       if c not in self.channels]
+            unknown = [
+                c
+                for c in ([p["channels"]] if isinstance(p["channels"], str) else p["channels"])
+                if c not in self.channels
+            ]
             if unknown or not p["channels"]:
                 raise VispeechError(f"model {self.family} does not predict channels {', '.join(unknown) or '(none)'}")
         for key, least in (("max_iterations", 0), ("patience", 1)):
@@ -94,15 +97,24 @@ class PhoneTargetModel(Estimator[PhoneSequence]):
     def _track(self, values: np.ndarray, fps: float) -> Track:
         return Track(np.clip(values, 0.0, 1.0), self.channels, fps)
 
-    def fit(self, corpus, *, progress: bool | None = None, checkpoint_dir: str | os.PathLike | None = None,
-            num_threads: int | None = None, warm_start: bool = False) -> PhoneTargetModel:
+    def fit(
+        self,
+        corpus,
+        *,
+        progress: bool | None = None,
+        checkpoint_dir: str | os.PathLike | None = None,
+        num_threads: int | None = None,
+        warm_start: bool = False,
+    ) -> PhoneTargetModel:
         raise VispeechError(f"model {self.family} is data-free: its parameters are authored, not fitted")
 
     def _learned_state(self):
         learned = getattr(self, "tables_", None)
         if learned is None:
             return None
-        arrays = {f"{language}.{name}": values for language, tables in learned.items() for name, values in tables.items()}
+        arrays = {
+            f"{language}.{name}": values for language, tables in learned.items() for name, values in tables.items()
+        }
         return {"channels": list(self.fitted_channels_), "history": self.history_.to_dict()}, arrays
 
     def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:

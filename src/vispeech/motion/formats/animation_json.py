@@ -125,7 +125,8 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
     check_track_size(len(dt), len(vs), str(path))
     for name, values in (("dt", dt), *(("vs." + str(k), v) for k, v in vs.items())):
         if not isinstance(values, list) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+        ):
             raise VispeechError(f"{path}: '{name}' must be a list of numbers")
     if fps is not None:
         check_fps(fps)

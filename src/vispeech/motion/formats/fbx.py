@@ -56,8 +56,9 @@ def write_fbx_animation(track: Track, base_glb: str | os.PathLike, out_path: str
     """
     blender = blender_path()
     if blender is None:
-        raise VispeechError("writing FBX needs Blender (apt-get install blender python3-numpy, "
-                            "or set BLENDER to its executable)")
+        raise VispeechError(
+            "writing FBX needs Blender (apt-get install blender python3-numpy, or set BLENDER to its executable)"
+        )
     fps = math.ceil(track.fps - 1e-9)  # Blender's rate is fps / fps_base: 29.97 = 30 / 1.001
     base = fps / track.fps
     with tempfile.TemporaryDirectory(prefix="vispeech-fbx-") as tmp:
@@ -65,9 +66,25 @@ def write_fbx_animation(track: Track, base_glb: str | os.PathLike, out_path: str
         write_gltf_animation(track, base_glb, glb)
         script.write_text(_SCRIPT, encoding="utf-8")
         try:
-            result = subprocess.run([blender, "-b", "--factory-startup", "--python-exit-code", "1", "--python",
-                                     str(script), "--", str(glb), str(fbx), str(fps), repr(base)],
-                                    capture_output=True, text=True, timeout=BLENDER_TIMEOUT_S)
+            result = subprocess.run(
+                [
+                    blender,
+                    "-b",
+                    "--factory-startup",
+                    "--python-exit-code",
+                    "1",
+                    "--python",
+                    str(script),
+                    "--",
+                    str(glb),
+                    str(fbx),
+                    str(fps),
+                    repr(base),
+                ],
+                capture_output=True,
+                text=True,
+                timeout=BLENDER_TIMEOUT_S,
+            )
         except (OSError, subprocess.TimeoutExpired) as exc:
             raise VispeechError(f"Blender did not export FBX: {exc}") from None
         if result.returncode != 0 or not fbx.is_file():

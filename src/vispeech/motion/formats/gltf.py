@@ -53,9 +53,13 @@ def write_gltf_animation(
                     weights[:, j] = track[arkit]
             outputs[mesh] = append_accessor(gltf, blob, weights.reshape(-1))
         animation.samplers.append(
-            pygltflib.AnimationSampler(input=time_accessor, output=outputs[mesh], interpolation="LINEAR"))
-        animation.channels.append(pygltflib.AnimationChannel(
-            sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path="weights")))
+            pygltflib.AnimationSampler(input=time_accessor, output=outputs[mesh], interpolation="LINEAR")
+        )
+        animation.channels.append(
+            pygltflib.AnimationChannel(
+                sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path="weights")
+            )
+        )
     gltf.animations.append(animation)
     with atomic_output_file(out_path) as tmp:
         tmp.write_bytes(glb_bytes(gltf, blob))

@@ -32,8 +32,15 @@ _APP_ORDER = {"jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthR
 """Where the app's order differs from Apple's (:data:`~vispeech.motion.arkit.ARKIT_NAMES`): these pairs swap."""
 
 LIVELINK_CHANNELS: tuple[str, ...] = tuple(_APP_ORDER.get(name, name) for name in ARKIT_NAMES) + (
-    "headYaw", "headPitch", "headRoll",
-    "leftEyeYaw", "leftEyePitch", "leftEyeRoll", "rightEyeYaw", "rightEyePitch", "rightEyeRoll",
+    "headYaw",
+    "headPitch",
+    "headRoll",
+    "leftEyeYaw",
+    "leftEyePitch",
+    "leftEyeRoll",
+    "rightEyeYaw",
+    "rightEyePitch",
+    "rightEyeRoll",
 )
 """Track channel names of an iPhone take's 61 value columns, in the app's order: the 52 ARKit
 shapes, then head and eye rotations."""

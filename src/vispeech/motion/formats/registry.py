@@ -121,15 +121,31 @@ def _is_json(path: Path) -> bool:
 FORMATS: dict[str, TrackFormat] = {
     f.name: f
     for f in (
-        TrackFormat("livelink", (".csv",), "Live Link Face CSV", _write_livelink,
-                    lambda path: Animation(read_livelink_csv(path))),
+        TrackFormat(
+            "livelink",
+            (".csv",),
+            "Live Link Face CSV",
+            _write_livelink,
+            lambda path: Animation(read_livelink_csv(path)),
+        ),
         TrackFormat("json", (".json",), "vispeech animation JSON", _write_json, read_animation_json),
-        TrackFormat("talkinghead", (".talkinghead.json",), "TalkingHead blend-shape JSON", _write_talkinghead,
-                    lambda path: Animation(read_talkinghead_json(path))),
-        TrackFormat("oculus", (".visemes.csv", ".visemes.json"), "Oculus 15-viseme curves (CSV or JSON)",
-                    _write_oculus, maps_poses=True),
-        TrackFormat("rhubarb", (".tsv", ".rhubarb.json"), "Rhubarb mouth cues (TSV or JSON)", _write_rhubarb,
-                    maps_poses=True),
+        TrackFormat(
+            "talkinghead",
+            (".talkinghead.json",),
+            "TalkingHead blend-shape JSON",
+            _write_talkinghead,
+            lambda path: Animation(read_talkinghead_json(path)),
+        ),
+        TrackFormat(
+            "oculus",
+            (".visemes.csv", ".visemes.json"),
+            "Oculus 15-viseme curves (CSV or JSON)",
+            _write_oculus,
+            maps_poses=True,
+        ),
+        TrackFormat(
+            "rhubarb", (".tsv", ".rhubarb.json"), "Rhubarb mouth cues (TSV or JSON)", _write_rhubarb, maps_poses=True
+        ),
         TrackFormat("gltf", (".glb",), "glTF 2.0 morph-target animation added to a base GLB", _write_gltf),
         TrackFormat("fbx", (".fbx",), "FBX of a base GLB's model with the animation (needs Blender)", _write_fbx),
     )
@@ -162,8 +178,9 @@ def track_format(path: str | os.PathLike, fmt: str | None = None, *, reading: bo
         lowered = Path(path).name.lower()
         matches = [(len(ext), f.name) for f in FORMATS.values() for ext in f.extensions if lowered.endswith(ext)]
         if not matches:
-            raise VispeechError(f"cannot tell the track format of {path} from its extension "
-                                f"(known formats: {', '.join(FORMATS)})")
+            raise VispeechError(
+                f"cannot tell the track format of {path} from its extension (known formats: {', '.join(FORMATS)})"
+            )
         name = max(matches)[1]
     if reading and fmt is None and _is_json(Path(path)):
         name = _json_kind(Path(path))

@@ -57,9 +57,13 @@ def oculus_viseme(symbol: str, language: str) -> str | None:
         return None
     sibilant = f["fricative"] and (f["alveolar"] or f["retroflex"] or f["postalveolar"] or f["palatal"])
     for viseme, holds in (
-        ("PP", f["bilabial"]), ("FF", f["labiodental"]), ("TH", f["dental"] and f["fricative"] and not f["stop"]),
-        ("CH", (f["postalveolar"] or f["palatal"]) and f["fricative"]), ("SS", sibilant),
-        ("nn", f["nasal"] or f["lateral"]), ("RR", f["approximant"] and (f["alveolar"] or f["retroflex"] or f["postalveolar"])),
+        ("PP", f["bilabial"]),
+        ("FF", f["labiodental"]),
+        ("TH", f["dental"] and f["fricative"] and not f["stop"]),
+        ("CH", (f["postalveolar"] or f["palatal"]) and f["fricative"]),
+        ("SS", sibilant),
+        ("nn", f["nasal"] or f["lateral"]),
+        ("RR", f["approximant"] and (f["alveolar"] or f["retroflex"] or f["postalveolar"])),
         ("DD", f["stop"] and (f["alveolar"] or f["retroflex"] or f["dental"] or f["postalveolar"])),
         ("kk", (f["velar"] or f["glottal"] or f["palatal"]) and not f["approximant"]),
     ):
@@ -94,8 +98,7 @@ def _phone_frames(track: Track, phones: PhoneSequence, name_of) -> list[tuple[np
     return out
 
 
-def oculus_visemes(track: Track, pose_table: PoseTable | None = None,
-                   phones: PhoneSequence | None = None) -> Track:
+def oculus_visemes(track: Track, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None) -> Track:
     """The 15 Oculus viseme curves of an ARKit ``track``, channels named as :data:`OCULUS_VISEMES`.
 
     With ``phones``, a consonant's frames give its viseme (see the module docstring) the frame's
@@ -119,8 +122,9 @@ def oculus_visemes(track: Track, pose_table: PoseTable | None = None,
     return Track(values, OCULUS_VISEMES, track.fps, track.start_time)
 
 
-def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
-                     phones: PhoneSequence | None = None) -> None:
+def write_oculus_csv(
+    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None
+) -> None:
     """Write the Oculus viseme curves as CSV: ``time,sil,PP,...,ou``, one row per frame (atomic)."""
     visemes = oculus_visemes(track, pose_table, phones)
     lines = [",".join(("time",) + OCULUS_VISEMES)]
@@ -130,13 +134,16 @@ def write_oculus_csv(track: Track, path: str | os.PathLike, pose_table: PoseTabl
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
-def write_oculus_json(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
-                      phones: PhoneSequence | None = None) -> None:
+def write_oculus_json(
+    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None
+) -> None:
     """Write the Oculus viseme curves as vispeech animation JSON (channels ``sil`` ... ``ou``)."""
     write_animation_json(oculus_visemes(track, pose_table, phones), path)
 
 
-def mouth_cues(track: Track, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None) -> list[MouthCue]:
+def mouth_cues(
+    track: Track, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None
+) -> list[MouthCue]:
     """Rhubarb mouth cues: per frame the shape with the largest weight (with ``phones``, the shape
     a consonant's features name, see the module docstring), runs merged.
 
@@ -166,8 +173,9 @@ def mouth_cues(track: Track, pose_table: PoseTable | None = None, phones: PhoneS
     return [MouthCue(start / 100, end / 100, label) for start, end, label in cues]
 
 
-def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None,
-                      phones: PhoneSequence | None = None) -> None:
+def write_rhubarb_tsv(
+    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None
+) -> None:
     """Write mouth cues as Rhubarb's TSV: ``start<TAB>shape`` lines, then ``end<TAB>X``."""
     cues = mouth_cues(track, pose_table, phones)
     lines = [f"{cue.start:.2f}\t{cue.value}\n" for cue in cues]
@@ -177,13 +185,17 @@ def write_rhubarb_tsv(track: Track, path: str | os.PathLike, pose_table: PoseTab
 
 
 def write_rhubarb_json(
-    track: Track, path: str | os.PathLike, pose_table: PoseTable | None = None, sound_file: str = "",
+    track: Track,
+    path: str | os.PathLike,
+    pose_table: PoseTable | None = None,
+    sound_file: str = "",
     phones: PhoneSequence | None = None,
 ) -> None:
     """Write mouth cues as Rhubarb's JSON, byte for byte in Rhubarb's layout."""
     cues = mouth_cues(track, pose_table, phones) or [MouthCue(0.0, 0.0, "X")]
     body = ",\n".join(
-        f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues)
+        f'    {{ "start": {c.start:.2f}, "end": {c.end:.2f}, "value": {json.dumps(c.value)} }}' for c in cues
+    )
     text = (
         "{\n"
         '  "metadata": {\n'

@@ -49,8 +49,10 @@ CLOSED_GAP = 0.02
 MAX_GAIN = 4.0
 GAIN_GROUPS: dict[str, tuple[str, ...]] = {
     "jaw": ("jawOpen", "mouthClose"),  # one gain: mouthClose = jawOpen still closes the lips
-    "funnel": ("mouthFunnel",), "pucker": ("mouthPucker",),
-    "smile": ("mouthSmileLeft", "mouthSmileRight"), "stretch": ("mouthStretchLeft", "mouthStretchRight"),
+    "funnel": ("mouthFunnel",),
+    "pucker": ("mouthPucker",),
+    "smile": ("mouthSmileLeft", "mouthSmileRight"),
+    "stretch": ("mouthStretchLeft", "mouthStretchRight"),
 }
 """The channels that get a gain, and share it: those that open, round and spread the lips.
 Every other channel (presses, rolls, shrugs, the lips' raisers) keeps its value."""
@@ -83,23 +85,37 @@ class HeadGeometry:
         needed = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight")
         missing = [name for name in needed if name not in mesh.targets]
         if missing:
-            raise VispeechError(f"{path}: the head lacks the morph targets {', '.join(missing)} that find its landmarks")
+            raise VispeechError(
+                f"{path}: the head lacks the morph targets {', '.join(missing)} that find its landmarks"
+            )
         base, targets = mesh.positions, mesh.targets
-        eye_left, eye_right = (_outer_eye_corner(base, targets[f"eyeBlink{side}"], sign)
-                               for side, sign in (("Left", 1.0), ("Right", -1.0)))
+        eye_left, eye_right = (
+            _outer_eye_corner(base, targets[f"eyeBlink{side}"], sign) for side, sign in (("Left", 1.0), ("Right", -1.0))
+        )
         eye_distance = float(np.linalg.norm(base[eye_left] - base[eye_right]))
         centre = (base[eye_left, 0] + base[eye_right, 0]) / 2
-        corner_left, corner_right = (int(np.argmax(np.linalg.norm(targets[f"mouthSmile{side}"], axis=1)))
-                                     for side in ("Left", "Right"))
+        corner_left, corner_right = (
+            int(np.argmax(np.linalg.norm(targets[f"mouthSmile{side}"], axis=1))) for side in ("Left", "Right")
+        )
         upper, lower = _inner_lips(base, targets["jawOpen"], centre, eye_distance, base[[corner_left, corner_right], 1])
         gap_per = {name: float(d[upper, 1] - d[lower, 1]) / eye_distance for name, d in targets.items()}
         width_per = {name: float(d[corner_left, 0] - d[corner_right, 0]) / eye_distance for name, d in targets.items()}
-        landmarks = {"upper_lip": upper, "lower_lip": lower, "mouth_left": corner_left, "mouth_right": corner_right,
-                     "eye_left": eye_left, "eye_right": eye_right}
-        return cls(float(base[upper, 1] - base[lower, 1]) / eye_distance,
-                   float(base[corner_left, 0] - base[corner_right, 0]) / eye_distance,
-                   {k: v for k, v in gap_per.items() if v}, {k: v for k, v in width_per.items() if v}, eye_distance,
-                   landmarks)
+        landmarks = {
+            "upper_lip": upper,
+            "lower_lip": lower,
+            "mouth_left": corner_left,
+            "mouth_right": corner_right,
+            "eye_left": eye_left,
+            "eye_right": eye_right,
+        }
+        return cls(
+            float(base[upper, 1] - base[lower, 1]) / eye_distance,
+            float(base[corner_left, 0] - base[corner_right, 0]) / eye_distance,
+            {k: v for k, v in gap_per.items() if v},
+            {k: v for k, v in width_per.items() if v},
+            eye_distance,
+            landmarks,
+        )
 
     def gap(self, track: Track) -> np.ndarray:
         """Per frame, the head's inner-lip gap over its eye distance at ``track``'s weights
@@ -139,8 +155,13 @@ class Calibration:
         return Track(values, track.channels, track.fps, track.start_time)
 
     def to_dict(self) -> dict:
-        return {"format": CALIBRATION_FORMAT, "version": 1, "head": self.head,
-                "gains": {k: round(v, 6) for k, v in self.gains.items()}, "fit": self.fit}
+        return {
+            "format": CALIBRATION_FORMAT,
+            "version": 1,
+            "head": self.head,
+            "gains": {k: round(v, 6) for k, v in self.gains.items()},
+            "fit": self.fit,
+        }
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the calibration as JSON (atomically)."""
@@ -153,7 +174,8 @@ class Calibration:
             raise VispeechError(f"{where} is not a {CALIBRATION_FORMAT} file")
         gains = data.get("gains")
         if not isinstance(gains, dict) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= MAX_GAIN for v in gains.values()):
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= MAX_GAIN for v in gains.values()
+        ):
             raise VispeechError(f"{where}: 'gains' must map channel names to numbers in [0, {MAX_GAIN:g}]")
         return cls({str(k): float(v) for k, v in gains.items()}, str(data.get("head", "")), dict(data.get("fit", {})))
 
@@ -174,16 +196,30 @@ grid_s1's training split (GRID corpus, CC BY 4.0), their lip-channel scores, inn
 mouth width; written by ``vispeech rig mouth-frames`` (docs/calibration.md)."""
 
 
-def save_mouth_frames(path: str | os.PathLike, scores: Track, gap: np.ndarray, width: np.ndarray, *,
-                      frames: int = 5000, seed: int = 0, source: str = "") -> None:
+def save_mouth_frames(
+    path: str | os.PathLike,
+    scores: Track,
+    gap: np.ndarray,
+    width: np.ndarray,
+    *,
+    frames: int = 5000,
+    seed: int = 0,
+    source: str = "",
+) -> None:
     """Write a random sample of ``frames`` frames (the lip channels' scores, gap, width) as .npz."""
     rng = np.random.default_rng(seed)
     keep = np.sort(rng.choice(scores.n_frames, size=min(frames, scores.n_frames), replace=False))
     channels = [c for c in scores.channels if c.startswith(("jaw", "mouth"))]
     with atomic_output_file(path) as tmp, open(tmp, "wb") as f:
-        np.savez_compressed(f, channels=np.array(channels), source=np.array(source), fps=np.array(scores.fps),
-                            scores=np.column_stack([scores[c] for c in channels])[keep].astype(np.float32),
-                            gap=np.asarray(gap, dtype=np.float32)[keep], width=np.asarray(width, dtype=np.float32)[keep])
+        np.savez_compressed(
+            f,
+            channels=np.array(channels),
+            source=np.array(source),
+            fps=np.array(scores.fps),
+            scores=np.column_stack([scores[c] for c in channels])[keep].astype(np.float32),
+            gap=np.asarray(gap, dtype=np.float32)[keep],
+            width=np.asarray(width, dtype=np.float32)[keep],
+        )
 
 
 def load_mouth_frames(path: str | os.PathLike | None = None) -> tuple[Track, np.ndarray, np.ndarray, str]:
@@ -209,8 +245,10 @@ def load_scale(scale: str | os.PathLike | None) -> Calibration | None:
     if str(scale) == "arkit":
         return _arkit()
     if not os.path.isfile(scale):
-        raise VispeechError(f"unknown output scale {str(scale)!r}: use tracker, arkit or a calibration file "
-                            "(vispeech rig calibrate HEAD.glb)")
+        raise VispeechError(
+            f"unknown output scale {str(scale)!r}: use tracker, arkit or a calibration file "
+            "(vispeech rig calibrate HEAD.glb)"
+        )
     return Calibration.load(scale)
 
 
@@ -222,8 +260,9 @@ def _arkit() -> Calibration:
     return Calibration.from_dict(json.loads(text), "the shipped arkit calibration")
 
 
-def fit_calibration(head: HeadGeometry, scores: Track, gap: np.ndarray, width: np.ndarray,
-                    name: str = "") -> Calibration:
+def fit_calibration(
+    head: HeadGeometry, scores: Track, gap: np.ndarray, width: np.ndarray, name: str = ""
+) -> Calibration:
     """Gains that make ``head``'s gap and width follow a human's.
 
     ``scores`` are tracked frames in model space (a corpus's tracks, concatenated), ``gap`` and
@@ -246,31 +285,39 @@ def fit_calibration(head: HeadGeometry, scores: Track, gap: np.ndarray, width: n
     if open_.sum() < 10 or (~open_).sum() < 1:
         raise VispeechError("calibration needs frames with the lips apart and frames with them closed")
     groups = {g: [c for c in members if c in fitted.channels] for g, members in GAIN_GROUPS.items()}
-    groups = {g: members for g, members in groups.items()
-              if any(head.gap_per.get(c) or head.width_per.get(c) for c in members)}
+    groups = {
+        g: members
+        for g, members in groups.items()
+        if any(head.gap_per.get(c) or head.width_per.get(c) for c in members)
+    }
     if "jaw" not in groups:
         raise VispeechError("calibration needs jawOpen in the scores and on the head")
     x = {c: np.asarray(fitted[c], dtype=float) for c in fitted.channels}
 
     # 1. the lip-shaping groups: the head's change of mouth width follows the human's
     shaping = [g for g in groups if g != "jaw"]
-    columns = np.column_stack([sum(head.width_per.get(c, 0.0) * x[c] for c in groups[g]) for g in shaping]
-                              or [np.zeros(len(gap))])
+    columns = np.column_stack(
+        [sum(head.width_per.get(c, 0.0) * x[c] for c in groups[g]) for g in shaping] or [np.zeros(len(gap))]
+    )
     fixed = sum(head.width_per.get(c, 0.0) * x[c] for c in x if not any(c in groups[g] for g in shaping))
     design = np.column_stack([np.ones(len(gap))] + [x[c] for c in sorted(x)])
     target = width - np.linalg.lstsq(design, width, rcond=None)[0][0]  # the human's change from rest
     scale, prior = np.std(target) or 1.0, np.sqrt(_PRIOR * len(gap))
     k = np.ones(len(shaping))
     if shaping:
-        k = least_squares(lambda k: np.concatenate([(fixed + columns @ k - target) / scale, prior * (k - 1.0)]),
-                          k, bounds=(0.0, MAX_GAIN)).x
+        k = least_squares(
+            lambda k: np.concatenate([(fixed + columns @ k - target) / scale, prior * (k - 1.0)]),
+            k,
+            bounds=(0.0, MAX_GAIN),
+        ).x
     gains = {c: float(v) for g, v in zip(shaping, k) for c in groups[g]}
 
     # 2. the jaw: the head's gap over open frames has the human's median and 90th percentile
     def mismatch(jaw: float) -> float:
         head_gap = head.gap(Calibration({**gains, **{c: jaw for c in groups["jaw"]}}).apply(fitted))[open_]
-        return sum(float(np.log(max(np.percentile(head_gap, q), 1e-9) / np.percentile(gap[open_], q))) ** 2
-                   for q in (50, 90))
+        return sum(
+            float(np.log(max(np.percentile(head_gap, q), 1e-9) / np.percentile(gap[open_], q))) ** 2 for q in (50, 90)
+        )
 
     jaw = float(minimize_scalar(mismatch, bounds=(0.0, MAX_GAIN), method="bounded", options={"xatol": 1e-3}).x)
     gains.update({c: jaw for c in groups["jaw"]})
@@ -300,8 +347,10 @@ def compare_gaps(head: HeadGeometry, track: Track, human_gap: np.ndarray, *, raw
             "p90_ratio": round(float(np.percentile(g[open_], 90) / np.percentile(human_gap[open_], 90)), 4),
             "closed_median_gap": round(float(np.median(g[closed])) if closed.any() else 0.0, 4),
         }
-    out["human"] = {"median": round(float(np.median(human_gap[open_])), 4),
-                    "p90": round(float(np.percentile(human_gap[open_], 90)), 4)}
+    out["human"] = {
+        "median": round(float(np.median(human_gap[open_])), 4),
+        "p90": round(float(np.percentile(human_gap[open_], 90)), 4),
+    }
     return out
 
 
@@ -312,12 +361,14 @@ def _outer_eye_corner(base: np.ndarray, blink: np.ndarray, sign: float) -> int:
     return int(moved[np.argmax(sign * base[moved, 0])])
 
 
-def _inner_lips(base: np.ndarray, jaw: np.ndarray, centre: float, eye_distance: float,
-                corner_heights: np.ndarray) -> tuple[int, int]:
+def _inner_lips(
+    base: np.ndarray, jaw: np.ndarray, centre: float, eye_distance: float, corner_heights: np.ndarray
+) -> tuple[int, int]:
     """The upper lip's lowest and the lower lip's highest vertex on the midline near the mouth."""
     mouth = float(np.mean(corner_heights))
-    near = np.flatnonzero((np.abs(base[:, 0] - centre) < _MIDLINE * eye_distance)
-                          & (np.abs(base[:, 1] - mouth) < 0.3 * eye_distance))
+    near = np.flatnonzero(
+        (np.abs(base[:, 0] - centre) < _MIDLINE * eye_distance) & (np.abs(base[:, 1] - mouth) < 0.3 * eye_distance)
+    )
     if len(near) < 2:
         raise VispeechError("found no midline vertices at the mouth: is the head facing +Z with +Y up?")
     drop = -jaw[near, 1]

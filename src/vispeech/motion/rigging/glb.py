@@ -99,20 +99,37 @@ def read_primitives(path: str | os.PathLike) -> list[Primitive]:
             if not primitive.targets or len(primitive.targets) != len(names):
                 continue
             base = _read_accessor(gltf, blob, primitive.attributes.POSITION, path)
-            targets = {name: _read_accessor(gltf, blob, target["POSITION"], path) @ matrix[:3, :3].T
-                       for name, target in zip(names, primitive.targets) if name and "POSITION" in target}
+            targets = {
+                name: _read_accessor(gltf, blob, target["POSITION"], path) @ matrix[:3, :3].T
+                for name, target in zip(names, primitive.targets)
+                if name and "POSITION" in target
+            }
             if primitive.mode in (None, 4):
-                faces = (_read_accessor(gltf, blob, primitive.indices, path) if primitive.indices is not None
-                         else np.arange(len(base), dtype=float))
+                faces = (
+                    _read_accessor(gltf, blob, primitive.indices, path)
+                    if primitive.indices is not None
+                    else np.arange(len(base), dtype=float)
+                )
                 triangles = faces.astype(np.int64).reshape(-1, 3)
             else:
                 triangles = np.zeros((0, 3), dtype=np.int64)
             material = gltf.materials[primitive.material] if primitive.material is not None else None
-            textured = material is not None and material.pbrMetallicRoughness is not None and (
-                material.pbrMetallicRoughness.baseColorTexture is not None)
-            found.append(Primitive(base @ matrix[:3, :3].T + matrix[:3, 3], targets, index, k,
-                                   (material.name if material else None) or mesh.name or f"mesh {index}", triangles,
-                                   textured or primitive.attributes.COLOR_0 is not None))
+            textured = (
+                material is not None
+                and material.pbrMetallicRoughness is not None
+                and (material.pbrMetallicRoughness.baseColorTexture is not None)
+            )
+            found.append(
+                Primitive(
+                    base @ matrix[:3, :3].T + matrix[:3, 3],
+                    targets,
+                    index,
+                    k,
+                    (material.name if material else None) or mesh.name or f"mesh {index}",
+                    triangles,
+                    textured or primitive.attributes.COLOR_0 is not None,
+                )
+            )
     return found
 
 
@@ -137,8 +154,12 @@ def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
     return MorphMesh(skin.positions, skin.targets)
 
 
-def extended_glb(base_glb: str | os.PathLike, *, targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
-                 colours: dict[tuple[int, int], np.ndarray] | None = None) -> bytes:
+def extended_glb(
+    base_glb: str | os.PathLike,
+    *,
+    targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
+    colours: dict[tuple[int, int], np.ndarray] | None = None,
+) -> bytes:
     """The bytes of a copy of ``base_glb`` with morph targets and vertex colours added to its primitives.
 
     ``targets[(mesh, primitive)][name]``: a new morph target's offsets (vertices × 3, scene units,
@@ -167,8 +188,9 @@ def extended_glb(base_glb: str | os.PathLike, *, targets: dict[tuple[int, int], 
             for name in new:
                 moved = per_primitive.get(k, {}).get(name)
                 if moved is None:
-                    gltf.accessors.append(pygltflib.Accessor(componentType=_FLOAT, count=count, type="VEC3",
-                                                             min=[0.0] * 3, max=[0.0] * 3))
+                    gltf.accessors.append(
+                        pygltflib.Accessor(componentType=_FLOAT, count=count, type="VEC3", min=[0.0] * 3, max=[0.0] * 3)
+                    )
                     accessor = len(gltf.accessors) - 1
                 else:
                     accessor = append_accessor(gltf, blob, np.asarray(moved, float) @ to_local.T)
@@ -180,7 +202,8 @@ def extended_glb(base_glb: str | os.PathLike, *, targets: dict[tuple[int, int], 
             gltf.meshes[mesh].weights = [*gltf.meshes[mesh].weights, *[0.0] * len(new)]
     for (mesh, primitive), rgb in (colours or {}).items():
         gltf.meshes[mesh].primitives[primitive].attributes.COLOR_0 = append_accessor(
-            gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0))
+            gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0)
+        )
     return glb_bytes(gltf, blob)
 
 
@@ -197,16 +220,24 @@ def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | o
             stride = view.byteStride or dtype.itemsize * width
             start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
             rows = np.frombuffer(blob, np.uint8, count=stride * accessor.count, offset=start).reshape(-1, stride)
-            out = rows[:, :dtype.itemsize * width].copy().view(dtype).astype(np.float64)
+            out = rows[:, : dtype.itemsize * width].copy().view(dtype).astype(np.float64)
         if accessor.sparse is not None:
             sparse = accessor.sparse
             index_type = np.dtype(_COMPONENTS[sparse.indices.componentType]).newbyteorder("<")
             index_view = gltf.bufferViews[sparse.indices.bufferView]
             value_view = gltf.bufferViews[sparse.values.bufferView]
-            rows_at = np.frombuffer(blob, index_type, count=sparse.count,
-                                    offset=(index_view.byteOffset or 0) + (sparse.indices.byteOffset or 0))
-            values = np.frombuffer(blob, dtype, count=sparse.count * width,
-                                   offset=(value_view.byteOffset or 0) + (sparse.values.byteOffset or 0))
+            rows_at = np.frombuffer(
+                blob,
+                index_type,
+                count=sparse.count,
+                offset=(index_view.byteOffset or 0) + (sparse.indices.byteOffset or 0),
+            )
+            values = np.frombuffer(
+                blob,
+                dtype,
+                count=sparse.count * width,
+                offset=(value_view.byteOffset or 0) + (sparse.values.byteOffset or 0),
+            )
             out[rows_at.astype(np.intp)] = values.reshape(-1, width)
         if accessor.normalized and dtype.kind in "iu":
             # kind "i" or "u": an integer dtype, which the dict of component types does not tell the checker
@@ -231,11 +262,13 @@ def _local_matrix(node: pygltflib.Node) -> np.ndarray:
     if node.matrix:
         return np.array(node.matrix, dtype=float).reshape(4, 4).T  # glTF matrices are column-major
     x, y, z, w = node.rotation or (0.0, 0.0, 0.0, 1.0)
-    rotation = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     matrix = np.eye(4)
     matrix[:3, :3] = rotation * np.array(node.scale or (1.0, 1.0, 1.0))
     matrix[:3, 3] = node.translation or (0.0, 0.0, 0.0)
@@ -278,8 +311,10 @@ def _check_glb(data: bytes, path: Path) -> None:
     if version != 2:
         raise VispeechError(f"{path}: GLB version {version}, only version 2 is read")
     if length != len(data):
-        raise VispeechError(f"{path}: the GLB header (byte 8) declares {length} bytes but the file has {len(data)}"
-                            + (" (cut short?)" if length > len(data) else ""))
+        raise VispeechError(
+            f"{path}: the GLB header (byte 8) declares {length} bytes but the file has {len(data)}"
+            + (" (cut short?)" if length > len(data) else "")
+        )
     chunks: list[tuple[bytes, int, int]] = []
     offset = 12
     while offset < length:
@@ -287,8 +322,9 @@ def _check_glb(data: bytes, path: Path) -> None:
             raise VispeechError(f"{path}, byte {offset}: {length - offset} bytes left, too few for a chunk header")
         size, kind = struct.unpack_from("<I4s", data, offset)
         if size > length - offset - 8:
-            raise VispeechError(f"{path}, byte {offset}: chunk {len(chunks)} declares {size} bytes, "
-                                f"only {length - offset - 8} remain")
+            raise VispeechError(
+                f"{path}, byte {offset}: chunk {len(chunks)} declares {size} bytes, only {length - offset - 8} remain"
+            )
         chunks.append((kind, offset + 8, size))
         offset += 8 + size
     if not chunks or chunks[0][0] != b"JSON":
@@ -297,7 +333,7 @@ def _check_glb(data: bytes, path: Path) -> None:
         raise VispeechError(f"{path}, byte {chunks[1][1] - 8}: after the JSON chunk only one BIN chunk may follow")
     _, start, size = chunks[0]
     try:
-        text = data[start:start + size].decode("utf-8")
+        text = data[start : start + size].decode("utf-8")
     except UnicodeDecodeError as exc:
         raise VispeechError(f"{path}, byte {start + exc.start}: the JSON chunk is not UTF-8") from None
     gltf = parse_json(text, f"{path} (JSON chunk)")
@@ -311,7 +347,9 @@ def _check_glb(data: bytes, path: Path) -> None:
         if byte_length is None:
             raise VispeechError(f"{path}: buffers[{i}] needs a byteLength")
         if i == 0 and "uri" not in buffer and byte_length > binary:
-            raise VispeechError(f"{path}: buffers[0].byteLength is {byte_length} but the BIN chunk holds {binary} bytes")
+            raise VispeechError(
+                f"{path}: buffers[0].byteLength is {byte_length} but the BIN chunk holds {binary} bytes"
+            )
         sizes.append(byte_length)
     for i, view in enumerate(_list(gltf, "bufferViews", path)):
         where = f"bufferViews[{i}]"
@@ -323,8 +361,9 @@ def _check_glb(data: bytes, path: Path) -> None:
         if buffer is None or view_length is None or buffer >= len(sizes):
             raise VispeechError(f"{path}: {where} needs a buffer (of {len(sizes)}) and a byteLength")
         if view_start + view_length > sizes[buffer]:
-            raise VispeechError(f"{path}: {where} runs to byte {view_start + view_length} of buffer {buffer}, "
-                                f"which has {sizes[buffer]}")
+            raise VispeechError(
+                f"{path}: {where} runs to byte {view_start + view_length} of buffer {buffer}, which has {sizes[buffer]}"
+            )
 
 
 def _list(gltf: dict, key: str, path: Path) -> list:
@@ -362,14 +401,16 @@ def decompressed(gltf: pygltflib.GLTF2, path: str | os.PathLike) -> bytes:
                     raise VispeechError(f"{path}: compressed data outside the binary chunk")
                 size = int(ext["count"]) * int(ext["byteStride"])
                 if not 0 <= size <= MAX_GLB_BYTES - len(out):
-                    raise VispeechError(f"{path}: its meshopt-compressed data would decode to more than "
-                                        f"{MAX_GLB_BYTES // 2**20} MiB")
-                source = blob[ext["byteOffset"]:ext["byteOffset"] + ext["byteLength"]]
-                data = meshopt.decode_gltf_buffer(source, ext["count"], ext["byteStride"], ext["mode"],
-                                                  ext.get("filter")).tobytes()
+                    raise VispeechError(
+                        f"{path}: its meshopt-compressed data would decode to more than {MAX_GLB_BYTES // 2**20} MiB"
+                    )
+                source = blob[ext["byteOffset"] : ext["byteOffset"] + ext["byteLength"]]
+                data = meshopt.decode_gltf_buffer(
+                    source, ext["count"], ext["byteStride"], ext["mode"], ext.get("filter")
+                ).tobytes()
                 view.extensions = {k: v for k, v in view.extensions.items() if k != compressed}
             elif view.buffer == 0:
-                data = blob[(view.byteOffset or 0):(view.byteOffset or 0) + view.byteLength]
+                data = blob[(view.byteOffset or 0) : (view.byteOffset or 0) + view.byteLength]
             else:
                 raise VispeechError(f"{path}: an uncompressed buffer view outside the binary chunk")
             out.extend(b"\x00" * (-len(out) % 4))
@@ -426,7 +467,14 @@ def append_accessor(gltf: pygltflib.GLTF2, blob: bytearray, data: np.ndarray) ->
     gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(raw)))
     blob.extend(raw)
     kind = "SCALAR" if data.ndim == 1 else f"VEC{rows.shape[1]}"
-    gltf.accessors.append(pygltflib.Accessor(
-        bufferView=len(gltf.bufferViews) - 1, componentType=_FLOAT, count=len(rows), type=kind,
-        min=[float(v) for v in rows.min(axis=0)], max=[float(v) for v in rows.max(axis=0)]))
+    gltf.accessors.append(
+        pygltflib.Accessor(
+            bufferView=len(gltf.bufferViews) - 1,
+            componentType=_FLOAT,
+            count=len(rows),
+            type=kind,
+            min=[float(v) for v in rows.min(axis=0)],
+            max=[float(v) for v in rows.max(axis=0)],
+        )
+    )
     return len(gltf.accessors) - 1

@@ -51,15 +51,18 @@ def _holes(skin: Primitive) -> list[np.ndarray]:
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     rim = unique[counts == 1]
     n = len(skin.positions)
-    _, labels = connected_components(coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n)),
-                                     directed=False)
+    _, labels = connected_components(
+        coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n)), directed=False
+    )
     loops = [np.unique(rim[labels[rim[:, 0]] == k]) for k in np.unique(labels[rim[:, 0]])]
     return sorted(loops, key=len)[:-1]
 
 
 def _moved(skin: Primitive, rim: np.ndarray, *names: str) -> float:
-    return max((float(np.linalg.norm(skin.targets[name][rim], axis=1).mean()) for name in names
-                if name in skin.targets), default=0.0)
+    return max(
+        (float(np.linalg.norm(skin.targets[name][rim], axis=1).mean()) for name in names if name in skin.targets),
+        default=0.0,
+    )
 
 
 def paint_skin(skin: Primitive) -> np.ndarray:
@@ -82,7 +85,9 @@ def paint_skin(skin: Primitive) -> np.ndarray:
     u = np.clip((pos[:, 0] - (left + right) / 2) / ((right - left) / 2), -1.0, 1.0)
     upper = pos[:, 1] >= pos[mouth][nearest, 1]
     depth = np.where(upper, LIP_DEPTH[0], LIP_DEPTH[1]) * ed * np.maximum(1 - u * u, 0.0) ** 0.4
-    lips = (1 - smoothstep(distance / np.maximum(depth, 1e-9), (0.75, 1.0))) * (pos[:, 2] > pos[mouth, 2].min() - 0.05 * ed)
+    lips = (1 - smoothstep(distance / np.maximum(depth, 1e-9), (0.75, 1.0))) * (
+        pos[:, 2] > pos[mouth, 2].min() - 0.05 * ed
+    )
     colours = _mix(colours, LIPS, lips)
     for rim in eyes:
         eye = pos[rim]
@@ -94,8 +99,14 @@ def paint_skin(skin: Primitive) -> np.ndarray:
         t = (pos[:, 0] - start) / (end - start)
         along = (t >= 0) & (t <= 1)
         tc = np.clip(t, 0.0, 1.0)
-        line = centre[1] + 0.55 * w + 0.12 * w * np.sin(np.pi * np.minimum(tc / 0.67, 1.0) / 2) * (
-            1 - 0.5 * np.clip((tc - 0.67) / 0.33, 0.0, 1.0))
+        line = (
+            centre[1]
+            + 0.55 * w
+            + 0.12
+            * w
+            * np.sin(np.pi * np.minimum(tc / 0.67, 1.0) / 2)
+            * (1 - 0.5 * np.clip((tc - 0.67) / 0.33, 0.0, 1.0))
+        )
         thick = (0.4 - 0.24 * tc) * w
         off = np.abs(pos[:, 1] - line) / (thick / 2)
         ends = smoothstep(tc, (0.0, 0.08)) * (1 - smoothstep(tc, (0.9, 1.0)))

@@ -89,10 +89,16 @@ class PoseTable:
             dotted = [bone for bone in bones if "." in bone]
             if dotted:
                 raise VispeechError(f"bone name {dotted[0]!r} must not contain '.'")
-            rows = {f"{bone}.{channel}": combo for bone, channels in bones.items()
-                    for channel, combo in _mapping(channels, f"bones.{bone}").items()}
-            bias = {f"{bone}.{channel}": value for bone, channels in _mapping(data.get("bias", {}), "bias").items()
-                    for channel, value in _mapping(channels, f"bias.{bone}").items()}
+            rows = {
+                f"{bone}.{channel}": combo
+                for bone, channels in bones.items()
+                for channel, combo in _mapping(channels, f"bones.{bone}").items()
+            }
+            bias = {
+                f"{bone}.{channel}": value
+                for bone, channels in _mapping(data.get("bias", {}), "bias").items()
+                for channel, value in _mapping(channels, f"bias.{bone}").items()
+            }
             return cls._linear(kind, rows, bias, clip, name)
         if kind != "morph":
             raise VispeechError(f"pose table type must be 'morph' or 'bones', got {kind!r}")
@@ -101,8 +107,13 @@ class PoseTable:
         if "controls" in data:
             rows, bias = _mapping(data["controls"], "controls"), _mapping(data.get("bias", {}), "bias")
             return cls._linear(kind, rows, bias, clip, name)
-        return cls.from_poses(_mapping(data["poses"], "poses"), rest=data.get("rest"),
-                              ridge=_number(data.get("ridge", 0.02), "ridge"), clip=clip, name=name)
+        return cls.from_poses(
+            _mapping(data["poses"], "poses"),
+            rest=data.get("rest"),
+            ridge=_number(data.get("ridge", 0.02), "ridge"),
+            clip=clip,
+            name=name,
+        )
 
     @classmethod
     def from_poses(
@@ -176,8 +187,9 @@ class PoseTable:
 
 def _check_size(n_controls: int, n_inputs: int) -> None:
     if n_controls > MAX_CHANNELS or n_inputs > MAX_CHANNELS:
-        raise VispeechError(f"a pose table may have at most {MAX_CHANNELS} controls and inputs, "
-                            f"got {n_controls} and {n_inputs}")
+        raise VispeechError(
+            f"a pose table may have at most {MAX_CHANNELS} controls and inputs, got {n_controls} and {n_inputs}"
+        )
 
 
 def _mapping(value, where: str) -> dict:

@@ -193,8 +193,10 @@ class RigSpace:
             sheet = {
                 "type": "rig-reference-poses",
                 "channels": list(self.channels),
-                "modes": [{"mode": k + 1, "sd": float(self.sd[k]), "explained": float(self.explained[k])}
-                          for k in range(n_modes)],
+                "modes": [
+                    {"mode": k + 1, "sd": float(self.sd[k]), "explained": float(self.explained[k])}
+                    for k in range(n_modes)
+                ],
                 "poses": {name: dict(zip(self.channels, map(float, pose))) for name, pose in poses.items()},
             }
             text = json.dumps(sheet, indent=1) + "\n"
@@ -204,9 +206,7 @@ class RigSpace:
 
     # -- the rig ---------------------------------------------------------------------------
 
-    def set_rig(
-        self, poses: Mapping[str, Mapping[str, float]], clip: tuple[float, float] | None = None
-    ) -> RigSpace:
+    def set_rig(self, poses: Mapping[str, Mapping[str, float]], clip: tuple[float, float] | None = None) -> RigSpace:
         """Attach the artist's rig poses; returns ``self``.
 
         ``poses[name]`` maps rig controls to values for the ``mean`` pose (required; it names
@@ -253,8 +253,7 @@ class RigSpace:
         (``range`` optional; see :meth:`set_rig`); returns ``self``."""
         data = read_json(path)
         clip = data.get("range")
-        if clip is not None and not (isinstance(clip, list) and len(clip) == 2
-                                     and all(_is_number(v) for v in clip)):
+        if clip is not None and not (isinstance(clip, list) and len(clip) == 2 and all(_is_number(v) for v in clip)):
             raise VispeechError(f"{path}: 'range' must be [low, high]")
         poses: Any = data.get("poses")  # JSON as read: set_rig checks it
         try:
@@ -310,8 +309,10 @@ class RigSpace:
         if config.get("format") != FORMAT or not isinstance(config.get("version"), int):
             raise VispeechError(f"{folder / SPACE_JSON} is not a vispeech rig space")
         if config["version"] > FORMAT_VERSION:
-            raise VispeechError(f"{folder / SPACE_JSON} has format version {config['version']}; "
-                                f"this vispeech reads up to {FORMAT_VERSION}")
+            raise VispeechError(
+                f"{folder / SPACE_JSON} has format version {config['version']}; "
+                f"this vispeech reads up to {FORMAT_VERSION}"
+            )
         try:
             with np.load(folder / SPACE_ARRAYS, allow_pickle=False) as data:
                 arrays = {k: np.asarray(data[k], dtype=float) for k in ("mean", "modes", "sd", "explained")}
@@ -319,8 +320,12 @@ class RigSpace:
             raise VispeechError(f"cannot read {folder / SPACE_ARRAYS}: {exc}") from None
         channels = config.get("channels")
         n = len(arrays["sd"])
-        if (not isinstance(channels, list) or arrays["mean"].shape != (len(channels),)
-                or arrays["modes"].shape != (n, len(channels)) or arrays["explained"].shape != (n,)):
+        if (
+            not isinstance(channels, list)
+            or arrays["mean"].shape != (len(channels),)
+            or arrays["modes"].shape != (n, len(channels))
+            or arrays["explained"].shape != (n,)
+        ):
             raise VispeechError(f"{folder}: the arrays do not match the channels")
         space = cls(channels)
         space.mean, space.modes, space.sd, space.explained = (arrays[k] for k in ("mean", "modes", "sd", "explained"))

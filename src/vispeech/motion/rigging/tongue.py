@@ -96,28 +96,36 @@ def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the he
     if teeth_drop.max() <= 0 or not lower.any():
         raise VispeechError(f"{source}: jawOpen does not move the teeth")
     carried = np.linalg.norm(primitive.targets["jawOpen"], axis=1) / np.median(teeth_drop[lower])
-    fixed, fixed_teeth = carried < 0.1 * JAW_CARRIED[0], teeth_drop < 0.1 * JAW_CARRIED[0] * np.median(teeth_drop[lower])
+    fixed, fixed_teeth = (
+        carried < 0.1 * JAW_CARRIED[0],
+        teeth_drop < 0.1 * JAW_CARRIED[0] * np.median(teeth_drop[lower]),
+    )
     distance, _ = cKDTree(teeth_mesh.positions).query(primitive.positions)
     weights = smoothstep(distance, GUMS) * smoothstep(carried, JAW_CARRIED)
     inside = weights > 0.5
     edges = primitive.edges
     edges = edges[inside[edges[:, 0]] & inside[edges[:, 1]]]
     n = len(primitive.positions)
-    _, labels = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
-                                     directed=False)
+    _, labels = connected_components(
+        coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)), directed=False
+    )
     sizes = np.bincount(labels[inside], minlength=labels.max() + 1) if inside.any() else np.zeros(1)
     if sizes.max() < 20:
-        raise VispeechError(f"{source}: found no tongue in {primitive.name!r} (nothing away from the teeth "
-                            "moves with the jaw)")
+        raise VispeechError(
+            f"{source}: found no tongue in {primitive.name!r} (nothing away from the teeth moves with the jaw)"
+        )
     core = np.flatnonzero(inside & (labels == sizes.argmax()))
     # vertices outside the core's box (flaps of the floor of the mouth beside the gums) are not the tongue
     low, high = primitive.positions[core].min(axis=0), primitive.positions[core].max(axis=0)
-    weights = np.where(np.all((primitive.positions >= low - GUMS[1]) & (primitive.positions <= high + GUMS[1]),
-                              axis=1), weights, 0.0)
+    weights = np.where(
+        np.all((primitive.positions >= low - GUMS[1]) & (primitive.positions <= high + GUMS[1]), axis=1), weights, 0.0
+    )
     return Tongue(primitive, weights, core, teeth_mesh, fixed, fixed_teeth)
 
 
-def tongue_targets(primitives: list[Primitive], source: str | os.PathLike = "the head") -> tuple[Tongue, dict[str, np.ndarray]]:
+def tongue_targets(
+    primitives: list[Primitive], source: str | os.PathLike = "the head"
+) -> tuple[Tongue, dict[str, np.ndarray]]:
     """The tongue of a head (:func:`find_tongue`) and the offsets (vertices × 3, scene units) of
     each tongue channel its tongue primitive lacks (see the module docstring)."""
     tongue = find_tongue(primitives, source)
@@ -159,7 +167,9 @@ def tongue_targets(primitives: list[Primitive], source: str | os.PathLike = "the
         out[:, 2] = w * (teeth[:, 2].max() + OUT_REACH - tip_z) * reach
         out[:, 1] = w * (between - tip_y) * reach
         offsets["tongueOut"] = out
-    return tongue, {name: offsets[name] for name in TONGUE_CHANNELS if name in offsets and name not in primitive.targets}
+    return tongue, {
+        name: offsets[name] for name in TONGUE_CHANNELS if name in offsets and name not in primitive.targets
+    }
 
 
 def _gap_along(core: np.ndarray, roof: np.ndarray, centre_x: float, tip_z: float, root_z: float) -> np.ndarray:
