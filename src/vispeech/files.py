@@ -130,23 +130,29 @@ def _exchange_function() -> Any:
             if hasattr(libc, "renameat2"):  # Linux, glibc 2.28+
                 func = libc.renameat2
                 func.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-                _swap_function = lambda a, b: func(_AT_FDCWD, a, _AT_FDCWD, b, _RENAME_EXCHANGE)
+
+                def swap(a: bytes, b: bytes) -> int:
+                    return func(_AT_FDCWD, a, _AT_FDCWD, b, _RENAME_EXCHANGE)
+
+                _swap_function = swap
             elif hasattr(libc, "renamex_np"):  # macOS
                 func = libc.renamex_np
                 func.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint]
-                _swap_function = lambda a, b: func(a, b, 2)  # RENAME_SWAP
+
+                def swap(a: bytes, b: bytes) -> int:
+                    return func(a, b, 2)  # RENAME_SWAP
+
+                _swap_function = swap
             elif sys.platform.startswith("linux") and platform.machine().lower() in _SYS_RENAMEAT2:
                 number = _SYS_RENAMEAT2[platform.machine().lower()]
                 func = libc.syscall
                 func.restype = ctypes.c_long
-                _swap_function = lambda a, b: func(
-                    ctypes.c_long(number),
-                    ctypes.c_int(_AT_FDCWD),
-                    a,
-                    ctypes.c_int(_AT_FDCWD),
-                    b,
-                    ctypes.c_uint(_RENAME_EXCHANGE),
-                )
+
+                def swap(a: bytes, b: bytes) -> int:
+                    at = ctypes.c_int(_AT_FDCWD)
+                    return func(ctypes.c_long(number), at, a, at, b, ctypes.c_uint(_RENAME_EXCHANGE))
+
+                _swap_function = swap
         except (OSError, AttributeError, TypeError):
             _swap_function = False
     return _swap_function

@@ -97,7 +97,8 @@ def load_model(name_or_path: str | os.PathLike) -> Estimator:
 
 
 def saved_folder(name_or_path: str | os.PathLike) -> Path | None:
-    """The folder a model name or path is saved in (a shipped model's, or the path itself); ``None`` for a data-free family."""
+    """The folder a model name or path is saved in (a shipped model's, or the path itself);
+    ``None`` for a data-free family."""
     if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
         return pretrained_path(name_or_path)
     if isinstance(name_or_path, str) and name_or_path in DATA_FREE:

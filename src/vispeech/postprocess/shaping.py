@@ -43,7 +43,8 @@ class SoftCeiling:
     def __post_init__(self) -> None:
         if not self.threshold < self.maximum <= self.input_max:
             raise VispeechError(
-                f"soft ceiling needs threshold < maximum <= input_max, got {self.threshold}, {self.maximum}, {self.input_max}"
+                "soft ceiling needs threshold < maximum <= input_max, "
+                f"got {self.threshold}, {self.maximum}, {self.input_max}"
             )
 
     @classmethod

@@ -41,8 +41,8 @@ PRESETS: Mapping[str, Mapping] = MappingProxyType(
 """``authored``: every step with its defaults, tuned for the iPhone-scale authored targets of the
 data-free models (jaw range shift, soft ceilings, all consonant overlays). ``learned-jaw``: for
 models fitted to recordings: no jaw shift or absolute ceilings, overlays only for /p b m/ and
-/f v/, closing the lips through mouthClose and leaving the learned jaw alone. ``audio``: for models that
-animate audio without phones: nothing keyed on phones (no overlays, no vowel opening, no tongue, no jaw confinement), only
-``mouthClose ≤ jawOpen`` and clipping. ``audio-closures``: ``audio`` plus the /p b m/ overlay of
-``learned-jaw``, for audio networks that hear the bilabials themselves (their phone head gives
-phones for the bilabials only)."""
+/f v/, closing the lips through mouthClose and leaving the learned jaw alone. ``audio``: for
+models that animate audio without phones: nothing keyed on phones (no overlays, no vowel
+opening, no tongue, no jaw confinement), only ``mouthClose ≤ jawOpen`` and clipping.
+``audio-closures``: ``audio`` plus the /p b m/ overlay of ``learned-jaw``, for audio networks
+that hear the bilabials themselves (their phone head gives phones for the bilabials only)."""

@@ -5,8 +5,9 @@ Two families read :class:`~vispeech.models.networks.audio_encoding.AudioEncoding
 
 - ``audio-cnn``: PhISANet's streaming decoder, three 1-D convolutions (kernels [15, 7, 3],
   ReLU, per-frame layer norm) whose right contexts add up to ``look_ahead`` frames (8 = 160 ms
-  at 50 fps), optionally a forward-only GRU of ``recurrent`` units, and a linear output. Frame t depends on inputs ``t - behind .. t + look_ahead``
-  only, so :class:`AudioStream` gives exactly the offline frames.
+  at 50 fps), optionally a forward-only GRU of ``recurrent`` units, and a linear output.
+  Frame t depends on inputs ``t - behind .. t + look_ahead`` only (and on the GRU's state),
+  so :class:`AudioStream` gives exactly the offline frames.
 - ``audio-encdec``: an offline encoder-decoder, a centred convolution encoder and a
   bidirectional GRU decoder over the whole utterance. Streamed, it re-decodes a recent window
   and waits ``stream_lookahead`` frames, an approximation of its offline output.
@@ -17,8 +18,8 @@ L_vel, L_accel), plus ``ctc_weight`` (λ_CTC) times a CTC loss of a phone head o
 hidden layer against the utterance's phone sequence (silences left to the blank). With
 ``closure_threshold`` > 0 prediction also reports the bilabials the head hears
 (:meth:`AudioNetwork.predict_with_closures`, :mod:`vispeech.models.networks.phone_head`),
-phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to voices the corpus lacks comes from
-the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
+phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to
+voices the corpus lacks comes from the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
 that many copies of each training utterance as other voices in other rooms, at other rates and
@@ -252,7 +253,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         The run settings are :meth:`Network.fit`'s.
 
         Learns ``encoding_`` (with the training features' statistics), ``phones_`` (the CTC
-        head's labels) and ``phone_language_`` (theirs), ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
+        head's labels) and ``phone_language_`` (theirs), ``outputs_``, ``fps_``, ``stats_``,
+        ``weights_`` and ``history_``.
         """
         try:
             if self._params["augment"]:

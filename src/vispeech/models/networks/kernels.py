@@ -379,10 +379,7 @@ class AudioCNNKernel:
     def __init__(self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], fusion_layers: int = 0):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
-        self.gru: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        if "gru.weight_ih_l0" in weights:
-            w = lambda name: np.asarray(weights[f"gru.{name}_l0"], dtype=np.float32)  # noqa: E731
-            self.gru = (w("weight_ih").T.copy(), w("bias_ih"), w("weight_hh").T.copy(), w("bias_hh"))
+        self.gru = _gru_weights(weights, "gru.{}_l0") if "gru.weight_ih_l0" in weights else None
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
         self.phone_head = _phone_head(weights)
@@ -432,21 +429,17 @@ class AudioCNNStream:
 
 class EncoderDecoderKernel:
     """The NumPy forward pass of ``AudioEncoderDecoder``: conv encoder, bidirectional GRU
-    layers (torch's gate order r, z, n), linear output and CTC head (when it has one); behind a :class:`LayerFusionKernel`
-    when it reads ``fusion_layers`` encoder hidden states."""
+    layers (torch's gate order r, z, n), linear output and CTC head (when it has one); behind
+    a :class:`LayerFusionKernel` when it reads ``fusion_layers`` encoder hidden states."""
 
     def __init__(
         self, weights: Mapping[str, np.ndarray], pads: Sequence[tuple[int, int]], layers: int, fusion_layers: int = 0
     ):
         self.fusion = _fusion(weights, fusion_layers)
         self.encoder = ConvStackKernel(weights, "encoder", pads)
-        self.gru = []
+        self.gru: list[list[GRUWeights]] = []
         for layer in range(layers):
-            directions = []
-            for suffix in ("", "_reverse"):
-                w = lambda name: np.asarray(weights[f"decoder.{name}_l{layer}{suffix}"], dtype=np.float32)  # noqa: E731
-                directions.append((w("weight_ih").T.copy(), w("bias_ih"), w("weight_hh").T.copy(), w("bias_hh")))
-            self.gru.append(directions)
+            self.gru.append([_gru_weights(weights, f"decoder.{{}}_l{layer}{suffix}") for suffix in ("", "_reverse")])
         self.out_weight = np.asarray(weights["output.weight"], dtype=np.float32).T
         self.out_bias = np.asarray(weights["output.bias"], dtype=np.float32)
         self.phone_head = _phone_head(weights)
@@ -460,6 +453,20 @@ class EncoderDecoderKernel:
         for forward, backward in self.gru:
             h = np.concatenate([_gru(h, *forward), _gru(h[::-1], *backward)[::-1]], axis=1)
         return (h @ self.out_weight + self.out_bias).astype(np.float64), _posteriors(self.phone_head, h)
+
+
+GRUWeights = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""One GRU direction's weights as :func:`_gru` takes them: input weights (transposed), input
+bias, recurrent weights (transposed), recurrent bias."""
+
+
+def _gru_weights(weights: Mapping[str, np.ndarray], pattern: str) -> GRUWeights:
+    """The GRU direction whose torch weights are named ``pattern.format("weight_ih")`` and so on."""
+
+    def array(name: str) -> np.ndarray:
+        return np.asarray(weights[pattern.format(name)], dtype=np.float32)
+
+    return array("weight_ih").T.copy(), array("bias_ih"), array("weight_hh").T.copy(), array("bias_hh")
 
 
 def _gru(

@@ -218,7 +218,7 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
             group.sort(key=lambda s: s._due - s._frames.computed, reverse=True)
             kernel, model = group[0]._kernel, group[0].model
             states = [np.stack(parts) for parts in zip(*(s._state for s in group))]
-            for i in range(group[0]._due - group[0]._frames.computed):
+            for _ in range(group[0]._due - group[0]._frames.computed):
                 active = sum(1 for s in group if s._due - s._frames.computed > 0)
                 windows = np.stack([s._window() for s in group[:active]])
                 out, stepped = kernel.step(windows, [state[:active] for state in states])
