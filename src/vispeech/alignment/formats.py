@@ -286,66 +286,72 @@ def _check_textgrid(text: str, path: Path) -> None:
     for tier in range(1, n_tiers + 1):
         if tokens.peek() is None:
             raise VispeechError(f"{path}: declares {n_tiers} tiers but holds {tier - 1}")
-        line = tokens.line()
-        kind = tokens.take("string", f"the class of tier {tier}")
-        name = tokens.take("string", f"the name of tier {tier}")
-        label = f"tier {tier} ({name!r})"
-        start = tokens.time(f"the xmin of {label}")
-        line = tokens.line()
-        end = tokens.time(f"the xmax of {label}")
-        if end < start:
-            raise VispeechError(f"{path}, line {line}: {label} ends at {end:g}, before its start {start:g}")
-        if start < grid_start - TIME_TOLERANCE or end > grid_end + TIME_TOLERANCE:
-            raise VispeechError(
-                f"{path}, line {line}: {label} ({start:g}..{end:g} s) is outside the grid "
-                f"({grid_start:g}..{grid_end:g} s)"
-            )
-        if kind not in ("IntervalTier", "TextTier"):
-            raise VispeechError(f"{path}, line {line}: {label} has unknown class {kind!r}")
-        entries = "intervals" if kind == "IntervalTier" else "points"
-        declared = tokens.count(f"the number of {entries} of {label}")
-        previous = start
-        for index in range(1, declared + 1):
-            if tokens.peek() != "number":
-                raise VispeechError(
-                    f"{path}, line {tokens.line()}: {label} declares {declared} {entries} but holds {index - 1}"
-                )
-            line = tokens.line()
-            if kind == "IntervalTier":
-                low = tokens.time(f"xmin of interval {index} of {label}")
-                high = tokens.time(f"xmax of interval {index} of {label}")
-                tokens.take("string", f"the text of interval {index} of {label}")
-                if high <= low:
-                    raise VispeechError(
-                        f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
-                        f"not after its start {low:g}"
-                    )
-                if low < previous - TIME_TOLERANCE:
-                    raise VispeechError(
-                        f"{path}, line {line}: interval {index} of {label} starts at {low:g}, "
-                        f"before the previous one ends ({previous:g}): out of order or overlapping"
-                    )
-                if high > end + TIME_TOLERANCE:
-                    raise VispeechError(
-                        f"{path}, line {line}: interval {index} of {label} ends at {high:g}, "
-                        f"after the tier's xmax {end:g}"
-                    )
-                previous = high
-            else:
-                time = tokens.time(f"time of point {index} of {label}")
-                tokens.take("string", f"the mark of point {index} of {label}")
-                if time < previous - TIME_TOLERANCE or time > end + TIME_TOLERANCE:
-                    raise VispeechError(
-                        f"{path}, line {line}: point {index} of {label} at {time:g} s is out of "
-                        f"order or outside the tier"
-                    )
-                previous = time
-        if tokens.peek() == "number":
-            raise VispeechError(
-                f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} it declares"
-            )
+        _check_tier(tokens, tier, grid_start, grid_end)
     if tokens.peek() is not None:
         raise VispeechError(f"{path}, line {tokens.line()}: data after the {n_tiers} declared tiers")
+
+
+def _check_tier(tokens: _Tokens, tier: int, grid_start: float, grid_end: float) -> None:
+    """Check tier number ``tier``: its class, its bounds inside the grid's, and its entries."""
+    path = tokens.path
+    kind = tokens.take("string", f"the class of tier {tier}")
+    name = tokens.take("string", f"the name of tier {tier}")
+    label = f"tier {tier} ({name!r})"
+    start = tokens.time(f"the xmin of {label}")
+    line = tokens.line()
+    end = tokens.time(f"the xmax of {label}")
+    if end < start:
+        raise VispeechError(f"{path}, line {line}: {label} ends at {end:g}, before its start {start:g}")
+    if start < grid_start - TIME_TOLERANCE or end > grid_end + TIME_TOLERANCE:
+        raise VispeechError(
+            f"{path}, line {line}: {label} ({start:g}..{end:g} s) is outside the grid ({grid_start:g}..{grid_end:g} s)"
+        )
+    if kind not in ("IntervalTier", "TextTier"):
+        raise VispeechError(f"{path}, line {line}: {label} has unknown class {kind!r}")
+    entries = "intervals" if kind == "IntervalTier" else "points"
+    check_entry = _check_interval if kind == "IntervalTier" else _check_point
+    declared = tokens.count(f"the number of {entries} of {label}")
+    previous = start
+    for index in range(1, declared + 1):
+        if tokens.peek() != "number":
+            raise VispeechError(
+                f"{path}, line {tokens.line()}: {label} declares {declared} {entries} but holds {index - 1}"
+            )
+        previous = check_entry(tokens, index, label, previous, end)
+    if tokens.peek() == "number":
+        raise VispeechError(
+            f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} it declares"
+        )
+
+
+def _check_interval(tokens: _Tokens, index: int, label: str, previous: float, tier_end: float) -> float:
+    """Check interval ``index`` of a tier, after the one ending at ``previous``; returns its end."""
+    line = tokens.line()
+    low = tokens.time(f"xmin of interval {index} of {label}")
+    high = tokens.time(f"xmax of interval {index} of {label}")
+    tokens.take("string", f"the text of interval {index} of {label}")
+    where = f"{tokens.path}, line {line}: interval {index} of {label}"
+    if high <= low:
+        raise VispeechError(f"{where} ends at {high:g}, not after its start {low:g}")
+    if low < previous - TIME_TOLERANCE:
+        raise VispeechError(
+            f"{where} starts at {low:g}, before the previous one ends ({previous:g}): out of order or overlapping"
+        )
+    if high > tier_end + TIME_TOLERANCE:
+        raise VispeechError(f"{where} ends at {high:g}, after the tier's xmax {tier_end:g}")
+    return high
+
+
+def _check_point(tokens: _Tokens, index: int, label: str, previous: float, tier_end: float) -> float:
+    """Check point ``index`` of a tier, after the one at ``previous``; returns its time."""
+    line = tokens.line()
+    time = tokens.time(f"time of point {index} of {label}")
+    tokens.take("string", f"the mark of point {index} of {label}")
+    if time < previous - TIME_TOLERANCE or time > tier_end + TIME_TOLERANCE:
+        raise VispeechError(
+            f"{tokens.path}, line {line}: point {index} of {label} at {time:g} s is out of order or outside the tier"
+        )
+    return time
 
 
 def _find_tier(names: list[str], kind: str) -> str | None:
