@@ -188,8 +188,6 @@ async def stream_audio(
     pcm = np.asarray(pcm, dtype="<i2")
     step = max(1, round(chunk_seconds * sample_rate))
     sent: list[tuple[float, int]] = []  # (time the chunk was sent, its end sample)
-    arrivals: list[tuple[float, int, list]] = []
-    warnings: list[str] = []
     seconds = len(pcm) / sample_rate
     async with websockets.connect(url, max_size=None, open_timeout=timeout, close_timeout=2) as ws:
         await ws.send(
@@ -199,49 +197,19 @@ async def stream_audio(
             start = json.loads(await ws.recv())
         if start.get("type") != "start":
             raise RuntimeError(f"server error: {start.get('message', start)}")
-
-        async def send() -> None:
-            began = time.perf_counter()
-            for i, a in enumerate(range(0, len(pcm), step)):
-                if realtime:
-                    await asyncio.sleep(max(0.0, began + i * chunk_seconds - time.perf_counter()))
-                sent.append((time.perf_counter(), min(a + step, len(pcm))))
-                await ws.send(pcm[a : a + step].tobytes())
-            await ws.send(json.dumps({"type": "stop"}))
-
-        sender = asyncio.create_task(send())
+        sender = asyncio.create_task(_send_chunks(ws, pcm, step, chunk_seconds, realtime, sent))
         try:
             async with asyncio.timeout(timeout + (seconds if realtime else 0.0)):
-                async for raw in ws:
-                    now = time.perf_counter()
-                    message = json.loads(raw)
-                    kind = message.get("type")
-                    if kind == "frames":
-                        arrivals.append((now, message["start_frame"], message["frames"]))
-                    elif kind == "warning":
-                        warnings.append(message["message"])
-                    elif kind == "end":
-                        total = now - sent[0][0] if sent else 0.0
-                        break
-                    elif kind == "error":
-                        raise RuntimeError(f"server error: {message.get('message')}")
-                else:
-                    raise RuntimeError("the stream closed before its end")
+                arrivals, warnings, total = await _receive_frames(ws, sent)
             await sender
         finally:
             sender.cancel()
             await asyncio.gather(sender, return_exceptions=True)
     frames = np.array([row for _, _, rows in arrivals for row in rows], dtype=float)
-    when, ends = np.array(sent).reshape(-1, 2).T
-    delays = []
-    for arrival, first, rows in arrivals:
-        for k in range(first, first + len(rows)):
-            sample = min(int(k / float(start["fps"]) * sample_rate), len(pcm) - 1)
-            delays.append(arrival - when[min(int(np.searchsorted(ends, sample, side="right")), len(when) - 1)])
     return ListenResult(
         start=start,
         frames=frames.reshape(-1, len(start["channels"])),
-        delays=np.array(delays),
+        delays=_frame_delays(arrivals, sent, float(start["fps"]), sample_rate, len(pcm)),
         audio_seconds=seconds,
         chunks=len(sent),
         chunk_seconds=step / sample_rate,
@@ -249,3 +217,51 @@ async def stream_audio(
         total=total,
         warnings=warnings,
     )
+
+
+async def _send_chunks(
+    ws, pcm: np.ndarray, step: int, chunk_seconds: float, realtime: bool, sent: list[tuple[float, int]]
+) -> None:
+    """Send ``pcm`` in chunks of ``step`` samples, then the stop message, noting each chunk in ``sent``."""
+    import asyncio
+
+    began = time.perf_counter()
+    for i, a in enumerate(range(0, len(pcm), step)):
+        if realtime:
+            await asyncio.sleep(max(0.0, began + i * chunk_seconds - time.perf_counter()))
+        sent.append((time.perf_counter(), min(a + step, len(pcm))))
+        await ws.send(pcm[a : a + step].tobytes())
+    await ws.send(json.dumps({"type": "stop"}))
+
+
+async def _receive_frames(ws, sent: list[tuple[float, int]]) -> tuple[list[tuple[float, int, list]], list[str], float]:
+    """Read the stream to its end: the frame messages (arrival, first frame, rows), the warnings,
+    and the seconds from the first chunk sent to the end message."""
+    arrivals: list[tuple[float, int, list]] = []
+    warnings: list[str] = []
+    async for raw in ws:
+        now = time.perf_counter()
+        message = json.loads(raw)
+        kind = message.get("type")
+        if kind == "frames":
+            arrivals.append((now, message["start_frame"], message["frames"]))
+        elif kind == "warning":
+            warnings.append(message["message"])
+        elif kind == "end":
+            return arrivals, warnings, (now - sent[0][0] if sent else 0.0)
+        elif kind == "error":
+            raise RuntimeError(f"server error: {message.get('message')}")
+    raise RuntimeError("the stream closed before its end")
+
+
+def _frame_delays(
+    arrivals: list[tuple[float, int, list]], sent: list[tuple[float, int]], fps: float, sample_rate: int, n_samples: int
+) -> np.ndarray:
+    """Each frame's delay: from sending the chunk that holds the sample at its time to its arrival."""
+    when, ends = np.array(sent).reshape(-1, 2).T
+    delays = []
+    for arrival, first, rows in arrivals:
+        for k in range(first, first + len(rows)):
+            sample = min(int(k / fps * sample_rate), n_samples - 1)
+            delays.append(arrival - when[min(int(np.searchsorted(ends, sample, side="right")), len(when) - 1)])
+    return np.array(delays)
