@@ -52,6 +52,7 @@ if TYPE_CHECKING:
     import torch
 
     from vispeech.models.networks.audio_encoding import AudioEncoding
+    from vispeech.models.networks.training import TrainingState
 
 THESIS_CHANNELS: tuple[str, ...] = (
     "jawForward",
@@ -248,16 +249,30 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         """
         import torch
 
-        from vispeech.models.networks.training import TrainingState, load_state, train
-
         train_set, validation_set = training_split(corpus)
-        p = self._params
         checkpoint = Path(checkpoint_dir) if checkpoint_dir is not None else None
-        resume = checkpoint is not None and (checkpoint / "config.json").is_file()
-        warm = warm_start and self.is_fitted and not resume
-        if resume:
-            assert checkpoint is not None  # resume is a run in the checkpoint folder
-            learned = self._resumable(checkpoint)._learned_state()
+        resume_from = checkpoint if checkpoint is not None and (checkpoint / "config.json").is_file() else None
+        warm = warm_start and self.is_fitted and resume_from is None
+        self._begin_fit(train_set, corpus, resume_from, warm)
+        examples = [self._example(u) for u in train_set]
+        if resume_from is None and not warm:
+            self.stats_ = self._stats(examples)
+        examples = [(x, self._normalise(y)) for x, y in examples]
+        held_out = [(x, self._normalise(y)) for x, y in map(self._example, validation_set)]
+        torch.manual_seed(self._params["seed"])
+        module = self._build_module(self.encoding_.size, len(self.outputs_))
+        if warm or resume_from is not None:  # start from what the network knows
+            module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
+        state = self._resumed_state(resume_from, module) if resume_from is not None else None
+        state = self._train_module(module, state, examples, held_out, checkpoint, progress, num_threads)
+        self._take_weights(module.state_dict(), state.history)
+        return self
+
+    def _begin_fit(self, train_set: list, corpus, resume_from: Path | None, warm: bool) -> None:
+        """Take the learned state of the run in ``resume_from``, check a warm start's data, or
+        prepare afresh (:meth:`_prepare`)."""
+        if resume_from is not None:
+            learned = self._resumable(resume_from)._learned_state()
             assert learned is not None  # _resumable takes a fitted run only
             self._set_learned_state(*learned)
         elif warm:
@@ -267,27 +282,37 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
             self._check_warm(train_set)
         else:
             self._prepare(train_set, corpus)
-        examples = [self._example(u) for u in train_set]
-        if not resume and not warm:
-            self.stats_ = self._stats(examples)
-        examples = [(x, self._normalise(y)) for x, y in examples]
-        held_out = [(x, self._normalise(y)) for x, y in map(self._example, validation_set)]
-        torch.manual_seed(p["seed"])
-        module = self._build_module(self.encoding_.size, len(self.outputs_))
-        state = None
-        if warm:  # start from what the network knows; the history and the best loss are the new data's
-            module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
-        if resume:
-            assert checkpoint is not None  # resume is a run in the checkpoint folder
-            module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
-            if (checkpoint / "training_state.json").is_file():
-                state = load_state(checkpoint, module)
-            else:  # a plain saved model holds its best weights only: go on with a fresh optimizer
-                state = TrainingState(
-                    history=self.history_,
-                    best_weights=copy.deepcopy(module.state_dict()),
-                    best_loss=_best_loss(self.history_),
-                )
+
+    def _resumed_state(self, folder: Path, module: torch.nn.Module) -> TrainingState:
+        """The training state saved in ``folder`` (its last weights loaded into ``module``); a plain
+        saved model holds its best weights only, so it goes on with a fresh optimiser."""
+        from vispeech.models.networks.training import TrainingState, load_state
+
+        if (folder / "training_state.json").is_file():
+            return load_state(folder, module)
+        return TrainingState(
+            history=self.history_,
+            best_weights=copy.deepcopy(module.state_dict()),
+            best_loss=_best_loss(self.history_),
+        )
+
+    def _train_module(
+        self,
+        module: torch.nn.Module,
+        state: TrainingState | None,
+        examples: list[tuple[np.ndarray, np.ndarray]],
+        held_out: list[tuple[np.ndarray, np.ndarray]],
+        checkpoint: Path | None,
+        progress: bool | None,
+        num_threads: int | None,
+    ) -> TrainingState:
+        """Train ``module`` on the normalised ``examples`` (from ``state`` when resuming), writing
+        a checkpoint after every epoch when given one; returns the final training state."""
+        import torch
+
+        from vispeech.models.networks.training import train
+
+        p = self._params
         optimizer: torch.optim.Optimizer
         if p["optimizer"] == "adam":
             optimizer = torch.optim.Adam(module.parameters(), lr=p["learning_rate"])
@@ -317,7 +342,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         if num_threads:
             torch.set_num_threads(int(num_threads))
         try:
-            state = train(
+            return train(
                 module,
                 optimizer,
                 lambda rng: self._batches(examples, rng),
@@ -334,8 +359,6 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
             )
         finally:
             torch.set_num_threads(threads)
-        self._take_weights(module.state_dict(), state.history)
-        return self
 
     def _take_weights(self, weights: dict, history: TrainingHistory) -> None:
         self.weights_ = {k: v.detach().numpy().copy() for k, v in weights.items()}
