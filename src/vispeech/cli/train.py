@@ -6,12 +6,16 @@ import copy
 import json
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from vispeech.cli import main, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
 from vispeech.errors import VispeechError
+
+if TYPE_CHECKING:
+    from vispeech.models.contract import Estimator
 
 CHECKPOINT = "checkpoint"
 """Sub-folder of the output folder where a network's training state is kept after every epoch."""
@@ -118,37 +122,13 @@ def train_command(
     cls = family_class(model_name)
     if not cls.trainable:
         raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
-    given: dict[str, tuple[str, object]] = {
-        "--epochs": ("epochs", epochs),
-        "--seed": ("seed", seed),
-        "--input": ("inputs", inputs),
-        "--targets": ("targets", None if targets is None else _TARGETS.get(targets)),
-    }
-    options: dict[str, object] = {}
-    for flag, (key, value) in given.items():
-        if value is None:
-            continue
-        if key not in cls.defaults:
-            raise VispeechError(f"model {model_name} takes no {flag}")
-        options[key] = value
-    for key, value in map(_parameter, params):
-        if key not in cls.defaults:
-            raise VispeechError(f"model {model_name} takes no parameter {key!r}")
-        if key in options:
-            raise VispeechError(f"{key} is given twice")
-        options[key] = value
+    options = _model_options(cls, model_name, epochs, seed, inputs, targets, params)
     neural = issubclass(cls, Network)
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
     checkpoint = out_dir / CHECKPOINT if neural else None
-    if checkpoint is not None:  # fit goes on from what the checkpoint folder holds: the run to resume, or nothing
-        if resume is not None:
-            source = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
-            if source.resolve() != checkpoint.resolve():
-                shutil.rmtree(checkpoint, ignore_errors=True)
-                shutil.copytree(source, checkpoint)
-        else:
-            shutil.rmtree(checkpoint, ignore_errors=True)
+    if checkpoint is not None:
+        _seed_checkpoint(checkpoint, resume)
     model = cls(**options)
 
     from vispeech.corpus.corpus import frame_rates_text
@@ -168,6 +148,50 @@ def train_command(
 
     model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint)
     _save(model, corpus, out_dir, checkpoint)
+
+
+def _model_options(
+    cls: type[Estimator],
+    model_name: str,
+    epochs: int | None,
+    seed: int | None,
+    inputs: str | None,
+    targets: str | None,
+    params: tuple[str, ...],
+) -> dict[str, object]:
+    """The hyper-parameters the command line gives a model of family ``cls``: its flags, then ``--param``s."""
+    given: dict[str, tuple[str, object]] = {
+        "--epochs": ("epochs", epochs),
+        "--seed": ("seed", seed),
+        "--input": ("inputs", inputs),
+        "--targets": ("targets", None if targets is None else _TARGETS.get(targets)),
+    }
+    options: dict[str, object] = {}
+    for flag, (key, value) in given.items():
+        if value is None:
+            continue
+        if key not in cls.defaults:
+            raise VispeechError(f"model {model_name} takes no {flag}")
+        options[key] = value
+    for key, value in map(_parameter, params):
+        if key not in cls.defaults:
+            raise VispeechError(f"model {model_name} takes no parameter {key!r}")
+        if key in options:
+            raise VispeechError(f"{key} is given twice")
+        options[key] = value
+    return options
+
+
+def _seed_checkpoint(checkpoint: Path, resume: Path | None) -> None:
+    """Leave in ``checkpoint`` what fit is to go on from: the run in ``resume`` (a saved model or
+    an interrupted run's output folder), or nothing."""
+    if resume is not None:
+        source = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
+        if source.resolve() != checkpoint.resolve():
+            shutil.rmtree(checkpoint, ignore_errors=True)
+            shutil.copytree(source, checkpoint)
+    else:
+        shutil.rmtree(checkpoint, ignore_errors=True)
 
 
 def _adapt(
