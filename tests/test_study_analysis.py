@@ -29,10 +29,10 @@ from vispeech.study.analysis import (
     SENTENCE_FORMULA,
     SLOPES_FORMULA,
     analyse_answers,
-    fit_clmm,
     points_frame,
     win_table,
 )
+from vispeech.study.clmm import fit_clmm
 
 R_PACKAGES = "R with ordinal, car, emmeans and jsonlite (apt-get install r-base-core r-cran-ordinal r-cran-car " \
              "r-cran-emmeans r-cran-jsonlite)"
@@ -238,7 +238,7 @@ def test_warmups_checks_and_failed_participants_stay_out_of_the_fits(monkeypatch
         attempts = [{"formula": f, "error": "not run"} for f in jobs[0][1]["formulas"]]
         return [{"formula": None, "error": "not run", "attempts": attempts} for _ in jobs], {}
 
-    monkeypatch.setattr(analysis, "_run_r", fake_r)
+    monkeypatch.setattr(analysis, "run_clmm", fake_r)
     people = pd.DataFrame({"participant": ["p1", "p2"], "passed_identical": ["1", "0"],
                            "passed_mismatched": ["1", ""]})
     result = analyse_answers(_answers(PAIRWISE), participants=people, exclude_failed_checks=True)

@@ -23,25 +23,19 @@ pairwise answers, the fixed-effects ``clm`` of ``y ~ x``), the proportional-odds
 (``nominal_test`` and ``scale_test`` of the ``clm`` of ``y ~ x``) and win/tie/loss counts per
 pair, per sentence and in total.
 
-:func:`fit_clmm` fits any clmm formula over a data frame's columns; :func:`analyse_answers`
-analyses a study's answers; :func:`vispeech.study.report_folder.write_analysis` writes the
-folder (JSON, CSV, figures, an HTML page).
+:func:`vispeech.study.clmm.fit_clmm` fits any clmm formula over a data frame's columns;
+:func:`analyse_answers` analyses a study's answers; :func:`vispeech.study.report_folder.write_analysis`
+writes the folder (JSON, CSV, figures, an HTML page).
 """
 
 from __future__ import annotations
 
 import io
-import json
 import os
-import shutil
-import subprocess
-import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from importlib import resources
 from itertools import combinations
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,9 +45,8 @@ from vispeech.errors import VispeechError
 from vispeech.evaluation.report_parts import json_ready, p_text
 from vispeech.files import read_text
 from vispeech.study.answers import PAIRWISE_ANSWERS, RATINGS, TASKS
+from vispeech.study.clmm import clmm_job, run_clmm
 
-INSTALL_R = "apt-get install r-base-core r-cran-ordinal r-cran-car r-cran-emmeans r-cran-jsonlite"
-"""The Debian packages the analysis needs."""
 SLOPES_FORMULA = "y ~ x + (1 + x | u) + (1 + x | s)"
 """The thesis's model: the model ``x``, random intercepts and slopes per participant ``u`` and sentence ``s``."""
 INTERCEPTS_FORMULA = "y ~ x + (1 | u) + (1 | s)"
@@ -63,8 +56,6 @@ SENTENCE_FORMULA = "y ~ x + (1 | u)"
 FIXED_FORMULA = "y ~ x"
 """The fixed-effects ``clm``: its nominal and scale effects test the proportional-odds assumption, and
 it is a sentence's model when the participants' random intercepts cannot be fitted."""
-R_TIMEOUT = 3 * 3600
-"""Seconds R may take for one analysis (the thesis's model takes about a minute a task)."""
 POINTS = {"win": 2, "tie": 1, "loss": 0}
 """A pairwise answer's points for each of its two models."""
 ALL_SENTENCES = "(all)"
@@ -73,139 +64,6 @@ ALPHA = 0.05
 """The level at which the proportional-odds check fails."""
 REQUIRED_COLUMNS = ("participant", "task", "trial", "sentence", "warmup", "check", "model", "left", "right", "answer")
 """The columns of ``answers.csv`` the analysis reads (the export has more)."""
-
-
-# -- R ------------------------------------------------------------------------------------------
-
-
-def fit_clmm(
-    frame: pd.DataFrame,
-    formula: str,
-    *,
-    factors: Sequence[str] = (),
-    term: str | None = None,
-    fallbacks: Sequence[str] = (),
-    proportional_odds: str | None = None,
-) -> dict:
-    """Fit the cumulative-link mixed model ``formula`` (R syntax, logit link, flexible thresholds)
-    to ``frame`` with R's ``ordinal::clmm``.
-
-    The response (the formula's left side) becomes an ordered factor: its categories if it is a
-    pandas categorical, else its values sorted (numerically if numeric). ``factors`` and every
-    non-numeric column become unordered factors (their categories, else their sorted values;
-    the first level is the reference); other columns are numbers. ``fallbacks`` are formulas
-    tried in turn when a fit fails (an R error, no convergence, no finite standard errors).
-    With ``term`` (a factor), its emmeans, Tukey-adjusted pairs, inferred probability of each
-    response level and inferred mean (the levels' numbers, or 1, 2, ...) are added; with
-    ``proportional_odds`` (a ``clm`` formula) its nominal and scale tests.
-
-    Returns the fit as ``clmm.R`` reports it: ``formula`` (the one fitted, None if none
-    could be), ``attempts`` (each formula tried: ``error``, ``warnings``, ``seconds``),
-    ``thresholds`` and ``fixed`` (``name``, ``estimate``, ``se``, ``z``, ``p``), ``random``
-    (``group``, ``term``, ``variance``, ``sd``), ``correlations``, ``log_lik``, ``aic``,
-    ``nobs``, ``groups``, ``convergence`` (optimiser code and message, iterations, max
-    gradient, condition number of the Hessian), ``anova`` (Wald χ² per term, type II),
-    ``warnings``, and with ``term`` ``emmeans``, ``pairs``, ``probabilities``, ``means``.
-    Raises :class:`VispeechError` when R or one of its packages is missing.
-    """
-    return _run_r([_job("fit", frame, [formula, *fallbacks], factors, term, proportional_odds)])[0][0]
-
-
-def _job(
-    name: str,
-    frame: pd.DataFrame,
-    formulas: Sequence[str],
-    factors: Sequence[str],
-    term: str | None,
-    proportional_odds: str | None,
-) -> tuple[pd.DataFrame, dict]:
-    """``frame`` as text and the job ``clmm.R`` runs on it (see its header)."""
-    response = formulas[0].partition("~")[0].strip()
-    missing = [c for c in (response, *factors, *([term] if term else [])) if c not in frame.columns]
-    if missing:
-        raise VispeechError(f"the data has no column {missing[0]!r} (columns: {', '.join(map(str, frame.columns))})")
-    levels = _levels(frame[response])
-    values = (
-        [float(v) for v in levels]
-        if pd.api.types.is_numeric_dtype(frame[response])
-        else list(range(1, len(levels) + 1))
-    )
-    named = set(factors)
-    factor_levels = {
-        c: [_label(v) for v in _levels(frame[c])]
-        for c in frame.columns
-        if c != response and (c in named or not pd.api.types.is_numeric_dtype(frame[c]))
-    }
-    text = frame.copy()
-    for column in (response, *factor_levels):
-        text[column] = frame[column].map(lambda v: "" if pd.isna(v) else _label(v))
-    return text, {
-        "id": name,
-        "response": response,
-        "levels": [_label(v) for v in levels],
-        "values": values,
-        "factors": factor_levels,
-        "formulas": list(formulas),
-        "term": term,
-        "proportional_odds": proportional_odds,
-    }
-
-
-def _levels(column: pd.Series) -> list:
-    if isinstance(column.dtype, pd.CategoricalDtype):
-        return list(column.cat.categories)
-    values = column.dropna().unique().tolist()
-    return sorted(values) if pd.api.types.is_numeric_dtype(column) else sorted(values, key=str)
-
-
-def _label(value) -> str:
-    """A level as text, whole numbers without a decimal point."""
-    if isinstance(value, float | np.floating) and float(value).is_integer():
-        return str(int(value))
-    return str(value)
-
-
-def _run_r(jobs: Sequence[tuple[pd.DataFrame, dict]]) -> tuple[list[dict], dict[str, str]]:
-    """Run ``clmm.R`` on ``jobs`` (frame, job) in one R process: each job's result, and R's and its
-    packages' versions."""
-    rscript = shutil.which("Rscript")
-    if rscript is None:
-        raise VispeechError(f"the study analysis needs R (Rscript was not found): {INSTALL_R}")
-    with (
-        tempfile.TemporaryDirectory(prefix="vispeech-clmm-") as tmp,
-        resources.as_file(resources.files(__package__).joinpath("clmm.R")) as script,
-    ):
-        folder = Path(tmp)
-        specs = []
-        for k, (frame, spec) in enumerate(jobs):
-            path = folder / f"data{k}.csv"
-            frame.to_csv(path, index=False, encoding="utf-8")
-            specs.append({**spec, "data": str(path)})
-        request, result = folder / "request.json", folder / "result.json"
-        request.write_text(json.dumps({"jobs": specs}), encoding="utf-8")
-        try:
-            done = subprocess.run(
-                [rscript, str(script), str(request), str(result)],
-                capture_output=True,
-                text=True,
-                check=False,
-                timeout=R_TIMEOUT,
-            )
-        except subprocess.TimeoutExpired:
-            raise VispeechError(f"R did not finish the models in {R_TIMEOUT} s (try --no-random-slopes)") from None
-        except OSError as exc:
-            raise VispeechError(f"cannot run R ({rscript}): {exc.strerror or exc}") from None
-        lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
-        if done.returncode == 3 and lines and lines[-1].startswith("vispeech-missing-r-packages:"):
-            names = lines[-1].partition(":")[2].split()
-            raise VispeechError(
-                f"the study analysis needs the R package{'s' if len(names) > 1 else ''} {', '.join(names)}: {INSTALL_R}"
-            )
-        if done.returncode != 0 or not result.is_file():
-            why = next((line for line in reversed(lines) if line.startswith("Error")), lines[-1] if lines else "")
-            raise VispeechError(f"R failed (exit code {done.returncode}): {why or 'no message'}")
-        answer = json.loads(result.read_text(encoding="utf-8"))
-    return answer["jobs"], answer["versions"]
 
 
 # -- answers ------------------------------------------------------------------------------------
@@ -404,9 +262,9 @@ class TaskAnalysis:
     participants: int
     sentences: list[str]
     fit: dict
-    """:func:`fit_clmm`'s result for the whole task, with its ``proportional_odds`` tests."""
+    """:func:`~vispeech.study.clmm.fit_clmm`'s result for the whole task, with its ``proportional_odds`` tests."""
     sentence_fits: dict[str, dict]
-    """Per sentence, :func:`fit_clmm`'s result for :data:`SENTENCE_FORMULA`."""
+    """Per sentence, :func:`~vispeech.study.clmm.fit_clmm`'s result for :data:`SENTENCE_FORMULA`."""
     wins: pd.DataFrame
     """:func:`win_table`."""
 
@@ -595,7 +453,7 @@ def analyse_answers(
     for task, frame in frames.items():
         main_jobs[task] = len(jobs)
         jobs.append(
-            _job(
+            clmm_job(
                 task,
                 frame,
                 [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],
@@ -609,9 +467,9 @@ def analyse_answers(
                 part = part.assign(x=part["x"].cat.remove_unused_categories())
                 sentence_jobs[(task, sentence)] = len(jobs)
                 jobs.append(
-                    _job(f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x", None)
+                    clmm_job(f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x", None)
                 )
-    results, versions = _run_r(jobs)
+    results, versions = run_clmm(jobs)
     tasks = {}
     for task, frame in frames.items():
         sentences = sorted(frame["s"].unique(), key=str)

@@ -1,4 +1,4 @@
-# Cumulative-link mixed models for vispeech's study analysis (vispeech.study.analysis):
+# Cumulative-link mixed models for vispeech's study analysis (vispeech.study.clmm runs it):
 # R's ordinal::clmm, car::Anova and emmeans, as the thesis analysed its surveys.
 #
 #   Rscript clmm.R REQUEST.json RESULT.json
