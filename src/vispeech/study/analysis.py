@@ -36,7 +36,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -425,18 +424,33 @@ def analyse_answers(
     kept, exclusions = _exclude(answers, participants, exclude_failed_checks)
     if not len(kept):
         raise VispeechError("no answers are left once warm-ups and checks are left out")
+    frames = _task_frames(kept, _model_order(kept, models))
+    planned = {task: _task_jobs(task, frame, random_slopes) for task, frame in frames.items()}
+    results, versions = run_clmm([job for jobs in planned.values() for job in jobs.values()])
+    fits = dict(zip([(task, key) for task, jobs in planned.items() for key in jobs], results))
+    tasks = {task: _task_analysis(task, frame, fits) for task, frame in frames.items()}
+    return StudyAnalysis(tasks, exclusions, versions, round(time.perf_counter() - started, 2))
+
+
+def _model_order(kept: pd.DataFrame, models: Sequence[str] | None) -> list[str]:
+    """The models in order: ``models`` (which must name every model ``kept`` shows), else the
+    models shown, sorted."""
     shown = (
         set(kept["model"][kept["task"] == "rating"])
         | set(kept["left"][kept["task"] == "pairwise"])
         | set(kept["right"][kept["task"] == "pairwise"])
     )
     if models is None:
-        order = sorted(shown)
-    else:
-        unknown = sorted(shown - set(models))
-        if unknown:
-            raise VispeechError(f"the answers show model {unknown[0]!r}, which the models given do not name")
-        order = list(dict.fromkeys(models))
+        return sorted(shown)
+    unknown = sorted(shown - set(models))
+    if unknown:
+        raise VispeechError(f"the answers show model {unknown[0]!r}, which the models given do not name")
+    return list(dict.fromkeys(models))
+
+
+def _task_frames(kept: pd.DataFrame, order: list[str]) -> dict[str, pd.DataFrame]:
+    """The model's frame of each task answered (:func:`rating_frame`, :func:`points_frame`), ``x``
+    over the models the task shows; raises :class:`VispeechError` for a task that shows one."""
     frames = {}
     for task in TASKS:
         if not (kept["task"] == task).any():
@@ -447,49 +461,48 @@ def analyse_answers(
             raise VispeechError(f"the {task} answers show one model only ({present[0]}): nothing to compare")
         frame["x"] = frame["x"].cat.set_categories(present)
         frames[task] = frame
-    jobs: list[tuple[pd.DataFrame, dict]] = []
-    main_jobs: dict[str, int] = {}
-    sentence_jobs: dict[tuple[str, Any], int] = {}
-    for task, frame in frames.items():
-        main_jobs[task] = len(jobs)
-        jobs.append(
-            clmm_job(
-                task,
-                frame,
-                [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],
-                ("x", "u", "s"),
-                "x",
-                FIXED_FORMULA,
-            )
-        )
-        for sentence, part in frame.groupby("s", sort=True):
-            if part["y"].nunique() > 1 and part["x"].nunique() > 1:
-                part = part.assign(x=part["x"].cat.remove_unused_categories())
-                sentence_jobs[(task, sentence)] = len(jobs)
-                jobs.append(
-                    clmm_job(f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x", None)
-                )
-    results, versions = run_clmm(jobs)
-    tasks = {}
-    for task, frame in frames.items():
-        sentences = sorted(frame["s"].unique(), key=str)
-        fits = {
-            s: (
-                results[sentence_jobs[(task, s)]]
-                if (task, s) in sentence_jobs
-                else {"formula": None, "error": "every answer the same, or one model only"}
-            )
-            for s in sentences
-        }
-        present = list(frame["x"].cat.categories)
-        tasks[task] = TaskAnalysis(
+    return frames
+
+
+def _task_jobs(task: str, frame: pd.DataFrame, random_slopes: bool) -> dict[str | None, tuple[pd.DataFrame, dict]]:
+    """The fits of one task for :func:`run_clmm`: the whole task's (key None), then each sentence's
+    whose answers differ and show two models or more (key: the sentence)."""
+    jobs: dict[str | None, tuple[pd.DataFrame, dict]] = {
+        None: clmm_job(
             task,
-            present,
-            len(frame) if task == "rating" else len(frame) // 2,
-            frame["u"].nunique(),
-            sentences,
-            results[main_jobs[task]],
-            fits,
-            win_table(frame, present),
+            frame,
+            [SLOPES_FORMULA, INTERCEPTS_FORMULA] if random_slopes else [INTERCEPTS_FORMULA],
+            ("x", "u", "s"),
+            "x",
+            FIXED_FORMULA,
         )
-    return StudyAnalysis(tasks, exclusions, versions, round(time.perf_counter() - started, 2))
+    }
+    for sentence, part in frame.groupby("s", sort=True):
+        if part["y"].nunique() > 1 and part["x"].nunique() > 1:
+            part = part.assign(x=part["x"].cat.remove_unused_categories())
+            jobs[str(sentence)] = clmm_job(
+                f"{task} {sentence}", part, [SENTENCE_FORMULA, FIXED_FORMULA], ("x", "u", "s"), "x", None
+            )
+    return jobs
+
+
+def _task_analysis(task: str, frame: pd.DataFrame, fits: dict[tuple[str, str | None], dict]) -> TaskAnalysis:
+    """One task's analysis from R's ``fits`` (keyed as :func:`_task_jobs`'s jobs, with the task)."""
+    sentences = sorted(frame["s"].unique(), key=str)
+    sentence_fits = {
+        s: fits[(task, s)]
+        if (task, s) in fits
+        else {"formula": None, "error": "every answer the same, or one model only"}
+        for s in sentences
+    }
+    present = list(frame["x"].cat.categories)
+    return TaskAnalysis(
+        task,
+        present,
+        len(frame) if task == "rating" else len(frame) // 2,
+        frame["u"].nunique(),
+        sentences,
+        fits[(task, None)],
+        sentence_fits,
+        win_table(frame, present),
+    )
