@@ -119,85 +119,96 @@ def _tables(task: TaskAnalysis) -> dict[str, tuple[list[str], list[list]]]:
 
 def _figures(task: TaskAnalysis, folder: Path) -> list[tuple[str, str]]:
     """Draw ``task``'s figures into ``folder`` (PNG and SVG); (file stem, caption) of each."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     drawn = []
     probabilities = task.fit.get("probabilities", [])
     if probabilities:
-        levels = list(dict.fromkeys(p["response"] for p in probabilities))
-        figure = Figure(figsize=(max(6.0, 0.75 * len(levels) + 3.5), 4.2), dpi=100)
-        FigureCanvasAgg(figure)
-        axes = figure.add_subplot()
-        width = 0.7 / len(task.models)
-        for i, model in enumerate(task.models):
-            rows = [
-                next(p for p in probabilities if p["level"] == model and p["response"] == level) for level in levels
-            ]
-            x = np.arange(len(levels)) + (i - (len(task.models) - 1) / 2) * width
-            y = np.array([r["probability"] for r in rows], dtype=float)
-            low = np.clip([np.nan if r["lower"] is None else r["lower"] for r in rows], 0, 1)
-            high = np.clip([np.nan if r["upper"] is None else r["upper"] for r in rows], 0, 1)
-            axes.errorbar(x, y, yerr=[y - low, high - y], marker="o", markersize=4, linewidth=1, capsize=3, label=model)
-        axes.set_xticks(np.arange(len(levels)), levels)
-        axes.set_xlabel(task.response)
-        axes.set_ylabel("inferred probability (95 % CI)")
-        axes.set_ylim(bottom=0)
-        axes.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="model")
-        axes.set_title(f"{task.task}: {task.fit['formula']}", fontsize=9)
-        figure.tight_layout()
-        save_figure(figure, folder / f"{task.task}_probabilities")
-        caption = (
-            f"{task.task}: the inferred probability of each {task.response} per model, with 95 % "
-            "confidence intervals (at random effects 0)"
-        )
-        drawn.append((f"{task.task}_probabilities", caption))
+        drawn.append(_probabilities_figure(task, probabilities, folder))
     pairs = task.wins[["a", "b"]].drop_duplicates().values.tolist()
     if pairs:
-        columns = min(3, len(pairs))
-        grid_rows = math.ceil(len(pairs) / columns)
-        names = [*task.sentences, ALL_SENTENCES]
-        figure = Figure(figsize=(4.2 * columns, (0.28 * len(names) + 1.3) * grid_rows), dpi=100)
-        FigureCanvasAgg(figure)
-        y = np.arange(len(names))[::-1] + np.r_[np.full(len(names) - 1, 0.6), 0.0]  # the total set apart
-        for k, (a, b) in enumerate(pairs):
-            axes = figure.add_subplot(grid_rows, columns, k + 1)
-            counts = task.wins[(task.wins["a"] == a) & (task.wins["b"] == b)].set_index("sentence").loc[names]
-            total = counts[["a_wins", "ties", "b_wins"]].sum(axis=1).replace(0, 1).to_numpy()
-            left = np.zeros(len(names))
-            for column, label, colour in (
-                ("a_wins", f"{a} better", "tab:blue"),
-                ("ties", "tie", "0.75"),
-                ("b_wins", f"{b} better", "tab:orange"),
-            ):
-                share = counts[column].to_numpy() / total
-                axes.barh(y, share, left=left, color=colour, label=label, height=0.75)
-                for yy, x0, w, n in zip(y, left, share, counts[column]):
-                    if n and w > 0.06:
-                        axes.text(x0 + w / 2, yy, str(n), ha="center", va="center", fontsize=7)
-                left += share
-            axes.set_yticks(y, names, fontsize=7)
-            axes.set_ylim(-0.6, y[0] + 0.6)
-            axes.set_xlim(0, 1)
-            axes.set_xlabel("share of trials", fontsize=8)
-            axes.tick_params(axis="x", labelsize=7)
-            axes.legend(
-                fontsize=7,
-                ncol=3,
-                loc="lower center",
-                bbox_to_anchor=(0.5, 1.0),
-                frameon=False,
-                handlelength=1.2,
-                columnspacing=1.0,
-            )
-        figure.tight_layout()
-        save_figure(figure, folder / f"{task.task}_wins")
-        caption = (
-            f"{task.task}: wins, ties and losses of each pair of models per sentence and over all "
-            f"({'higher rating' if task.task == 'rating' else 'preferred'} in one trial)"
-        )
-        drawn.append((f"{task.task}_wins", caption))
+        drawn.append(_wins_figure(task, pairs, folder))
     return drawn
+
+
+def _probabilities_figure(task: TaskAnalysis, probabilities: list[dict], folder: Path) -> tuple[str, str]:
+    """The inferred probability of each response level per model, with its CI."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    levels = list(dict.fromkeys(p["response"] for p in probabilities))
+    figure = Figure(figsize=(max(6.0, 0.75 * len(levels) + 3.5), 4.2), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    width = 0.7 / len(task.models)
+    for i, model in enumerate(task.models):
+        rows = [next(p for p in probabilities if p["level"] == model and p["response"] == level) for level in levels]
+        x = np.arange(len(levels)) + (i - (len(task.models) - 1) / 2) * width
+        y = np.array([r["probability"] for r in rows], dtype=float)
+        low = np.clip([np.nan if r["lower"] is None else r["lower"] for r in rows], 0, 1)
+        high = np.clip([np.nan if r["upper"] is None else r["upper"] for r in rows], 0, 1)
+        axes.errorbar(x, y, yerr=[y - low, high - y], marker="o", markersize=4, linewidth=1, capsize=3, label=model)
+    axes.set_xticks(np.arange(len(levels)), levels)
+    axes.set_xlabel(task.response)
+    axes.set_ylabel("inferred probability (95 % CI)")
+    axes.set_ylim(bottom=0)
+    axes.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="model")
+    axes.set_title(f"{task.task}: {task.fit['formula']}", fontsize=9)
+    figure.tight_layout()
+    save_figure(figure, folder / f"{task.task}_probabilities")
+    caption = (
+        f"{task.task}: the inferred probability of each {task.response} per model, with 95 % "
+        "confidence intervals (at random effects 0)"
+    )
+    return f"{task.task}_probabilities", caption
+
+
+def _wins_figure(task: TaskAnalysis, pairs: list[list[str]], folder: Path) -> tuple[str, str]:
+    """Each pair's wins, ties and losses as stacked shares per sentence and over all."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    columns = min(3, len(pairs))
+    grid_rows = math.ceil(len(pairs) / columns)
+    names = [*task.sentences, ALL_SENTENCES]
+    figure = Figure(figsize=(4.2 * columns, (0.28 * len(names) + 1.3) * grid_rows), dpi=100)
+    FigureCanvasAgg(figure)
+    y = np.arange(len(names))[::-1] + np.r_[np.full(len(names) - 1, 0.6), 0.0]  # the total set apart
+    for k, (a, b) in enumerate(pairs):
+        axes = figure.add_subplot(grid_rows, columns, k + 1)
+        counts = task.wins[(task.wins["a"] == a) & (task.wins["b"] == b)].set_index("sentence").loc[names]
+        total = counts[["a_wins", "ties", "b_wins"]].sum(axis=1).replace(0, 1).to_numpy()
+        left = np.zeros(len(names))
+        for column, label, colour in (
+            ("a_wins", f"{a} better", "tab:blue"),
+            ("ties", "tie", "0.75"),
+            ("b_wins", f"{b} better", "tab:orange"),
+        ):
+            share = counts[column].to_numpy() / total
+            axes.barh(y, share, left=left, color=colour, label=label, height=0.75)
+            for yy, x0, w, n in zip(y, left, share, counts[column]):
+                if n and w > 0.06:
+                    axes.text(x0 + w / 2, yy, str(n), ha="center", va="center", fontsize=7)
+            left += share
+        axes.set_yticks(y, names, fontsize=7)
+        axes.set_ylim(-0.6, y[0] + 0.6)
+        axes.set_xlim(0, 1)
+        axes.set_xlabel("share of trials", fontsize=8)
+        axes.tick_params(axis="x", labelsize=7)
+        axes.legend(
+            fontsize=7,
+            ncol=3,
+            loc="lower center",
+            bbox_to_anchor=(0.5, 1.0),
+            frameon=False,
+            handlelength=1.2,
+            columnspacing=1.0,
+        )
+    figure.tight_layout()
+    save_figure(figure, folder / f"{task.task}_wins")
+    caption = (
+        f"{task.task}: wins, ties and losses of each pair of models per sentence and over all "
+        f"({'higher rating' if task.task == 'rating' else 'preferred'} in one trial)"
+    )
+    return f"{task.task}_wins", caption
 
 
 def _html_table(header: Sequence[str], rows: list[list]) -> str:
@@ -230,86 +241,97 @@ def _html(analysis: StudyAnalysis, figures: list[tuple[str, str]], command: str)
             )
         )
     for t in analysis.tasks.values():
-        fit = t.fit
-        parts.append(
-            f"<h2>{html.escape(t.task)}: {t.answers} answers by {t.participants} participants on "
-            f"{len(t.sentences)} sentences</h2>"
-        )
-        if t.task == "pairwise":
-            parts.append("<p>Each answer gives each of its two models points: win 2, tie 1, loss 0.</p>")
-        parts += [f"<p class='warning'>{html.escape(w)}</p>" for w in t.warnings]
-        if fit.get("formula"):
-            c = fit["convergence"]
-            parts.append(
-                f"<p>Cumulative-link mixed model <code>{html.escape(fit['formula'])}</code> "
-                f"(y: {t.response}, x: model, u: participant, s: sentence; ordinal::clmm, logit link): "
-                f"{fit['nobs']:g} observations, log-likelihood {fit['log_lik']:.2f}, optimiser "
-                f"{html.escape(str(c['message']))}, max |gradient| {c['max_grad']:.2g}, condition number of "
-                f"the Hessian {c['cond_h']:.3g}.</p>"
-            )
-            w = t.wald
-            if w is not None:
-                parts.append(
-                    f"<p><b>Do the models differ?</b> Wald χ²({w['df']:g}) = {w['chisq']:.2f}, "
-                    f"p {html.escape(p_phrase(w['p']))} (car::Anova, type II).</p>"
-                )
-            parts.append(
-                "<p>Pairs (emmeans, Tukey-adjusted; estimate: a − b on the latent logit scale, positive "
-                f"when a gets higher {t.response}):</p>"
-            )
-            parts.append(
-                _html_table(
-                    ["a", "b", "estimate", "SE", "z", "p (Tukey)"],
-                    [[p["a"], p["b"], p["estimate"], p["se"], p["z"], _html_p(p["p"])] for p in fit.get("pairs", [])],
-                )
-            )
-            parts.append(f"<p>Inferred mean {t.response} per model (95 % CI):</p>")
-            parts.append(
-                _html_table(
-                    ["model", "mean", "SE", "lower", "upper"],
-                    [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]] for m in fit.get("means", [])],
-                )
-            )
-            parts.append("<p>Coefficients (thresholds θ: logit P(y ≤ k) = θ<sub>k</sub> − x's effect):</p>")
-            parts.append(
-                _html_table(
-                    ["kind", "name", "estimate", "SE", "z", "p"],
-                    [
-                        [r[0], r[1], r[2], r[3], r[4], _html_p(r[5]) if r[5] != "" else ""]
-                        for r in _tables(t)["coefficients"][1]
-                    ],
-                )
-            )
-            parts.append(
-                _html_table(
-                    ["group", "term", "variance", "SD"],
-                    [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])],
-                )
-            )
-            if fit.get("correlations"):
-                parts.append(
-                    _html_table(
-                        ["group", "a", "b", "correlation"],
-                        [[r["group"], r["a"], r["b"], r["r"]] for r in fit["correlations"]],
-                    )
-                )
-        if t.proportional_odds["nominal"] or t.proportional_odds["scale"]:
-            parts.append(
-                f"<p>Proportional odds (nominal_test and scale_test of the clm of <code>{FIXED_FORMULA}"
-                f"</code>): {html.escape(proportional_odds_phrase(t.proportional_odds))}.</p>"
-            )
-        per_sentence = [
-            [s, f["formula"], p["a"], p["b"], p["estimate"], _html_p(p["p"])]
-            for s, f in t.sentence_fits.items()
-            for p in f.get("pairs", [])
-        ]
-        if per_sentence:
-            parts.append(
-                f"<p>Per sentence (<code>{SENTENCE_FORMULA}</code>, or <code>{FIXED_FORMULA}</code> where "
-                "that cannot be fitted):</p>"
-            )
-            parts.append(_html_table(["sentence", "model", "a", "b", "estimate", "p (Tukey)"], per_sentence))
-        parts.append("<p>Wins, ties and losses (a wins: a scored higher than b in one trial):</p>")
-        parts.append(_html_table(list(t.wins.columns), t.wins.values.tolist()))
-        parts += [html_figure(stem, caption) for stem, caption in figures if stem.startswith(f"{t.task}_")]
+        parts += _html_task(t, figures)
     return html_page("vispeech study analysis", parts)
+
+
+def _html_task(t: TaskAnalysis, figures: list[tuple[str, str]]) -> list[str]:
+    """The page's section on one task, its figures among ``figures``."""
+    parts = [
+        f"<h2>{html.escape(t.task)}: {t.answers} answers by {t.participants} participants on "
+        f"{len(t.sentences)} sentences</h2>"
+    ]
+    if t.task == "pairwise":
+        parts.append("<p>Each answer gives each of its two models points: win 2, tie 1, loss 0.</p>")
+    parts += [f"<p class='warning'>{html.escape(w)}</p>" for w in t.warnings]
+    if t.fit.get("formula"):
+        parts += _html_fit(t)
+    if t.proportional_odds["nominal"] or t.proportional_odds["scale"]:
+        parts.append(
+            f"<p>Proportional odds (nominal_test and scale_test of the clm of <code>{FIXED_FORMULA}"
+            f"</code>): {html.escape(proportional_odds_phrase(t.proportional_odds))}.</p>"
+        )
+    per_sentence = [
+        [s, f["formula"], p["a"], p["b"], p["estimate"], _html_p(p["p"])]
+        for s, f in t.sentence_fits.items()
+        for p in f.get("pairs", [])
+    ]
+    if per_sentence:
+        parts.append(
+            f"<p>Per sentence (<code>{SENTENCE_FORMULA}</code>, or <code>{FIXED_FORMULA}</code> where "
+            "that cannot be fitted):</p>"
+        )
+        parts.append(_html_table(["sentence", "model", "a", "b", "estimate", "p (Tukey)"], per_sentence))
+    parts.append("<p>Wins, ties and losses (a wins: a scored higher than b in one trial):</p>")
+    parts.append(_html_table(list(t.wins.columns), t.wins.values.tolist()))
+    parts += [html_figure(stem, caption) for stem, caption in figures if stem.startswith(f"{t.task}_")]
+    return parts
+
+
+def _html_fit(t: TaskAnalysis) -> list[str]:
+    """The page's account of a task's fitted model: its fit, Wald test, pairs, means and coefficients."""
+    fit, c = t.fit, t.fit["convergence"]
+    parts = [
+        f"<p>Cumulative-link mixed model <code>{html.escape(fit['formula'])}</code> "
+        f"(y: {t.response}, x: model, u: participant, s: sentence; ordinal::clmm, logit link): "
+        f"{fit['nobs']:g} observations, log-likelihood {fit['log_lik']:.2f}, optimiser "
+        f"{html.escape(str(c['message']))}, max |gradient| {c['max_grad']:.2g}, condition number of "
+        f"the Hessian {c['cond_h']:.3g}.</p>"
+    ]
+    w = t.wald
+    if w is not None:
+        parts.append(
+            f"<p><b>Do the models differ?</b> Wald χ²({w['df']:g}) = {w['chisq']:.2f}, "
+            f"p {html.escape(p_phrase(w['p']))} (car::Anova, type II).</p>"
+        )
+    parts.append(
+        "<p>Pairs (emmeans, Tukey-adjusted; estimate: a − b on the latent logit scale, positive "
+        f"when a gets higher {t.response}):</p>"
+    )
+    parts.append(
+        _html_table(
+            ["a", "b", "estimate", "SE", "z", "p (Tukey)"],
+            [[p["a"], p["b"], p["estimate"], p["se"], p["z"], _html_p(p["p"])] for p in fit.get("pairs", [])],
+        )
+    )
+    parts.append(f"<p>Inferred mean {t.response} per model (95 % CI):</p>")
+    parts.append(
+        _html_table(
+            ["model", "mean", "SE", "lower", "upper"],
+            [[m["level"], m["mean"], m["se"], m["lower"], m["upper"]] for m in fit.get("means", [])],
+        )
+    )
+    parts.append("<p>Coefficients (thresholds θ: logit P(y ≤ k) = θ<sub>k</sub> − x's effect):</p>")
+    parts.append(
+        _html_table(
+            ["kind", "name", "estimate", "SE", "z", "p"],
+            [
+                [r[0], r[1], r[2], r[3], r[4], _html_p(r[5]) if r[5] != "" else ""]
+                for r in _tables(t)["coefficients"][1]
+            ],
+        )
+    )
+    parts.append(
+        _html_table(
+            ["group", "term", "variance", "SD"],
+            [[r["group"], r["term"], r["variance"], r["sd"]] for r in fit.get("random", [])],
+        )
+    )
+    if fit.get("correlations"):
+        parts.append(
+            _html_table(
+                ["group", "a", "b", "correlation"],
+                [[r["group"], r["a"], r["b"], r["r"]] for r in fit["correlations"]],
+            )
+        )
+    return parts
