@@ -232,6 +232,17 @@ def _figures(
 
 
 def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[tuple[str, str]], command: str) -> str:
+    parts = _html_scores(evaluation, command)
+    if comparison is not None:
+        parts += _html_comparison(comparison)
+    parts += _html_dynamics(evaluation) + _html_lips(evaluation) + _html_phone_classes(evaluation)
+    parts += _html_closures(evaluation)
+    parts += [html_figure(stem, caption) for stem, caption in figures]
+    return html_page(f"vispeech evaluation: {evaluation.corpus}", parts)
+
+
+def _html_scores(evaluation: Evaluation, command: str) -> list[str]:
+    """The page's head: what was evaluated, how to rebuild it, the scores per channel."""
     parts = [
         f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
         f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
@@ -247,109 +258,118 @@ def _html(evaluation: Evaluation, comparison: Comparison | None, figures: list[t
             [[r[0], r[1], r[2], r[3], r[4], r[6], r[7]] for r in _score_rows(evaluation)],
         )
     )
-    if comparison is not None:
-        a = comparison.anova
-        parts.append(f"<h2>Do the models differ? {html.escape(a.score)}</h2>")
-        parts.append(html_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]))
-        parts.append("<p>Repeated-measures ANOVA, the model as the within-utterance factor:</p>")
-        parts.append(
-            html_table(
-                ["F", "df", "p", "partial η²"],
-                [[a.f, f"{a.df_model}, {a.df_error}", p_text(a.p), a.partial_eta_squared]],
-            )
-        )
-        parts.append(
-            "<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
-            "mean paired difference over its standard deviation):</p>"
-        )
-        parts.append(
-            html_table(
-                ["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
-                [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z] for p in comparison.pairs],
-            )
-        )
+    return parts
+
+
+def _html_comparison(comparison: Comparison) -> list[str]:
+    """The ANOVA over the models and its pairwise comparisons."""
+    a = comparison.anova
+    return [
+        f"<h2>Do the models differ? {html.escape(a.score)}</h2>",
+        html_table(["model", "mean"], [[k, v] for k, v in comparison.means.items()]),
+        "<p>Repeated-measures ANOVA, the model as the within-utterance factor:</p>",
+        html_table(
+            ["F", "df", "p", "partial η²"],
+            [[a.f, f"{a.df_model}, {a.df_error}", p_text(a.p), a.partial_eta_squared]],
+        ),
+        "<p>Pairwise (difference = a − b; LSD and Tukey from the ANOVA's error term; d<sub>z</sub>: "
+        "mean paired difference over its standard deviation):</p>",
+        html_table(
+            ["a", "b", "difference", "t", "p (LSD)", "p (Tukey)", "d_z"],
+            [[p.a, p.b, p.difference, p.t, p_text(p.p_lsd), p_text(p.p_tukey), p.d_z] for p in comparison.pairs],
+        ),
+    ]
+
+
+def _html_dynamics(evaluation: Evaluation) -> list[str]:
+    """jawOpen's motion per model against the recording's (none without both)."""
     dynamic = [(m.label, m.dynamics) for m in evaluation.models if m.dynamics]
-    if dynamic and evaluation.recorded_dynamics:
-        parts.append(
-            "<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
-            "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
-            "over-smoothing as less.</p>"
-        )
-        rec = evaluation.recorded_dynamics
-        rows = [
-            ["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"], rec["high_frequency_share"]]
-        ]
-        rows += [
-            [label, d["lag_s"], d["velocity_rms"], d["acceleration_rms"], d["jerk_rms"], d["high_frequency_share"]]
-            for label, d in dynamic
-        ]
-        parts.append(
-            html_table(
-                ["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)", "energy above 8 Hz"],
-                rows,
-            )
-        )
+    rec = evaluation.recorded_dynamics
+    if not (dynamic and rec):
+        return []
+    rows = [
+        ["recorded", "", rec["velocity_rms"], rec["acceleration_rms"], rec["jerk_rms"], rec["high_frequency_share"]]
+    ]
+    rows += [
+        [label, d["lag_s"], d["velocity_rms"], d["acceleration_rms"], d["jerk_rms"], d["high_frequency_share"]]
+        for label, d in dynamic
+    ]
+    return [
+        "<h2>How jawOpen moves</h2><p>Lag: seconds the prediction trails the recording where they "
+        "correlate best. Jitter shows as more jerk and energy above 8 Hz than the recording has, "
+        "over-smoothing as less.</p>",
+        html_table(
+            ["", "lag (s)", "velocity RMS (/s)", "acceleration RMS (/s²)", "jerk RMS (/s³)", "energy above 8 Hz"],
+            rows,
+        ),
+    ]
+
+
+def _html_lips(evaluation: Evaluation) -> list[str]:
+    """The lip vertex error of the models that have one."""
     lipped = [(m.label, m.lips) for m in evaluation.models if m.lips]
-    if lipped:
-        parts.append(
-            "<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
-            "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
-            "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
-            "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
-            "inner-lip gap.</p>"
-        )
-        parts.append(
-            html_table(
-                ["model", "lip vertex error", "floor", "aperture error"],
-                [[label, lips["lve"], lips["floor"], lips["aperture_mae"]] for label, lips in lipped],
-            )
-        )
+    if not lipped:
+        return []
+    return [
+        "<h2>The lips in landmark space</h2><p>Lip vertex error: per frame the largest distance "
+        "of the 12 lip landmarks from the tracked ones, then the mean, in eye-corner distances, "
+        "through a linear read-out from blend shapes to landmarks fitted on the recording's own "
+        "scores (the floor: the read-out's error on them). Aperture: mean absolute error of the "
+        "inner-lip gap.</p>",
+        html_table(
+            ["model", "lip vertex error", "floor", "aperture error"],
+            [[label, lips["lve"], lips["floor"], lips["aperture_mae"]] for label, lips in lipped],
+        ),
+    ]
+
+
+def _html_phone_classes(evaluation: Evaluation) -> list[str]:
+    """jawOpen's RMSE by phone class, per model that has it."""
     classed = [(m.label, m.by_phone) for m in evaluation.models if m.by_phone]
-    if classed:
-        parts.append(
-            "<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
-            "that fall in phones of each class.</p>"
+    if not classed:
+        return []
+    names = list(classed[0][1])
+    return [
+        "<h2>jawOpen RMSE by phone class</h2><p>% of jawOpen's range, over the scored frames "
+        "that fall in phones of each class.</p>",
+        html_table(["model", *names], [[label, *(by_phone[n] for n in names)] for label, by_phone in classed]),
+    ]
+
+
+def _html_closures(evaluation: Evaluation) -> list[str]:
+    """The lip closures and their timing, per model with closure counts."""
+    counted = [(m.label, m.closures) for m in evaluation.models if m.closures is not None]
+    if not counted:
+        return []
+    rows = []
+    for label, closures in counted:
+        timing = closures.timing()
+        rows.append(
+            [
+                label,
+                f"{closures.tracked_closures}/{closures.bilabials}",
+                f"{closures.model_closures} ({closures.bilabial_rate:.0f} %)",
+                timing["onset_median_ms"],
+                timing["onset_mean_abs_ms"],
+                timing["release_median_ms"],
+                timing["release_mean_abs_ms"],
+                "yes" if closures.passed else "no",
+            ]
         )
-        names = list(classed[0][1])
-        parts.append(
-            html_table(["model", *names], [[label, *(by_phone[n] for n in names)] for label, by_phone in classed])
-        )
-    closing = [m for m in evaluation.models if m.closures is not None]
-    if closing:
-        parts.append(
-            "<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
-            "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>"
-        )
-        rows = []
-        for m in closing:
-            assert m.closures is not None  # closing: the models with closure counts
-            timing = m.closures.timing()
-            rows.append(
-                [
-                    m.label,
-                    f"{m.closures.tracked_closures}/{m.closures.bilabials}",
-                    f"{m.closures.model_closures} ({m.closures.bilabial_rate:.0f} %)",
-                    timing["onset_median_ms"],
-                    timing["onset_mean_abs_ms"],
-                    timing["release_median_ms"],
-                    timing["release_mean_abs_ms"],
-                    "yes" if m.closures.passed else "no",
-                ]
-            )
-        parts.append(
-            html_table(
-                [
-                    "model",
-                    "/p b m/ the speaker closes",
-                    "closed by the model too",
-                    "onset median (ms)",
-                    "onset mean |ms|",
-                    "release median (ms)",
-                    "release mean |ms|",
-                    "passed",
-                ],
-                rows,
-            )
-        )
-    parts += [html_figure(stem, caption) for stem, caption in figures]
-    return html_page(f"vispeech evaluation: {evaluation.corpus}", parts)
+    return [
+        "<h2>Lip closures</h2><p>Timing: from the start (end) of the speaker's closure over a "
+        "/p b m/ to the model's, on the closures both make; positive: the model is late.</p>",
+        html_table(
+            [
+                "model",
+                "/p b m/ the speaker closes",
+                "closed by the model too",
+                "onset median (ms)",
+                "onset mean |ms|",
+                "release median (ms)",
+                "release mean |ms|",
+                "passed",
+            ],
+            rows,
+        ),
+    ]
