@@ -10,7 +10,7 @@ frames the tracker missed are left out) and counts lip closures
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -333,7 +333,39 @@ def evaluate_models(
         raise VispeechError("no model to evaluate")
     requested = None if channels is None else list(channels)
     plans = {label: model_channels(model, corpus, requested) for label, model in models.items()}
-    needed = tuple(dict.fromkeys(c for chosen in plans.values() for c in chosen))
+    reference = _reference(corpus, tuple(dict.fromkeys(c for chosen in plans.values() for c in chosen)))
+    results = []
+    bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
+    try:
+        for label, model in models.items():
+            results.append(_evaluate_model(label, model, plans[label], corpus, reference, postprocessing, bar.update))
+    finally:
+        bar.close()
+    ids = [u.id for u, mask in zip(corpus, reference.masks) if mask.any()]
+    return Evaluation(corpus.name, corpus.frame_rates, len(corpus), postprocessing, results, ids, reference.dynamics)
+
+
+@dataclass
+class _Reference:
+    """What every model is scored against: per utterance the scored frames, the recorded track
+    of the channels ``needed`` and the tracked lip closures (None without lip landmarks); the
+    lip shapes of the scored frames (None unless every utterance has them) and the phone class
+    of each; and over the utterances with frames scored, their frame rates, recorded jawOpen and
+    its motion (None unless jawOpen is needed)."""
+
+    needed: tuple[str, ...]
+    masks: list[np.ndarray]
+    targets: list[Track]
+    closed: list[np.ndarray | None]
+    shapes: list[np.ndarray] | None
+    classes: np.ndarray
+    rates: list[float]
+    jaw: list[np.ndarray] | None
+    dynamics: dict[str, float] | None
+
+
+def _reference(corpus: Corpus, needed: tuple[str, ...]) -> _Reference:
+    """What the models are scored against on ``corpus``, for the channels ``needed``."""
     masks = [scored_frames(u) for u in corpus]
     targets = [target_track(u, needed) for u in corpus]
     closed = [tracked_closed(_landmarks(u)) if _has_lip_landmarks(u) else None for u in corpus]
@@ -346,64 +378,73 @@ def evaluate_models(
             for u, mask in zip(corpus, masks)
         ]
     )
-    rates = [
-        recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()
-    ]  # of the utterances with frames scored
-    recorded = recorded_jaw = None
+    rates = [recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]
+    jaw = dynamics = None
     if "jawOpen" in needed:
-        recorded_jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
-        recorded = motion_profile(recorded_jaw, rates)
+        jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
+        dynamics = motion_profile(jaw, rates)
+    return _Reference(needed, masks, targets, closed, shapes, classes, rates, jaw, dynamics)
 
-    results = []
-    bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
-    try:
-        for label, model in models.items():
-            chosen = plans[label]
-            columns = [needed.index(c) for c in chosen]
-            target_arrays, predicted_arrays = [], []
-            closures: ClosureCounts | None = ClosureCounts()
-            for utterance, mask, target, tracked in zip(corpus, masks, targets, closed):
-                predicted = predict_on_frames(model, utterance, postprocessing)
-                target_arrays.append(target.values[mask][:, columns])
-                predicted_arrays.append(predicted.select(chosen).values[mask])
-                if closures is not None and tracked is not None and lip_opening(predicted) is not None:
-                    closures += count_closures(
-                        _phones(utterance),
-                        recorded_track(utterance).fps,
-                        tracked,
-                        model_closed(predicted),
-                        mask,
-                        recorded_track(utterance).start_time,
-                    )
-                else:
-                    closures = None
-                bar.update(1)
-            scores = score_channels(chosen, target_arrays, predicted_arrays)
-            dynamics = by_phone = None
-            if "jawOpen" in chosen:
-                jaw = chosen.index("jawOpen")
-                predicted_jaw = [p[:, jaw] for p in predicted_arrays if len(p)]
-                assert recorded_jaw is not None  # set above: "jawOpen" is among the channels needed
-                dynamics = {
-                    **motion_profile(predicted_jaw, rates),
-                    "lag_s": best_lag(recorded_jaw, predicted_jaw, rates),
-                }
-                errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(target_arrays, predicted_arrays)])
-                span = scores.range[jaw]
-                by_phone = {
-                    name: float(100 * np.sqrt(np.mean(errors[classes == k] ** 2)) / span)
-                    if (classes == k).any() and span > 0
-                    else float("nan")
-                    for k, name in enumerate(PHONE_CLASSES)
-                }
-            lips = None
-            if shapes is not None and any(len(t) for t in target_arrays):
-                lips = lip_vertex_error(target_arrays, predicted_arrays, shapes)
-            results.append(ModelEvaluation(label, model.name, scores, closures, dynamics, lips, by_phone))
-    finally:
-        bar.close()
-    ids = [u.id for u, mask in zip(corpus, masks) if mask.any()]
-    return Evaluation(corpus.name, corpus.frame_rates, len(corpus), postprocessing, results, ids, recorded)
+
+def _evaluate_model(
+    label: str,
+    model: Estimator,
+    chosen: tuple[str, ...],
+    corpus: Corpus,
+    reference: _Reference,
+    postprocessing: bool,
+    advance: Callable[[int], object],
+) -> ModelEvaluation:
+    """Score ``model`` on the ``chosen`` channels of every utterance, calling ``advance(1)`` after each."""
+    columns = [reference.needed.index(c) for c in chosen]
+    target_arrays, predicted_arrays = [], []
+    closures: ClosureCounts | None = ClosureCounts()
+    for utterance, mask, target, tracked in zip(corpus, reference.masks, reference.targets, reference.closed):
+        predicted = predict_on_frames(model, utterance, postprocessing)
+        target_arrays.append(target.values[mask][:, columns])
+        predicted_arrays.append(predicted.select(chosen).values[mask])
+        if closures is not None and tracked is not None and lip_opening(predicted) is not None:
+            closures += count_closures(
+                _phones(utterance),
+                recorded_track(utterance).fps,
+                tracked,
+                model_closed(predicted),
+                mask,
+                recorded_track(utterance).start_time,
+            )
+        else:
+            closures = None
+        advance(1)
+    scores = score_channels(chosen, target_arrays, predicted_arrays)
+    dynamics = by_phone = None
+    if "jawOpen" in chosen:
+        jaw = chosen.index("jawOpen")
+        dynamics, by_phone = _jaw_measures(jaw, scores.range[jaw], target_arrays, predicted_arrays, reference)
+    lips = None
+    if reference.shapes is not None and any(len(t) for t in target_arrays):
+        lips = lip_vertex_error(target_arrays, predicted_arrays, reference.shapes)
+    return ModelEvaluation(label, model.name, scores, closures, dynamics, lips, by_phone)
+
+
+def _jaw_measures(
+    jaw: int, span: float, targets: list[np.ndarray], predictions: list[np.ndarray], reference: _Reference
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The predicted jawOpen's (column ``jaw``) motion and lag against the recording's, and its
+    RMSE in % of ``span`` by phone class."""
+    predicted_jaw = [p[:, jaw] for p in predictions if len(p)]
+    assert reference.jaw is not None  # set: "jawOpen" is among the channels needed
+    dynamics = {
+        **motion_profile(predicted_jaw, reference.rates),
+        "lag_s": best_lag(reference.jaw, predicted_jaw, reference.rates),
+    }
+    errors = np.concatenate([p[:, jaw] - t[:, jaw] for t, p in zip(targets, predictions)])
+    by_phone = {
+        name: float(100 * np.sqrt(np.mean(errors[reference.classes == k] ** 2)) / span)
+        if (reference.classes == k).any() and span > 0
+        else float("nan")
+        for k, name in enumerate(PHONE_CLASSES)
+    }
+    return dynamics, by_phone
 
 
 def _landmarks(utterance: Utterance) -> dict[str, np.ndarray]:
