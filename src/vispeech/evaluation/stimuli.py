@@ -179,19 +179,7 @@ def render_faces(
         try:
             page = browser.new_page(viewport={"width": width * len(shown), "height": height})
             if glb is None:
-                from vispeech.preview.page import face2d_source
-
-                canvases = '<canvas class="face"></canvas>' * len(shown)
-                page.set_content(
-                    _PAGE
-                    % {
-                        "w": width,
-                        "h": height,
-                        "canvases": canvases,
-                        "face2d": face2d_source(),
-                        "channels": json.dumps(channels),
-                    }
-                )
+                _open_face_page(page, channels, width, height)
             else:
                 _open_head_page(page, glb, channels, width, height)
 
@@ -225,6 +213,22 @@ def _head_glb(path: Path, prepare: bool) -> bytes:
     if not read_primitives(path):
         raise VispeechError(f"{path}: no mesh with ARKit morph targets")
     return path.read_bytes()
+
+
+def _open_face_page(page, channels: list[list[str]], width: int, height: int) -> None:
+    """Open the 2D faces' page in ``page``: one face (``face2d.js``) per entry of ``channels``."""
+    from vispeech.preview.page import face2d_source
+
+    page.set_content(
+        _PAGE
+        % {
+            "w": width,
+            "h": height,
+            "canvases": '<canvas class="face"></canvas>' * len(channels),
+            "face2d": face2d_source(),
+            "channels": json.dumps(channels),
+        }
+    )
 
 
 def _open_head_page(page, glb: bytes, channels: list[list[str]], width: int, height: int) -> None:
