@@ -108,11 +108,11 @@ def make_speech(folder: Path) -> Path:
     import numpy as np
     import soundfile
 
-    from vispeech.pipeline import voice
+    from vispeech.pipeline import utter
 
     parts, rate = [], None
     for entry in json.loads(GOLDEN_PHONES.read_text(encoding="utf-8")):
-        utterance = voice(entry["text"], "en")
+        utterance = utter(entry["text"], "en")
         parts.append(utterance.audio)
         rate = utterance.sample_rate
         if sum(len(p) for p in parts) >= ANIMATE_SECONDS * rate:

@@ -45,7 +45,7 @@ from vispeech.files import atomic_output_file
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.transcribe import aligner_text, transcribe, word_error_rate, words_of
 from vispeech.models.registry import load_model
-from vispeech.pipeline import DEFAULT_MODEL, voice
+from vispeech.pipeline import DEFAULT_MODEL, utter
 
 ROOT = Path(__file__).resolve().parents[1]
 NATURAL = ROOT.parent / "shared" / "data" / "dev_eval" / "natural"
@@ -110,7 +110,7 @@ def espeak_voices() -> dict:
         lines = (ROOT / "tests" / "data" / f"sentences_{language}.txt").read_text(encoding="utf-8").splitlines()
         rows = []
         for sentence in filter(None, map(str.strip, lines)):
-            utterance = voice(sentence, language)
+            utterance = utter(sentence, language)
             heard = transcribe(AudioClip.from_array(utterance.audio, utterance.sample_rate), language)
             wrong, words = errors(sentence, heard, language)
             rows.append({"sentence": sentence, "heard": heard, "errors": wrong, "words": words})

@@ -11,7 +11,7 @@ from scipy.signal import find_peaks
 from conftest import DATA
 from vispeech.alignment.phones import Phone
 from vispeech.evaluation.closures import is_bilabial, phone_frames
-from vispeech.frontends.espeak import PhoneWarning, synthesize, voices
+from vispeech.frontends.espeak import PhoneWarning, languages, synthesize
 from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.phonetics.inventory import is_vowel
 from vispeech.pipeline import DEFAULT_MODEL, speak
@@ -71,17 +71,17 @@ def test_jaw_peaks_fall_inside_vowels(utterances, model):
             assert any(v.start - 1 / fps <= k / fps <= v.end + 1 / fps for v in vowels), (lang, model, k / fps)
 
 
-def test_every_voice_speaks_numbers_without_unknown_phonemes():
+def test_every_language_speaks_numbers_without_unknown_phonemes():
     """Every language espeak-ng ships (with its dictionary) reads digits and letters into known phones
     (Cherokee, Chuvash and Sindarin have no number words)."""
-    listed = voices()
-    assert len(listed) > 100 and {"sv", "en", "de", "cmn"} <= {v.language for v in listed}
+    listed = languages()
+    assert len(listed) > 100 and {"sv", "en", "de", "cmn"} <= {v.code for v in listed}
     with warnings.catch_warnings():
         warnings.simplefilter("error", PhoneWarning)
-        for voice in listed:
-            phones = synthesize("1 2 3 7 10, a b c", voice.language).phones
-            assert phones.language == voice.phones, voice
-            assert any(not p.is_silence for p in phones), voice
+        for language in listed:
+            phones = synthesize("1 2 3 7 10, a b c", language.code).phones
+            assert phones.language == language.phones, language
+            assert any(not p.is_silence for p in phones), language
             assert phones.phones[-1].end == pytest.approx(phones.duration)
 
 
@@ -113,6 +113,8 @@ def test_cli_lists_languages_and_says_in_one(tmp_path):
     assert listed.exit_code == 0 and "German" in listed.output and "fr-fr" in listed.output
     table = json.loads(CliRunner().invoke(main, ["languages", "--json"]).output)
     assert {"language": "sv", "aliases": [], "phones": "sv", "name": "Swedish"} in table
+    voices = json.loads(CliRunner().invoke(main, ["languages", "--voices", "--json"]).output)
+    assert {"voice": "f3", "gender": "female"} in voices and {"voice": "m1", "gender": "male"} in voices
     said = CliRunner().invoke(main, ["say", "Mamma mia, che bella pizza!", "--lang", "it", "-o", str(tmp_path / "it")])
     assert said.exit_code == 0, said.output
     phones = read_alignment(tmp_path / "it" / "phones.TextGrid")

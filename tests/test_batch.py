@@ -100,7 +100,7 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     assert "unknown field 'colour'" in errors[12]
     assert errors[13] is None and lines[12].id == "00013"
     assert errors[14] is None and lines[13].voice == "f3" and lines[0].voice is None
-    assert "unknown voice variant 'nobody'" in errors[15]
+    assert "unknown voice 'nobody'" in errors[15]
     assert "voice is for text lines" in errors[16]
 
 

@@ -269,16 +269,16 @@ def test_every_espeak_phoneme_of_the_voice_maps(language, voice):
                 assert all(symbol in symbols for symbol, _ in espeak_to_symbols(name, "sv", "en")), name
 
 
-def test_voice_variants_speak_the_same_phones_with_another_voice():
-    from vispeech.frontends.espeak import voice_variants
+def test_voices_speak_the_same_phones_with_another_voice():
+    from vispeech.frontends.espeak import voices
 
-    variants = voice_variants()
-    assert variants["f3"] == "female" and variants["m3"] == "male" and len(variants) > 50
+    found = voices()
+    assert found["f3"] == "female" and found["m3"] == "male" and len(found) > 50
     plain = synthesize("Hej! Hur kan jag hjälpa dig?", "sv")
-    female = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", variant="f3")
+    female = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", voice="f3")
     assert [p.symbol for p in female.phones] == [p.symbol for p in plain.phones]
     assert not np.array_equal(female.audio[:len(plain.audio)], plain.audio[:len(female.audio)])
-    again = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", variant="f3")
-    np.testing.assert_array_equal(again.audio, female.audio)  # reproducible with a variant too
-    with pytest.raises(VispeechError, match="unknown voice variant 'f99'"):
-        synthesize("Hej", "sv", variant="f99")
+    again = synthesize("Hej! Hur kan jag hjälpa dig?", "sv", voice="f3")
+    np.testing.assert_array_equal(again.audio, female.audio)  # reproducible with another voice too
+    with pytest.raises(VispeechError, match="unknown voice 'f99'"):
+        synthesize("Hej", "sv", voice="f99")

@@ -409,8 +409,8 @@ def test_answers_and_streams_come_in_the_output_scale(tmp_path):
                                atol=1e-5)
 
 
-def test_the_avatars_voice_variant(tmp_path):
-    """ServeConfig.voice speaks every answer with an espeak-ng voice variant; the cache keeps it apart."""
+def test_the_avatars_voice(tmp_path):
+    """ServeConfig.voice speaks every answer with another espeak-ng voice; the cache keeps it apart."""
     request = {"text": "Hello there.", "lang": "en", "model": "baseline"}
     audio = {}
     for voice in (None, "f3"):
@@ -420,5 +420,5 @@ def test_the_avatars_voice_variant(tmp_path):
             assert answer["cached"] is False  # the other voice's answer is not reused
             audio[voice] = served.get(answer["audio_url"]).content
     assert audio[None] != audio["f3"]
-    with pytest.raises(VispeechError, match="unknown voice variant"):
+    with pytest.raises(VispeechError, match="unknown voice"):
         create_app(ServeConfig(cache=":memory:", voice="nobody"))

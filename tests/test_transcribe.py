@@ -26,7 +26,7 @@ from vispeech.frontends import whisper  # noqa: E402
 from vispeech.frontends.align import in_dictionary  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
 from vispeech.frontends.transcribe import aligner_text, transcribe, word_error_rate, words_of  # noqa: E402
-from vispeech.pipeline import listen, voice  # noqa: E402
+from vispeech.pipeline import listen, utter  # noqa: E402
 
 ENGLISH = ["People probably prefer pumpkin pie with maple syrup.",
            "Thank you for the thought; this weather is rather smooth."]
@@ -41,7 +41,7 @@ def no_override(monkeypatch):
 
 
 def spoken(text: str, language: str) -> AudioClip:
-    utterance = voice(text, language)
+    utterance = utter(text, language)
     return AudioClip.from_array(utterance.audio, utterance.sample_rate)
 
 

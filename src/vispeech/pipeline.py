@@ -149,27 +149,27 @@ def speak(
     rate: float = 1.0,
     fps: float = DEFAULT_FPS,
     postprocessing: PostprocessConfig | bool = True,
-    variant: str | None = None,
+    voice: str | None = None,
 ) -> Utterance:
     """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length.
 
     What is spoken is :func:`vispeech.frontends.text.speakable` of ``text`` (no Markdown markup,
-    links or emoji), and that is the utterance's ``text``. ``variant`` is an espeak-ng voice
-    variant (:func:`vispeech.frontends.espeak.voice_variants`: an avatar's voice).
+    links or emoji), and that is the utterance's ``text``. ``voice`` is one of
+    :func:`vispeech.frontends.espeak.voices` (an avatar's voice; ``None``: the language's own).
     """
     check_fps(fps)
-    utterance = voice(text, language, rate=rate, variant=variant)
-    assert utterance.phones is not None  # voice() gives espeak-ng's phones
+    utterance = utter(text, language, rate=rate, voice=voice)
+    assert utterance.phones is not None  # utter() gives espeak-ng's phones
     return replace(utterance, track=_animate(utterance.phones, model, fps, postprocessing))
 
 
 TRAILING_SILENCE = 0.25
-"""Seconds of silence :func:`voice` adds after espeak-ng's speech, which ends with the last
+"""Seconds of silence :func:`utter` adds after espeak-ng's speech, which ends with the last
 sound: the time the mouth takes to come back to rest, so that a player holding the last frame
 shows a closed mouth."""
 
 
-def voice(text: str, language: str = "en", *, rate: float = 1.0, variant: str | None = None) -> Utterance:
+def utter(text: str, language: str = "en", *, rate: float = 1.0, voice: str | None = None) -> Utterance:
     """The first half of :func:`speak`: the utterance without a track, what of ``text`` is
     spoken (:func:`spoken_text`) with espeak-ng's audio and phones, and
     :data:`TRAILING_SILENCE` of silence after them (the last silence phone lengthened)."""
@@ -177,7 +177,7 @@ def voice(text: str, language: str = "en", *, rate: float = 1.0, variant: str | 
 
     check_text(text)
     spoken = spoken_text(text)
-    speech = synthesize(spoken, language, rate=rate, variant=variant)
+    speech = synthesize(spoken, language, rate=rate, voice=voice)
     pad = round(TRAILING_SILENCE * speech.sample_rate)
     audio = np.concatenate([speech.audio, np.zeros(pad, dtype=speech.audio.dtype)])
     phones = list(speech.phones.phones)

@@ -99,7 +99,7 @@ def speech_messages(
     rate: float = 1.0,
     chunk_seconds: float = 0.1,
     scale: Calibration | None = None,
-    variant: str | None = None,
+    voice: str | None = None,
 ) -> Generator[list[dict], None, None]:
     """The ``/api/stream`` messages for ``text``, one list per clause, computed as they are asked for.
 
@@ -108,7 +108,7 @@ def speech_messages(
     seconds, ``pcm16`` base64 little-endian mono) in time order; the last list is ``[end]``
     (``n_frames``, ``duration`` in seconds). The frames cover the audio as
     :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them, in the output
-    ``scale`` (``None``: the model's own), spoken with the espeak-ng voice ``variant``.
+    ``scale`` (``None``: the model's own), spoken with the espeak-ng ``voice``.
     """
     from vispeech.frontends.espeak import phone_set, synthesize
 
@@ -117,7 +117,7 @@ def speech_messages(
     samples_done = frames_done = seq = 0
     sample_rate = None
     for clause in clauses:
-        speech = synthesize(clause, language, rate, variant=variant, reproducible=False)  # latency first
+        speech = synthesize(clause, language, rate, voice=voice, reproducible=False)  # latency first
         track = animate(speech.phones, model, fps).select(channels)
         if scale is not None:
             track = scale.apply(track)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from vispeech.errors import VispeechError
 from vispeech.files import read_text
-from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_variant, find_voice
+from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_voice, find_language
 from vispeech.limits import check_fps, check_text, parse_json
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
@@ -68,7 +68,8 @@ class JobDefaults:
     scale: str = DEFAULT_SCALE
     """The output scale of every line (:func:`vispeech.motion.rigging.calibration.load_scale`)."""
     voice: str | None = None
-    """The espeak-ng voice variant text lines are spoken with (``None``: each language's own)."""
+    """The voice text lines are spoken with (:func:`vispeech.frontends.espeak.voices`; ``None``: each
+    language's own)."""
     life: tuple[str, ...] = ()
     """The non-verbal layers every line gets (:mod:`vispeech.motion.life`), and their seed."""
     seed: int = 0
@@ -234,7 +235,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
     if lang is not None and kind == "alignment":
         get_inventory(lang)  # the alignment's phone set
     elif lang is not None:
-        lang = find_voice(lang).language
+        lang = find_language(lang).code
     fps = check_fps(_number(record.get("fps", defaults.fps), "fps"))
     rate = _number(record.get("rate", 1.0), "rate")
     if not MIN_RATE <= rate <= MAX_RATE:
@@ -242,8 +243,8 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
     if "rate" in record and kind != "text":
         raise VispeechError("rate is for text lines (espeak-ng's speaking rate)")
     if "voice" in record and kind != "text":
-        raise VispeechError("voice is for text lines (espeak-ng's voice variant)")
-    voice = check_variant(record.get("voice", defaults.voice) or None)
+        raise VispeechError("voice is for text lines (the voice espeak-ng speaks them with)")
+    voice = check_voice(record.get("voice", defaults.voice) or None)
     formats = record.get("formats", defaults.formats)
     if isinstance(formats, str):
         formats = [f for f in re.split(r"[\s,;]+", formats) if f]

@@ -26,7 +26,7 @@ from vispeech.pipeline import (
     animate_audio,
     default_audio_model,
     hear,
-    voice,
+    utter,
     write_outputs,
 )
 
@@ -96,7 +96,7 @@ def prepare(line: BatchLine) -> Prepared:
         assert line.text is not None  # a text line has its text (read_job)
         # lang is None on a text line only from a JSON "lang": null, which espeak-ng's voice
         # lookup refuses as an unknown language (VispeechError), as it did before typing
-        return Prepared(voice(line.text, line.lang, rate=line.rate, variant=line.voice))  # type: ignore[arg-type]
+        return Prepared(utter(line.text, line.lang, rate=line.rate, voice=line.voice))  # type: ignore[arg-type]
     if line.kind == "audio":
         assert line.audio is not None  # an audio line has its file (read_job)
         clip = AudioClip.read(line.audio)

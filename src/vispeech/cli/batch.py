@@ -63,9 +63,8 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 @scale_option(DEFAULT_SCALE)
 @click.option(
     "--voice",
-    "variant",
     default=None,
-    help="espeak-ng voice variant of text lines that do not say: f1-f5 female, m1-m8 male, ...",
+    help="The voice of text lines that do not say: f1-f5 female, m1-m8 male, ... (`vispeech languages --voices`).",
 )
 @life_options
 def batch(
@@ -82,7 +81,7 @@ def batch(
     force: bool,
     quiet: bool,
     scale: str,
-    variant: str | None,
+    voice: str | None,
     life: str,
     seed: int,
 ) -> None:
@@ -108,7 +107,7 @@ def batch(
         formats=check_formats(f for f in formats.split(",") if f.strip()),
         postprocess=not no_postprocess,
         scale=scale,
-        voice=variant,
+        voice=voice,
         life=check_layers(life),
         seed=seed,
     )

@@ -9,7 +9,7 @@ import click
 
 from vispeech.cli import lang_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
-from vispeech.frontends.espeak import check_variant
+from vispeech.frontends.espeak import check_voice
 from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.life import check_layers, with_life
@@ -53,10 +53,9 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @scale_option(DEFAULT_SCALE)
 @click.option(
     "--voice",
-    "variant",
     default=None,
-    help="espeak-ng voice variant, an avatar's voice: f1-f5 female, m1-m8 male, ... "
-    "(`vispeech languages --variants`) [default: the language's own voice].",
+    help="The avatar's voice: f1-f5 female, m1-m8 male, ... "
+    "(`vispeech languages --voices`) [default: the language's own voice].",
 )
 @life_options
 def say(
@@ -69,7 +68,7 @@ def say(
     no_postprocess: bool,
     text_file: Path | None,
     scale: str,
-    variant: str | None,
+    voice: str | None,
     life: str,
     seed: int,
 ) -> None:
@@ -92,9 +91,9 @@ def say(
     check_text(text)
     check_outputs(out_dir)
     load_scale(scale)  # a bad scale, voice or layer is refused before any work
-    check_variant(variant)
+    check_voice(voice)
     layers = check_layers(life)
-    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, variant=variant)
+    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, voice=voice)
     phones = utterance.phones
     assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
     track = with_life(utterance.track, phones, layers, seed)

@@ -3,14 +3,14 @@
 The library comes from the ``espeakng-loader`` wheel and is driven through ctypes in
 synchronous mode with phoneme events. Every phone's onset is the sample espeak reports for
 its phoneme event; a phone lasts until the next event (the last one to the end of the audio).
-Every voice espeak-ng ships with its dictionary speaks (:func:`voices`). Swedish (``sv``) and
-English (``en``, voice ``en-us``) phonemes are read by their ASCII mnemonics into the curated
-inventories; every other language's by their IPA into IPA phones (:func:`phone_set`), both
-by :mod:`vispeech.phonetics.espeak_names`. Pauses, and any audio before the first phoneme,
-are ``sil``. In Swedish, ``r`` followed by ``t d n l s`` in the same word merges into the
-retroflex (``rt rd rn rl rs``), as the MFA-style Swedish inventory writes it. A phoneme with
-no IPA reading (none in espeak-ng 1.52's voices as far as tested) is joined to the phone
-before it, with a :class:`PhoneWarning`.
+Every language espeak-ng ships a dictionary for is spoken (:func:`languages`), with any voice
+(:func:`voices`). Swedish (``sv``) and English (``en``, voice file ``en-us``) phonemes are read
+by their ASCII mnemonics into the curated inventories; every other language's by their IPA into
+IPA phones (:func:`phone_set`), both by :mod:`vispeech.phonetics.espeak_names`. Pauses, and any
+audio before the first phoneme, are ``sil``. In Swedish, ``r`` followed by ``t d n l s`` in the
+same word merges into the retroflex (``rt rd rn rl rs``), as the MFA-style Swedish inventory
+writes it. A phoneme with no IPA reading (none in espeak-ng 1.52's voices as far as tested) is
+joined to the phone before it, with a :class:`PhoneWarning`.
 
 Words are the blank-separated tokens of the text (``"$1,000,000"`` is one word however
 many espeak reads out), stripped of surrounding punctuation, each from its first phone to
@@ -75,11 +75,12 @@ class PhoneWarning(UserWarning):
 
 
 @dataclass(frozen=True)
-class Voice:
-    """An espeak-ng voice: the language code that selects it, its name and phone set, and the
-    other codes that select it (``fr`` for ``fr-fr``, ``zh`` for ``cmn``)."""
+class Language:
+    """A language espeak-ng speaks (espeak-ng calls it a voice): its code, its name and phone
+    set, the voice file that speaks it, and the other codes that select it (``fr`` for
+    ``fr-fr``, ``zh`` for ``cmn``)."""
 
-    language: str
+    code: str
     name: str
     identifier: str
     phones: str
@@ -87,8 +88,8 @@ class Voice:
 
     @property
     def selector(self) -> str:
-        """What selects this voice in espeak-ng (``espeak_SetVoiceByName``)."""
-        return CURATED.get(self.language, self.identifier)
+        """What selects this language's voice file in espeak-ng (``espeak_SetVoiceByName``)."""
+        return CURATED.get(self.code, self.identifier)
 
 
 @dataclass
@@ -237,7 +238,7 @@ _engine: _Engine | None = None  # kept loaded between calls that need not be rep
 
 
 @cache
-def voices() -> tuple[Voice, ...]:
+def languages() -> tuple[Language, ...]:
     """Every language espeak-ng can speak here, by code, sorted: the voices it lists whose
     pronunciation dictionary is installed (one voice per code), with ``en`` for ``en-us``."""
     import espeakng_loader
@@ -249,18 +250,18 @@ def voices() -> tuple[Voice, ...]:
         finally:
             engine.close()
     data = Path(espeakng_loader.get_data_path())
-    found: dict[str, Voice] = {}
+    found: dict[str, Language] = {}
     ranked: dict[str, tuple[int, str]] = {}  # other code -> (priority, voice code)
     for languages, name, identifier in listed:
         code = languages[0][1]
         if code in found or not (data / f"{_dictionary(data, identifier, code)}_dict").is_file():
             continue
-        found[code] = Voice(code, name, identifier, IPA)
+        found[code] = Language(code, name, identifier, IPA)
         for priority, other in languages[1:]:
             if other not in ranked or priority < ranked[other][0]:
                 ranked[other] = (priority, code)
     found["sv"] = replace(found["sv"], phones="sv")
-    found["en"] = replace(found.pop("en-us"), language="en", phones="en")  # the curated English
+    found["en"] = replace(found.pop("en-us"), code="en", phones="en")  # the curated English
     aliases = {other: ("en" if code == "en-us" else code) for other, (_, code) in ranked.items()}
     aliases["en-us"] = "en"
     by_voice: dict[str, list[str]] = {}
@@ -268,9 +269,7 @@ def voices() -> tuple[Voice, ...]:
         if other not in found and code in found:
             by_voice.setdefault(code, []).append(other)
     return tuple(
-        sorted(
-            (replace(v, aliases=tuple(by_voice.get(v.language, ()))) for v in found.values()), key=lambda v: v.language
-        )
+        sorted((replace(v, aliases=tuple(by_voice.get(v.code, ()))) for v in found.values()), key=lambda v: v.code)
     )
 
 
@@ -290,26 +289,27 @@ def _voice_setting(path: Path, key: str) -> str:
     return value
 
 
-def find_voice(language: str) -> Voice:
-    """The voice of a language code (any case); :class:`VispeechError` naming the command that lists them."""
-    code = str(language).strip().lower()
-    for voice in voices():
-        if voice.language == code or code in voice.aliases:
-            return voice
+def find_language(code: str) -> Language:
+    """The language of a code (any case, or one of its aliases); :class:`VispeechError` naming
+    the command that lists them."""
+    wanted = str(code).strip().lower()
+    for language in languages():
+        if language.code == wanted or wanted in language.aliases:
+            return language
     raise VispeechError(
-        f"unknown language {language!r}: `vispeech languages` lists the {len(voices())} espeak-ng speaks"
+        f"unknown language {code!r}: `vispeech languages` lists the {len(languages())} espeak-ng speaks"
     )
 
 
 def phone_set(language: str) -> str:
     """The phone set a language's phones come in: ``sv``, ``en`` or ``ipa`` (every other language)."""
-    return find_voice(language).phones
+    return find_language(language).phones
 
 
 @cache
-def voice_variants() -> dict[str, str]:
-    """espeak-ng's voice variants, which any language's voice can speak with (``f1``-``f5``
-    female, ``m1``-``m8`` male, ``klatt``, ``whisper`` ...): name -> gender (``female``,
+def voices() -> dict[str, str]:
+    """The voices any language can be spoken with: espeak-ng's voice variants (``f1``-``f5``
+    female, ``m1``-``m8`` male, ``klatt``, ``whisper`` ...), name -> gender (``female``,
     ``male`` or ``""``), from the files of ``espeak-ng-data/voices/!v``."""
     import espeakng_loader
 
@@ -318,32 +318,32 @@ def voice_variants() -> dict[str, str]:
     return {path.name: _voice_setting(path, "gender") for path in paths if path.is_file() and " " not in path.name}
 
 
-def check_variant(variant: str | None) -> str | None:
-    """``variant`` if it is one of :func:`voice_variants` (or ``None``); :class:`VispeechError` otherwise."""
-    if variant is None or variant in voice_variants():
-        return variant
+def check_voice(voice: str | None) -> str | None:
+    """``voice`` if it is one of :func:`voices` (or ``None``); :class:`VispeechError` otherwise."""
+    if voice is None or voice in voices():
+        return voice
     raise VispeechError(
-        f"unknown voice variant {variant!r}: `vispeech languages --variants` lists them (f1-f5 female, m1-m8 male, ...)"
+        f"unknown voice {voice!r}: `vispeech languages --voices` lists them (f1-f5 female, m1-m8 male, ...)"
     )
 
 
 def synthesize(
-    text: str, language: str = "en", rate: float = 1.0, *, variant: str | None = None, reproducible: bool = True
+    text: str, language: str = "en", rate: float = 1.0, *, voice: str | None = None, reproducible: bool = True
 ) -> Speech:
     """Speak ``text`` with espeak-ng and return the audio with its phones and words.
 
-    ``language`` is a code of :func:`voices`: ``"sv"`` and ``"en"`` (voice ``en-us``) give
-    phones of the curated inventories, every other language IPA phones. ``variant`` is one of
-    :func:`voice_variants` (``None``: the language's own voice). ``rate`` is a speaking-rate
+    ``language`` is a code of :func:`languages`: ``"sv"`` and ``"en"`` (voice file ``en-us``)
+    give phones of the curated inventories, every other language IPA phones. ``voice`` is one
+    of :func:`voices` (``None``: the language's own). ``rate`` is a speaking-rate
     factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover ``[0, duration]``
     exactly. ``reproducible=False`` saves about 7 ms by reusing the library loaded by the last
     such call, at the price of samples and phone onsets that depend on what was spoken before
     (see the module docstring).
     """
     global _engine
-    voice = find_voice(language)
-    check_variant(variant)
-    ipa = voice.phones == IPA
+    spoken = find_language(language)
+    check_voice(voice)
+    ipa = spoken.phones == IPA
     if not text or not text.strip():
         raise VispeechError("text is empty")
     try:
@@ -358,7 +358,7 @@ def synthesize(
             _engine = None
         engine = _engine or _Engine(ipa)
         try:
-            selector = voice.selector if variant is None else f"{voice.selector}+{variant}"
+            selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
             samples, events = engine.synthesize(text, selector, round(DEFAULT_WPM * factor))
         finally:
             if reproducible:
@@ -369,7 +369,7 @@ def synthesize(
     if len(samples) == 0:
         raise VispeechError("espeak-ng produced no audio for this text")
     audio = samples.astype(np.float32) / 32768.0
-    phones = _phone_sequence(text, events, len(audio), sample_rate, voice.phones, voice.language)
+    phones = _phone_sequence(text, events, len(audio), sample_rate, spoken.phones, spoken.code)
     return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
 
 

@@ -11,7 +11,7 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from vispeech.frontends.audio import probe_upload
-from vispeech.frontends.espeak import voices
+from vispeech.frontends.espeak import languages
 from vispeech.motion.life import check_layers
 from vispeech.serve.dependencies import ClientIP, Service
 from vispeech.serve.schemas import (
@@ -51,8 +51,8 @@ async def get_config(service: Service) -> ConfigResponse:
     return ConfigResponse(
         avatar_url="/avatar.glb" if config.avatar is not None else None,
         avatar_credit=config.avatar_credit,
-        languages=[v.language for v in sorted(voices(), key=lambda v: (v.phones == "ipa", v.language != "sv"))],
-        language_names={v.language: v.name.strip() for v in voices()},
+        languages=[v.code for v in sorted(languages(), key=lambda v: (v.phones == "ipa", v.code != "sv"))],
+        language_names={v.code: v.name.strip() for v in languages()},
         chat_languages=service.chat_languages,
         models=[name for name, model in service.models.items() if model.input_kind == "phones"],
         audio_models=[name for name, model in service.models.items() if model.input_kind == "audio"],

@@ -209,7 +209,7 @@ class ServeConfig:
         default=None,
         metadata=_option(
             "--voice",
-            "The avatar's espeak-ng voice variant: f1-f5 female, m1-m8 male, ... (`vispeech languages --variants`).",
+            "The avatar's voice: f1-f5 female, m1-m8 male, ... (`vispeech languages --voices`).",
         ),
     )
 

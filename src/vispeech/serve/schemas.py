@@ -36,9 +36,9 @@ def _printable(text: str) -> str:
 
 
 def _spoken_language(code: str) -> str:
-    from vispeech.frontends.espeak import find_voice
+    from vispeech.frontends.espeak import find_language
 
-    return find_voice(code).language
+    return find_language(code).code
 
 
 Language = Annotated[

@@ -17,7 +17,7 @@ import numpy as np
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import read_upload
-from vispeech.frontends.espeak import check_variant, find_voice, voices
+from vispeech.frontends.espeak import check_voice, find_language, languages
 from vispeech.frontends.text import detect_language
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
@@ -120,7 +120,7 @@ class SpeechService:
     def __init__(self, config: ServeConfig) -> None:
         self.config = config
         self.calibration = load_scale(config.scale)
-        check_variant(config.voice)
+        check_voice(config.voice)
         self.models: dict[str, Estimator] = {}
         self.versions: dict[str, str] = {}
         for name in RUNNABLE:
@@ -244,9 +244,9 @@ class SpeechService:
 
     def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
         name, model = self.model(model_name)
-        voice = find_voice(lang)
-        selector = voice.selector if self.config.voice is None else f"{voice.selector}+{self.config.voice}"
-        return CacheKey(text, voice.language, selector, float(rate), name, self.versions[name], self.config.fps), model
+        spoken = find_language(lang)
+        selector = spoken.selector if self.config.voice is None else f"{spoken.selector}+{self.config.voice}"
+        return CacheKey(text, spoken.code, selector, float(rate), name, self.versions[name], self.config.fps), model
 
     def lookup(
         self, text: str, lang: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
@@ -267,7 +267,7 @@ class SpeechService:
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, variant=self.config.voice)
+            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, voice=self.config.voice)
             wav = utterance.wav_bytes()
             assert wav is not None  # speak gives the audio it synthesised
             entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
@@ -322,18 +322,18 @@ class SpeechService:
         in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``lang``; a
         bot that answers in any language (an HTTP chat service) is asked in ``lang`` and its
         reply is spoken in the language the reply is written in, else in ``lang``."""
-        languages = self.chat_languages
+        answered = self.chat_languages
         asked = lang
-        if languages is not None:
-            asked = detect_language(message, languages) or lang
+        if answered is not None:
+            asked = detect_language(message, answered) or lang
         reply = self.config.bot.reply(message, asked)
         if not isinstance(reply, str) or not reply.strip():
             raise ChatBotError("the chat bot gave no reply")
         reply = reply.strip()[:MAX_TEXT_CHARS]
-        if languages is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
-            codes = [alias for v in voices() for alias in v.aliases] + [v.language for v in voices()]
+        if answered is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
+            codes = [alias for v in languages() for alias in v.aliases] + [v.code for v in languages()]
             said = detect_language(reply, codes)
-            asked = lang if said is None else find_voice(said).language
+            asked = lang if said is None else find_language(said).code
         return reply, asked
 
 

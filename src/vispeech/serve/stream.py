@@ -73,7 +73,7 @@ class StreamConnection(Connection):
             fps=self.config.fps,
             rate=message.rate,
             scale=self.service.calibration,
-            variant=self.config.voice,
+            voice=self.config.voice,
         )
 
         def next_clause() -> tuple[list[str], float | None] | None:
