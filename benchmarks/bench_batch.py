@@ -53,7 +53,7 @@ def make_lines(n: int, seed: int = 0) -> list[dict]:
     for i in range(n):
         lang, words = ("en", EN) if i % 2 == 0 else ("sv", SV)
         text = " ".join(rng.choice(words[k]) for k in ("who", "does", "what", "when"))
-        lines.append({"id": f"line{i:05d}", "text": f"{text}", "lang": lang})
+        lines.append({"id": f"line{i:05d}", "text": f"{text}", "language": lang})
     return lines
 
 
@@ -119,7 +119,7 @@ def main() -> None:
         single = lines[: args.single]
 
         def say(line: dict) -> None:
-            subprocess.run(vispeech("say", line["text"], "--lang", line["lang"], "-o", str(work / "single" / line["id"])),
+            subprocess.run(vispeech("say", line["text"], "--language", line["language"], "-o", str(work / "single" / line["id"])),
                            check=True, capture_output=True)
 
         for concurrency in sorted({1, args.jobs}):

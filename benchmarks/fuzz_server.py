@@ -120,7 +120,7 @@ def phones_message(rng: random.Random) -> str:
         t += max(step, 0.0)
     message = {"type": "phones", "phones": phones, "final": rng.random() < 0.3}
     if rng.random() < 0.5:
-        message["lang"] = rng.choice(["en", "sv", "fr", None])
+        message["language"] = rng.choice(["en", "sv", "fr", None])
     text = json.dumps(message)
     return text.replace("0.05", "NaN", 1) if rng.random() < 0.1 else text
 
@@ -131,7 +131,7 @@ def ws_message(rng: random.Random) -> str | bytes:
         return rng.choice(["", "nonsense", "[1]", "null", "{", '"text"', "{}", b"\x00\x01", b"binary"])
     if kind == 1:
         return json.dumps({"type": rng.choice(["text", "phones", "start", "", None, 1]),
-                           "text": rng.choice(ODD_TEXT[:-1]), "lang": rng.choice(ODD_VALUES)})
+                           "text": rng.choice(ODD_TEXT[:-1]), "language": rng.choice(ODD_VALUES)})
     if kind == 2:
         return json.dumps({"type": "text", "text": rng.choice(ODD_TEXT[:-1]) or "hi",
                            "model": rng.choice(["nope", None, "../x", 5]), "rate": rng.choice([1.0, 0.1, "x"])})
@@ -165,8 +165,8 @@ class Fuzzer:
         for _ in range(n):
             kind = rng.randrange(10)
             if kind < 5:
-                path, fields = rng.choice([("/api/speak", {"text": "Hello", "lang": "en", "model": None, "rate": 1.0}),
-                                           ("/api/chat", {"message": "hej", "lang": "sv", "speak": True})])
+                path, fields = rng.choice([("/api/speak", {"text": "Hello", "language": "en", "model": None, "rate": 1.0}),
+                                           ("/api/chat", {"message": "hej", "language": "sv", "speak": True})])
                 body = fuzz_json(rng, fields)
                 headers = {"content-type": rng.choice(CONTENT_TYPES)}
                 if rng.random() < 0.15:

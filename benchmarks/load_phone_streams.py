@@ -44,8 +44,8 @@ async def session(url: str, pieces: list[list[dict]], piece_seconds: float, star
             for k, piece in enumerate(pieces):
                 await asyncio.sleep(max(0.0, began + k * piece_seconds - time.perf_counter()))
                 sent[0] = time.perf_counter()
-                await ws.send(json.dumps({"type": "phones", "phones": piece, "lang": "en", "final": False}))
-            await ws.send(json.dumps({"type": "phones", "phones": [], "lang": "en", "final": True}))
+                await ws.send(json.dumps({"type": "phones", "phones": piece, "language": "en", "final": False}))
+            await ws.send(json.dumps({"type": "phones", "phones": [], "language": "en", "final": True}))
 
         async def receive() -> None:
             while True:

@@ -89,7 +89,7 @@ async def run(server: LocalServer, text: str, lang: str, sessions: int, runs: in
     failures = [repr(o) for o in outcomes if not isinstance(o, StreamTimings)]
     if not results:
         raise RuntimeError(f"every concurrent session failed, e.g. {failures[0]}")
-    return {"text": text, "lang": lang, "single": report_single(single),
+    return {"text": text, "language": lang, "single": report_single(single),
             "concurrent": {**report_concurrent(results, failures, wall), "server_cpu_s": server_cpu}}
 
 
@@ -115,7 +115,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sessions", type=int, default=50, help="concurrent sessions (1..100)")
     parser.add_argument("--runs", type=int, default=5, help="single-session runs (1..50)")
-    parser.add_argument("--lang", default="en", choices=sorted(TEXTS))
+    parser.add_argument("--language", default="en", choices=sorted(TEXTS))
     parser.add_argument("--text", help="text to stream (default: a three-sentence chat reply)")
     parser.add_argument("--deadline", type=float, default=300.0, help="seconds before everything stops")
     parser.add_argument("--json", help="also write the figures to this JSON file")

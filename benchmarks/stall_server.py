@@ -57,7 +57,7 @@ def phones_message(start: float) -> str:
     step = MESSAGE_SECONDS / MAX_PHONES
     phones = [{"symbol": SYMBOLS[i % len(SYMBOLS)], "start": round(start + i * step, 6),
                "end": round(start + (i + 1) * step, 6)} for i in range(MAX_PHONES)]
-    return json.dumps({"type": "phones", "lang": "en", "phones": phones})
+    return json.dumps({"type": "phones", "language": "en", "phones": phones})
 
 
 LONG_TEXT = ("hello there my friend how are you doing on this fine day " * 20)[:1000].strip()

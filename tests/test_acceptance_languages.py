@@ -115,11 +115,11 @@ def test_cli_lists_languages_and_says_in_one(tmp_path):
     assert {"language": "sv", "aliases": [], "phones": "sv", "name": "Swedish"} in table
     voices = json.loads(CliRunner().invoke(main, ["languages", "--voices", "--json"]).output)
     assert {"voice": "f3", "gender": "female"} in voices and {"voice": "m1", "gender": "male"} in voices
-    said = CliRunner().invoke(main, ["say", "Mamma mia, che bella pizza!", "--lang", "it", "-o", str(tmp_path / "it")])
+    said = CliRunner().invoke(main, ["say", "Mamma mia, che bella pizza!", "--language", "it", "-o", str(tmp_path / "it")])
     assert said.exit_code == 0, said.output
     phones = read_alignment(tmp_path / "it" / "phones.TextGrid")
     assert phones.language == "ipa" and [s for s in phones.symbols if s != "sil"][:2] == ["m", "a"]
-    unknown = CliRunner().invoke(main, ["say", "hi", "--lang", "xx", "-o", str(tmp_path / "xx")])
+    unknown = CliRunner().invoke(main, ["say", "hi", "--language", "xx", "-o", str(tmp_path / "xx")])
     assert unknown.exit_code == 2 and "unknown language 'xx'" in unknown.output
     assert not (tmp_path / "xx").exists()
 

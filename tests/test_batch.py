@@ -48,21 +48,21 @@ def _index(out: Path) -> list[dict]:
 def test_csv_manifest_fields_defaults_and_relative_paths(tmp_path):
     (tmp_path / "takes").mkdir()
     job = _csv(tmp_path / "job.csv", [
-        "id,text,lang,audio,alignment,model,fps,rate,formats,postprocess",
+        "id,text,language,audio,alignment,model,fps,rate,formats,postprocess",
         'a,"Hello, there.",,,,,,,,',
         "b,Hej då.,sv,,,baseline,60,1.3,csv;json,false",
         "c,bin blue,,takes/c.wav,,,,,,",
         "d,,,,takes/d.TextGrid,,,,livelink json,",
     ])
-    lines = read_job(job, JobDefaults(lang="en", fps=25.0))
+    lines = read_job(job, JobDefaults(language="en", fps=25.0))
     assert [(x.id, x.kind, x.error) for x in lines] == [
         ("a", "text", None), ("b", "text", None), ("c", "audio", None), ("d", "alignment", None)]
     a, b, c, d = lines
-    assert a.text == "Hello, there." and a.lang == "en" and a.fps == 25.0 and a.model is None and a.postprocess
+    assert a.text == "Hello, there." and a.language == "en" and a.fps == 25.0 and a.model is None and a.postprocess
     assert a.formats == ("wav", "textgrid", "livelink", "json", "preview")
-    assert (b.lang, b.model, b.fps, b.rate, b.formats, b.postprocess) == ("sv", "baseline", 60.0, 1.3, ("livelink", "json"), False)
+    assert (b.language, b.model, b.fps, b.rate, b.formats, b.postprocess) == ("sv", "baseline", 60.0, 1.3, ("livelink", "json"), False)
     assert c.audio == tmp_path / "takes" / "c.wav" and c.text == "bin blue"
-    assert d.alignment == tmp_path / "takes" / "d.TextGrid" and d.lang is None  # guessed from its symbols
+    assert d.alignment == tmp_path / "takes" / "d.TextGrid" and d.language is None  # guessed from its symbols
 
 
 def test_jsonl_manifest_and_line_errors(tmp_path):
@@ -72,7 +72,7 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
         [1, 2],
         {"id": "both", "audio": "x.wav", "alignment": "x.lab"},
         {"id": "nothing"},
-        {"id": "lang", "text": "Hi.", "lang": "xx"},
+        {"id": "lang", "text": "Hi.", "language": "xx"},
         {"id": "fps", "text": "Hi.", "fps": 1000},
         {"id": "fmt", "text": "Hi.", "formats": "csv,mp4"},
         {"id": "../up", "text": "Hi."},
@@ -118,7 +118,7 @@ def test_folder_job_reads_texts_recordings_with_transcripts_and_alignments(tmp_p
 
 @pytest.mark.parametrize("rows,message", [
     (["id,words", "a,hello"], "unknown column 'words'"),
-    (["id,lang", "a,en"], "needs a text, audio or alignment column"),
+    (["id,language", "a,en"], "needs a text, audio or alignment column"),
     (["", "id,text", "a,hello"], "no header line"),
     ([""], "is empty"),
 ])
@@ -140,7 +140,7 @@ def test_missing_or_unknown_job_is_one_error(tmp_path):
 
 def test_outputs_equal_say_and_rerun_redoes_exactly_what_changed(tmp_path):
     texts = ["Hello, how can I help you today?", "My mom made a large map of the farm.", "Bin blue at F two now."]
-    rows = ["id,text,lang"] + [f'line{i},"{t}",en' for i, t in enumerate(texts)] + ['hej,"Hej! Hur mår du?",sv']
+    rows = ["id,text,language"] + [f'line{i},"{t}",en' for i, t in enumerate(texts)] + ['hej,"Hej! Hur mår du?",sv']
     job = _csv(tmp_path / "job.csv", rows)
     out = tmp_path / "out"
     report = run_batch(job, out, workers=1)
@@ -230,7 +230,7 @@ def _single(name: str, tmp_path: Path, audio: Path) -> list[str]:
 
 
 def test_parallel_workers_write_what_one_process_writes(tmp_path):
-    rows = ["id,text,lang"] + [f"l{i},Line number {i} of the batch.,en" for i in range(6)] + ["s,Hej på dig.,sv"]
+    rows = ["id,text,language"] + [f"l{i},Line number {i} of the batch.,en" for i in range(6)] + ["s,Hej på dig.,sv"]
     job = _csv(tmp_path / "job.csv", rows)
     one = run_batch(job, tmp_path / "one", workers=1)
     two = run_batch(job, tmp_path / "two", workers=2)
@@ -291,7 +291,7 @@ def test_non_verbal_layers_in_a_batch_are_those_say_adds(tmp_path):
     from vispeech.cli import main
     from vispeech.motion.formats.livelink import read_livelink_csv
 
-    job = _csv(tmp_path / "job.csv", ["id,text,lang", 'one,"Hello there, my friend.",en'])
+    job = _csv(tmp_path / "job.csv", ["id,text,language", 'one,"Hello there, my friend.",en'])
     runner = CliRunner()
     done = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head", "--seed", "4",
                                 "--quiet"])

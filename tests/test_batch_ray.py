@@ -18,7 +18,7 @@ def test_ray_writes_what_the_process_pool_writes(tmp_path):
     records = []
     for i in range(200):
         lang, texts = ("en", ENGLISH) if i % 2 == 0 else ("sv", SWEDISH)
-        records.append({"id": f"l{i:03d}", "text": f"{texts[i // 2 % 5][:-1]} {i}.", "lang": lang})
+        records.append({"id": f"l{i:03d}", "text": f"{texts[i // 2 % 5][:-1]} {i}.", "language": lang})
     records[7] = {"id": "l007", "audio": "job.jsonl"}  # fails on a worker: not audio
     job = _jsonl(tmp_path / "job.jsonl", records)
     local = run_batch(job, tmp_path / "local", workers=2)

@@ -39,16 +39,16 @@ def test_help_lists_every_command():
         assert f"  {name} " in result.output, name
 
 
-def test_every_language_option_is_lang(tmp_path):
-    """The same option name everywhere; the same default (en) wherever there is one."""
+def test_every_language_option_is_language(tmp_path):
+    """The same option name everywhere (and no other spelling); the same default (en) wherever there is one."""
     for name in main.list_commands(click.Context(main)):
         command = main.get_command(click.Context(main), name)
         commands = command.commands.values() if isinstance(command, click.Group) else [command]
         for sub in commands:
             for param in sub.params:
-                assert not {"--language"} & set(param.opts), (name, sub.name)
-                if "--lang" in param.opts:
-                    assert param.opts == ["--lang", "-l"] or param.opts == ["-l", "--lang"], (name, param.opts)
+                assert not {"--lang", "--languages"} & set(param.opts), (name, sub.name)
+                if "--language" in param.opts:
+                    assert param.opts == ["--language", "-l"] or param.opts == ["-l", "--language"], (name, param.opts)
                     assert param.default == ("en" if sub.name != "animate-phones" else None), (sub.name, param.default)
 
 

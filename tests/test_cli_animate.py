@@ -197,7 +197,7 @@ def test_transcript_in_english(grid_clip, tmp_path):
 
 def test_transcript_from_sentences_tsv_with_a_named_phone_model(grid_s1, grid_clip, tmp_path):
     texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
-    animate(grid_clip, tmp_path / "out", "--text", texts[GRID_ID], "--model", "grid-tdnn", "--lang", "en")
+    animate(grid_clip, tmp_path / "out", "--text", texts[GRID_ID], "--model", "grid-tdnn", "--language", "en")
     jaw = check_outputs(tmp_path / "out", soundfile.info(grid_clip).duration, 16000, textgrid=True)["jawOpen"]
     inside = speech_frames(grid_s1, len(jaw))
     assert jaw[inside].mean() > 2 * jaw[~inside].mean()
@@ -214,7 +214,7 @@ def test_transcript_in_swedish(tmp_path):
 
     speech = synthesize(SWEDISH, "sv")
     path = write_audio(tmp_path / "sv.wav", speech.audio, speech.sample_rate)
-    animate(path, tmp_path / "out", "--text", SWEDISH, "--lang", "sv")
+    animate(path, tmp_path / "out", "--text", SWEDISH, "--language", "sv")
     check_outputs(tmp_path / "out", speech.duration, speech.sample_rate, textgrid=True)
     phones = read_alignment(tmp_path / "out" / "phones.TextGrid", "sv")
     assert len(phones.words) == 3 and phones.language == "sv"
@@ -331,7 +331,7 @@ def test_bad_input_keeps_an_earlier_output_folder(audio_model, grid_clip, tmp_pa
 
 
 @pytest.mark.parametrize("args", [["--fps", "0"], ["--model", "nope"], ["--text", "   "],
-                                  ["--text", "bin blue at f two now", "--lang", "xx"]])
+                                  ["--text", "bin blue at f two now", "--language", "xx"]])
 def test_bad_options(grid_clip, tmp_path, args):
     out = tmp_path / "out"
     assert_clean_error(run("animate", str(grid_clip), "-o", str(out), *args))

@@ -25,7 +25,7 @@ def assert_clean_error(result):
 @pytest.mark.parametrize("lang,text", [("sv", "Hej! Hur kan jag hjälpa dig idag?"), ("en", "Hello, how can I help you today?")])
 def test_say_writes_every_file(tmp_path, lang, text):
     out = tmp_path / "hello"
-    result = run("say", text, "--lang", lang, "-o", str(out))
+    result = run("say", text, "--language", lang, "-o", str(out))
     assert result.exit_code == 0, result.output
     assert {p.name for p in out.iterdir()} == SAY_FILES
     animation = json.loads((out / "animation.json").read_text())
@@ -50,7 +50,7 @@ def test_empty_text(tmp_path, text):
 
 
 def test_unknown_language(tmp_path):
-    assert_clean_error(run("say", "hello", "--lang", "xx", "-o", str(tmp_path / "o")))
+    assert_clean_error(run("say", "hello", "--language", "xx", "-o", str(tmp_path / "o")))
 
 
 def test_unknown_model(tmp_path):

@@ -30,7 +30,7 @@ def _evaluate(*args):
 
 def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
     saved = create_model("baseline", lead_in=0).save(tmp_path / "saved")
-    result = _evaluate("--corpus", takes, "--lang", "en", "-m", "baseline", "-m", saved,
+    result = _evaluate("--corpus", takes, "--language", "en", "-m", "baseline", "-m", saved,
                        "--channels", "mouthClose", "--no-postprocess", "-q",
                        "--markdown", tmp_path / "t.md", "--plot", tmp_path / "p.png", "--plot-utterance", "u19")
     assert result.exit_code == 0, result.output
@@ -64,14 +64,14 @@ def test_evaluate_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "corrupt").mkdir()
     (tmp_path / "corrupt" / "config.json").write_text("{")
     places = {"corrupt": tmp_path / "corrupt", "missing": tmp_path / "missing", "tmp": tmp_path}
-    result = _evaluate("--corpus", takes, "--lang", "en", "-q", *(a.format(**places) for a in args))
+    result = _evaluate("--corpus", takes, "--language", "en", "-q", *(a.format(**places) for a in args))
     assert result.exit_code == 2
     assert result.output.startswith("error: ") and message in result.output
 
 
 def test_empty_split_and_bad_corpus(tmp_path):
     train_only = write_takes(tmp_path / "few", ids=["u01", "u02"])
-    result = _evaluate("--corpus", train_only, "--lang", "en", "-m", "baseline", "-q")
+    result = _evaluate("--corpus", train_only, "--language", "en", "-m", "baseline", "-q")
     assert result.exit_code == 2 and "the test split of corpus few has no utterances" in result.output
     result = _evaluate("--corpus", tmp_path / "nowhere", "-m", "baseline")
     assert result.exit_code == 2 and "error: corpus folder not found" in result.output

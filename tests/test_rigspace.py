@@ -175,7 +175,7 @@ def test_rig_cli_exports_imports_and_retargets(tmp_path):
             track.values[:, track.index(channel)] = rng.random(track.n_frames) * 0.2
         write_livelink_csv(track, takes / f"{name}.csv")
     runner = CliRunner()
-    result = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "--lang", "en", "-o",
+    result = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "--language", "en", "-o",
                                   str(tmp_path / "p.json"), "--modes", "2", "--save-space", str(tmp_path / "space")])
     assert result.exit_code == 0, result.output
     assert "modes 1-2 explain" in result.output and "5 poses ->" in result.output
@@ -201,11 +201,11 @@ def test_rig_cli_exports_imports_and_retargets(tmp_path):
     np.testing.assert_allclose(out["jaw_rot"], [0, 10, 20, 30, 40], atol=1e-4)
 
     refit = runner.invoke(main, ["rig", "import", str(tmp_path / "rig.json"), "--corpus", str(takes),
-                                 "--lang", "en", "-o", str(tmp_path / "refit")])
+                                 "--language", "en", "-o", str(tmp_path / "refit")])
     assert refit.exit_code == 0, refit.output
     np.testing.assert_array_equal(RigSpace.load(tmp_path / "refit").modes, RigSpace.load(tmp_path / "rigged").modes)
     default = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "-o", str(tmp_path / "q.json")])
-    assert default.exit_code == 0, default.output  # --lang defaults to en, as in every command
+    assert default.exit_code == 0, default.output  # --language defaults to en, as in every command
     swedish = runner.invoke(main, ["rig", "export-poses", "--corpus", str(takes), "-l", "sv", "-o",
                                    str(tmp_path / "q.json")])
     assert swedish.exit_code == 2 and "no usable utterances (skipped take a:" in swedish.output

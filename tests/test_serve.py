@@ -65,7 +65,7 @@ def test_config(client, site):
 
 
 def test_speak_gives_audio_and_animation_of_equal_length(client):
-    response = client.post("/api/speak", json={"text": "Hello there, how are you?", "lang": "en"})
+    response = client.post("/api/speak", json={"text": "Hello there, how are you?", "language": "en"})
     assert response.status_code == 200
     body = response.json()
     assert body["audio_url"].startswith("/api/audio/") and body["audio_url"].endswith(".wav")
@@ -81,7 +81,7 @@ def test_speak_gives_audio_and_animation_of_equal_length(client):
 
 
 def test_repeated_request_comes_from_the_cache_file(client, site):
-    request = {"text": "Hej, hur mår du?", "lang": "sv", "rate": 1.2}
+    request = {"text": "Hej, hur mår du?", "language": "sv", "rate": 1.2}
     first = client.post("/api/speak", json=request).json()
     second = client.post("/api/speak", json=request).json()
     assert (first["cached"], second["cached"]) == (False, True)
@@ -94,7 +94,7 @@ def test_repeated_request_comes_from_the_cache_file(client, site):
 
 
 def test_speak_adds_the_non_verbal_layers_asked_for(client):
-    request = {"text": "Hello there. How are you today?", "lang": "en"}
+    request = {"text": "Hello there. How are you today?", "language": "en"}
     plain = client.post("/api/speak", json=request).json()
     assert not {"eyeBlinkLeft", "headYaw", "breath"} & set(plain["animation"]["channels"])
     lively = client.post("/api/speak", json={**request, "life": ["head", "blink"], "seed": 7}).json()
@@ -112,7 +112,7 @@ def test_speak_adds_the_non_verbal_layers_asked_for(client):
     assert frames[:, channels.index("eyeBlinkLeft")].max() > 0.5
     breathing = client.post("/api/speak", json={**request, "life": ["breath"]}).json()["animation"]
     assert breathing["channels"][-1] == "breath" and max(row[-1] for row in breathing["frames"]) > 0.4
-    chat = client.post("/api/chat", json={"message": "Hi!", "lang": "en", "life": ["gaze"], "seed": 1}).json()
+    chat = client.post("/api/chat", json={"message": "Hi!", "language": "en", "life": ["gaze"], "seed": 1}).json()
     assert "eyeLookInLeft" in chat["speech"]["animation"]["channels"]
 
 
@@ -138,28 +138,28 @@ def test_the_layers_offered_are_the_motion_layers():
 
 
 def test_chat_answers_in_swedish_and_english(client):
-    sv = client.post("/api/chat", json={"message": "Hej!", "lang": "sv"}).json()
-    assert sv["reply"] == GREETINGS["sv"] and sv["lang"] == "sv"
+    sv = client.post("/api/chat", json={"message": "Hej!", "language": "sv"}).json()
+    assert sv["reply"] == GREETINGS["sv"] and sv["language"] == "sv"
     assert sv["speech"]["text"] == GREETINGS["sv"] and sv["speech"]["animation"]["n_frames"] > 10
-    en = client.post("/api/chat", json={"message": "What is your name?", "lang": "en", "speak": False}).json()
-    assert en == {"reply": "My name is Vera.", "lang": "en", "speech": None}
-    other = client.post("/api/chat", json={"message": "Guten Tag!", "lang": "de"})
+    en = client.post("/api/chat", json={"message": "What is your name?", "language": "en", "speak": False}).json()
+    assert en == {"reply": "My name is Vera.", "language": "en", "speech": None}
+    other = client.post("/api/chat", json={"message": "Guten Tag!", "language": "de"})
     assert other.status_code == 400 and "chat bot speaks sv and en, not 'de'" in other.json()["detail"]
     # an English message on a Swedish page is answered in English, a Swedish one on an English page in Swedish
-    asked = client.post("/api/chat", json={"message": "What is your name?", "lang": "sv", "speak": True}).json()
-    assert asked["reply"] == "My name is Vera." and asked["lang"] == "en"
+    asked = client.post("/api/chat", json={"message": "What is your name?", "language": "sv", "speak": True}).json()
+    assert asked["reply"] == "My name is Vera." and asked["language"] == "en"
     assert asked["speech"]["animation"]["phones"]["language"] == "en"
-    svar = client.post("/api/chat", json={"message": "Vad heter du?", "lang": "en", "speak": False}).json()
-    assert svar == {"reply": "Jag heter Vera.", "lang": "sv", "speech": None}
-    unsure = client.post("/api/chat", json={"message": "ok", "lang": "sv", "speak": False}).json()
-    assert unsure["lang"] == "sv"  # too short to tell: the page's language
+    svar = client.post("/api/chat", json={"message": "Vad heter du?", "language": "en", "speak": False}).json()
+    assert svar == {"reply": "Jag heter Vera.", "language": "sv", "speech": None}
+    unsure = client.post("/api/chat", json={"message": "ok", "language": "sv", "speak": False}).json()
+    assert unsure["language"] == "sv"  # too short to tell: the page's language
 
 
 def test_speak_in_any_language_espeak_speaks(client):
-    german = client.post("/api/speak", json={"text": "Guten Tag, wie geht es dir?", "lang": "de"}).json()
+    german = client.post("/api/speak", json={"text": "Guten Tag, wie geht es dir?", "language": "de"}).json()
     phones = german["animation"]["phones"]
     assert phones["language"] == "ipa" and "ɡ" in [p["symbol"] for p in phones["phones"]]
-    french = client.post("/api/speak", json={"text": "Bonjour mon ami.", "lang": "fr"})  # fr is fr-fr's code
+    french = client.post("/api/speak", json={"text": "Bonjour mon ami.", "language": "fr"})  # fr is fr-fr's code
     assert french.status_code == 200 and french.json()["animation"]["n_frames"] > 10
 
 
@@ -209,12 +209,13 @@ def test_without_avatar_or_built_web_app(tmp_path):
     ({"text": ""}, 422, "text"),
     ({"text": "   "}, 422, "text"),
     ({"text": "hi\u0000there"}, 422, "control characters"),
-    ({"text": "hello", "lang": "xx"}, 422, "unknown language 'xx'"),
+    ({"text": "hello", "language": "xx"}, 422, "unknown language 'xx'"),
+    ({"text": "hello", "lang": "sv"}, 422, "unknown field 'lang'"),  # never silently ignored
     ({"text": "hello", "model": "no-such-model"}, 400, "unknown model"),
     ({"text": "hello", "model": "tdnn-beskow"}, 400, "unknown model"),
     ({"text": "hello", "rate": 9}, 422, "rate"),
     ({"text": ["hello"]}, 422, "text"),
-    ({"lang": "en"}, 422, "text: Field required"),
+    ({"language": "en"}, 422, "text: Field required"),
     ("hello", 422, "JSON object"),
 ])
 def test_bad_speak_requests_get_a_clear_4xx(client, body, status, words):
@@ -329,23 +330,23 @@ def fake_chat_service():
 
 def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
     url, seen = fake_chat_service
-    bot = HTTPChatBot(url, message_field="q", lang_field="language", reply_field="choices.0.message.content")
+    bot = HTTPChatBot(url, message_field="q", language_field="language", reply_field="choices.0.message.content")
     assert bot.reply("hello", "en") == "echo hello (en)"
     assert seen == [{"q": "hello", "language": "en"}]
     with pytest.raises(ChatBotError, match="HTTP 500"):
         bot.reply("fail", "en")
     with pytest.raises(ChatBotError, match="no text at"):
-        HTTPChatBot(url, message_field="q", lang_field="language", reply_field="answer").reply("x", "sv")
+        HTTPChatBot(url, message_field="q", language_field="language", reply_field="answer").reply("x", "sv")
     with pytest.raises(VispeechError):
         HTTPChatBot("file:///etc/passwd")
     with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", bot=bot, rate_limit=0))) as app:
-        answer = app.post("/api/chat", json={"message": "hej", "lang": "sv", "speak": False}).json()
+        answer = app.post("/api/chat", json={"message": "hej", "language": "sv", "speak": False}).json()
         assert answer["reply"] == "echo hej (sv)"
-        german = app.post("/api/chat", json={"message": "hallo", "lang": "de"}).json()  # any language passes through
+        german = app.post("/api/chat", json={"message": "hallo", "language": "de"}).json()  # any language passes through
         assert german["reply"] == "echo hallo (de)" and german["speech"]["animation"]["phones"]["language"] == "ipa"
         french = app.post("/api/chat", json={"message": "Bonjour à tous, je voudrais un grand café au lait",
-                                             "lang": "en"}).json()  # the reply is spoken in its own language
-        assert french["lang"] == "fr-fr" and french["speech"]["animation"]["phones"]["language"] == "ipa"
+                                             "language": "en"}).json()  # the reply is spoken in its own language
+        assert french["language"] == "fr-fr" and french["speech"]["animation"]["phones"]["language"] == "ipa"
         assert app.get("/api/config").json()["chat_languages"] is None
         failed = app.post("/api/chat", json={"message": "fail", "speak": False})
         assert failed.status_code == 502 and "HTTP 500" in failed.json()["detail"]
@@ -386,14 +387,14 @@ def test_answers_and_streams_come_in_the_output_scale(tmp_path):
     from vispeech.motion.track import Track
 
     arkit = load_scale("arkit")
-    request = {"text": "Mamma made a map.", "lang": "en", "model": "baseline"}
+    request = {"text": "Mamma made a map.", "language": "en", "model": "baseline"}
     answers, frames = {}, {}
     for scale in ("arkit", "tracker"):
         config = ServeConfig(cache=tmp_path / f"{scale}.sqlite3", rate_limit=0, stream_model="baseline", scale=scale)
         with TestClient(create_app(config)) as served:
             answers[scale] = served.post("/api/speak", json=request).json()["animation"]
             with served.websocket_connect("/api/stream") as ws:
-                ws.send_json({"type": "text", "text": request["text"], "lang": "en"})
+                ws.send_json({"type": "text", "text": request["text"], "language": "en"})
                 messages = []
                 while not messages or messages[-1]["type"] != "end":
                     messages.append(ws.receive_json())
@@ -411,7 +412,7 @@ def test_answers_and_streams_come_in_the_output_scale(tmp_path):
 
 def test_the_avatars_voice(tmp_path):
     """ServeConfig.voice speaks every answer with another espeak-ng voice; the cache keeps it apart."""
-    request = {"text": "Hello there.", "lang": "en", "model": "baseline"}
+    request = {"text": "Hello there.", "language": "en", "model": "baseline"}
     audio = {}
     for voice in (None, "f3"):
         config = ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, voice=voice)

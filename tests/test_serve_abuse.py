@@ -388,7 +388,7 @@ PHONE = st.fixed_dictionaries(
 STREAM_MESSAGE = st.one_of(
     JSON,
     st.fixed_dictionaries({"type": st.sampled_from(["text", "phones", "start", ""])},
-                          optional={"text": FIELD_VALUES, "lang": FIELD_VALUES, "model": FIELD_VALUES,
+                          optional={"text": FIELD_VALUES, "language": FIELD_VALUES, "model": FIELD_VALUES,
                                     "rate": FIELD_VALUES, "final": st.booleans(),
                                     "phones": st.lists(PHONE, max_size=8)}),
 )

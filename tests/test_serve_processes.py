@@ -63,7 +63,7 @@ def test_two_processes_serve_one_port_and_one_cache():
 
         def speak(text: str) -> dict:
             request = urllib.request.Request(f"{server.url}/api/speak",
-                                             data=json.dumps({"text": text, "lang": "en"}).encode(),
+                                             data=json.dumps({"text": text, "language": "en"}).encode(),
                                              headers={"Content-Type": "application/json"})
             with urllib.request.urlopen(request, timeout=60) as response:
                 return json.load(response)

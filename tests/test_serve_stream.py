@@ -75,7 +75,7 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
 
     monkeypatch.setattr(stream_module, "speech_messages", slow_after_first)
     with client.websocket_connect("/api/stream") as ws:
-        ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
+        ws.send_json({"type": "text", "text": "Hello, my good friend.", "language": "en"})
         messages = receive_until_end(ws)
     warnings = [m for m in messages if m["type"] == "warning"]
     assert len(warnings) == 1 and warnings[0]["code"] == "late"
@@ -85,7 +85,7 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
 
     monkeypatch.setattr(stream_module, "speech_messages", original)
     with client.websocket_connect("/api/stream") as ws:  # in time: no warning
-        ws.send_json({"type": "text", "text": "Hello, my good friend.", "lang": "en"})
+        ws.send_json({"type": "text", "text": "Hello, my good friend.", "language": "en"})
         assert "warning" not in [m["type"] for m in receive_until_end(ws)]
 
 
@@ -100,7 +100,7 @@ def test_split_clauses():
 
 def test_text_stream_gives_audio_and_frames_of_matching_length(client):
     with client.websocket_connect("/api/stream") as ws:
-        ws.send_json({"type": "text", "text": "Hello there, my friend. How are you today?", "lang": "en"})
+        ws.send_json({"type": "text", "text": "Hello there, my friend. How are you today?", "language": "en"})
         messages = receive_until_end(ws)
     kinds = [m["type"] for m in messages]
     assert kinds[0] == "start" and kinds[-1] == "end" and "error" not in kinds
@@ -131,7 +131,7 @@ def test_text_stream_gives_audio_and_frames_of_matching_length(client):
 def test_phones_stream_over_the_websocket(client):
     rows = HELLO
     with client.websocket_connect("/api/stream") as ws:
-        ws.send_json({"type": "phones", "lang": "en", "phones": phone_dicts(rows[:4])})
+        ws.send_json({"type": "phones", "language": "en", "phones": phone_dicts(rows[:4])})
         start = ws.receive_json()
         assert start["type"] == "start" and start["fps"] == 30.0 and start["lookahead"] == 2 + POSTPROCESS_LOOKAHEAD
         first = ws.receive_json()  # phones up to 0.28 s: frames 0..8 known, 0..6 predicted, 0..4 post-processed
@@ -153,7 +153,8 @@ def test_bad_stream_messages_get_errors_and_the_stream_goes_on(client):
             ('{"type": "shout"}', '"type" must be'),
             ('{"text": "hi"}', '"type" is missing'),
             ('{"type": "text", "text": ""}', "text"),
-            ('{"type": "text", "text": "hi", "lang": "xx"}', "unknown language"),
+            ('{"type": "text", "text": "hi", "language": "xx"}', "unknown language"),
+            ('{"type": "text", "text": "hi", "vioce": "f3"}', "unknown field 'vioce'"),
             ('{"type": "text", "text": "hi", "model": "nope"}', "unknown model"),
             ('{"type": "phones", "phones": [{"symbol": "AA", "start": 0, "end": NaN}]}', "finite"),
         ]:
@@ -344,10 +345,10 @@ def test_stream_command_times_a_real_server(tmp_path):
         while not server.started and time.monotonic() < deadline:
             time.sleep(0.02)
         url = f"ws://127.0.0.1:{port}/api/stream"
-        result = CliRunner().invoke(main, ["stream", "Hej! Hur mår du?", "--lang", "sv", "--url", url])
+        result = CliRunner().invoke(main, ["stream", "Hej! Hur mår du?", "--language", "sv", "--url", url])
         assert result.exit_code == 0, result.output
         assert "first frame" in result.output and "frames late" in result.output
-        refused = CliRunner().invoke(main, ["stream", "hi", "--lang", "xx", "--url", url])
+        refused = CliRunner().invoke(main, ["stream", "hi", "--language", "xx", "--url", url])
         assert refused.exit_code == 2 and "lang" in refused.output
     finally:
         server.should_exit = True
@@ -362,7 +363,7 @@ def test_streams_use_the_shipped_low_latency_network_by_default(tmp_path):
     with TestClient(create_app(ServeConfig(cache=":memory:", rate_limit=0))) as served:
         assert served.get("/api/config").json()["stream_model"] == "grid-tdnn-lowlatency"
         with served.websocket_connect("/api/stream") as ws:
-            ws.send_json({"type": "phones", "lang": "en", "phones": phone_dicts(HELLO[:4])})
+            ws.send_json({"type": "phones", "language": "en", "phones": phone_dicts(HELLO[:4])})
             start = ws.receive_json()
             # 2 frames ahead at the network's 60 fps are 1 at 30 fps, and post-processing holds back 2 more
             assert (start["fps"], start["model"], start["lookahead"]) == (30.0, "grid-tdnn-lowlatency", 3)

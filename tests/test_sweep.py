@@ -24,7 +24,7 @@ def test_a_look_ahead_sweep_trains_a_model_per_value(tmp_path):
     takes = write_takes(tmp_path / "takes")
     out = tmp_path / "sweep"
     result = CliRunner().invoke(main, [
-        "sweep", "look-ahead", "--corpus", str(takes), "--lang", "en", "--values", "0,3", "-o", str(out),
+        "sweep", "look-ahead", "--corpus", str(takes), "--language", "en", "--values", "0,3", "-o", str(out),
         "--param", "epochs=2", "--param", "hidden=4", "--param", "fps=null", "--param", "batch_size=4"])
     assert result.exit_code == 0, result.output
     assert "look_ahead=0: jawOpen RMSE" in result.output and "look_ahead=3" in result.output
@@ -42,6 +42,6 @@ def test_a_look_ahead_sweep_trains_a_model_per_value(tmp_path):
 ])
 def test_bad_sweeps_are_one_line_errors(tmp_path, args, message):
     takes = write_takes(tmp_path / "takes")
-    result = CliRunner().invoke(main, ["sweep", "look-ahead", "--corpus", str(takes), "--lang", "en", *args,
+    result = CliRunner().invoke(main, ["sweep", "look-ahead", "--corpus", str(takes), "--language", "en", *args,
                                        "-o", str(tmp_path / "out")])
     assert result.exit_code == 2 and message in result.output, result.output

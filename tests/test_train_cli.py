@@ -78,7 +78,7 @@ def _train(*args):
 
 def test_train_saves_a_model_and_reports_test_scores(takes, tmp_path):
     out = tmp_path / "my-thesis"
-    result = _train("--corpus", takes, "--lang", "en", "--model", "sliding-window-thesis",
+    result = _train("--corpus", takes, "--language", "en", "--model", "sliding-window-thesis",
                     "--epochs", "2", "--seed", "3", "--quiet", "-o", out)
     assert result.exit_code == 0, result.output
     assert "train 17, validation 1, test 2 utterances at 25 fps" in result.output
@@ -106,7 +106,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
         return save(self, path, **options)
 
     monkeypatch.setattr(Network, "save", fail)
-    result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "1",
+    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "1",
                     "-q", "-o", out)
     assert result.exit_code == 2 and "error: disk full" in result.output
     assert not (out / "config.json").exists()
@@ -115,7 +115,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
     assert len(first) == 1
     monkeypatch.undo()
 
-    result = _train("--corpus", takes, "--lang", "en", "-m", "sliding-window-thesis", "--epochs", "2",
+    result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "2",
                     "-q", "--resume", out, "-o", out)
     assert result.exit_code == 0, result.output
     config = json.loads((out / "config.json").read_text())
@@ -125,7 +125,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
 
 
 def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
-    result = _train("--corpus", takes, "--lang", "en", "-m", "tdnn-beskow", "--targets", "articulatory",
+    result = _train("--corpus", takes, "--language", "en", "-m", "tdnn-beskow", "--targets", "articulatory",
                     "--epochs", "1", "-q", "-o", tmp_path / "m")
     assert result.exit_code == 2 and "no face landmarks" in result.output
 
@@ -143,7 +143,7 @@ def test_train_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "empty").mkdir()
     places = {"missing": tmp_path / "missing", "empty": tmp_path / "empty", "takes": takes}
     args = [a.format(**places) for a in args]
-    result = _train(*args, "--lang", "en", "-q", "-o", tmp_path / "out")
+    result = _train(*args, "--language", "en", "-q", "-o", tmp_path / "out")
     assert result.exit_code == 2
     assert result.output.startswith("error: ") and message in result.output
     assert not (tmp_path / "out" / "config.json").exists()
@@ -157,7 +157,7 @@ def test_train_from_a_shipped_network_adapts_it(takes, tmp_path):
     from vispeech.alignment.formats import read_alignment
 
     out = tmp_path / "adapted"
-    result = _train("--corpus", takes, "--lang", "en", "--from", "grid-tdnn", "--epochs", "2", "--quiet", "-o", out)
+    result = _train("--corpus", takes, "--language", "en", "--from", "grid-tdnn", "--epochs", "2", "--quiet", "-o", out)
     assert result.exit_code == 0, result.output
     assert "adapting grid-tdnn on 17 utterances" in result.output
     assert result.output.count("test split (2 utterances, no post-processing): jawOpen r ") == 2  # before, after
@@ -176,5 +176,5 @@ def test_train_from_a_shipped_network_adapts_it(takes, tmp_path):
     (["--from", "grid-tdnn", "-p", "warm_start=false"], "takes no parameter 'warm_start'"),
 ])
 def test_train_from_errors_are_one_line(takes, tmp_path, args, message):
-    result = _train("--corpus", takes, "--lang", "en", *args, "-o", tmp_path / "out")
+    result = _train("--corpus", takes, "--language", "en", *args, "-o", tmp_path / "out")
     assert result.exit_code == 2 and message in result.output, result.output

@@ -134,7 +134,7 @@ def test_whisper_model_is_for_this_run(grid_s1, tmp_path, monkeypatch):
 
     monkeypatch.setattr(transcription, "transcribe", hearing)
     out = tmp_path / "out"
-    result = run("animate", clip, "--transcribe", "--lang", "sv", "--whisper-model", str(tiny), "-o", str(out))
+    result = run("animate", clip, "--transcribe", "--language", "sv", "--whisper-model", str(tiny), "-o", str(out))
     assert_clean_error(result)  # tiny.en for every named model: Swedish cannot be heard
     assert "English only" in result.stderr and seen == [str(tiny)] and not out.exists()
     assert whisper.MODEL_ENV not in os.environ

@@ -123,9 +123,9 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
     playSpeech(speech) {
       return app.playAnimation(speech.animation, speech.audio_url);
     },
-    /** Ask the server to speak `text` in `lang`, play it, and return its answer. */
-    async speak(text, lang = config.languages[0], model = config.default_model) {
-      const speech = await requestSpeech({ text, lang, model, ...app.lifeOptions() });
+    /** Ask the server to speak `text` in `language`, play it, and return its answer. */
+    async speak(text, language = config.languages[0], model = config.default_model) {
+      const speech = await requestSpeech({ text, language, model, ...app.lifeOptions() });
       await app.playSpeech(speech);
       return speech;
     },

@@ -28,29 +28,29 @@ function fillSelect(select, values, chosen, label = (v) => v) {
 async function setup(app) {
   const { config } = app;
   const names = { ...(config.language_names || {}), ...LANGUAGE_NAMES };
-  fillSelect($('lang'), config.languages, config.languages[0], (v) => names[v] || v);
+  fillSelect($('language'), config.languages, config.languages[0], (v) => names[v] || v);
   // Send asks the chat bot, which may answer in some languages only; Say speaks any of them.
   const chatLanguages = config.chat_languages || null;
-  const chatRefused = () => chatLanguages !== null && !chatLanguages.includes($('lang').value);
+  const chatRefused = () => chatLanguages !== null && !chatLanguages.includes($('language').value);
   const updateSend = () => {
-    const lang = $('lang').value;
+    const language = $('language').value;
     const refused = chatRefused();
     $('send').disabled = refused;
     $('send').title = refused
-      ? `The chat bot answers in ${chatLanguages.map((v) => names[v] || v).join(' and ')}; Say speaks ${names[lang] || lang}.`
+      ? `The chat bot answers in ${chatLanguages.map((v) => names[v] || v).join(' and ')}; Say speaks ${names[language] || language}.`
       : '';
   };
-  $('lang').onchange = updateSend;
+  $('language').onchange = updateSend;
   fillSelect($('model'), config.models, config.default_model);
   $('model').disabled = !config.models.length;
   if (config.max_text) $('text').maxLength = config.max_text;
   if (config.offline) show('No vispeech server answered; start one with `vispeech serve`.');
 
-  const settings = () => ({ lang: $('lang').value, model: $('model').value || null, stream: $('stream').checked });
+  const settings = () => ({ language: $('language').value, model: $('model').value || null, stream: $('stream').checked });
 
-  const say = (text, { lang, model, stream }) => (stream
-    ? streamSpeech(app.performer, { text, lang, model })
-    : app.speak(text, lang, model));
+  const say = (text, { language, model, stream }) => (stream
+    ? streamSpeech(app.performer, { text, language, model })
+    : app.speak(text, language, model));
 
   const busy = (on) => {
     for (const id of ['send', 'say']) $(id).disabled = on;
@@ -106,11 +106,11 @@ async function setup(app) {
       addMessage('user', text);
       $('text').value = '';
       const answer = await requestChat({
-        message: text, lang: options.lang, speak: !options.stream, ...app.lifeOptions(),
+        message: text, language: options.language, speak: !options.stream, ...app.lifeOptions(),
       });
       addMessage('bot', answer.reply);
-      const lang = answer.lang || options.lang;
-      if (options.stream || !answer.speech) await say(answer.reply, { ...options, lang });
+      const language = answer.language || options.language;
+      if (options.stream || !answer.speech) await say(answer.reply, { ...options, language });
       else await app.playSpeech(answer.speech);
     } catch (err) {
       show(err.message);

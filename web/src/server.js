@@ -36,20 +36,20 @@ export async function fetchConfig() {
  * POST api/speak: `{audio_url, animation, text, cached}` for `text`, the animation with the
  * channels of the non-verbal layers `life` (blink, gaze, head, brows, breath) drawn with `seed`.
  */
-export function requestSpeech({ text, lang, model = null, rate = 1.0, life = [], seed = 0 }) {
-  return postJson('api/speak', { text, lang, model, rate, life, seed });
+export function requestSpeech({ text, language, model = null, rate = 1.0, life = [], seed = 0 }) {
+  return postJson('api/speak', { text, language, model, rate, life, seed });
 }
 
-/** POST api/chat: `{reply, lang, speech}`; `speak: false` asks for the reply text only. */
-export function requestChat({ message, lang, speak = true, life = [], seed = 0 }) {
-  return postJson('api/chat', { message, lang, speak, life, seed });
+/** POST api/chat: `{reply, language, speech}`; `speak: false` asks for the reply text only. */
+export function requestChat({ message, language, speak = true, life = [], seed = 0 }) {
+  return postJson('api/chat', { message, language, speak, life, seed });
 }
 
 /**
  * Speak `text` through the api/stream WebSocket, feeding frames and audio chunks to
  * `performer` as they arrive. Resolves when the server sends `end`.
  */
-export function streamSpeech(performer, { text, lang, model = null }) {
+export function streamSpeech(performer, { text, language, model = null }) {
   const url = socketUrl('api/stream');
   return new Promise((resolve, reject) => {
     const socket = new WebSocket(url);
@@ -62,7 +62,7 @@ export function streamSpeech(performer, { text, lang, model = null }) {
       if (err) reject(err);
       else resolve();
     };
-    socket.onopen = () => socket.send(JSON.stringify({ type: 'text', text, lang, model }));
+    socket.onopen = () => socket.send(JSON.stringify({ type: 'text', text, language, model }));
     socket.onerror = () => finish(new Error('stream connection failed'));
     socket.onclose = () => finish(new Error('stream closed before its end'));
     socket.onmessage = (event) => {

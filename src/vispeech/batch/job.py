@@ -2,9 +2,9 @@
 
 A line animates one of three inputs, as the single-utterance commands do:
 
-- ``text`` (+ ``lang``, ``rate``): espeak-ng speech, as ``vispeech say``;
-- ``audio`` (+ ``text``, its transcript, and ``lang``): recorded speech, as ``vispeech animate``;
-- ``alignment`` (+ ``lang``, else guessed from the symbols): a phone alignment, as
+- ``text`` (+ ``language``, ``rate``): espeak-ng speech, as ``vispeech say``;
+- ``audio`` (+ ``text``, its transcript, and ``language``): recorded speech, as ``vispeech animate``;
+- ``alignment`` (+ ``language``, else guessed from the symbols): a phone alignment, as
   ``vispeech animate-phones``.
 
 Every line may also set ``id`` (the name of its output folder; default its line number),
@@ -41,7 +41,7 @@ from vispeech.limits import check_fps, check_text, parse_json
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
 
-FIELDS = ("id", "text", "lang", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess", "voice")
+FIELDS = ("id", "text", "language", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess", "voice")
 """The fields a manifest line may have."""
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".oga", ".opus", ".aiff", ".aif")
 """Extensions a folder job reads as recordings."""
@@ -60,7 +60,7 @@ class JobDefaults:
     """What a line that does not say gets: language, model (``None``: the pipeline's default
     for its input), frame rate, output formats and post-processing."""
 
-    lang: str = "en"
+    language: str = "en"
     model: str | None = None
     fps: float = DEFAULT_FPS
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
@@ -80,7 +80,7 @@ class BatchLine:
     """One line of a job: what to animate (``kind``: text, audio or alignment) and how.
 
     ``number`` is its 1-based place in the job (the manifest's data line, or the folder entry
-    in name order); ``error`` says why the line cannot run, ``None`` when it can. ``lang`` is
+    in name order); ``error`` says why the line cannot run, ``None`` when it can. ``language`` is
     ``None`` for an alignment whose language is guessed from its symbols.
     """
 
@@ -88,7 +88,7 @@ class BatchLine:
     id: str
     kind: str = "text"
     text: str | None = None
-    lang: str | None = "en"
+    language: str | None = "en"
     audio: Path | None = None
     alignment: Path | None = None
     model: str | None = None
@@ -215,7 +215,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         ("text", text),
         ("audio", audio),
         ("alignment", alignment),
-        ("lang", record.get("lang")),
+        ("language", record.get("language")),
         ("model", record.get("model")),
     ):
         if value is not None and not isinstance(value, str):
@@ -231,11 +231,11 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         if not text.strip():
             raise VispeechError("text is empty")
         check_text(text)
-    lang = record.get("lang", None if kind == "alignment" else defaults.lang)
-    if lang is not None and kind == "alignment":
-        get_inventory(lang)  # the alignment's phone set
-    elif lang is not None:
-        lang = find_language(lang).code
+    language = record.get("language", None if kind == "alignment" else defaults.language)
+    if language is not None and kind == "alignment":
+        get_inventory(language)  # the alignment's phone set
+    elif language is not None:
+        language = find_language(language).code
     fps = check_fps(_number(record.get("fps", defaults.fps), "fps"))
     rate = _number(record.get("rate", 1.0), "rate")
     if not MIN_RATE <= rate <= MAX_RATE:
@@ -255,7 +255,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         id=line_id,
         kind=kind,
         text=text,
-        lang=lang,
+        language=language,
         audio=None if audio is None else base / audio,
         alignment=None if alignment is None else base / alignment,
         model=record.get("model", defaults.model),

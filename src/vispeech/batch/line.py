@@ -94,17 +94,17 @@ def prepare(line: BatchLine) -> Prepared:
     alignment, an alignment file)."""
     if line.kind == "text":
         assert line.text is not None  # a text line has its text (read_job)
-        # lang is None on a text line only from a JSON "lang": null, which espeak-ng's voice
+        # language is None on a text line only from a JSON "language": null, which espeak-ng's voice
         # lookup refuses as an unknown language (VispeechError), as it did before typing
-        return Prepared(utter(line.text, line.lang, rate=line.rate, voice=line.voice))  # type: ignore[arg-type]
+        return Prepared(utter(line.text, line.language, rate=line.rate, voice=line.voice))  # type: ignore[arg-type]
     if line.kind == "audio":
         assert line.audio is not None  # an audio line has its file (read_job)
         clip = AudioClip.read(line.audio)
-        return Prepared(hear(clip, line.text, line.lang or "en"), clip)
+        return Prepared(hear(clip, line.text, line.language or "en"), clip)
     from vispeech.alignment.formats import read_alignment
 
     assert line.alignment is not None  # the remaining kind, alignment, has its file (read_job)
-    return Prepared(Utterance(phones=read_alignment(line.alignment, line.lang)))
+    return Prepared(Utterance(phones=read_alignment(line.alignment, line.language)))
 
 
 def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:

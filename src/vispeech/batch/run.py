@@ -145,7 +145,7 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
     inputs = {
         "kind": line.kind,
         "text": line.text,
-        "lang": line.lang,
+        "language": line.language,
         "source": None if line.source is None else str(line.source),
         "source_sha256": digest,
     }

@@ -18,8 +18,8 @@ import click
 
 from vispeech.errors import VispeechError
 
-DEFAULT_LANG = "en"
-"""The default of every command's ``--lang``: the language of a text, speech or corpus."""
+DEFAULT_LANGUAGE = "en"
+"""The default of every command's ``--language``: the language of a text, speech or corpus."""
 
 _MODULES = {"animate-phones": "say"}
 """Commands that do not live in a module of their own name: command → module of this package."""
@@ -55,9 +55,9 @@ def _command_names() -> set[str]:
     return modules | {command for command, module in _MODULES.items() if module in modules}
 
 
-def lang_option(help: str, default: str | None = DEFAULT_LANG, name: str = "lang"):
-    """The ``--lang/-l`` option, the same in every command (``name``: the parameter it fills)."""
-    return click.option("--lang", "-l", name, default=default, show_default=default is not None, help=help)
+def language_option(help: str, default: str | None = DEFAULT_LANGUAGE):
+    """The ``--language/-l`` option, the same in every command."""
+    return click.option("--language", "-l", default=default, show_default=default is not None, help=help)
 
 
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option
+from vispeech.cli import language_option
 from vispeech.corpus.corpus import Corpus
 from vispeech.errors import VispeechError
 
@@ -17,9 +17,8 @@ corpus_option = click.option(
     type=click.Path(file_okay=False, path_type=Path),
     help="Corpus folder (GRID layout or a folder of Live Link takes).",
 )
-language_option = lang_option(
+corpus_language_option = language_option(
     "Language of a folder of takes (its transcripts and TextGrid symbols): sv or en; a GRID folder is en.",
-    name="language",
 )
 cache_option = click.option(
     "--cache",

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import language_option, main
 
 
 @main.command("align")
@@ -19,9 +19,8 @@ from vispeech.cli import lang_option, main
     required=True,
     help="File to write: .TextGrid (words and phones tiers), .json, .lab or .align.",
 )
-@lang_option(
+@language_option(
     "Language of the speech: en (pocketsphinx) or any other `vispeech languages` lists (DTW against espeak-ng).",
-    name="language",
 )
 @click.option(
     "--method",

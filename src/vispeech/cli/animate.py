@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
@@ -41,7 +41,7 @@ from vispeech.pipeline import (
     help="A CTranslate2 Whisper folder used for this run instead of the installed models: "
     "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).",
 )
-@lang_option("Language of the transcript: any `vispeech languages` lists.")
+@language_option("Language of the transcript: any `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option(
     "--model",
@@ -60,7 +60,7 @@ def animate(
     text: str | None,
     transcribe: bool,
     whisper_model: Path | None,
-    lang: str,
+    language: str,
     out_dir: Path,
     model: str | None,
     fps: float,
@@ -88,8 +88,8 @@ def animate(
         if transcribe:
             from vispeech.frontends.transcribe import transcribe as heard
 
-            text = heard(clip, lang)
-        utterance = listen(clip, text, lang, model=model, fps=fps, postprocessing=not no_postprocess)
+            text = heard(clip, language)
+        utterance = listen(clip, text, language, model=model, fps=fps, postprocessing=not no_postprocess)
     assert utterance.track is not None  # listen() animates the clip
     track = with_life(utterance.track, utterance.phones, layers, seed)
     utterance = replace(utterance, track=track)

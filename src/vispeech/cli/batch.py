@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPUT_FILES
@@ -24,7 +24,7 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
     type=click.Path(path_type=Path),
     help="Output folder: one folder per line, and index.jsonl.",
 )
-@lang_option("Language of lines that do not say: any `vispeech languages` lists.")
+@language_option("Language of lines that do not say: any `vispeech languages` lists.")
 @click.option(
     "--model",
     "-m",
@@ -70,7 +70,7 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
 def batch(
     job: Path,
     out_dir: Path,
-    lang: str,
+    language: str,
     model: str | None,
     fps: float,
     formats: str,
@@ -88,7 +88,7 @@ def batch(
     """Animate every line of JOB into OUTPUT/<id>/.
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
-    alignments) or a manifest: CSV with a header, or JSONL, with the fields id, text, lang,
+    alignments) or a manifest: CSV with a header, or JSONL, with the fields id, text, language,
     audio, alignment, model, fps, rate, formats, postprocess (docs/batch.md). A rerun redoes
     only the lines whose input or settings changed. A failed line is reported at the end and
     never stops the others; the exit code is then 1.
@@ -101,7 +101,7 @@ def batch(
 
     load_scale(scale)
     defaults = JobDefaults(
-        lang=lang,
+        language=language,
         model=model,
         fps=check_fps(fps, "--fps"),
         formats=check_formats(f for f in formats.split(",") if f.strip()),

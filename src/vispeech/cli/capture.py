@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import language_option, main
 from vispeech.errors import VispeechError
 from vispeech.frontends.video import FACE_MODEL_VARIABLE
 
@@ -17,7 +17,7 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
 @main.command()
 @click.argument("video", type=click.Path(path_type=Path))
 @click.option("--text", "-t", default=None, help="The transcript: aligned with the sound into a phone TextGrid.")
-@lang_option("Language of the transcript (alignment: pocketsphinx for en, DTW on espeak-ng speech otherwise).")
+@language_option("Language of the transcript (alignment: pocketsphinx for en, DTW on espeak-ng speech otherwise).")
 @click.option(
     "--output",
     "-o",
@@ -59,7 +59,7 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
 def capture(
     video: Path,
     text: str | None,
-    lang: str,
+    language: str,
     out_dir: Path,
     face_model: Path | None,
     livelink_csv: Path | None,
@@ -79,7 +79,7 @@ def capture(
     if livelink_csv is not None:
         if batch or sync or smooth:
             raise VispeechError("--livelink imports one recording as it is: leave out --batch, --sync and --smooth")
-        report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=lang)
+        report = import_livelink_take(livelink_csv, video, out_dir, text=text, language=language)
         offset = report.timecode_offset
         assert offset is not None  # a Live Link import reports it (NaN without timecode)
         where = (
@@ -97,7 +97,7 @@ def capture(
             summary = capture_corpus(
                 video,
                 out_dir,
-                language=lang,
+                language=language,
                 face_model=face_model,
                 sync=sync,
                 smooth=smooth,
@@ -117,7 +117,7 @@ def capture(
             video,
             out_dir,
             text=text,
-            language=lang,
+            language=language,
             face_model=face_model,
             sync=sync,
             smooth=smooth,

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli._corpus_input import cache_option, language_option
+from vispeech.cli._corpus_input import cache_option, corpus_language_option
 
 
 @main.group("corpus")
@@ -18,7 +18,7 @@ def corpus_group() -> None:
 @corpus_group.command("info")
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--no-phones", is_flag=True, help="Skip phone coverage (and the alignment it may need).")
-@language_option
+@corpus_language_option
 @cache_option
 @click.option("--strict", is_flag=True, help="Fail on the first bad utterance instead of skipping it.")
 def info_command(directory: Path, no_phones: bool, language: str, cache: Path | None, strict: bool) -> None:

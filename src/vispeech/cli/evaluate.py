@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main, quiet_option
-from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
+from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.corpus.corpus import ALL, SPLITS
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, check_output_dir
@@ -66,7 +66,7 @@ from vispeech.files import atomic_output_file, check_output_dir
     "per-utterance jawOpen RMSE with pairwise tests and the figures (PNG and SVG), and every "
     "score as CSV and JSON (docs/evaluation.md).",
 )
-@language_option
+@corpus_language_option
 @cache_option
 @quiet_option
 def evaluate_command(

@@ -1,4 +1,4 @@
-"""``vispeech languages``: every language `--lang` takes."""
+"""``vispeech languages``: every language `--language` takes."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli._corpus_input import language_option, open_corpus
+from vispeech.cli._corpus_input import corpus_language_option, open_corpus
 from vispeech.errors import VispeechError
 
 
@@ -73,7 +73,7 @@ def _space_option(required: bool):
     default=None,
     help="Also save the fitted rig space (modes without rig poses) in this folder.",
 )
-@language_option
+@corpus_language_option
 def export_poses(
     corpus_dir: Path, output: Path, n_modes: int, sigma: float, save_space: Path | None, language: str
 ) -> None:
@@ -109,7 +109,7 @@ def export_poses(
     type=click.Path(file_okay=False, path_type=Path),
     help="Folder to save the rig space with its rig poses in.",
 )
-@language_option
+@corpus_language_option
 def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | None, output: Path, language: str) -> None:
     """Attach an artist's RIG_POSES (JSON: {"poses": {"mean": {...}, "mode1-3sd": {...}, ...}}) to a rig space."""
     from vispeech.motion.rigging.rigspace import RigSpace
@@ -181,7 +181,7 @@ def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, 
     default=None,
     help="Fit to these mouth frames (from `vispeech rig mouth-frames`).",
 )
-@language_option
+@corpus_language_option
 def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Path | None, language: str) -> None:
     """Fit the gains that make HEAD's lips (a GLB with ARKit morph targets) open and spread as the
     tracked human's do: its inner-lip gap and mouth width over its eye-corner distance follow
@@ -267,7 +267,7 @@ def prepare(head: Path, output: Path) -> None:
     help="Random tracked frames of the training split to keep.",
 )
 @click.option("--seed", default=0, show_default=True, type=int)
-@language_option
+@corpus_language_option
 def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: int, language: str) -> None:
     """Keep a sample of a corpus's tracked frames with the speaker's lip gap and mouth width:
     what rig calibrate fits heads to without the corpus (the shipped sample is grid_s1's)."""

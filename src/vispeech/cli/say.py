@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import check_voice
 from vispeech.limits import check_fps, check_text
@@ -38,7 +38,7 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 
 @main.command()
 @click.argument("text", required=False)
-@lang_option("Language of the text: sv, en or any other `vispeech languages` lists.")
+@language_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @_model_option
 @_fps_option
@@ -60,7 +60,7 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @life_options
 def say(
     text: str | None,
-    lang: str,
+    language: str,
     out_dir: Path,
     model: str,
     fps: float,
@@ -85,15 +85,15 @@ def say(
 
         text = read_text(text_file, "text file")
     if text is None:
-        text = GREETINGS.get(lang)
+        text = GREETINGS.get(language)
         if text is None:
-            raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {lang!r}")
+            raise VispeechError(f"vispeech greets in sv and en only; give TEXT to speak {language!r}")
     check_text(text)
     check_outputs(out_dir)
     load_scale(scale)  # a bad scale, voice or layer is refused before any work
     check_voice(voice)
     layers = check_layers(life)
-    utterance = speak(text, lang, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, voice=voice)
+    utterance = speak(text, language, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, voice=voice)
     phones = utterance.phones
     assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
     track = with_life(utterance.track, phones, layers, seed)
@@ -107,7 +107,7 @@ def say(
 @main.command("animate-phones")
 @click.argument("alignment", type=click.Path(path_type=Path))
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
-@lang_option("Phone set of the symbols: sv, en or ipa [default: guessed from the symbols].", default=None)
+@language_option("Phone set of the symbols: sv, en or ipa [default: guessed from the symbols].", default=None)
 @_model_option
 @_fps_option
 @click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
@@ -116,7 +116,7 @@ def say(
 def animate_phones(
     alignment: Path,
     out_dir: Path,
-    lang: str | None,
+    language: str | None,
     model: str,
     fps: float,
     no_postprocess: bool,
@@ -135,7 +135,7 @@ def animate_phones(
     check_outputs(out_dir)
     load_scale(scale)
     layers = check_layers(life)
-    phones = read_alignment(alignment, lang)
+    phones = read_alignment(alignment, language)
     track = with_life(animate(phones, model, fps, not no_postprocess), phones, layers, seed)
     write_outputs(Utterance(phones=phones, track=track), out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

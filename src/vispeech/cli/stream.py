@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import lang_option, main
+from vispeech.cli import language_option, main
 from vispeech.errors import VispeechError
 from vispeech.limits import MAX_FPS, MIN_FPS
 
@@ -46,7 +46,7 @@ SERVER = "ws://127.0.0.1:8000"
 @click.option(
     "--url", help=f"The server's WebSocket URL [default: {SERVER}/api/stream; with --audio {SERVER}/api/listen]."
 )
-@lang_option("Language of the text: sv, en or any other `vispeech languages` lists.")
+@language_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--model", "-m", default=None, help="Model name [default: the server's stream or audio model].")
 @click.option(
     "--timeout",
@@ -63,7 +63,7 @@ def stream(
     fps: float | None,
     out: Path | None,
     url: str | None,
-    lang: str,
+    language: str,
     model: str | None,
     timeout: float,
 ) -> None:
@@ -91,7 +91,7 @@ def stream(
             from vispeech.serve.client import time_stream
 
             assert text is not None  # TEXT or --audio, checked above
-            click.echo(asyncio.run(time_stream(url, text, lang, model, timeout)).summary())
+            click.echo(asyncio.run(time_stream(url, text, language, model, timeout)).summary())
             return
         from vispeech.frontends.audio import AudioClip
         from vispeech.serve.client import stream_audio

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main, quiet_option
-from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
+from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.corpus.corpus import SPLITS
 
 
@@ -66,7 +66,7 @@ def study_group() -> None:
     type=click.Path(path_type=Path, file_okay=False),
     help="The study folder: study.toml and clips/.",
 )
-@language_option
+@corpus_language_option
 @cache_option
 @quiet_option
 def prepare(

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
-from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
+from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.errors import VispeechError
 
 
@@ -38,7 +38,7 @@ from vispeech.errors import VispeechError
     type=click.Path(file_okay=False, path_type=Path),
     help="Folder for sweep.csv, sweep.json and the figure (PNG and SVG).",
 )
-@language_option
+@corpus_language_option
 @cache_option
 def sweep_command(
     what: str,

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import click
 
 from vispeech.cli import main, quiet_option
-from vispeech.cli._corpus_input import cache_option, corpus_option, language_option, read_aligned_corpus
+from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.errors import VispeechError
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ LOSS_CURVE = "loss_curve.png"
     type=click.Path(file_okay=False, path_type=Path),
     help="Folder to save the trained model in.",
 )
-@language_option
+@corpus_language_option
 @cache_option
 @quiet_option
 def train_command(

@@ -70,7 +70,14 @@ async def post_speak(request: SpeakRequest, service: Service, ip: ClientIP) -> S
     """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
     service.pay(ip, service.text_cost(request.text))
     return await _spoken(
-        service, ip, request.text, request.lang, request.model, request.rate, check_layers(request.life), request.seed
+        service,
+        ip,
+        request.text,
+        request.language,
+        request.model,
+        request.rate,
+        check_layers(request.life),
+        request.seed,
     )
 
 
@@ -118,12 +125,12 @@ async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> Cha
     service.pay(ip, service.text_cost(request.message))
     if request.speak:
         service.model(request.model)  # an unknown model is refused before the bot is asked
-    reply, spoken = await run_in_threadpool(service.reply, request.message, request.lang)  # may wait on a service
+    reply, spoken = await run_in_threadpool(service.reply, request.message, request.language)  # may wait on a service
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
         speech = await _spoken(service, ip, reply, spoken, request.model, 1.0, check_layers(request.life), request.seed)
-    return ChatResponse(reply=reply, lang=spoken, speech=speech)
+    return ChatResponse(reply=reply, language=spoken, speech=speech)
 
 
 async def _spoken(service: SpeechService, ip: str, text: str, *args) -> SpeakResponse:

@@ -1,7 +1,7 @@
 """Chat bots behind ``POST /api/chat``: the :class:`ChatBot` protocol, a rule bot and an HTTP adapter.
 
 The server asks its bot for a text reply and speaks it; any object with a
-``reply(message, lang) -> str`` method will do (a database of answers, a language model).
+``reply(message, language) -> str`` method will do (a database of answers, a language model).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class ChatBot(Protocol):
     @property
     def languages(self) -> tuple[str, ...] | None: ...  # read-only: a class attribute will do
 
-    def reply(self, message: str, lang: str) -> str: ...
+    def reply(self, message: str, language: str) -> str: ...
 
 
 _RULES: dict[str, list[tuple[str, str]]] = {
@@ -85,26 +85,26 @@ class RuleBot:
         self.name = name
         self.clock = clock
         self._rules = {
-            lang: [(rule, re.compile(pattern, re.IGNORECASE)) for rule, pattern in rules]
-            for lang, rules in _RULES.items()
+            language: [(rule, re.compile(pattern, re.IGNORECASE)) for rule, pattern in rules]
+            for language, rules in _RULES.items()
         }
 
-    def reply(self, message: str, lang: str) -> str:
-        """The answer to ``message`` in ``lang``."""
-        if lang not in self._rules:
+    def reply(self, message: str, language: str) -> str:
+        """The answer to ``message`` in ``language``."""
+        if language not in self._rules:
             raise VispeechError(
-                f"the built-in chat bot speaks sv and en, not {lang!r}; connect a chat service "
+                f"the built-in chat bot speaks sv and en, not {language!r}; connect a chat service "
                 "(vispeech serve --chat-url) for other languages"
             )
-        rule = next((rule for rule, pattern in self._rules[lang] if pattern.search(message)), "fallback")
-        return _REPLIES[lang][rule].format(name=self.name, time=f"{self.clock():%H:%M}")
+        rule = next((rule for rule, pattern in self._rules[language] if pattern.search(message)), "fallback")
+        return _REPLIES[language][rule].format(name=self.name, time=f"{self.clock():%H:%M}")
 
 
 class HTTPChatBot:
     """Relays messages to an external chat service over HTTP(S).
 
-    Each message is POSTed as JSON ``{message_field: message, lang_field: lang}`` (no
-    language when ``lang_field`` is ``None``) with ``headers``; the reply is read from the
+    Each message is POSTed as JSON ``{message_field: message, language_field: language}`` (no
+    language when ``language_field`` is ``None``) with ``headers``; the reply is read from the
     JSON answer at ``reply_field``, a dotted path that may index lists
     (``"choices.0.message.content"``). Failures raise :class:`ChatBotError`.
     """
@@ -117,7 +117,7 @@ class HTTPChatBot:
         url: str,
         *,
         message_field: str = "message",
-        lang_field: str | None = "lang",
+        language_field: str | None = "language",
         reply_field: str = "reply",
         headers: Mapping[str, str] | None = None,
         timeout: float = 10.0,
@@ -126,7 +126,7 @@ class HTTPChatBot:
             raise VispeechError(f"chat bot URL must start with http:// or https://, got {url!r}")
         self.url = url
         self.message_field = message_field
-        self.lang_field = lang_field
+        self.language_field = language_field
         self.reply_field = reply_field
         self.headers = dict(headers or {})
         self.timeout = timeout
@@ -134,11 +134,11 @@ class HTTPChatBot:
     def __repr__(self) -> str:
         return f"HTTPChatBot({self.url!r})"
 
-    def reply(self, message: str, lang: str) -> str:
+    def reply(self, message: str, language: str) -> str:
         """POST ``message`` to the service and return the text at ``reply_field`` of its answer."""
         payload = {self.message_field: message}
-        if self.lang_field is not None:
-            payload[self.lang_field] = lang
+        if self.language_field is not None:
+            payload[self.language_field] = language
         request = urllib.request.Request(
             self.url,
             data=json.dumps(payload).encode(),

@@ -53,7 +53,7 @@ class StreamTimings:
 
 
 async def time_stream(
-    url: str, text: str, lang: str = "en", model: str | None = None, timeout: float = 60.0
+    url: str, text: str, language: str = "en", model: str | None = None, timeout: float = 60.0
 ) -> StreamTimings:
     """Send ``text`` to the stream at ``url`` (``ws://host:port/api/stream``) and time the answer.
 
@@ -69,7 +69,7 @@ async def time_stream(
     samples = warnings = 0
     async with websockets.connect(url, max_size=None, open_timeout=timeout, close_timeout=2) as ws:
         sent = time.perf_counter()
-        await ws.send(json.dumps({"type": "text", "text": text, "lang": lang, "model": model}))
+        await ws.send(json.dumps({"type": "text", "text": text, "language": language, "model": model}))
         async with asyncio.timeout(timeout):
             async for raw in ws:
                 now = time.perf_counter() - sent

@@ -224,7 +224,7 @@ class ServeConfig:
             data["bot"] = {
                 "url": bot.url,
                 "message_field": bot.message_field,
-                "lang_field": bot.lang_field,
+                "language_field": bot.language_field,
                 "reply_field": bot.reply_field,
                 "headers": bot.headers,
                 "timeout": bot.timeout,

@@ -44,6 +44,8 @@ def describe_errors(
             parts.append(f"the {what} must be a JSON object")
         elif error.get("type") == "union_tag_not_found":
             parts.append(f'"type" is missing: use {choices}')
+        elif error.get("type") == "extra_forbidden":
+            parts.append(f"unknown field {'.'.join(loc)!r}")
         elif error.get("type") == "union_tag_invalid":
             parts.append(f'"type" must be {choices}, not {json.dumps(error.get("ctx", {}).get("tag"))[:50]}')
         else:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, BaseModel, Field, StringConstraints, TypeAdapter
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter
 
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
@@ -61,12 +61,19 @@ Layers = Annotated[list[Layer], Field(max_length=10)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 
 
-class SpeakRequest(BaseModel):
+class ClientInput(BaseModel):
+    """A JSON body or message a client sends: a field the server does not know is refused (422
+    naming it), never ignored. (Query strings may carry more: the access ``token``.)"""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class SpeakRequest(ClientInput):
     """Text to speak; ``model`` ``null`` means the server's default model. ``life`` names the
     non-verbal layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``."""
 
     text: Text
-    lang: Language = "en"
+    language: Language = "en"
     model: ModelName | None = None
     rate: Rate = 1.0
     life: Layers = []
@@ -77,12 +84,12 @@ class AnimateQuery(BaseModel):
     """Query parameters of ``POST /api/animate`` (the body is the audio file itself).
 
     Without ``text`` the audio model animates the audio; with it the transcript is aligned
-    with the audio in ``lang`` and ``model`` (default: the server's default model) animates the
+    with the audio in ``language`` and ``model`` (default: the server's default model) animates the
     phones, as :func:`vispeech.pipeline.listen` does. ``fps`` ``null`` means the server's frame rate.
     """
 
     text: Text | None = None
-    lang: Language = "en"
+    language: Language = "en"
     fps: Fps | None = None
     model: ModelName | None = None
 
@@ -131,12 +138,12 @@ class SpeakResponse(BaseModel):
     cached: bool
 
 
-class ChatRequest(BaseModel):
+class ChatRequest(ClientInput):
     """A chat message; with ``speak`` the reply comes spoken (``speech``) as well, with the
     non-verbal layers ``life`` drawn with ``seed`` (as in :class:`SpeakRequest`)."""
 
     message: Text
-    lang: Language = "en"
+    language: Language = "en"
     speak: bool = True
     model: ModelName | None = None
     life: Layers = []
@@ -145,7 +152,7 @@ class ChatRequest(BaseModel):
 
 class ChatResponse(BaseModel):
     reply: str
-    lang: str
+    language: str
     speech: SpeakResponse | None = None
 
 
@@ -176,17 +183,17 @@ class ErrorResponse(BaseModel):
     detail: str
 
 
-class TextMessage(BaseModel):
+class TextMessage(ClientInput):
     """Stream client message: speak ``text`` clause by clause."""
 
     type: Literal["text"]
     text: Text
-    lang: Language = "en"
+    language: Language = "en"
     model: ModelName | None = None
     rate: Rate = 1.0
 
 
-class StreamPhone(BaseModel):
+class StreamPhone(ClientInput):
     """One timed phone of a phone stream, seconds from the stream's start."""
 
     symbol: Annotated[str, StringConstraints(min_length=1, max_length=8)]
@@ -195,15 +202,15 @@ class StreamPhone(BaseModel):
     stress: Annotated[int, Field(ge=0, le=2)] = 0
 
 
-class PhonesMessage(BaseModel):
+class PhonesMessage(ClientInput):
     """Stream client message: the next phones of a phone stream; ``final`` ends it.
 
-    ``lang`` (default ``"en"``) and ``model`` count in a stream's first message.
+    ``language`` (default ``"en"``) and ``model`` count in a stream's first message.
     """
 
     type: Literal["phones"]
     phones: Annotated[list[StreamPhone], Field(max_length=MAX_PHONES_PER_MESSAGE)]
-    lang: PhoneSet | None = None
+    language: PhoneSet | None = None
     final: bool = False
     model: ModelName | None = None
 
@@ -212,7 +219,7 @@ ClientMessage = TypeAdapter(Annotated[TextMessage | PhonesMessage, Field(discrim
 """Parses one stream client message (JSON text) into :class:`TextMessage` or :class:`PhonesMessage`."""
 
 
-class AudioStartMessage(BaseModel):
+class AudioStartMessage(ClientInput):
     """Listen client message: open an audio stream; binary messages of audio follow, each a chunk
     of ``encoding`` (``pcm16``: 16-bit little-endian mono PCM) at ``sample_rate`` Hz.
 
@@ -226,7 +233,7 @@ class AudioStartMessage(BaseModel):
     model: ModelName | None = None
 
 
-class AudioStopMessage(BaseModel):
+class AudioStopMessage(ClientInput):
     """Listen client message: the audio has ended; the server sends the last frames and ``end``."""
 
     type: Literal["stop"]

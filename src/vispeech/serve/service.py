@@ -242,32 +242,32 @@ class SpeechService:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
         return name, self.models[name]
 
-    def _key(self, text: str, lang: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
+    def _key(self, text: str, language: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
         name, model = self.model(model_name)
-        spoken = find_language(lang)
+        spoken = find_language(language)
         selector = spoken.selector if self.config.voice is None else f"{spoken.selector}+{self.config.voice}"
         return CacheKey(text, spoken.code, selector, float(rate), name, self.versions[name], self.config.fps), model
 
     def lookup(
-        self, text: str, lang: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
+        self, text: str, language: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
     ) -> SpeakResponse | None:
         """The cached answer to this request, or ``None`` (nothing computed)."""
-        key, _ = self._key(text, lang, model_name, rate)
+        key, _ = self._key(text, language, model_name, rate)
         entry = self.cache.get(key)
         return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
 
     def speak(
-        self, text: str, lang: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
+        self, text: str, language: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
     ) -> SpeakResponse:
         """The answer to this request, from the cache when the same request was answered before.
 
         The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
         added to each answer, so every seed shares the speech's entry and its audio."""
-        key, model = self._key(text, lang, model_name, rate)
+        key, model = self._key(text, language, model_name, rate)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = speak(text, lang, model=model, rate=rate, fps=self.config.fps, voice=self.config.voice)
+            utterance = speak(text, language, model=model, rate=rate, fps=self.config.fps, voice=self.config.voice)
             wav = utterance.wav_bytes()
             assert wav is not None  # speak gives the audio it synthesised
             entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
@@ -277,7 +277,9 @@ class SpeechService:
         """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
         name, model = self.model(query.model, audio=query.text is None)
         fps = query.fps or self.config.fps
-        return CacheKey(query.text or "", query.lang, f"upload:{digest}", 1.0, name, self.versions[name], fps), model
+        return CacheKey(
+            query.text or "", query.language, f"upload:{digest}", 1.0, name, self.versions[name], fps
+        ), model
 
     def lookup_upload(self, digest: str, query: AnimateQuery) -> SpeakResponse | None:
         """The cached answer for this upload, or ``None`` (nothing computed)."""
@@ -292,7 +294,7 @@ class SpeechService:
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = listen(read_upload(data), query.text, query.lang, model=model, fps=key.fps)
+            utterance = listen(read_upload(data), query.text, query.language, model=model, fps=key.fps)
             wav = utterance.wav_bytes()
             assert wav is not None  # listen keeps the audio it animated
             entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
@@ -314,18 +316,18 @@ class SpeechService:
         track = with_life(Track.from_dict(data), phones, life, seed, scale=self.calibration)
         return AnimationJSON.model_validate({**data, **track.to_dict()})
 
-    def reply(self, message: str, lang: str) -> tuple[str, str]:
+    def reply(self, message: str, language: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
-        to speak it in: the message's or the page's (``lang``).
+        to speak it in: the message's or the page's (``language``).
 
         A bot with a list of languages (the rule bot) answers in the one the message is written
-        in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``lang``; a
-        bot that answers in any language (an HTTP chat service) is asked in ``lang`` and its
-        reply is spoken in the language the reply is written in, else in ``lang``."""
+        in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``language``; a
+        bot that answers in any language (an HTTP chat service) is asked in ``language`` and its
+        reply is spoken in the language the reply is written in, else in ``language``."""
         answered = self.chat_languages
-        asked = lang
+        asked = language
         if answered is not None:
-            asked = detect_language(message, answered) or lang
+            asked = detect_language(message, answered) or language
         reply = self.config.bot.reply(message, asked)
         if not isinstance(reply, str) or not reply.strip():
             raise ChatBotError("the chat bot gave no reply")
@@ -333,7 +335,7 @@ class SpeechService:
         if answered is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
             codes = [alias for v in languages() for alias in v.aliases] + [v.code for v in languages()]
             said = detect_language(reply, codes)
-            asked = lang if said is None else find_language(said).code
+            asked = language if said is None else find_language(said).code
         return reply, asked
 
 

@@ -68,7 +68,7 @@ class StreamConnection(Connection):
         _, model = self.service.model(message.model, stream=True)
         messages = speech_messages(
             message.text,
-            message.lang,
+            message.language,
             model,
             fps=self.config.fps,
             rate=message.rate,
@@ -111,8 +111,8 @@ class StreamConnection(Connection):
     async def _phones(self, message: PhonesMessage) -> None:
         """Frames for ``message``'s phones, pushed in pieces; with ``final`` the rest and ``end``."""
         config, stream = self.config, self.phones
-        if stream is not None and message.lang is not None and message.lang != stream.language:
-            raise VispeechError(f"this phone stream is in {stream.language}, not {message.lang}")
+        if stream is not None and message.language is not None and message.language != stream.language:
+            raise VispeechError(f"this phone stream is in {stream.language}, not {message.language}")
         begin = stream.end if stream is not None else 0.0
         last = max((p.end for p in message.phones), default=begin)
         added = max(0.0, last - begin)
@@ -128,7 +128,7 @@ class StreamConnection(Connection):
         self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
         if stream is None:
             name, model = self.service.model(message.model, stream=True)
-            stream = await self._run(open_phone_stream, model, message.lang or "en", config.fps)
+            stream = await self._run(open_phone_stream, model, message.language or "en", config.fps)
             self.phones = stream
             await send_message(
                 self.ws,
