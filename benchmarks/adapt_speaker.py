@@ -75,7 +75,7 @@ def main() -> None:
     scratch_s = time.perf_counter() - started
     models = {f"{args.model} (unadapted)": base, "adapted on the new speaker": adapted, "from scratch": scratch}
     channels = [c for c in CHANNELS if c in base.channels]
-    report = evaluate_models(small.split("test"), models, channels=channels, postprocessing=False)
+    report = evaluate_models(small.split("test"), models, channels=channels, postprocessing="none")
     print(f"new speaker: stretch/smile x{args.width}, jawOpen +{args.jaw}; {len(train)} training, "
           f"{len(validation)} validation, {len(test)} test utterances")
     print(f"adaptation {adapted_s:.0f} s ({adapted.history_.epochs} epochs), from scratch {scratch_s:.0f} s "

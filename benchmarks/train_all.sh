@@ -32,7 +32,7 @@ train() {  # train FOLDER [vispeech train options...]
     echo "wall seconds: $(echo "$(date +%s.%N) - $start" | bc)" | tee -a "$MODELS/$name.log"
 }
 
-evaluate() {  # evaluate NAME [--no-postprocess]: tables -> MODELS_DIR/evaluate-NAME.{md,txt}
+evaluate() {  # evaluate NAME [--postprocessing none]: tables -> MODELS_DIR/evaluate-NAME.{md,txt}
     local name=$1
     shift
     # Run beside the models folder so that the tables label a trained model "models/<folder>".
@@ -57,7 +57,7 @@ fi
 
 if [[ $STEP == evaluate || $STEP == all ]]; then
     evaluate postprocess
-    evaluate raw --no-postprocess
+    evaluate raw --postprocessing none
     # Summary: per model and setting, from the two Markdown tables. Lip channels: the 19
     # mouth* channels every model predicts (mouthClose, Funnel, Pucker, Smile, Dimple,
     # Stretch, RollLower/Upper, ShrugLower/Upper, Press, LowerDown, UpperUp; both sides).

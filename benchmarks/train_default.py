@@ -108,14 +108,14 @@ def main() -> None:
 
     print(f"{'split':<11} {'post-proc.':<10} {'r':>6} {'RMSE':>7} {'/p b m/ closed':>15} {'closed %':>9} {'tracked %':>9}")
     for split in ("validation", "test"):
-        for postprocessing in (False, True):
+        for postprocessing in ("none", "auto"):
             result = evaluate_models(corpus.split(split), {args.model: model}, channels=["jawOpen"],
                                      postprocessing=postprocessing).models[0]
             jaw, c = result.scores["jawOpen"], result.closures
-            print(f"{split:<11} {'on' if postprocessing else 'off':<10} {jaw['r']:6.3f} {math.sqrt(jaw['mse']):7.4f} "
+            print(f"{split:<11} {postprocessing:<10} {jaw['r']:6.3f} {math.sqrt(jaw['mse']):7.4f} "
                   f"{f'{c.model_closures}/{c.tracked_closures} {c.bilabial_rate:.1f} %':>15} "
                   f"{c.model_closed_share:9.1f} {c.tracked_closed_share:9.1f}")
-            if split == "test" and postprocessing:
+            if split == "test" and postprocessing == "auto":
                 card = {"trained_on": f"grid_s1 train split ({len(corpus.split('train'))} utterances, GRID speaker 1)",
                         "test": f"jawOpen r {jaw['r']:.3f}, /p b m/ closed {c.model_closures}/{c.tracked_closures} "
                                 f"({len(corpus.split('test'))} test utterances, post-processed)"}

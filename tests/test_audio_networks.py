@@ -149,7 +149,7 @@ def test_animate_audio_shuts_the_lips_on_the_bilabials_the_head_hears(encdec, he
     assert bilabials and all(p.symbol in ("B", "M", "P") for p in bilabials)
     centres = [round(0.5 * (p.start + p.end) * 25) for p in bilabials]
     assert model_closed(animate_audio(clip, hearing, 25))[centres].all()
-    assert not model_closed(animate_audio(clip, hearing, 25, postprocessing=False))[centres].all()
+    assert not model_closed(animate_audio(clip, hearing, 25, postprocessing="none"))[centres].all()
 
 
 @pytest.mark.parametrize("fixture,fps", [("cnn", 25.0), ("cnn", 30.0), ("cnn", 50.0), ("cnn", 60.0),

@@ -48,9 +48,9 @@ def _index(out: Path) -> list[dict]:
 def test_csv_manifest_fields_defaults_and_relative_paths(tmp_path):
     (tmp_path / "takes").mkdir()
     job = _csv(tmp_path / "job.csv", [
-        "id,text,language,audio,alignment,model,fps,rate,formats,postprocess",
+        "id,text,language,audio,alignment,model,fps,rate,formats,postprocessing",
         'a,"Hello, there.",,,,,,,,',
-        "b,Hej då.,sv,,,baseline,60,1.3,csv;json,false",
+        "b,Hej då.,sv,,,baseline,60,1.3,csv;json,none",
         "c,bin blue,,takes/c.wav,,,,,,",
         "d,,,,takes/d.TextGrid,,,,livelink json,",
     ])
@@ -58,9 +58,9 @@ def test_csv_manifest_fields_defaults_and_relative_paths(tmp_path):
     assert [(x.id, x.kind, x.error) for x in lines] == [
         ("a", "text", None), ("b", "text", None), ("c", "audio", None), ("d", "alignment", None)]
     a, b, c, d = lines
-    assert a.text == "Hello, there." and a.language == "en" and a.fps == 25.0 and a.model is None and a.postprocess
+    assert a.text == "Hello, there." and a.language == "en" and a.fps == 25.0 and a.model is None and a.postprocessing == "auto"
     assert a.formats == ("wav", "textgrid", "livelink", "json", "preview")
-    assert (b.language, b.model, b.fps, b.rate, b.formats, b.postprocess) == ("sv", "baseline", 60.0, 1.3, ("livelink", "json"), False)
+    assert (b.language, b.model, b.fps, b.rate, b.formats, b.postprocessing) == ("sv", "baseline", 60.0, 1.3, ("livelink", "json"), "none")
     assert c.audio == tmp_path / "takes" / "c.wav" and c.text == "bin blue"
     assert d.alignment == tmp_path / "takes" / "d.TextGrid" and d.language is None  # guessed from its symbols
 
@@ -83,6 +83,9 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
         {"id": "voiced", "text": "Hi.", "voice": "f3"},
         {"id": "novoice", "text": "Hi.", "voice": "nobody"},
         {"id": "audiovoice", "audio": "x.wav", "voice": "f3"},
+        {"id": "raw", "text": "Hi.", "postprocessing": "none"},
+        {"id": "old", "text": "Hi.", "postprocess": False},
+        {"id": "bool", "text": "Hi.", "postprocessing": False},
     ])
     lines = read_job(job)
     errors = {x.number: x.error for x in lines}
@@ -102,6 +105,9 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     assert errors[14] is None and lines[13].voice == "f3" and lines[0].voice is None
     assert "unknown voice 'nobody'" in errors[15]
     assert "voice is for text lines" in errors[16]
+    assert errors[17] is None and lines[16].postprocessing == "none" and lines[0].postprocessing == "auto"
+    assert "unknown field 'postprocess'" in errors[18]
+    assert "unknown post-processing 'False' (use auto, none or a preset: authored" in errors[19]
 
 
 def test_folder_job_reads_texts_recordings_with_transcripts_and_alignments(tmp_path):

@@ -176,7 +176,7 @@ def test_stereo_is_downmixed(audio_model, grid_s1, tmp_path):
 
 
 def test_no_postprocess_and_fps(audio_model, grid_clip, tmp_path):
-    animate(grid_clip, tmp_path / "out", "--model", str(audio_model), "--no-postprocess", "--fps", "60")
+    animate(grid_clip, tmp_path / "out", "--model", str(audio_model), "--postprocessing", "none", "--fps", "60")
     check_outputs(tmp_path / "out", soundfile.info(grid_clip).duration, 16000, fps=60.0)
 
 

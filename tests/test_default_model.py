@@ -126,7 +126,7 @@ def test_animate_uses_the_models_recommended_postprocessing(default):
     plain = postprocess(default.predict(phones, 25), phones, PostprocessConfig())
     assert not np.allclose(plain["jawOpen"], expected["jawOpen"])  # the defaults would shift the jaw
     np.testing.assert_array_equal(animate(phones, default, 25, PostprocessConfig()).values, plain.values)
-    np.testing.assert_array_equal(animate(phones, default, 25, False).values, default.predict(phones, 25).values)
+    np.testing.assert_array_equal(animate(phones, default, 25, "none").values, default.predict(phones, 25).values)
 
 
 @pytest.mark.parametrize("name", ["ohman", DEFAULT_MODEL])
@@ -166,7 +166,7 @@ def test_bad_recommended_postprocessing_is_refused(tmp_path):
         PostprocessConfig.from_preset("learned_jaw")
     with pytest.raises(VispeechError, match="jaw_shift"):
         PostprocessConfig(jaw_shift=2.0)
-    np.testing.assert_array_equal(animate(phones, _Unknown(), 30, False).values,
+    np.testing.assert_array_equal(animate(phones, _Unknown(), 30, "none").values,
                                   create_model("baseline").predict(phones, 30).values)
 
 

@@ -223,7 +223,7 @@ def corpus():
 
 def test_a_perfect_model_scores_perfectly(corpus):
     evaluation = evaluate_models(corpus, {"replay": Replay(corpus), "shifted": Replay(corpus, 0.1)},
-                                 postprocessing=False)
+                                 postprocessing="none")
     perfect, shifted = evaluation["replay"], evaluation["shifted"]
     assert perfect.scores.channels == ("jawOpen", "mouthClose", "mouthPucker")
     # speech span 0.4 s .. 1.8 s: 15 frames each, less the untracked frame 1 (outside anyway)
@@ -239,7 +239,7 @@ def test_a_perfect_model_scores_perfectly(corpus):
     np.testing.assert_allclose(shifted.scores.rmse_percent[[0, 2]], 100 * 0.1 / perfect.scores.range[[0, 2]])
     assert np.isnan(shifted.scores.rmse_percent[1])  # mouthClose has no range
     text, markdown = evaluation.to_text(), evaluation.to_markdown()
-    assert "synthetic: 2 utterances, 30 speech frames at 10 fps, post-processing off" in text
+    assert "synthetic: 2 utterances, 30 speech frames at 10 fps, post-processing none" in text
     assert "replay   jawOpen" in text and "6/6" in text
     assert "| shifted | jawOpen | 0.01000 |" in markdown and "## Lip closures" in markdown
 
@@ -248,9 +248,9 @@ def test_each_utterance_is_animated_and_scored_at_its_own_frame_rate():
     utterances = [_utterance("a", 1), _utterance("b", 2, fps=2 * FPS)]
     corpus = Corpus("mixed", utterances, FPS, utterances[0].track.channels)
     replay = Replay(corpus)
-    predicted = predict_on_frames(replay, corpus["b"], postprocessing=False)
+    predicted = predict_on_frames(replay, corpus["b"], postprocessing="none")
     assert predicted.fps == 20.0 and predicted.n_frames == corpus["b"].track.n_frames == 44
-    evaluation = evaluate_models(corpus, {"replay": replay}, channels=["jawOpen"], postprocessing=False)
+    evaluation = evaluate_models(corpus, {"replay": replay}, channels=["jawOpen"], postprocessing="none")
     result = evaluation["replay"]
     assert evaluation.frame_rates == (10.0, 20.0)
     # speech span 0.4 s .. 1.8 s: 15 frames at 10 fps, 29 at 20 fps
@@ -296,7 +296,7 @@ def test_data_free_models_close_on_bilabials_with_postprocessing(corpus):
     closures = evaluation["baseline"].closures
     assert closures.bilabial_rate == 100.0
     raw = evaluate_models(corpus, {"baseline": create_model("baseline")}, channels=["jawOpen"],
-                          postprocessing=False)
+                          postprocessing="none")
     assert raw["baseline"].scores.channels == ("jawOpen",)
     assert not np.allclose(raw["baseline"].scores.mse, evaluation["baseline"].scores.mse)
 
@@ -304,7 +304,7 @@ def test_data_free_models_close_on_bilabials_with_postprocessing(corpus):
 def test_predictions_are_sampled_on_the_recorded_frames(corpus):
     utterance = corpus[0]
     utterance.track = Track(utterance.track.values[:-3], utterance.track.channels, FPS, start_time=0.05)
-    predicted = predict_on_frames(create_model("cohen-massaro"), utterance, postprocessing=False)
+    predicted = predict_on_frames(create_model("cohen-massaro"), utterance, postprocessing="none")
     direct = create_model("cohen-massaro").predict(utterance.phones, FPS)
     assert predicted.n_frames == utterance.track.n_frames and predicted.start_time == 0.05
     np.testing.assert_allclose(predicted["jawOpen"][2], (direct["jawOpen"][2] + direct["jawOpen"][3]) / 2)

@@ -31,13 +31,13 @@ def _evaluate(*args):
 def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
     saved = create_model("baseline", lead_in=0).save(tmp_path / "saved")
     result = _evaluate("--corpus", takes, "--language", "en", "-m", "baseline", "-m", saved,
-                       "--channels", "mouthClose", "--no-postprocess", "-q",
+                       "--channels", "mouthClose", "--postprocessing", "none", "-q",
                        "--markdown", tmp_path / "t.md", "--plot", tmp_path / "p.png", "--plot-utterance", "u19")
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
     # speech span of a take: 0.2 s to 0.4 s + 80 ms per phone, i.e. frames 5 .. 10 + 2 per phone
     frames = sum(6 + 2 * (len(synthetic_take(i)[0]) - 2) for i in (0, 19))
-    assert lines[0] == f"takes:test: 2 utterances, {frames} speech frames at 25 fps, post-processing off"
+    assert lines[0] == f"takes:test: 2 utterances, {frames} speech frames at 25 fps, post-processing none"
     rows = [line.split() for line in lines if line.startswith(("baseline", str(saved)))]
     assert [row[:2] for row in rows] == [["baseline", "jawOpen"], ["baseline", "mouthClose"], ["baseline", "(mean)"],
                                          [str(saved), "jawOpen"], [str(saved), "mouthClose"], [str(saved), "(mean)"]]
@@ -95,7 +95,7 @@ def test_evaluate_on_five_grid_utterances(grid5, tmp_path, monkeypatch):
     result = _evaluate(*args)
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[0] == "grid5:test: 5 utterances, 191 speech frames at 25 fps, post-processing on"
+    assert lines[0] == "grid5:test: 5 utterances, 191 speech frames at 25 fps, post-processing auto"
     jaw = next(line.split() for line in lines if line.startswith("baseline  jawOpen"))
     assert float(jaw[4]) > 0.4  # r of jawOpen
     closures = next(line.split() for line in lines if line.startswith("baseline ") and "/" in line)
@@ -171,11 +171,11 @@ def test_split_all_scores_a_corpus_of_mixed_frame_rates(grid_s1, tmp_path):
     test_only = _evaluate("--corpus", root, "-m", "baseline", "--channels", "jawOpen", "-q")
     assert test_only.exit_code == 0, test_only.output
     assert test_only.output.splitlines()[0] == (
-        f"grid2:test: 1 utterances, {frames[0]} speech frames at 25 fps, post-processing on")
+        f"grid2:test: 1 utterances, {frames[0]} speech frames at 25 fps, post-processing auto")
     result = _evaluate("--corpus", root, "--split", "all", "-m", "baseline", "--channels", "jawOpen", "-q")
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[0] == f"grid2:all: 2 utterances, {sum(frames)} speech frames at 25 and 30 fps, post-processing on"
+    assert lines[0] == f"grid2:all: 2 utterances, {sum(frames)} speech frames at 25 and 30 fps, post-processing auto"
     jaw = next(line.split() for line in lines if line.startswith("baseline  jawOpen"))
     assert float(jaw[4]) > 0.4
     closures = next(line.split() for line in lines if line.startswith("baseline ") and "/" in line)

@@ -24,7 +24,7 @@ from vispeech.motion.formats.registry import ALIASES, write_track
 from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
-from vispeech.postprocess import PostprocessConfig, postprocess
+from vispeech.postprocess import AUTO, Postprocessing, postprocess, postprocessing_config
 from vispeech.utterance import Utterance
 
 DEFAULT_FPS = 30.0
@@ -67,22 +67,21 @@ def animate(
     phones: PhoneSequence,
     model: str | Estimator = DEFAULT_MODEL,
     fps: float = DEFAULT_FPS,
-    postprocessing: PostprocessConfig | bool = True,
+    postprocessing: Postprocessing = AUTO,
 ) -> Track:
     """Animation for a time-aligned phone sequence at ``fps`` frames per second.
 
     ``model`` is a model name (see :data:`vispeech.models.registry.RUNNABLE`), a saved
-    model folder or a model object; ``postprocessing`` is a configuration, ``True`` for the
-    preset the model recommends (:attr:`~vispeech.models.contract.Estimator.postprocessing`)
-    or ``False`` for none.
+    model folder or a model object; ``postprocessing`` is a configuration, a preset name,
+    ``"auto"`` for the preset the model recommends
+    (:attr:`~vispeech.models.contract.Estimator.postprocessing`) or ``"none"``
+    (:data:`vispeech.postprocess.Postprocessing`).
     """
     check_fps(fps)
     return _animate(phones, model, fps, postprocessing)
 
 
-def _animate(
-    phones: PhoneSequence, model: str | Estimator, fps: float, postprocessing: PostprocessConfig | bool
-) -> Track:
+def _animate(phones: PhoneSequence, model: str | Estimator, fps: float, postprocessing: Postprocessing) -> Track:
     """:func:`animate` at an ``fps`` already checked."""
     phones.validate()
     check_utterance(phones.duration, len(phones))
@@ -94,7 +93,7 @@ def animate_audio(
     clip: AudioClip,
     model: str | Estimator = DEFAULT_AUDIO_MODEL,
     fps: float = DEFAULT_FPS,
-    postprocessing: PostprocessConfig | bool = True,
+    postprocessing: Postprocessing = AUTO,
     phones: PhoneSequence | None = None,
 ) -> Track:
     """Animation of speech audio at ``fps``, ``clip.n_frames(fps)`` frames from time 0.
@@ -114,7 +113,7 @@ def _animate_audio(
     clip: AudioClip,
     model: str | Estimator,
     fps: float,
-    postprocessing: PostprocessConfig | bool,
+    postprocessing: Postprocessing,
     phones: PhoneSequence | None,
 ) -> Track:
     """:func:`animate_audio` at an ``fps`` already checked."""
@@ -131,14 +130,10 @@ def _animate_audio(
     return _postprocessed(track, heard, postprocessing, preset)
 
 
-def _postprocessed(
-    track: Track, phones: PhoneSequence | None, postprocessing: PostprocessConfig | bool, preset: str
-) -> Track:
-    """``track`` post-processed by ``postprocessing`` (a configuration, ``True`` for ``preset``, ``False`` for none)."""
-    if postprocessing is False:
-        return track
-    config = postprocessing if isinstance(postprocessing, PostprocessConfig) else PostprocessConfig.from_preset(preset)
-    return postprocess(track, phones, config)
+def _postprocessed(track: Track, phones: PhoneSequence | None, postprocessing: Postprocessing, preset: str) -> Track:
+    """``track`` post-processed by ``postprocessing``, with ``preset`` the one ``"auto"`` stands for."""
+    config = postprocessing_config(postprocessing, preset)
+    return track if config is None else postprocess(track, phones, config)
 
 
 def speak(
@@ -148,7 +143,7 @@ def speak(
     model: str | Estimator = DEFAULT_MODEL,
     rate: float = 1.0,
     fps: float = DEFAULT_FPS,
-    postprocessing: PostprocessConfig | bool = True,
+    postprocessing: Postprocessing = AUTO,
     voice: str | None = None,
 ) -> Utterance:
     """Synthesise ``text`` with espeak-ng and animate it: audio, phones and a track of equal length.
@@ -212,7 +207,7 @@ def listen(
     *,
     model: str | Estimator | None = None,
     fps: float = DEFAULT_FPS,
-    postprocessing: PostprocessConfig | bool = True,
+    postprocessing: Postprocessing = AUTO,
 ) -> Utterance:
     """Animate recorded speech: audio, text, phones (``None`` without ``text``) and a track of
     ``clip.n_frames(fps)`` frames from time 0.

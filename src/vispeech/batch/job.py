@@ -10,7 +10,8 @@ A line animates one of three inputs, as the single-utterance commands do:
 Every line may also set ``id`` (the name of its output folder; default its line number),
 ``model``, ``fps``, ``formats`` (names of :data:`vispeech.pipeline.OUTPUT_FILES`, in CSV
 separated by spaces, commas or semicolons, in JSON a list or such a string) and
-``postprocess`` (true/false); what a line leaves out comes from the job's defaults. Paths are
+``postprocessing`` (``auto``, ``none`` or a preset: :data:`vispeech.postprocess.Postprocessing`);
+what a line leaves out comes from the job's defaults. Paths are
 relative to the manifest's folder. In CSV an empty cell is a field left out.
 
 A folder job takes each file by its extension: ``.txt`` is a text to speak, unless an audio
@@ -40,8 +41,9 @@ from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_voice, find_lang
 from vispeech.limits import check_fps, check_text, parse_json
 from vispeech.phonetics.inventory import get_inventory
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
+from vispeech.postprocess import AUTO, check_postprocessing
 
-FIELDS = ("id", "text", "language", "audio", "alignment", "model", "fps", "rate", "formats", "postprocess", "voice")
+FIELDS = ("id", "text", "language", "audio", "alignment", "model", "fps", "rate", "formats", "postprocessing", "voice")
 """The fields a manifest line may have."""
 AUDIO_SUFFIXES = (".wav", ".flac", ".mp3", ".ogg", ".oga", ".opus", ".aiff", ".aif")
 """Extensions a folder job reads as recordings."""
@@ -51,8 +53,6 @@ MAX_LINES = 1_000_000
 """The most lines one job may have."""
 
 _ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
-_TRUE = {"1", "true", "yes", "on"}
-_FALSE = {"0", "false", "no", "off"}
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ class JobDefaults:
     model: str | None = None
     fps: float = DEFAULT_FPS
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
-    postprocess: bool = True
+    postprocessing: str = AUTO
     scale: str = DEFAULT_SCALE
     """The output scale of every line (:func:`vispeech.motion.rigging.calibration.load_scale`)."""
     voice: str | None = None
@@ -95,7 +95,7 @@ class BatchLine:
     fps: float = DEFAULT_FPS
     rate: float = 1.0
     formats: tuple[str, ...] = DEFAULT_OUTPUTS
-    postprocess: bool = True
+    postprocessing: str = AUTO
     scale: str = DEFAULT_SCALE
     voice: str | None = None
     life: tuple[str, ...] = ()
@@ -262,7 +262,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         fps=fps,
         rate=rate,
         formats=check_formats(formats),
-        postprocess=_flag(record.get("postprocess", defaults.postprocess)),
+        postprocessing=_postprocessing(record.get("postprocessing", defaults.postprocessing)),
         scale=defaults.scale,
         voice=voice if kind == "text" else None,
         life=defaults.life,
@@ -280,12 +280,10 @@ def _number(value, what: str) -> float:
     return number
 
 
-def _flag(value) -> bool:
-    if isinstance(value, bool):
-        return value
-    if isinstance(value, str) and value.strip().lower() in _TRUE | _FALSE:
-        return value.strip().lower() in _TRUE
-    raise VispeechError(f"postprocess must be true or false, got {str(value)[:40]!r}")
+def _postprocessing(value) -> str:
+    name = value.strip() if isinstance(value, str) else str(value)
+    check_postprocessing(name)
+    return name
 
 
 def _unique_ids(lines: list[BatchLine]) -> list[BatchLine]:

@@ -112,10 +112,10 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
     model = loaded_model(model_spec(line))
     utterance = prepared.utterance
     if prepared.clip is not None:
-        track = animate_audio(prepared.clip, model, line.fps, line.postprocess, phones=utterance.phones)
+        track = animate_audio(prepared.clip, model, line.fps, line.postprocessing, phones=utterance.phones)
     else:
         assert utterance.phones is not None  # text and alignment lines prepare phones
-        track = animate(utterance.phones, model, line.fps, line.postprocess)
+        track = animate(utterance.phones, model, line.fps, line.postprocessing)
     return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed))
 
 

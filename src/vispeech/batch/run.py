@@ -155,7 +155,7 @@ def _plan(line: BatchLine, out: Path, versions: dict, force: bool) -> tuple[Line
         "fps": line.fps,
         "rate": line.rate,
         "formats": list(line.formats),
-        "postprocess": line.postprocess,
+        "postprocessing": line.postprocessing,
         "scale": _scale_settings(line.scale),
         "voice": line.voice,
         "life": list(line.life),

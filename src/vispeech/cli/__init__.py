@@ -60,6 +60,20 @@ def language_option(help: str, default: str | None = DEFAULT_LANGUAGE):
     return click.option("--language", "-l", default=default, show_default=default is not None, help=help)
 
 
+def postprocessing_option(help: str = "How tracks are post-processed"):
+    """The ``--postprocessing`` option: ``auto``, ``none`` or a preset (:data:`vispeech.postprocess.Postprocessing`)."""
+    from vispeech.targets.presets import PRESETS
+
+    return click.option(
+        "--postprocessing",
+        default="auto",
+        show_default=True,
+        type=click.Choice(["auto", "none", *PRESETS]),
+        help=f"{help}: auto (what suits the model), none (its raw output) or a preset of closures, overlays "
+        "and ceilings (docs/models.md).",
+    )
+
+
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 """The ``--quiet/-q`` flag of the commands that show progress bars."""
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import language_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, postprocessing_option, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps
@@ -52,7 +52,7 @@ from vispeech.pipeline import (
     f"{DEFAULT_MODEL} with --text or --transcribe].",
 )
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
-@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+@postprocessing_option()
 @scale_option(DEFAULT_SCALE)
 @life_options
 def animate(
@@ -64,7 +64,7 @@ def animate(
     out_dir: Path,
     model: str | None,
     fps: float,
-    no_postprocess: bool,
+    postprocessing: str,
     scale: str,
     life: str,
     seed: int,
@@ -89,7 +89,7 @@ def animate(
             from vispeech.frontends.transcribe import transcribe as heard
 
             text = heard(clip, language)
-        utterance = listen(clip, text, language, model=model, fps=fps, postprocessing=not no_postprocess)
+        utterance = listen(clip, text, language, model=model, fps=fps, postprocessing=postprocessing)
     assert utterance.track is not None  # listen() animates the clip
     track = with_life(utterance.track, utterance.phones, layers, seed)
     utterance = replace(utterance, track=track)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import language_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, postprocessing_option, scale_option
 from vispeech.errors import VispeechError
 from vispeech.models.registry import RUNNABLE
 from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPUT_FILES
@@ -42,7 +42,7 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
     show_default=True,
     help=f"Files of lines that do not say, comma-separated: {', '.join(OUTPUT_FILES)}.",
 )
-@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings (lines that do not say).")
+@postprocessing_option("How lines that do not say are post-processed")
 @click.option(
     "--jobs", "-j", type=click.IntRange(min=1), default=None, help="Worker processes [default: one per core]."
 )
@@ -74,7 +74,7 @@ def batch(
     model: str | None,
     fps: float,
     formats: str,
-    no_postprocess: bool,
+    postprocessing: str,
     jobs: int | None,
     backend: str,
     address: str | None,
@@ -89,7 +89,7 @@ def batch(
 
     JOB is a folder of inputs (.txt texts, audio with an optional same-name .txt transcript,
     alignments) or a manifest: CSV with a header, or JSONL, with the fields id, text, language,
-    audio, alignment, model, fps, rate, formats, postprocess (docs/batch.md). A rerun redoes
+    audio, alignment, model, fps, rate, formats, postprocessing, voice (docs/batch.md). A rerun redoes
     only the lines whose input or settings changed. A failed line is reported at the end and
     never stops the others; the exit code is then 1.
     """
@@ -105,7 +105,7 @@ def batch(
         model=model,
         fps=check_fps(fps, "--fps"),
         formats=check_formats(f for f in formats.split(",") if f.strip()),
-        postprocess=not no_postprocess,
+        postprocessing=postprocessing,
         scale=scale,
         voice=voice,
         life=check_layers(life),

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main, quiet_option
+from vispeech.cli import main, postprocessing_option, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.corpus.corpus import ALL, SPLITS
 from vispeech.errors import VispeechError
@@ -38,12 +38,7 @@ from vispeech.files import atomic_output_file, check_output_dir
     help="Comma-separated channels to score [default: the mouth/jaw channels model and corpus share]; "
     "jawOpen is always scored when both have it.",
 )
-@click.option(
-    "--postprocess/--no-postprocess",
-    default=True,
-    show_default=True,
-    help="Post-process predictions (closures, overlays, ceilings) before scoring.",
-)
+@postprocessing_option("How predictions are post-processed before scoring")
 @click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -74,7 +69,7 @@ def evaluate_command(
     split: str,
     model_specs: tuple[str, ...],
     channels: str | None,
-    postprocess: bool,
+    postprocessing: str,
     markdown: Path | None,
     plot: Path | None,
     plot_utterance: str | None,
@@ -107,14 +102,14 @@ def evaluate_command(
     if not len(corpus):
         raise VispeechError(f"the {split} split of corpus {aligned.name} has no utterances")
     example = corpus[plot_utterance] if plot_utterance is not None else corpus[0]
-    evaluation = evaluate_models(corpus, models, channels=wanted, postprocessing=postprocess, progress=not quiet)
+    evaluation = evaluate_models(corpus, models, channels=wanted, postprocessing=postprocessing, progress=not quiet)
     click.echo(evaluation.to_text(), nl=False)
     if markdown is not None:
         with atomic_output_file(markdown) as tmp:
             tmp.write_text(evaluation.to_markdown(), encoding="utf-8")
         click.echo(f"tables -> {markdown}")
     if plot is not None or report_dir is not None:
-        predictions = {label: predict_on_frames(model, example, postprocess) for label, model in models.items()}
+        predictions = {label: predict_on_frames(model, example, postprocessing) for label, model in models.items()}
     if plot is not None:
         from vispeech.evaluation.plots import plot_utterance as draw
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import language_option, life_options, main, scale_option
+from vispeech.cli import language_option, life_options, main, postprocessing_option, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import check_voice
 from vispeech.limits import check_fps, check_text
@@ -43,7 +43,7 @@ _fps_option = click.option("--fps", default=DEFAULT_FPS, show_default=True, type
 @_model_option
 @_fps_option
 @click.option("--rate", default=1.0, show_default=True, type=float, help="Speaking-rate factor (1.0 = normal).")
-@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+@postprocessing_option()
 @click.option(
     "--text-file",
     type=click.Path(path_type=Path),
@@ -65,7 +65,7 @@ def say(
     model: str,
     fps: float,
     rate: float,
-    no_postprocess: bool,
+    postprocessing: str,
     text_file: Path | None,
     scale: str,
     voice: str | None,
@@ -93,7 +93,7 @@ def say(
     load_scale(scale)  # a bad scale, voice or layer is refused before any work
     check_voice(voice)
     layers = check_layers(life)
-    utterance = speak(text, language, model=model, rate=rate, fps=fps, postprocessing=not no_postprocess, voice=voice)
+    utterance = speak(text, language, model=model, rate=rate, fps=fps, postprocessing=postprocessing, voice=voice)
     phones = utterance.phones
     assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
     track = with_life(utterance.track, phones, layers, seed)
@@ -110,7 +110,7 @@ def say(
 @language_option("Phone set of the symbols: sv, en or ipa [default: guessed from the symbols].", default=None)
 @_model_option
 @_fps_option
-@click.option("--no-postprocess", is_flag=True, help="Skip closures, overlays and ceilings.")
+@postprocessing_option()
 @scale_option(DEFAULT_SCALE)
 @life_options
 def animate_phones(
@@ -119,7 +119,7 @@ def animate_phones(
     language: str | None,
     model: str,
     fps: float,
-    no_postprocess: bool,
+    postprocessing: str,
     scale: str,
     life: str,
     seed: int,
@@ -136,6 +136,6 @@ def animate_phones(
     load_scale(scale)
     layers = check_layers(life)
     phones = read_alignment(alignment, language)
-    track = with_life(animate(phones, model, fps, not no_postprocess), phones, layers, seed)
+    track = with_life(animate(phones, model, fps, postprocessing), phones, layers, seed)
     write_outputs(Utterance(phones=phones, track=track), out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")

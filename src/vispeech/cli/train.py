@@ -265,7 +265,7 @@ def _test_score(model, corpus) -> str:
     if not len(test) or not shared:
         return "test split: no jaw channel to score"
     result = (
-        evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing=False)
+        evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing="none")
         .models[0]
         .scores[shared[0]]
     )

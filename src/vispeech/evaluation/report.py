@@ -79,7 +79,8 @@ class Evaluation:
     """The frame rates of the utterances' tracks (:attr:`~vispeech.corpus.corpus.Corpus.frame_rates`):
     each utterance is animated and scored at its own."""
     utterances: int
-    postprocessing: bool
+    postprocessing: str
+    """How the predictions were post-processed: ``auto``, ``none`` or a preset's name."""
     models: list[ModelEvaluation]
     utterance_ids: list[str] | None = None
     """The scored utterances, in the order of the per-utterance scores."""
@@ -139,7 +140,7 @@ class Evaluation:
         return (
             f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at "
             f"{frame_rates_text(self.frame_rates)} fps, "
-            f"post-processing {'on' if self.postprocessing else 'off'}"
+            f"post-processing {self.postprocessing}"
         )
 
     def to_text(self) -> str:
@@ -265,19 +266,20 @@ def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
     return Track(values, tuple(channels), utterance.track.fps, utterance.track.start_time)
 
 
-def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: bool = True) -> Track:
+def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: str = "auto") -> Track:
     """The model's animation of the utterance on the frames of its recorded track: of its
     phones for a phone model, of its audio alone for an audio model.
 
-    The model predicts at the track's frame rate from time 0 (post-processed when
-    ``postprocessing`` and the output has ``jawOpen``); the result is sampled at the track's
+    The model predicts at the track's frame rate from time 0, post-processed by
+    ``postprocessing`` (:data:`vispeech.postprocess.Postprocessing`) when the output has
+    ``jawOpen``; the result is sampled at the track's
     frame times, held at its first/last value beyond its ends.
     """
     from vispeech.pipeline import animate, animate_audio
 
     assert utterance.track is not None  # a corpus utterance: its recorded track
     fps = utterance.track.fps
-    postprocess = postprocessing and "jawOpen" in model.channels
+    postprocess = postprocessing if "jawOpen" in model.channels else "none"
     if model.input_kind == "audio":
         clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {utterance.id}")
         predicted = animate_audio(clip, model, fps, postprocess)
@@ -315,12 +317,13 @@ def evaluate_models(
     models: Mapping[str, Estimator],
     *,
     channels: Iterable[str] | None = None,
-    postprocessing: bool = True,
+    postprocessing: str = "auto",
     progress: bool = False,
 ) -> Evaluation:
     """Score each model (by label) on every utterance of ``corpus`` (e.g. ``corpus.split("test")``).
 
-    ``channels`` as in :func:`model_channels`. Closure counts need utterances with face
+    ``channels`` as in :func:`model_channels`; ``postprocessing`` as in :func:`predict_on_frames`.
+    Closure counts need utterances with face
     landmarks and a model output with ``jawOpen`` or ``lip_aperture``; otherwise a model's
     ``closures`` is ``None``. Raises :class:`VispeechError` for an empty corpus or an
     utterance without phones.
@@ -392,7 +395,7 @@ def _evaluate_model(
     chosen: tuple[str, ...],
     corpus: Corpus,
     reference: _Reference,
-    postprocessing: bool,
+    postprocessing: str,
     advance: Callable[[int], object],
 ) -> ModelEvaluation:
     """Score ``model`` on the ``chosen`` channels of every utterance, calling ``advance(1)`` after each."""

@@ -246,7 +246,7 @@ def _html_scores(evaluation: Evaluation, command: str) -> list[str]:
     parts = [
         f"<h1>Evaluation on {html.escape(evaluation.corpus)}</h1>",
         f"<p>{evaluation.utterances} utterances at {frame_rates_text(evaluation.frame_rates)} fps, "
-        f"{'with' if evaluation.postprocessing else 'without'} post-processing. "
+        f"post-processing {html.escape(evaluation.postprocessing)}. "
         "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>",
     ]
     if command:

@@ -67,7 +67,7 @@ def sweep(
         model = create_model(family, **{**(params or {}), parameter: value}).fit(corpus, progress=False)
         seconds = time.perf_counter() - started
         scores = (
-            evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"], postprocessing=False)
+            evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"], postprocessing="none")
             .models[0]
             .scores["jawOpen"]
         )

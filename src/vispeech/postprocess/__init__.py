@@ -29,7 +29,17 @@ from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
 from vispeech.postprocess.tongue import tongue_channels
 from vispeech.targets.presets import PRESETS
 
-__all__ = ["DEFAULT_CEILINGS", "PostprocessConfig", "SoftCeiling", "postprocess"]
+__all__ = [
+    "AUTO",
+    "DEFAULT_CEILINGS",
+    "NONE",
+    "PostprocessConfig",
+    "Postprocessing",
+    "SoftCeiling",
+    "check_postprocessing",
+    "postprocess",
+    "postprocessing_config",
+]
 
 DEFAULT_CEILINGS: Mapping[str, SoftCeiling] = {
     "jawOpen": SoftCeiling(threshold=0.45, maximum=0.55),
@@ -81,6 +91,39 @@ class PostprocessConfig:
             raise VispeechError("postprocess needs 0 <= jaw_shift < 1, fade_in >= 0 and 0 <= upper_lip <= 1")
         if not 0.0 <= self.vowel_opening <= 1.0:
             raise VispeechError("postprocess needs 0 <= vowel_opening <= 1")
+
+
+AUTO = "auto"
+"""The post-processing that suits the model: the preset it recommends
+(:attr:`~vispeech.models.contract.Estimator.postprocessing`), or what the pipeline picks for its
+input (:func:`vispeech.pipeline.animate_audio`)."""
+NONE = "none"
+"""No post-processing: the model's own output."""
+
+Postprocessing = PostprocessConfig | str
+"""How a track is post-processed, one parameter everywhere (``postprocessing``, the CLI's
+``--postprocessing``, a batch line's ``postprocessing``): a configuration, the name of a preset
+(:data:`~vispeech.targets.presets.PRESETS`), :data:`AUTO` or :data:`NONE`."""
+
+
+def check_postprocessing(postprocessing: Postprocessing) -> Postprocessing:
+    """``postprocessing`` if it is a configuration or a known name; :class:`VispeechError` otherwise."""
+    if isinstance(postprocessing, PostprocessConfig) or postprocessing in (AUTO, NONE, *PRESETS):
+        return postprocessing
+    raise VispeechError(
+        f"unknown post-processing {str(postprocessing)[:40]!r} (use {AUTO}, {NONE} or a preset: {', '.join(PRESETS)})"
+    )
+
+
+def postprocessing_config(postprocessing: Postprocessing, recommended: str) -> PostprocessConfig | None:
+    """The configuration ``postprocessing`` names (``None`` for :data:`NONE`), with ``recommended``
+    the preset :data:`AUTO` stands for."""
+    checked = check_postprocessing(postprocessing)
+    if isinstance(checked, PostprocessConfig):
+        return checked
+    if checked == NONE:
+        return None
+    return PostprocessConfig.from_preset(recommended if checked == AUTO else checked)
 
 
 def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessConfig | None = None) -> Track:
