@@ -296,6 +296,8 @@ def test_a_family_fitted_in_one_go_refuses_a_checkpoint_or_a_warm_start(family, 
         model.fit(tiny_corpus(), progress=False, checkpoint_dir=tmp_path / "c")
     with pytest.raises(VispeechError, match=f"model {family} is fitted in one go: it takes no warm_start"):
         model.fit(tiny_corpus(), progress=False, warm_start=True)
+    with pytest.raises(VispeechError, match=f"model {family} is fitted in one go: it takes no resume_from"):
+        model.fit(tiny_corpus(), progress=False, resume_from=tmp_path / "c")
 
 
 @pytest.mark.parametrize("name", RUNNABLE)

@@ -245,7 +245,8 @@ def test_resume_continues_epochs_exactly(corpus, held_out, tmp_path):
     first = tiny_thesis(epochs=2, patience=None).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt")
     assert first.history_.epochs == 2
     assert (tmp_path / "ckpt" / "training_state.json").is_file()
-    resumed = tiny_thesis(epochs=4, patience=None).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt")
+    resumed = tiny_thesis(epochs=4, patience=None).fit(corpus, progress=False, checkpoint_dir=tmp_path / "ckpt",
+                                                       resume_from=tmp_path / "ckpt")
     assert resumed.history_.epochs == 4
     assert resumed.history_.train_loss == straight.history_.train_loss
     phones = held_out[0].phones
@@ -264,7 +265,7 @@ def test_checkpoint_folder_is_a_loadable_model(corpus, held_out, tmp_path):
 def test_resume_refuses_other_parameters(thesis_model, corpus, tmp_path):
     thesis_model.save(tmp_path / "m")
     with pytest.raises(VispeechError, match="input_window"):
-        tiny_thesis(input_window=7).fit(corpus, progress=False, checkpoint_dir=tmp_path / "m")
+        tiny_thesis(input_window=7).fit(corpus, progress=False, resume_from=tmp_path / "m")
 
 
 def test_fixed_seed_is_deterministic(corpus, held_out):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import json
-import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -127,8 +126,6 @@ def train_command(
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
     checkpoint = out_dir / CHECKPOINT if neural else None
-    if checkpoint is not None:
-        _seed_checkpoint(checkpoint, resume)
     model = cls(**options)
 
     from vispeech.corpus.corpus import frame_rates_text
@@ -146,8 +143,8 @@ def train_command(
         f"utterances at {frame_rates_text(corpus.frame_rates)} fps"
     )
 
-    model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint)
-    _save(model, corpus, out_dir, checkpoint)
+    model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint, resume_from=_run_to_resume(resume))
+    _save(model, corpus, out_dir)
 
 
 def _model_options(
@@ -182,16 +179,11 @@ def _model_options(
     return options
 
 
-def _seed_checkpoint(checkpoint: Path, resume: Path | None) -> None:
-    """Leave in ``checkpoint`` what fit is to go on from: the run in ``resume`` (a saved model or
-    an interrupted run's output folder), or nothing."""
-    if resume is not None:
-        source = resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
-        if source.resolve() != checkpoint.resolve():
-            shutil.rmtree(checkpoint, ignore_errors=True)
-            shutil.copytree(source, checkpoint)
-    else:
-        shutil.rmtree(checkpoint, ignore_errors=True)
+def _run_to_resume(resume: Path | None) -> Path | None:
+    """The run ``--resume`` names: an interrupted run's checkpoint in its output folder, or a saved model."""
+    if resume is None:
+        return None
+    return resume / CHECKPOINT if (resume / CHECKPOINT / "config.json").is_file() else resume
 
 
 def _adapt(
@@ -228,8 +220,6 @@ def _adapt(
         if key not in base.get_params():
             raise VispeechError(f"model {base.family} takes no parameter {key!r}")
         options[key] = value
-    checkpoint = out_dir / CHECKPOINT
-    shutil.rmtree(checkpoint, ignore_errors=True)
     model = copy.deepcopy(base).set_params(**options)
     corpus = read_aligned_corpus(corpus_dir, language, cache, not quiet)
     if not len(corpus.split("train")):
@@ -239,16 +229,14 @@ def _adapt(
         f"(validation {len(corpus.split('validation'))}, test {len(corpus.split('test'))})"
     )
     click.echo(f"before: {_test_score(base, corpus)}")
-    model.fit(corpus, progress=not quiet, checkpoint_dir=checkpoint, warm_start=True)
-    _save(model, corpus, out_dir, checkpoint)
+    model.fit(corpus, progress=not quiet, checkpoint_dir=out_dir / CHECKPOINT, warm_start=True)
+    _save(model, corpus, out_dir)
 
 
-def _save(model, corpus, out_dir: Path, checkpoint: Path | None) -> None:
-    """Save a fitted model as ``out_dir`` (named after it), drop its training checkpoint, draw its
-    loss curve and print the summary."""
+def _save(model, corpus, out_dir: Path) -> None:
+    """Save a fitted model as ``out_dir`` (named after it; the new folder replaces the old with
+    its training checkpoint), draw its loss curve and print the summary."""
     model.save(out_dir, name=out_dir.name)
-    if checkpoint is not None:
-        shutil.rmtree(checkpoint, ignore_errors=True)
     if model.history_.epochs:
         from vispeech.evaluation.plots import plot_history
 

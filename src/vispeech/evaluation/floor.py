@@ -59,6 +59,7 @@ class LoudnessFloor(Estimator):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> LoudnessFloor:

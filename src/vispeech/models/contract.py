@@ -9,8 +9,8 @@ A control model is an estimator in scikit-learn's sense, generic in what it anim
   them and never changes after :meth:`~Estimator.fit`; :meth:`~Estimator.set_params` changes
   them, checked as the constructor checks them; :func:`clone` is a new, unfitted model with
   the same ones;
-- :meth:`~Estimator.fit` ``(corpus, *, progress=None, checkpoint_dir=None, num_threads=None,
-  warm_start=False) -> self`` learns from a corpus (an object with ``split("train")`` and
+- :meth:`~Estimator.fit` ``(corpus, *, progress=None, checkpoint_dir=None, resume_from=None,
+  num_threads=None, warm_start=False) -> self`` learns from a corpus (an object with ``split("train")`` and
   ``split("validation")``, or any iterable of utterances with ``.phones`` and ``.track``, all
   of them used for training: :mod:`vispeech.models.fitting`); its keywords are settings of the
   run, never stored; what it learns lives in attributes whose names end in ``_``; data-free
@@ -154,15 +154,18 @@ class Estimator(ABC, Generic[InputT]):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> _Self:
         """Learn from ``corpus``; returns ``self``. The keywords are settings of this run, not
         hyper-parameters: ``progress``, bars and lines on stderr (``None``: when stderr is a
-        terminal); ``checkpoint_dir``, a folder to keep the run in after every epoch and go on
-        from; ``num_threads``, the most threads it may use (``None``: the library's default);
-        ``warm_start``, start from what the model has learned instead of afresh. A family fitted
-        in one go refuses the second and the last (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
+        terminal); ``checkpoint_dir``, a folder to keep the run in after every epoch;
+        ``resume_from``, a folder holding a run of this model to go on from (a checkpoint of an
+        interrupted fit, or a saved model); ``num_threads``, the most threads it may use
+        (``None``: the library's default); ``warm_start``, start from what the model has learned
+        instead of afresh. A family fitted in one go refuses all but ``progress`` and
+        ``num_threads`` (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
 
     @abstractmethod
     def predict(self, inputs: InputT, fps: float) -> Track:

@@ -54,9 +54,13 @@ def show_progress(progress: bool | None) -> bool:
     return bool(progress)
 
 
-def fitted_in_one_go(family: str, checkpoint_dir, warm_start: bool) -> None:
+def fitted_in_one_go(family: str, checkpoint_dir, resume_from, warm_start: bool) -> None:
     """Raise :class:`VispeechError` when a family fitted in one go (no epochs to keep or go on
-    from) is given a ``checkpoint_dir`` or ``warm_start``."""
-    if checkpoint_dir is not None or warm_start:
-        setting = "checkpoint_dir" if checkpoint_dir is not None else "warm_start"
+    from) is given a ``checkpoint_dir``, ``resume_from`` or ``warm_start``."""
+    given = {
+        "checkpoint_dir": checkpoint_dir is not None,
+        "resume_from": resume_from is not None,
+        "warm_start": warm_start,
+    }
+    for setting in (name for name, on in given.items() if on):
         raise VispeechError(f"model {family} is fitted in one go: it takes no {setting}")

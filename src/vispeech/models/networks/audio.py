@@ -246,6 +246,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> Self:
@@ -260,7 +261,12 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             if self._params["augment"]:
                 corpus = self._augmented(corpus, progress)
             return super().fit(
-                corpus, progress=progress, checkpoint_dir=checkpoint_dir, num_threads=num_threads, warm_start=warm_start
+                corpus,
+                progress=progress,
+                checkpoint_dir=checkpoint_dir,
+                resume_from=resume_from,
+                num_threads=num_threads,
+                warm_start=warm_start,
             )
         finally:
             self.__dict__.pop("_powers", None)

@@ -70,6 +70,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> DecisionTreeRegression:
@@ -80,7 +81,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
 
         from sklearn.tree import DecisionTreeRegressor
 
-        fitted_in_one_go(self.family, checkpoint_dir, warm_start)
+        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
         started = time.perf_counter()
         train, validation = training_split(corpus)
         p = self._params

@@ -234,6 +234,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> Self:
@@ -241,9 +242,10 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
         ``checkpoint_dir``: a folder that receives the model and its training state after every
-        epoch (a loadable model folder); when it already holds a run of this network with the
-        same hyper-parameters but the budget (``epochs``, ``patience``), the fit goes on from
-        it. ``num_threads``: torch's threads during the fit (``None``: torch's default).
+        epoch (a loadable model folder, replaced as a whole). ``resume_from``: a checkpoint (or a
+        saved model) of this network with the same hyper-parameters but the budget (``epochs``,
+        ``patience``) to go on from; it may be ``checkpoint_dir`` itself. ``num_threads``: torch's
+        threads during the fit (``None``: torch's default).
         ``warm_start`` (scikit-learn's name): a fitted network starts from its weights and
         normalisation instead of afresh, with a fresh optimiser and history (speaker adaptation).
         """
@@ -251,19 +253,19 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
 
         train_set, validation_set = training_split(corpus)
         checkpoint = Path(checkpoint_dir) if checkpoint_dir is not None else None
-        resume_from = checkpoint if checkpoint is not None and (checkpoint / "config.json").is_file() else None
-        warm = warm_start and self.is_fitted and resume_from is None
-        self._begin_fit(train_set, corpus, resume_from, warm)
+        resumed = Path(resume_from) if resume_from is not None else None
+        warm = warm_start and self.is_fitted and resumed is None
+        self._begin_fit(train_set, corpus, resumed, warm)
         examples = [self._example(u) for u in train_set]
-        if resume_from is None and not warm:
+        if resumed is None and not warm:
             self.stats_ = self._stats(examples)
         examples = [(x, self._normalise(y)) for x, y in examples]
         held_out = [(x, self._normalise(y)) for x, y in map(self._example, validation_set)]
         torch.manual_seed(self._params["seed"])
         module = self._build_module(self.encoding_.size, len(self.outputs_))
-        if warm or resume_from is not None:  # start from what the network knows
+        if warm or resumed is not None:  # start from what the network knows
             module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
-        state = self._resumed_state(resume_from, module) if resume_from is not None else None
+        state = self._resumed_state(resumed, module) if resumed is not None else None
         state = self._train_module(module, state, examples, held_out, checkpoint, progress, num_threads)
         self._take_weights(module.state_dict(), state.history)
         return self

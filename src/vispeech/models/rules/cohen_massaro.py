@@ -95,6 +95,7 @@ class CohenMassaro(PhoneTargetModel):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> CohenMassaro:
@@ -106,7 +107,7 @@ class CohenMassaro(PhoneTargetModel):
         the training data lacks keep their authored values. Learns ``tables_`` (per
         language, the per-row T, α, θ, φ, c), ``fitted_channels_`` and ``history_``.
         """
-        fitted_in_one_go(self.family, checkpoint_dir, warm_start)
+        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
         p = self._params
         data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)

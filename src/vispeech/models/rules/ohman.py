@@ -75,13 +75,14 @@ class Ohman(PhoneTargetModel):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
         squares; returns ``self``. Splits, channels and learned attributes as for
         :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
-        fitted_in_one_go(self.family, checkpoint_dir, warm_start)
+        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
         p = self._params
         data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)

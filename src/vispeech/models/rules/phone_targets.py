@@ -103,6 +103,7 @@ class PhoneTargetModel(Estimator[PhoneSequence]):
         *,
         progress: bool | None = None,
         checkpoint_dir: str | os.PathLike | None = None,
+        resume_from: str | os.PathLike | None = None,
         num_threads: int | None = None,
         warm_start: bool = False,
     ) -> PhoneTargetModel:
