@@ -201,7 +201,7 @@ class Replay(Estimator):
         super().__init__(offset=offset)
         self.by_phones = {id(u.phones): u.track.select(self.channels) for u in utterances}
 
-    def fit(self, corpus, *, progress=None):
+    def _fit(self, corpus, run):
         raise VispeechError("replay is data-free")
 
     def predict(self, phones, fps):

@@ -239,7 +239,7 @@ class _ArrayModel(Estimator):
     defaults = {"gain": 1.0}
     channels = ("jawOpen",)
 
-    def fit(self, corpus, *, progress=None):
+    def _fit(self, corpus, run):
         self.weights_ = np.arange(3.0) * self._params["gain"]
         return self
 

@@ -8,13 +8,12 @@ scores like any model; it is not registered, as nobody should animate a face wit
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
+from vispeech.models.fitting import FitRun
 from vispeech.motion.track import Track
 
 SILENT_DB = -60.0
@@ -53,16 +52,7 @@ class LoudnessFloor(Estimator):
     def postprocessing(self) -> str:
         return "audio"
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> LoudnessFloor:
+    def _fit(self, corpus, run: FitRun) -> LoudnessFloor:
         raise VispeechError("the loudness floor learns nothing")
 
     def predict(self, clip: AudioClip, fps: float) -> Track:

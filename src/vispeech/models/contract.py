@@ -42,6 +42,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
+from vispeech.models.fitting import FitRun
 from vispeech.models.persistence import FOLDER_NAMES, model_from_config, read_config, write_model
 from vispeech.models.streams import ModelStream, WindowStream
 from vispeech.motion.track import Track
@@ -147,7 +148,6 @@ class Estimator(ABC, Generic[InputT]):
         """The post-processing preset this model recommends (:data:`vispeech.targets.presets.PRESETS`)."""
         return "learned-jaw" if self._has_learned() else "authored"
 
-    @abstractmethod
     def fit(
         self: _Self,
         corpus,
@@ -166,6 +166,11 @@ class Estimator(ABC, Generic[InputT]):
         (``None``: the library's default); ``warm_start``, start from what the model has learned
         instead of afresh. A family fitted in one go refuses all but ``progress`` and
         ``num_threads`` (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
+        return self._fit(corpus, FitRun.of(progress, checkpoint_dir, resume_from, num_threads, warm_start))
+
+    @abstractmethod
+    def _fit(self: _Self, corpus, run: FitRun) -> _Self:
+        """What :meth:`fit` does in each family: learn from ``corpus`` with the settings of ``run``."""
 
     @abstractmethod
     def predict(self, inputs: InputT, fps: float) -> Track:

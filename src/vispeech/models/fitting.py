@@ -1,12 +1,14 @@
 """What :meth:`~vispeech.models.contract.Estimator.fit` reads and shows: the corpus's training and
-validation utterances (:class:`Splits` for plain lists, :func:`training_split`), whether to
-show progress (:func:`show_progress`) and the run settings a family fitted in one go refuses
-(:func:`fitted_in_one_go`)."""
+validation utterances (:class:`Splits` for plain lists, :func:`training_split`), the settings of
+the run (:class:`FitRun`, with those a family fitted in one go refuses) and whether to show
+progress (:func:`show_progress`)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from vispeech.errors import VispeechError
 
@@ -54,13 +56,37 @@ def show_progress(progress: bool | None) -> bool:
     return bool(progress)
 
 
-def fitted_in_one_go(family: str, checkpoint_dir, resume_from, warm_start: bool) -> None:
-    """Raise :class:`VispeechError` when a family fitted in one go (no epochs to keep or go on
-    from) is given a ``checkpoint_dir``, ``resume_from`` or ``warm_start``."""
-    given = {
-        "checkpoint_dir": checkpoint_dir is not None,
-        "resume_from": resume_from is not None,
-        "warm_start": warm_start,
-    }
-    for setting in (name for name, on in given.items() if on):
-        raise VispeechError(f"model {family} is fitted in one go: it takes no {setting}")
+@dataclass(frozen=True)
+class FitRun:
+    """The settings of one :meth:`~vispeech.models.contract.Estimator.fit`, never stored with the
+    model (see its keywords)."""
+
+    progress: bool | None = None
+    checkpoint_dir: Path | None = None
+    resume_from: Path | None = None
+    num_threads: int | None = None
+    warm_start: bool = False
+
+    @classmethod
+    def of(
+        cls,
+        progress: bool | None,
+        checkpoint_dir: str | os.PathLike | None,
+        resume_from: str | os.PathLike | None,
+        num_threads: int | None,
+        warm_start: bool,
+    ) -> FitRun:
+        """The settings from :meth:`~vispeech.models.contract.Estimator.fit`'s keywords."""
+        checkpoint, resume = (None if f is None else Path(f) for f in (checkpoint_dir, resume_from))
+        return cls(progress, checkpoint, resume, num_threads, bool(warm_start))
+
+    def in_one_go(self, family: str) -> None:
+        """Raise :class:`VispeechError` when this run asks a family fitted in one go (no epochs to
+        keep or go on from) for a ``checkpoint_dir``, ``resume_from`` or ``warm_start``."""
+        given = {
+            "checkpoint_dir": self.checkpoint_dir is not None,
+            "resume_from": self.resume_from is not None,
+            "warm_start": self.warm_start,
+        }
+        for setting in (name for name, on in given.items() if on):
+            raise VispeechError(f"model {family} is fitted in one go: it takes no {setting}")

@@ -48,7 +48,6 @@ stream computes them, and the stream equals the offline output.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, replace
 from typing import Self
 
@@ -60,7 +59,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
 from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, power_spectrogram, warp_frequencies
-from vispeech.models.fitting import Splits, show_progress, training_split
+from vispeech.models.fitting import FitRun, Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.audio_stream import AudioStream, EncoderStream
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
@@ -240,16 +239,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
     def _encoding_from_dict(self, data: dict) -> AudioEncoding:
         return AudioEncoding.from_dict(data)
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> Self:
+    def _fit(self, corpus, run: FitRun) -> Self:
         """Train on ``corpus`` (utterances with audio, phones and tracks); returns ``self``.
         The run settings are :meth:`Network.fit`'s.
 
@@ -259,15 +249,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         """
         try:
             if self._params["augment"]:
-                corpus = self._augmented(corpus, progress)
-            return super().fit(
-                corpus,
-                progress=progress,
-                checkpoint_dir=checkpoint_dir,
-                resume_from=resume_from,
-                num_threads=num_threads,
-                warm_start=warm_start,
-            )
+                corpus = self._augmented(corpus, run.progress)
+            return super()._fit(corpus, run)
         finally:
             self.__dict__.pop("_powers", None)
             self.__dict__.pop("_hidden", None)

@@ -12,14 +12,12 @@ predicted with NumPy alone: scikit-learn is needed to fit (the ``train`` extra),
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator
-from vispeech.models.fitting import fitted_in_one_go, training_split
+from vispeech.models.fitting import FitRun, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.networks.kernels import overlap_average, padded_windows
@@ -64,16 +62,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
     def lookahead(self) -> int:
         return (self._params["input_window"] + self._params["output_window"]) // 2 - 1
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> DecisionTreeRegression:
+    def _fit(self, corpus, run: FitRun) -> DecisionTreeRegression:
         """Grow the tree on every window of the training utterances. ``history_`` holds one
         "epoch": the mean squared error of the fitted frames on the training split and, when there
         is one, on the validation split, and the seconds it took."""
@@ -81,7 +70,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
 
         from sklearn.tree import DecisionTreeRegressor
 
-        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
+        run.in_one_go(self.family)
         started = time.perf_counter()
         train, validation = training_split(corpus)
         p = self._params

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 from abc import abstractmethod
 from collections.abc import Callable
 from pathlib import Path
@@ -40,7 +39,7 @@ from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
 from vispeech.models.contract import Estimator, InputT
-from vispeech.models.fitting import show_progress, training_split
+from vispeech.models.fitting import FitRun, show_progress, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.persistence import FOLDER_NAMES, write_model
@@ -228,16 +227,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
 
     # -- fitting ---------------------------------------------------------------------------
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> Self:
+    def _fit(self, corpus, run: FitRun) -> Self:
         """Train on ``corpus`` (see :func:`~vispeech.models.fitting.training_split`); returns ``self``.
 
         Learns ``encoding_``, ``outputs_``, ``fps_``, ``stats_``, ``weights_`` and ``history_``.
@@ -252,9 +242,8 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         import torch
 
         train_set, validation_set = training_split(corpus)
-        checkpoint = Path(checkpoint_dir) if checkpoint_dir is not None else None
-        resumed = Path(resume_from) if resume_from is not None else None
-        warm = warm_start and self.is_fitted and resumed is None
+        resumed = run.resume_from
+        warm = run.warm_start and self.is_fitted and resumed is None
         self._begin_fit(train_set, corpus, resumed, warm)
         examples = [self._example(u) for u in train_set]
         if resumed is None and not warm:
@@ -266,7 +255,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         if warm or resumed is not None:  # start from what the network knows
             module.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights_.items()})
         state = self._resumed_state(resumed, module) if resumed is not None else None
-        state = self._train_module(module, state, examples, held_out, checkpoint, progress, num_threads)
+        state = self._train_module(module, state, examples, held_out, run)
         self._take_weights(module.state_dict(), state.history)
         return self
 
@@ -304,12 +293,11 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
         state: TrainingState | None,
         examples: list[tuple[np.ndarray, np.ndarray]],
         held_out: list[tuple[np.ndarray, np.ndarray]],
-        checkpoint: Path | None,
-        progress: bool | None,
-        num_threads: int | None,
+        run: FitRun,
     ) -> TrainingState:
         """Train ``module`` on the normalised ``examples`` (from ``state`` when resuming), writing
-        a checkpoint after every epoch when given one; returns the final training state."""
+        the run's checkpoint after every epoch when it has one; returns the final training state."""
+        checkpoint = run.checkpoint_dir
         import torch
 
         from vispeech.models.networks.training import train
@@ -341,8 +329,8 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
             self._write_checkpoint(checkpoint, module, progress_state)
 
         threads = torch.get_num_threads()
-        if num_threads:
-            torch.set_num_threads(int(num_threads))
+        if run.num_threads:
+            torch.set_num_threads(int(run.num_threads))
         try:
             return train(
                 module,
@@ -355,7 +343,7 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
                 patience=p["patience"],
                 lr_step_down=p["lr_step_down"],
                 seed=p["seed"],
-                progress=show_progress(progress),
+                progress=show_progress(run.progress),
                 state=state,
                 on_epoch=on_epoch if checkpoint is not None else None,
             )

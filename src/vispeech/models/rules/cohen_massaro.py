@@ -17,13 +17,11 @@ dominance is negligible, and the cost stays linear in the utterance length.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.fitting import fitted_in_one_go
+from vispeech.models.fitting import FitRun
 from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
@@ -89,16 +87,7 @@ class CohenMassaro(PhoneTargetModel):
         out = np.einsum("fkc,fkc->fc", d, seg.targets[idx]) / d.sum(axis=1)
         return self._track(out, fps)
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> CohenMassaro:
+    def _fit(self, corpus, run: FitRun) -> CohenMassaro:
         """Estimate T, α, θ, φ and c per phone symbol and channel by least squares; returns ``self``.
 
         Fits the ``train`` split of a corpus with splits and stops each channel early on its
@@ -107,7 +96,7 @@ class CohenMassaro(PhoneTargetModel):
         the training data lacks keep their authored values. Learns ``tables_`` (per
         language, the per-row T, α, θ, φ, c), ``fitted_channels_`` and ``history_``.
         """
-        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
+        run.in_one_go(self.family)
         p = self._params
         data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)
@@ -142,7 +131,7 @@ class CohenMassaro(PhoneTargetModel):
                 )
             return base, x0
 
-        fitted = fit_channels(self, data, start, lower, upper, train, held, progress)
+        fitted = fit_channels(self, data, start, lower, upper, train, held, run.progress)
         learned = {name: values.copy() for name, values in authored.items()}
         for channel, m in zip(data.channels, columns):
             blocks = [fitted[channel][k * n : (k + 1) * n] for k in range(5)]

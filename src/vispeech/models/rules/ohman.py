@@ -17,14 +17,13 @@ consonant and channel: 1 reaches the consonant's target, 0 leaves the vowel trac
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.models.fitting import fitted_in_one_go
+from vispeech.models.fitting import FitRun
 from vispeech.models.rules.dominance_fit import FitData, PhoneTying, Recording, fit_channels, scatter_jacobian
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.models.rules.segments import Segments
@@ -69,20 +68,11 @@ class Ohman(PhoneTargetModel):
             out += gain * (targets[k] - vowel_track)
         return self._track(out, fps)
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> Ohman:
+    def _fit(self, corpus, run: FitRun) -> Ohman:
         """Estimate every phone symbol's target and every consonant's w_c per channel by least
         squares; returns ``self``. Splits, channels and learned attributes as for
         :meth:`vispeech.models.rules.cohen_massaro.CohenMassaro.fit`."""
-        fitted_in_one_go(self.family, checkpoint_dir, resume_from, warm_start)
+        run.in_one_go(self.family)
         p = self._params
         data = FitData.gather(self, corpus, p["channels"])
         tying = PhoneTying.of(data.language, data.train)
@@ -99,7 +89,7 @@ class Ohman(PhoneTargetModel):
         def start(j: int, m: int) -> tuple[tuple, np.ndarray]:
             return (targets[:, m], w[:, m]), np.concatenate([means[:, j], w[factors.first_rows, m]])
 
-        fitted = fit_channels(self, data, start, lower, upper, train, held, progress)
+        fitted = fit_channels(self, data, start, lower, upper, train, held, run.progress)
         learned = {name: values.copy() for name, values in authored.items()}
         for channel, m in zip(data.channels, columns):
             learned["targets"][:, m] = tying.expand(targets[:, m], fitted[channel][:n])

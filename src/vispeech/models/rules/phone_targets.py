@@ -10,7 +10,6 @@ in ``tables_``: per language, arrays over the rows of :func:`~vispeech.targets.t
 from __future__ import annotations
 
 import json
-import os
 from functools import cache, cached_property
 from importlib import resources
 from typing import ClassVar
@@ -20,6 +19,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator
+from vispeech.models.fitting import FitRun
 from vispeech.models.history import TrainingHistory
 from vispeech.models.rules.segments import Segments
 from vispeech.motion.track import Track
@@ -97,16 +97,7 @@ class PhoneTargetModel(Estimator[PhoneSequence]):
     def _track(self, values: np.ndarray, fps: float) -> Track:
         return Track(np.clip(values, 0.0, 1.0), self.channels, fps)
 
-    def fit(
-        self,
-        corpus,
-        *,
-        progress: bool | None = None,
-        checkpoint_dir: str | os.PathLike | None = None,
-        resume_from: str | os.PathLike | None = None,
-        num_threads: int | None = None,
-        warm_start: bool = False,
-    ) -> PhoneTargetModel:
+    def _fit(self, corpus, run: FitRun) -> PhoneTargetModel:
         raise VispeechError(f"model {self.family} is data-free: its parameters are authored, not fitted")
 
     def _learned_state(self):
