@@ -1,4 +1,5 @@
-"""Audio clips and features: checks, resampling, framing, warping, streaming equals offline."""
+"""Audio clips and features: checks, resampling, framing, warping, streaming equals offline, and
+the same numbers as librosa's (the shipped audio models were trained on librosa's features)."""
 
 import numpy as np
 import pytest
@@ -6,8 +7,8 @@ import pytest
 from vispeech import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import (
-    FRAME_RATE, SpectrumStream, audio_features, log_mel, mfcc, power_spectrogram, running_normalize,
-    warp_frequencies,
+    FRAME_RATE, N_FFT, SpectrumStream, audio_features, log_mel, mel_filter_bank, mfcc, power_spectrogram,
+    running_normalize, warp_frequencies,
 )
 
 
@@ -90,3 +91,45 @@ def test_audio_features_of_a_file(grid_s1):
     clip = AudioClip.read(grid_s1 / "utterances" / "bbaf2n.flac")
     features = audio_features(clip)
     assert features.shape == (len(clip.samples) // 160 + 1, 80) and np.isfinite(features).all()
+
+
+def librosa_features(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Power spectra, 80 log-mel bands and 13 MFCCs of 16-kHz samples as the models were trained
+    on them: with librosa (the ``train`` extra)."""
+    import librosa
+
+    padded = np.pad(samples, N_FFT // 2)
+    spectrum = librosa.stft(padded, n_fft=N_FFT, hop_length=160, win_length=400, window="hann", center=False)
+    power = (np.abs(spectrum) ** 2).T.astype(np.float32)
+    bank = librosa.filters.mel(sr=16000, n_fft=N_FFT, n_mels=80, fmin=20.0, fmax=8000.0)
+    mel = np.log(np.maximum(power @ bank.T, 1e-6)).astype(np.float32)
+    return power, mel, librosa.feature.mfcc(S=mel.T * (10 / np.log(10)), n_mfcc=13).T.astype(np.float32)
+
+
+def assert_librosas(samples: np.ndarray) -> None:
+    power, mel, coefficients = librosa_features(samples)
+    ours = power_spectrogram(samples)
+    assert ours.shape == power.shape and ours.dtype == np.float32
+    np.testing.assert_allclose(ours, power, rtol=1e-6, atol=1e-9 * float(power.max()))
+    np.testing.assert_allclose(log_mel(ours), mel, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(mfcc(log_mel(ours)), coefficients, rtol=0, atol=1e-4)
+
+
+def test_features_are_librosas_on_speech(grid_s1):
+    for name in ("bbaf2n", "bbaf3s", "lgaz8p"):
+        assert_librosas(AudioClip.read(grid_s1 / "utterances" / f"{name}.flac").samples)
+
+
+@pytest.mark.parametrize("length", [0, 1, 161, 4000, 16001])
+def test_features_are_librosas_on_noise_of_any_length(length):
+    assert_librosas(np.random.default_rng(length).normal(0, 0.3, length).astype(np.float32))
+
+
+@pytest.mark.parametrize("n_fft,n_mels,fmin", [(512, 80, 20.0), (512, 40, 20.0), (400, 80, 0.0), (400, 128, 0.0)])
+def test_mel_filter_bank_is_librosas(n_fft, n_mels, fmin):
+    import librosa
+
+    expected = librosa.filters.mel(sr=16000, n_fft=n_fft, n_mels=n_mels, fmin=fmin)
+    bank = mel_filter_bank(16000, n_fft, n_mels, fmin)
+    assert bank.dtype == np.float32
+    np.testing.assert_allclose(bank, expected, rtol=1e-6, atol=1e-9)

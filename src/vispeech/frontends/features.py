@@ -1,4 +1,4 @@
-"""Audio features for the audio models and the aligners, with librosa: power spectra, log-mel
+"""Audio features for the audio models and the aligners, on NumPy: power spectra, log-mel
 and MFCC at 100 frames per second, vocal-tract-length warping, and running normalisation.
 
 Units and framing: audio at :data:`SAMPLE_RATE` Hz (other rates are resampled first); frame j
@@ -6,6 +6,12 @@ is centred at ``j * 10 ms`` (a 25 ms Hann window in a 512-point FFT, the signal 
 zeros by half an FFT at both ends), so a clip of ``n`` samples has ``n // 160 + 1`` frames.
 Log-mel values are natural logs of mel-band power (floor :data:`LOG_FLOOR`); MFCCs are the
 DCT-II of log-mel in dB, as :func:`librosa.feature.mfcc` computes them.
+
+The shipped audio models were trained on librosa's features (``librosa.stft`` with a periodic
+Hann window, ``librosa.filters.mel`` with Slaney's mel scale and area normalisation,
+``librosa.feature.mfcc``): the functions here compute the same numbers with the same float
+operations (tests/test_audio_features.py compares them with librosa's), so that the core
+install needs no librosa, numba or scikit-learn.
 
 :class:`SpectrumStream` gives the same frames as :func:`power_spectrogram` for audio that
 arrives in chunks: frame j once the samples up to ``j * 10 ms + 16 ms`` are in.
@@ -41,13 +47,22 @@ def power_spectrogram(samples: np.ndarray) -> np.ndarray:
 
 
 def _frames_power(padded: np.ndarray) -> np.ndarray:
-    """Power spectra of every whole frame of an already padded signal."""
-    import librosa
-
+    """Power spectra of every whole frame of an already padded float32 signal: the frames
+    windowed in float64, their spectra rounded to complex64 (``librosa.stft(center=False)``)."""
     if len(padded) < N_FFT:
         return np.zeros((0, N_FFT // 2 + 1), dtype=np.float32)
-    spectrum = librosa.stft(padded, n_fft=N_FFT, hop_length=HOP, win_length=WINDOW, window="hann", center=False)
-    return (np.abs(spectrum) ** 2).T.astype(np.float32)
+    frames = np.lib.stride_tricks.sliding_window_view(padded, N_FFT)[::HOP]
+    spectrum = np.fft.rfft(frames * _window(), axis=1).astype(np.complex64)
+    return np.abs(spectrum) ** 2
+
+
+@functools.cache
+def _window() -> np.ndarray:
+    """``(N_FFT,)`` periodic Hann window of :data:`WINDOW` samples centred in :data:`N_FFT`
+    (``scipy.signal.get_window("hann", WINDOW)`` as librosa pads it)."""
+    hann = 0.5 + 0.5 * np.cos(np.linspace(-np.pi, np.pi, WINDOW + 1))[:-1]
+    side = (N_FFT - WINDOW) // 2
+    return np.pad(hann, (side, N_FFT - WINDOW - side))
 
 
 def warp_frequencies(power: np.ndarray, alpha: float, boundary: float = 4_800.0) -> np.ndarray:
@@ -74,10 +89,47 @@ def warp_frequencies(power: np.ndarray, alpha: float, boundary: float = 4_800.0)
 
 @functools.cache
 def mel_filters(n_mels: int) -> np.ndarray:
-    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filter bank from 20 Hz to 8 kHz (librosa)."""
-    import librosa
+    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filter bank from 20 Hz to 8 kHz."""
+    return mel_filter_bank(SAMPLE_RATE, N_FFT, n_mels, fmin=20.0)
 
-    return librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=n_mels, fmin=20.0, fmax=SAMPLE_RATE / 2)
+
+def mel_filter_bank(
+    sample_rate: int, n_fft: int, n_mels: int, fmin: float = 0.0, fmax: float | None = None
+) -> np.ndarray:
+    """``(n_mels, n_fft // 2 + 1)`` float32 triangular filters on Slaney's mel scale from
+    ``fmin`` to ``fmax`` Hz (default: half the sample rate), each scaled to unit area
+    (``librosa.filters.mel(sr, n_fft, n_mels, fmin, fmax)``, its defaults ``htk=False``,
+    ``norm="slaney"``)."""
+    fmax = sample_rate / 2 if fmax is None else fmax
+    bins = np.fft.rfftfreq(n_fft, 1.0 / sample_rate)
+    edges = _mel_to_hz(np.linspace(_hz_to_mel(fmin), _hz_to_mel(fmax), n_mels + 2))
+    widths = np.diff(edges)
+    ramps = np.subtract.outer(edges, bins)
+    weights = np.zeros((n_mels, len(bins)), dtype=np.float32)
+    for i in range(n_mels):
+        weights[i] = np.maximum(0, np.minimum(-ramps[i] / widths[i], ramps[i + 2] / widths[i + 1]))
+    weights *= (2.0 / (edges[2 : n_mels + 2] - edges[:n_mels]))[:, np.newaxis]
+    return weights
+
+
+_MEL_STEP = 200.0 / 3
+"""Hz per mel below :data:`_LOG_HZ` (Slaney's scale: linear up to 1 kHz, logarithmic above)."""
+_LOG_HZ = 1000.0
+_LOG_STEP = np.log(6.4) / 27.0
+"""Natural-log frequency ratio per mel above :data:`_LOG_HZ`."""
+
+
+def _hz_to_mel(hz: float) -> float:
+    if hz < _LOG_HZ:
+        return hz / _MEL_STEP
+    return float(_LOG_HZ / _MEL_STEP + np.log(hz / _LOG_HZ) / _LOG_STEP)
+
+
+def _mel_to_hz(mels: np.ndarray) -> np.ndarray:
+    hz = _MEL_STEP * mels
+    above = mels >= _LOG_HZ / _MEL_STEP
+    hz[above] = _LOG_HZ * np.exp(_LOG_STEP * (mels[above] - _LOG_HZ / _MEL_STEP))
+    return hz
 
 
 def log_mel(power: np.ndarray, n_mels: int = 80) -> np.ndarray:
@@ -86,11 +138,12 @@ def log_mel(power: np.ndarray, n_mels: int = 80) -> np.ndarray:
 
 
 def mfcc(log_mel_frames: np.ndarray, n_mfcc: int = 13) -> np.ndarray:
-    """``(frames, n_mfcc)`` MFCCs of log-mel frames (DCT-II of the log-mel in dB, librosa)."""
-    import librosa
+    """``(frames, n_mfcc)`` MFCCs of log-mel frames: the orthonormal DCT-II of the log-mel in dB
+    over the bands (``librosa.feature.mfcc(S=dB, n_mfcc)``)."""
+    from scipy.fft import dct
 
-    decibels = log_mel_frames.T * (10.0 / np.log(10.0))
-    return librosa.feature.mfcc(S=decibels, n_mfcc=n_mfcc).T.astype(np.float32)
+    decibels = log_mel_frames * (10.0 / np.log(10.0))
+    return dct(decibels, axis=1, type=2, norm="ortho")[:, :n_mfcc].astype(np.float32)
 
 
 def spectral_features(power: np.ndarray, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13) -> np.ndarray:
