@@ -1,5 +1,6 @@
 """Audio front ends: pocketsphinx alignment of synthetic speech (dither, wide-beam retry, the
-phone-pass fallback), DTW alignment against espeak-ng, phone recognition, and bad input.
+phone-pass fallback), DTW alignment against espeak-ng (its warping path librosa's), phone
+recognition, and bad input.
 
 Tolerances are the measured errors with headroom: DTW of espeak-ng's Swedish at rate 0.8
 against its rate 1.0 lands phone starts a median 3 ms (at most 11 ms) from espeak's own; DTW
@@ -15,6 +16,7 @@ import vispeech.frontends.align as align_module
 from vispeech import VispeechError
 from vispeech.alignment.formats import read_alignment, read_word_alignment
 from vispeech.frontends.align import align, normalize_transcript
+from vispeech.frontends.dtw_align import warping_path
 from vispeech.frontends.espeak import synthesize
 from vispeech.frontends.recognize import match_phones, recognize_phones
 from vispeech.phonetics.inventory import get_inventory
@@ -117,6 +119,33 @@ def test_dtw_leading_silence_does_not_stretch_the_first_phone():
         assert phones.phones[0].symbol == "sil" and phones.phones[0].end == pytest.approx(spoken.start)
         assert abs(spoken.start - (truth.start + 1.0)) <= 0.015
         assert abs(spoken.duration - truth.duration) <= 0.02
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (2, 3), (40, 55), (210, 180)])
+def test_warping_path_is_librosas(shape):
+    """The same path as ``librosa.sequence.dtw`` (as alignment was tuned with), ties included:
+    on costs in [0, 1) and on costs rounded to tenths, where many paths cost the same."""
+    import librosa
+
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    for cost in (rng.random(shape), np.round(rng.random(shape), 1)):
+        np.testing.assert_array_equal(warping_path(cost), librosa.sequence.dtw(C=cost)[1])
+
+
+def test_warping_path_of_speech_at_two_rates_is_librosas():
+    """On the cosine distances of log-mel frames, as :func:`dtw_align` warps them."""
+    import librosa
+
+    from vispeech.frontends.audio import AudioClip
+    from vispeech.frontends.dtw_align import _features
+
+    slow, fast = (synthesize(SWEDISH, "sv", rate=r) for r in (0.8, 1.0))
+    frames = [_features(AudioClip.from_array(u.audio, u.sample_rate).resampled(16000).samples) for u in (slow, fast)]
+    units = [f / np.linalg.norm(f, axis=1, keepdims=True) for f in frames]
+    cost = 1.0 - units[1] @ units[0].T
+    path = warping_path(cost)
+    np.testing.assert_array_equal(path, librosa.sequence.dtw(C=cost)[1])
+    assert len(path) >= max(cost.shape) and tuple(path[-1]) == (0, 0)
 
 
 def test_english_dtw_finds_grid_word_boundaries(bbaf2n):

@@ -3,7 +3,7 @@
 espeak-ng speaks the transcript, so the synthetic speech's phone times are known exactly. Both
 it and the recording become log-mel frames (100 per second, :mod:`vispeech.frontends.features`),
 each utterance normalised to zero mean and unit variance per band; the cosine distance between
-every pair of frames is warped by DTW (:func:`librosa.sequence.dtw`), and each synthetic phone
+every pair of frames is warped by DTW (:func:`warping_path`), and each synthetic phone
 boundary is carried through the warping path (the mean recording frame matched to each
 synthetic frame, interpolated) to the recording's time.
 
@@ -80,14 +80,66 @@ def _features(samples: np.ndarray) -> np.ndarray:
 
 def _warp(reference: np.ndarray, recording: np.ndarray) -> np.ndarray:
     """For each reference frame, the mean index of the recording frames DTW matches to it."""
-    import librosa
-
     unit_ref = reference / np.maximum(np.linalg.norm(reference, axis=1, keepdims=True), 1e-9)
     unit_rec = recording / np.maximum(np.linalg.norm(recording, axis=1, keepdims=True), 1e-9)
     cost = 1.0 - unit_ref @ unit_rec.T  # cosine distance
-    _, path = librosa.sequence.dtw(C=cost)
+    path = warping_path(cost)
     counts = np.bincount(path[:, 0], minlength=len(reference))
     return np.bincount(path[:, 0], weights=path[:, 1], minlength=len(reference)) / counts
+
+
+_MOVES = ((1, 1), (0, 1), (1, 0))
+"""The steps a warping path takes back from a cell: diagonal, along the row, along the column."""
+
+
+def warping_path(cost: np.ndarray) -> np.ndarray:
+    """``(length, 2)`` index pairs ``(i, j)`` of the cheapest warping path through an ``(n, m)``
+    cost matrix, from ``(n - 1, m - 1)`` back to ``(0, 0)``.
+
+    The path moves one step of :data:`_MOVES` at a time and its cost is the sum of the costs
+    of its cells; of equally cheap moves the first in :data:`_MOVES` is taken. This is
+    ``librosa.sequence.dtw(C=cost)[1]`` (its default steps, no weights), the same path cell
+    for cell, with the cumulative costs summed in the same order (tests/test_audio_frontends.py
+    compares them).
+    """
+    n, m = cost.shape
+    total, moves = _cumulative(np.asarray(cost, dtype=np.float64))
+    width = m + 1
+    i, j = n - 1, m - 1
+    path = [(i, j)]
+    while i or j:
+        di, dj = _MOVES[moves[(i + 1) * width + j + 1]]
+        i, j = i - di, j - dj
+        path.append((i, j))
+    return np.array(path)
+
+
+def _cumulative(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cheapest cumulative cost of a path to each cell and the move into it (an index into
+    :data:`_MOVES`), both flat over the ``(n + 1, m + 1)`` matrix whose first row and column
+    are infinite. The cells of one anti-diagonal (``i + j`` fixed) depend only on the two
+    before it, and lie ``m`` apart in the flat matrix: each is one strided slice."""
+    n, m = cost.shape
+    width = m + 1
+    total = np.full((n + 1, width), np.inf)
+    total[1:, 1:] = cost
+    total = total.ravel()
+    moves = np.zeros(len(total), dtype=np.int8)
+    for diagonal in range(1, n + m - 1):
+        first, last = max(0, diagonal - m + 1), min(diagonal, n - 1)
+        start = width + diagonal + 1 + first * m  # cell (first, diagonal - first)
+        stop = start + (last - first) * m + 1
+        here = total[start:stop:m]
+        best = total[start - width - 1 : stop - width - 1 : m] + here
+        move = np.zeros(len(best), dtype=np.int8)
+        for index, offset in ((1, 1), (2, width)):
+            candidate = total[start - offset : stop - offset : m] + here
+            better = candidate < best
+            best = np.where(better, candidate, best)
+            move[better] = index
+        total[start:stop:m] = best
+        moves[start:stop:m] = move
+    return total, moves
 
 
 def _increasing(times: np.ndarray, duration: float) -> np.ndarray:
