@@ -178,8 +178,10 @@ def test_a_network_trained_on_streamed_states_streams_its_offline_output(live, c
     np.testing.assert_allclose(np.concatenate(parts), offline, atol=1e-5)
 
 
-def test_the_stored_mel_filters_are_librosas():
-    """The filter bank kept as package data (so that encoding never imports librosa) is Whisper's."""
+@pytest.mark.parametrize("n_mels", [80, 128])
+def test_the_mel_filters_are_whispers(n_mels):
+    """Whisper's filter bank: librosa's, as Whisper's own feature extractors take it."""
     import librosa
 
-    np.testing.assert_allclose(whisper._mel_filters(80), librosa.filters.mel(sr=16000, n_fft=400, n_mels=80), atol=1e-7)
+    np.testing.assert_allclose(whisper._mel_filters(n_mels), librosa.filters.mel(sr=16000, n_fft=400, n_mels=n_mels),
+                               atol=1e-7)

