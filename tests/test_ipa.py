@@ -1,5 +1,6 @@
 """IPA phones: segmentation, hand-checked articulatory features, the curated sets' agreement,
-espeak-ng's IPA names, and alignment files and JSON in IPA (issue 14)."""
+espeak-ng's IPA names, alignment files and JSON in IPA (issue 14), and the shipped PanPhon
+table, which must be what the panphon package holds (issue 25)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import DATA
+from panphon_table import TABLE, table_text
 from vispeech.alignment.formats import read_alignment, write_textgrid
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
@@ -208,3 +210,11 @@ def test_json_phones_in_ipa_read_as_segments(tmp_path):
     path.write_text(json.dumps(data, ensure_ascii=False), encoding="utf-8")
     with pytest.raises(VispeechError, match=r"phone 2 at 0\.200 s: .*'\+' at position 1"):
         read_alignment(path)
+
+
+def test_the_shipped_panphon_table_is_panphons():
+    """data/panphon.tsv is what tests/panphon_table.py writes from the installed panphon (the
+    test extra): PanPhon's rows, credit and licence, unedited."""
+    shipped = TABLE.read_text(encoding="utf-8")
+    assert shipped == table_text(), "run python tests/panphon_table.py"
+    assert shipped.startswith("# PanPhon ") and "# Permission is hereby granted" in shipped

@@ -12,10 +12,12 @@ segment; :func:`split_ipa` turns a string of several (an espeak-ng phoneme such 
 ``ʔo``) into segments.
 
 The articulatory features of a segment come from its base letters' rows in PanPhon's
-feature table (``ipa_all.csv`` of the ``panphon`` package: 24 SPE-style features, +1/0/-1),
-mapped onto :data:`vispeech.phonetics.features.FEATURE_NAMES` by :func:`ipa_features`.
-The table is read directly (a few milliseconds): PanPhon's own ``FeatureTable`` takes about
-two seconds to start. Where PanPhon's binary features do not make a distinction the face
+feature table (24 SPE-style features, +1/0/-1), mapped onto
+:data:`vispeech.phonetics.features.FEATURE_NAMES` by :func:`ipa_features`. The rows ship as
+``data/panphon.tsv`` (PanPhon's ``ipa_all.csv`` rows for its base segments, with PanPhon's
+credit and MIT licence; ``tests/panphon_table.py`` writes it from the ``panphon`` package and
+the tests check it), so neither panphon nor the pandas it pulls is needed to run, and reading
+it takes about a millisecond. Where PanPhon's binary features do not make a distinction the face
 needs, the mapping names the letters: central vowels (PanPhon has no central value), the
 labiodental nasal and approximant ``ɱ ʋ`` (PanPhon marks only labiodental fricatives, by
 stridency), the glottals ``h ɦ ʔ`` (PanPhon's ``h`` has the features of a uvular) and ``ɧ``.
@@ -30,12 +32,10 @@ consonants (``w``, ``ʷ``) are fully rounded and protruded.
 
 from __future__ import annotations
 
-import csv
 import unicodedata
 from dataclasses import dataclass
 from functools import cache
-from importlib.util import find_spec
-from pathlib import Path
+from importlib import resources
 
 from vispeech.errors import VispeechError
 
@@ -108,22 +108,12 @@ class _Segment:
 @cache
 def _panphon() -> tuple[tuple[str, ...], dict[str, dict[str, int]]]:
     """PanPhon's base segments (tone letters left out) and their feature rows, NFD-normalised."""
-    spec = find_spec("panphon")
-    if spec is None or not spec.submodule_search_locations:
-        raise VispeechError("IPA phones need the panphon package (pip install panphon)")
-    data = Path(list(spec.submodule_search_locations)[0]) / "data"
-    with open(data / "ipa_bases.csv", encoding="utf-8", newline="") as f:
-        bases = [unicodedata.normalize("NFD", row["ipa"]) for row in csv.DictReader(f)]
-    wanted = {b for b in bases if not set(b) <= set(_TONE_LETTERS)}
-    rows: dict[str, dict[str, int]] = {}
-    with open(data / "ipa_all.csv", encoding="utf-8", newline="") as f:
-        names = next(csv.reader(f))[1:]
-        for line in f:  # only the bases' rows: the table has 6,000 more
-            fields = line.rstrip("\r\n").split(",")
-            segment = unicodedata.normalize("NFD", fields[0])
-            if segment in wanted:
-                rows[segment] = {name: {"+": 1, "-": -1, "0": 0}[value] for name, value in zip(names, fields[1:])}
-    return tuple(b for b in dict.fromkeys(bases) if b in rows), rows
+    text = resources.files("vispeech.phonetics").joinpath("data/panphon.tsv").read_text(encoding="utf-8")
+    lines = [line.split("\t") for line in text.splitlines() if line and not line.startswith("#")]
+    names = lines[0][1:]
+    value = {"+": 1, "-": -1, "0": 0}
+    rows = {fields[0]: {name: value[v] for name, v in zip(names, fields[1:], strict=True)} for fields in lines[1:]}
+    return tuple(rows), rows
 
 
 @cache
