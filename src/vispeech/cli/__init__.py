@@ -31,6 +31,7 @@ EXTRAS = {
     "statsmodels": "train",
     "pandas": "train",
     "sklearn": "train",
+    "librosa": "train",
     "fastapi": "serve",
     "starlette": "serve",
     "pydantic": "serve",
