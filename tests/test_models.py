@@ -5,12 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.models.contract import Estimator
 from vispeech.models.rules.baseline import Baseline
+from vispeech.models.rules.beskow_rules import gaussian_smooth
 from vispeech.models.rules.cohen_massaro import CohenMassaro
 from vispeech.models.rules.ohman import Ohman
 from vispeech.models.registry import create_model, load_folder, load_model
@@ -340,6 +342,14 @@ def test_beskow_rules_interpolate_undefined_targets_linearly():
         assert track["mouthPucker"][frame] == pytest.approx(expected)
     jaw = TARGET_CHANNELS.index("jawOpen")
     assert track["jawOpen"][25] == pytest.approx(values[1, jaw])  # /t/ defines its jaw
+
+
+@pytest.mark.parametrize(("frames", "sigma"), [(1, 2.0), (5, 3.7), (40, 0.1), (40, 1.2), (300, 7.5)])
+def test_beskow_smoothing_gives_scipys_gaussian_filter(frames, sigma):
+    """NumPy's smoothing, tracks shorter than the kernel included, is SciPy's (the core has no SciPy)."""
+    values = np.random.default_rng(frames).random((frames, 4))
+    np.testing.assert_allclose(gaussian_smooth(values, sigma),
+                               gaussian_filter1d(values, sigma, axis=0, mode="nearest"), atol=1e-12, rtol=0)
 
 
 def test_baseline_apices_lead_in_and_bezier_easing():

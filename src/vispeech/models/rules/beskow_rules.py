@@ -12,7 +12,6 @@ target points sit at its centre ± ``hold``/2 of its duration (one point at the 
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
@@ -47,5 +46,22 @@ class BeskowRules(PhoneTargetModel):
             out[:, ch] = np.interp(seg.times, points[use], targets[use, ch])
         sigma_frames = self._params["sigma"] * fps
         if sigma_frames > 0:
-            out = gaussian_filter1d(out, sigma_frames, axis=0, mode="nearest")
+            out = gaussian_smooth(out, sigma_frames)
         return self._track(out, fps)
+
+
+def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    """``(frames, channels)`` float64 values smoothed over frames by a Gaussian of ``sigma`` > 0
+    frames, cut at 4 ``sigma``, the edge frames held beyond the ends: the numbers of
+    ``scipy.ndimage.gaussian_filter1d(values, sigma, axis=0, mode="nearest")``, whose kernel
+    and order of summation (the centre, then symmetric pairs from the outside in) it follows."""
+    radius = int(4.0 * sigma + 0.5)
+    offsets = np.arange(-radius, radius + 1)
+    kernel = np.exp(-0.5 / (sigma * sigma) * offsets**2)
+    kernel = kernel / kernel.sum()
+    padded = np.pad(values, ((radius, radius), (0, 0)), mode="edge")
+    n = len(values)
+    out = padded[radius : radius + n] * kernel[radius]
+    for j in range(radius, 0, -1):
+        out += (padded[radius - j : radius - j + n] + padded[radius + j : radius + j + n]) * kernel[radius - j]
+    return out
