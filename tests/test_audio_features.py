@@ -56,6 +56,16 @@ def test_mel_and_mfcc_see_the_tone_band():
     assert mfcc(low).shape == (101, 13)
 
 
+@pytest.mark.parametrize("n_mels", [13, 40, 80])
+def test_mfcc_is_scipys_orthonormal_dct(n_mels):
+    """The NumPy DCT-II (the core has no SciPy) gives scipy.fft.dct's coefficients."""
+    from scipy.fft import dct
+
+    frames = np.random.default_rng(n_mels).normal(-8.0, 3.0, (200, n_mels)).astype(np.float32)
+    expected = dct(frames * (10.0 / np.log(10.0)), axis=1, type=2, norm="ortho")[:, :13].astype(np.float32)
+    np.testing.assert_allclose(mfcc(frames), expected, rtol=1e-6, atol=1e-5)
+
+
 def test_warping_moves_formants_and_keeps_identity():
     power = power_spectrogram(tone(1000, 0.5))
     assert warp_frequencies(power, 1.0) is power

@@ -140,10 +140,18 @@ def log_mel(power: np.ndarray, n_mels: int = 80) -> np.ndarray:
 def mfcc(log_mel_frames: np.ndarray, n_mfcc: int = 13) -> np.ndarray:
     """``(frames, n_mfcc)`` MFCCs of log-mel frames: the orthonormal DCT-II of the log-mel in dB
     over the bands (``librosa.feature.mfcc(S=dB, n_mfcc)``)."""
-    from scipy.fft import dct
-
     decibels = log_mel_frames * (10.0 / np.log(10.0))
-    return dct(decibels, axis=1, type=2, norm="ortho")[:, :n_mfcc].astype(np.float32)
+    return (decibels @ _dct_basis(log_mel_frames.shape[1])[:n_mfcc].T).astype(np.float32)
+
+
+@functools.cache
+def _dct_basis(n: int) -> np.ndarray:
+    """``(n, n)`` orthonormal DCT-II matrix: row k is ``sqrt(2/n) cos(pi k (2i + 1) / 2n)`` over
+    i, row 0 divided by sqrt(2) (``scipy.fft.dct(type=2, norm="ortho")`` to float64 rounding)."""
+    k = np.arange(n)[:, np.newaxis]
+    basis = np.cos(np.pi * k * (2 * np.arange(n) + 1) / (2 * n)) * np.sqrt(2.0 / n)
+    basis[0] /= np.sqrt(2.0)
+    return basis
 
 
 def spectral_features(power: np.ndarray, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13) -> np.ndarray:
