@@ -18,7 +18,6 @@ on grid_s1 it cuts jawOpen's frame-to-frame jitter (mean absolute second differe
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import butter, savgol_filter, sosfiltfilt
 
 ANALYSIS_RATE = 100
 """Hz at which the lip gap and the sound's energy are compared."""
@@ -44,6 +43,8 @@ def estimate_offset(
     take's per-frame lip ``gap`` at ``fps`` and its sound; ``mask`` marks the frames with a face
     (the others do not count). NaN for a take shorter than :data:`MIN_SECONDS` or one whose
     mouth or sound does not change."""
+    from scipy.signal import butter, sosfiltfilt  # scipy: in the `capture` extra
+
     gap = np.asarray(gap, dtype=float)
     known = np.isfinite(gap) if mask is None else (np.asarray(mask, bool) & np.isfinite(gap))
     n = len(gap)
@@ -94,6 +95,8 @@ def shift_frames(values: np.ndarray, offset: float, fps: float) -> np.ndarray:
 def smooth_frames(values: np.ndarray, fps: float) -> np.ndarray:
     """``values`` (frames × channels) through a Savitzky–Golay filter of :data:`SMOOTHING_WINDOW`
     seconds (at least 5 frames, odd), order 2, over each run of frames with a face; NaN rows stay."""
+    from scipy.signal import savgol_filter  # scipy: in the `capture` extra
+
     values = np.asarray(values, dtype=float)
     window = max(5, int(round(SMOOTHING_WINDOW * fps)) | 1)
     out = values.copy()

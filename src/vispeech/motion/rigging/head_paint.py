@@ -24,9 +24,6 @@ geometry says where the features are, so :func:`paint_skin` and :func:`paint_mou
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.easing import smoothstep
@@ -47,6 +44,9 @@ def _mix(colours: np.ndarray, tint: np.ndarray, amount: np.ndarray) -> np.ndarra
 
 def _holes(skin: Primitive) -> list[np.ndarray]:
     """The vertex indices of each hole's rim in the skin (boundary loops but the outer one, the longest)."""
+    from scipy.sparse import coo_matrix  # scipy: the `rig` extra, imported only to prepare a head
+    from scipy.sparse.csgraph import connected_components
+
     edges = np.sort(skin.edges, axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     rim = unique[counts == 1]
@@ -68,6 +68,8 @@ def _moved(skin: Primitive, rim: np.ndarray, *names: str) -> float:
 def paint_skin(skin: Primitive) -> np.ndarray:
     """``COLOR_0`` of the skin primitive: lips, brows and lash line (module docstring). Raises
     :class:`VispeechError` when the skin has no mouth hole or no eye holes."""
+    from scipy.spatial import cKDTree  # scipy: the `rig` extra, imported only to prepare a head
+
     holes = _holes(skin)
     eyes = [rim for rim in holes if _moved(skin, rim, "eyeBlinkLeft", "eyeBlinkRight") > 0]
     eyes = sorted(eyes, key=lambda rim: _moved(skin, rim, "eyeBlinkLeft", "eyeBlinkRight"))[-2:]

@@ -45,9 +45,6 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from vispeech.errors import VispeechError
 from vispeech.motion.arkit import TONGUE_CHANNELS
@@ -82,6 +79,10 @@ def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the he
     """The tongue among a head's ``primitives`` (see the module docstring, step 1). Raises
     :class:`VispeechError` when there is no primitive named for the tongue, none for the teeth,
     or no ``jawOpen`` target to tell the lower jaw by."""
+    from scipy.sparse import coo_matrix  # scipy: the `rig` extra, imported only to prepare a head
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     tongue = [p for p in primitives if "tongue" in p.name.lower()]
     teeth = [p for p in primitives if "teeth" in p.name.lower() or "tooth" in p.name.lower()]
     if not tongue:
