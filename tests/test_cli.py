@@ -59,6 +59,17 @@ def test_a_missing_extra_is_one_line(monkeypatch):
     assert result.output.strip() == 'error: vispeech serve needs uvicorn, which is not installed: pip install "vispeech[serve]"'
 
 
+def test_preparing_a_head_without_scipy_names_the_rig_extra(monkeypatch, tmp_path, shared_dir):
+    """The core has no SciPy; `rig prepare` needs it and says which extra brings it."""
+    for name in ["scipy", *(m for m in sys.modules if m.startswith("scipy."))]:
+        monkeypatch.setitem(sys.modules, name, None)
+    head = tmp_path / "head.glb"
+    result = CliRunner().invoke(main, ["rig", "prepare", str(shared_dir / "assets/ict_head.glb"), "-o", str(head)])
+    assert result.exit_code == 2
+    assert result.output.strip() == 'error: vispeech rig needs scipy, which is not installed: pip install "vispeech[rig]"'
+    assert not head.exists()
+
+
 def _imported_by(args: list[str], cwd: Path) -> set[str]:
     """The top-level modules a fresh process imported to run ``vispeech ARGS``."""
     script = (

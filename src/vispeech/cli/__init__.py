@@ -32,6 +32,7 @@ EXTRAS = {
     "pandas": "train",
     "sklearn": "train",
     "librosa": "train",
+    "scipy": "rig",
     "fastapi": "serve",
     "starlette": "serve",
     "pydantic": "serve",
