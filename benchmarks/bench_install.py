@@ -8,9 +8,10 @@ folder with the built web app so that no stale ``build/`` folder leaks in; the w
 skipped with ``VISPEECH_SKIP_WEB_BUILD=1`` where ``src/vispeech/serve/static/`` is built,
 else setup.py builds it with npm), then reports:
 
-- the venv's size on disk in MiB (as ``du -sm`` counts it; MB beside it) and the largest
-  installed distributions (the files their RECORDs list, in MiB), and which of the heavy
-  packages the core must not pull are installed;
+- the venv's size on disk in MiB (as ``du -sm`` counts it; MB beside it), counting the pip
+  and setuptools that ``python -m venv`` puts in every venv (their share and the size without
+  them beside it), the largest installed distributions (the files their RECORDs list, in
+  MiB), and which of the heavy packages the core must not pull are installed;
 - whole-process wall times on one core: ``python -c pass``, ``vispeech say``, then the first
   ``vispeech animate`` of the install on 10 s of GRID speaker 1 audio (its first utterances
   one after another, cut to 10 s, written by the venv's own Python) and ``N`` more runs.
@@ -40,8 +41,10 @@ from pathlib import Path  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_GRID = ROOT.parent / "shared" / "data" / "grid_s1"
 STATIC = Path("src") / "vispeech" / "serve" / "static"
-HEAVY = ("numba", "llvmlite", "pandas", "scikit-learn", "torch", "matplotlib")
+HEAVY = ("numba", "llvmlite", "pandas", "scikit-learn", "scipy", "torch", "matplotlib")
 """Distributions the core install must not contain."""
+VENV_TOOLS = ("pip", "setuptools")
+"""Distributions ``python -m venv`` installs (Python 3.11), not vispeech's requirements."""
 SIZE_TARGET_MIB = 300.0
 FIRST_TARGET_S = 2.0
 CLIP_SECONDS = 10.0
@@ -156,6 +159,9 @@ def main() -> None:
     print(f"pip install {args.source} (no extras) into a fresh venv: {seconds:.0f} s")
     print(f"venv size: {size:.0f} MiB, {size * 2**20 / 1e6:.0f} MB "
           f"(target {SIZE_TARGET_MIB:.0f} MiB: {'ok' if size <= SIZE_TARGET_MIB else 'OVER'})")
+    tools = sum(sizes.get(name, 0) for name in VENV_TOOLS) / 2**20
+    print(f"  counted: {' and '.join(VENV_TOOLS)} of `python -m venv`, {tools:.0f} MiB; "
+          f"without them {size - tools:.0f} MiB")
     print(f"heavy packages installed: {', '.join(heavy) or 'none'}")
     print("largest distributions (MiB of files):")
     for name, total in sorted(sizes.items(), key=lambda item: -item[1])[:12]:
