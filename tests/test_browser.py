@@ -65,8 +65,8 @@ def _serving(cache: Path, **settings) -> Iterator[str]:
     uvicorn = require_module("uvicorn", "uvicorn (the serve extra)")
     from vispeech.serve import ServeConfig, create_app
 
-    config = ServeConfig(avatar=ICT_HEAD, avatar_credit="3D head: ICT-FaceKit (USC ICT), MIT licence",
-                         cache=cache, rate_limit=0, **settings)
+    head = {"avatar": ICT_HEAD, "avatar_credit": "3D head: ICT-FaceKit (USC ICT), MIT licence"}
+    config = ServeConfig(cache=cache, rate_limit=0, **{**head, **settings})
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     server = uvicorn.Server(uvicorn.Config(create_app(config), log_level="warning"))
@@ -193,6 +193,29 @@ def test_viewer_loads_the_ict_head_with_its_credit(page):
     assert head["credit"] == "3D head: ICT-FaceKit (USC ICT), MIT licence"
     assert head["audio"] == "running"  # autoplay allowed: the AudioContext's clock runs
     assert page.errors == []
+
+
+def test_the_chat_page_shows_the_shipped_head_when_given_no_file(page, tmp_path):
+    """`vispeech serve` with no head given: the chat page shows the 3D head the package ships,
+    prepared (tongue targets), with its credit; --face-2d gives the 2D face."""
+    from vispeech.motion.rigging.head import HEAD_CREDIT
+
+    shown = """() => ({driven: window.vispeech.avatar.headIndex ? window.vispeech.avatar.headIndex.size : 0,
+                       canvas: document.querySelector('#stage canvas')?.className ?? null,
+                       credit: document.querySelector('#stage .credit')?.textContent ?? null})"""
+    errors: list[str] = []
+    for settings, expected in [({}, {"driven": 55, "canvas": "", "credit": HEAD_CREDIT}),
+                               ({"head": False}, {"driven": 0, "canvas": "face2d", "credit": None})]:
+        with _serving(tmp_path / f"{len(settings)}.sqlite3", avatar=None, avatar_credit=None, **settings) as url:
+            chat = page.context.browser.new_page(viewport={"width": 480, "height": 480})  # one Playwright
+            chat.on("pageerror", lambda error: errors.append(str(error)))
+            try:
+                chat.goto(url)
+                chat.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+                assert chat.evaluate(shown) == expected
+            finally:
+                chat.close()
+            assert errors == []
 
 
 def test_mouth_is_open_at_open_vowels_and_closed_at_m(page, speech, screenshot_dir):

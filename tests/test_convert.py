@@ -73,17 +73,36 @@ def test_json_keeps_phones_and_audio(tmp_path, take):
     assert json.loads((tmp_path / "cues.rhubarb.json").read_text())["metadata"]["soundFile"] == "take.wav"
 
 
-def test_glb_output(tmp_path, take, shared_dir):
-    result = run("convert", take, tmp_path / "head.glb", "--glb", shared_dir / "assets/ict_head.glb")
+def _glb_weights(path):
+    """Morph target names and the (frames x targets) weights of the animation in the GLB at ``path``."""
+    import pygltflib
+
+    gltf = pygltflib.GLTF2.load(str(path))
+    names = gltf.meshes[0].extras["targetNames"]
+    accessor = gltf.accessors[gltf.animations[0].samplers[0].output]
+    view = gltf.bufferViews[accessor.bufferView]
+    weights = np.frombuffer(gltf.binary_blob(), "<f4", count=accessor.count,
+                            offset=(view.byteOffset or 0) + (accessor.byteOffset or 0))
+    return names, weights.reshape(-1, len(names))
+
+
+def test_glb_output_onto_the_shipped_head_or_another(tmp_path, take, shared_dir):
+    """Without --glb the animation goes onto the shipped head, tongue morph targets and all."""
+    result = run("convert", take, tmp_path / "head.glb")
     assert result.exit_code == 0, result.output
-    assert (tmp_path / "head.glb").read_bytes()[:4] == b"glTF"
+    names, weights = _glb_weights(tmp_path / "head.glb")
+    assert "tongueTipUp" in names and weights.shape == (120, len(names))
+    np.testing.assert_allclose(weights[:, names.index("jawOpen")], read_track(take)["jawOpen"], atol=1e-6)
+    other = run("convert", take, tmp_path / "raw.glb", "--glb", shared_dir / "assets/ict_head.glb")
+    assert other.exit_code == 0, other.output
+    assert "tongueTipUp" not in _glb_weights(tmp_path / "raw.glb")[0]
 
 
 @pytest.mark.parametrize("args,text", [
     (["missing.csv", "out.json"], "not found"),
     (["take.csv", "out.xyz"], "cannot tell the track format"),
     (["take.csv", "out.json", "--to", "usd"], "unknown track format 'usd'"),
-    (["take.csv", "out.glb"], "needs a base model"),
+    (["take.csv", "out.glb", "--glb", "none.glb"], "base model not found"),
     (["take.csv", "out.json", "--fps", "0"], "--fps must be positive"),
     (["take.csv", "out.json", "--pose-table", "nope"], "pose table not found"),
     (["take.csv", "out.tsv", "--to", "rhubarb", "--pose-table", "thesis_bone_rig"], "need a morph pose table"),

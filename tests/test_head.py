@@ -13,7 +13,7 @@ from vispeech import VispeechError
 from vispeech.cli import main
 from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.rigging.glb import read_primitives, skin_primitive
-from vispeech.motion.rigging.head import prepare_head
+from vispeech.motion.rigging.head import DEFAULT_HEAD, prepare_head
 from vispeech.motion.rigging.tongue import find_tongue
 
 
@@ -143,6 +143,15 @@ def test_the_prepared_file_stays_compressed_and_small(prepared, ict_head):
     assert out.stat().st_size < 1.5 * ict_head.stat().st_size
     assert gltf.meshes[0].extras["targetNames"][-4:] == list(TONGUE_CHANNELS)
     assert len(gltf.meshes[0].weights) == len(gltf.meshes[0].extras["targetNames"]) == 55
+
+
+def test_the_shipped_head_is_the_ict_head_as_rig_prepare_writes_it_now(prepared):
+    """The package's default head is `vispeech rig prepare shared/assets/ict_head.glb` byte for byte,
+    so a change to the preparation (tongue targets, paint) shows here until the head is prepared
+    again: vispeech rig prepare ../shared/assets/ict_head.glb -o src/vispeech/motion/rigging/data/ict_head.glb"""
+    out, _, _ = prepared
+    assert DEFAULT_HEAD.read_bytes() == out.read_bytes()
+    assert (DEFAULT_HEAD.parent / "LICENSE-ICT-FaceKit.txt").read_text().startswith("MIT License")
 
 
 def test_cli_prepares_once_and_explains(prepared, ict_head, tmp_path):

@@ -192,16 +192,26 @@ def test_the_avatar_is_served_prepared_unless_asked_as_is(tmp_path):
         assert served.get("/avatar.glb").content == head.read_bytes()
 
 
-def test_without_avatar_or_built_web_app(tmp_path):
+def test_the_shipped_head_by_default_the_2d_face_on_request_and_no_built_web_app(tmp_path):
+    from vispeech.motion.rigging.head import DEFAULT_HEAD, HEAD_CREDIT
+
+    with TestClient(create_app(ServeConfig(cache=":memory:", head=False))) as flat:
+        config = flat.get("/api/config").json()
+        assert config["avatar_url"] is None and config["avatar_credit"] is None
+        assert flat.get("/avatar.glb").status_code == 404
     with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", static_dir=tmp_path / "none"))) as bare:
-        assert bare.get("/api/config").json()["avatar_url"] is None
-        assert bare.get("/avatar.glb").status_code == 404
+        config = bare.get("/api/config").json()
+        assert config["avatar_url"] == "/avatar.glb" and config["avatar_credit"] == HEAD_CREDIT
+        head = bare.get("/avatar.glb")  # shipped prepared: served as it is
+        assert head.status_code == 200 and head.content == DEFAULT_HEAD.read_bytes()
         page = bare.get("/")
         assert page.status_code == 404 and "npm run build" in page.json()["detail"]
         assert bare.get("/static/chat.js").status_code == 404
         assert bare.get("/static/face2d.js").status_code == 200
     with pytest.raises(VispeechError, match="avatar"):
         create_app(ServeConfig(avatar=tmp_path / "missing.glb", cache=":memory:"))
+    with pytest.raises(VispeechError, match="not both"):
+        create_app(ServeConfig(avatar=DEFAULT_HEAD, head=False, cache=":memory:"))
 
 
 @pytest.mark.parametrize(("body", "status", "words"), [

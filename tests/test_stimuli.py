@@ -96,7 +96,8 @@ def test_faces_render_side_by_side_with_their_sound(tmp_path):
     (tmp_path / "speech.wav").write_bytes(wav_bytes(tdnn.audio, tdnn.sample_rate))
     out = tmp_path / "clip.mp4"
     result = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "tdnn.json"), str(tmp_path / "rest.json"),
-                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "1", "-o", str(out)])
+                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "1", "--face-2d",
+                                       "-o", str(out)])
     assert result.exit_code == 0, result.output
     key = json.loads((tmp_path / "clip.json").read_text())
     assert sorted(Path(p).name for p in key["left_to_right"]) == ["rest.json", "tdnn.json"] and key["seed"] == 1
@@ -123,9 +124,9 @@ def _require_chromium():
     require(Path("/usr/bin/chromium").is_file(), "Chromium (/usr/bin/chromium)")
 
 
-def test_tracks_render_on_the_3d_head_side_by_side(tmp_path, shared_dir):
-    """Two 10-frame tracks on the ICT head, swapped by the shuffle: one at rest, one opening the jaw.
-    The MP4 has 10 frames of two 320x400 heads and the sound; the opening one is where the key
+def test_tracks_render_on_the_3d_head_side_by_side(tmp_path):
+    """Two 10-frame tracks on the shipped ICT head (the default), swapped by the shuffle: one at
+    rest, one opening the jaw. The MP4 has 10 frames of two 320x400 heads and the sound; the opening one is where the key
     says, its mouth region darker than the resting one's by the last frame; the rest of the face
     and the first frame (both at rest) are alike."""
     import json
@@ -150,8 +151,7 @@ def test_tracks_render_on_the_3d_head_side_by_side(tmp_path, shared_dir):
     out = tmp_path / "clip.mp4"
     assert np.random.default_rng(3).permutation(2).tolist() == [1, 0]  # seed 3 swaps the two
     result = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "rest.json"), str(tmp_path / "open.json"),
-                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "3",
-                                       "--head", str(shared_dir / "assets/ict_head.glb"), "-o", str(out)])
+                                       "--audio", str(tmp_path / "speech.wav"), "--shuffle", "3", "-o", str(out)])
     assert result.exit_code == 0, result.output
     key = json.loads((tmp_path / "clip.json").read_text())
     assert [Path(p).name for p in key["left_to_right"]] == ["open.json", "rest.json"]
@@ -198,3 +198,6 @@ def test_a_head_that_is_not_an_arkit_glb_is_refused(tmp_path):
     bad = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "a.json"), "--head-as-is",
                                     "-o", str(tmp_path / "clip.mp4")])
     assert bad.exit_code == 2 and "--head-as-is needs --head" in bad.output
+    both = CliRunner().invoke(main, ["stimuli", "render", str(tmp_path / "a.json"), "--face-2d",
+                                     "--head", str(tmp_path / "shapes.glb"), "-o", str(tmp_path / "clip.mp4")])
+    assert both.exit_code == 2 and "not both" in both.output

@@ -26,7 +26,7 @@ from vispeech.motion.formats.registry import FORMATS, read_animation, write_trac
     "--glb",
     "base_glb",
     type=click.Path(path_type=Path),
-    help="Base model with ARKit-named morph targets (needed for gltf and fbx).",
+    help="Base model with ARKit-named morph targets for gltf and fbx [default: the shipped ICT-FaceKit head].",
 )
 @scale_option("tracker")
 def convert_command(
@@ -41,9 +41,10 @@ def convert_command(
     """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
-    .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf (needs --glb), .fbx fbx (needs
-    --glb and Blender). The track is taken as it is (--scale tracker); --scale arkit or a
-    calibration file rescales a track in the models' scale on the way.
+    .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf and .fbx fbx (Blender) onto the
+    --glb model, by default the shipped head (ICT-FaceKit, MIT licence). The track is taken as it
+    is (--scale tracker); --scale arkit or a calibration file rescales a track in the models'
+    scale on the way.
     """
     from vispeech.limits import check_fps
     from vispeech.motion.rigging.calibration import load_scale

@@ -71,9 +71,10 @@ def vocode(audio: Path, output: Path, bands: int, low: float, high: float, seed:
     "--head",
     type=click.Path(path_type=Path, dir_okay=False),
     default=None,
-    help="Render on this GLB head (ARKit morph targets) instead of the 2D face.",
+    help="Render on this GLB head (ARKit morph targets) [default: the shipped ICT-FaceKit head].",
 )
 @click.option("--head-as-is", is_flag=True, help="Use --head untouched (no tongue targets or paint added).")
+@click.option("--face-2d", "face_2d", is_flag=True, help="Render on the 2D face instead of a 3D head.")
 def render(
     animations: tuple[Path, ...],
     audio: Path | None,
@@ -81,11 +82,13 @@ def render(
     seed: int | None,
     head: Path | None,
     head_as_is: bool,
+    face_2d: bool,
 ) -> None:
-    """Render ANIMATIONS (Live Link CSV or vispeech JSON, the same frame rate) on the 2D face, or on
-    a GLB head with --head, side by side, with AUDIO, to an MP4 (H.264 + AAC) for a perceptual
-    test. Needs Chromium (/usr/bin/chromium, or VISPEECH_CHROMIUM), Playwright and Pillow (the
-    test extra); the head is drawn on the CPU, 7-11 heads a second on 2 cores."""
+    """Render ANIMATIONS (Live Link CSV or vispeech JSON, the same frame rate) on a GLB head (the
+    shipped one unless --head names another) or the 2D face, side by side, with AUDIO, to an MP4
+    (H.264 + AAC) for a perceptual test. Needs Chromium (/usr/bin/chromium, or VISPEECH_CHROMIUM),
+    Playwright and Pillow (the test extra); the head is drawn on the CPU, 7-11 heads a second on 2
+    cores."""
     import json
 
     import numpy as np
@@ -94,11 +97,15 @@ def render(
     from vispeech.files import atomic_output_file
     from vispeech.frontends.audio import AudioClip
     from vispeech.motion.formats.registry import read_track
+    from vispeech.motion.rigging.head import DEFAULT_HEAD
 
     if output.suffix.lower() != ".mp4":
         raise click.UsageError("the clip is an .mp4 file")
     if head_as_is and head is None:
         raise click.UsageError("--head-as-is needs --head")
+    if face_2d and head is not None:
+        raise click.UsageError("give --head or --face-2d, not both")
+    shown = None if face_2d else head or DEFAULT_HEAD
     tracks = [read_track(path) for path in animations]
     clip = AudioClip.read(audio) if audio is not None else None
     order = list(range(len(tracks))) if seed is None else np.random.default_rng(seed).permutation(len(tracks)).tolist()
@@ -108,8 +115,8 @@ def render(
         audio=None if clip is None else clip.samples,
         sample_rate=None if clip is None else clip.sample_rate,
         order=order,
-        head=head,
-        prepare_head=not head_as_is,
+        head=shown,
+        prepare_head=head is not None and not head_as_is,  # the shipped head is shipped prepared
     )
     key = output.with_suffix(".json")
     with atomic_output_file(key) as tmp:
@@ -119,7 +126,7 @@ def render(
                     "clip": output.name,
                     "seed": seed,
                     "audio": None if audio is None else str(audio),
-                    "head": None if head is None else str(head),
+                    "head": None if shown is None else str(shown),
                     "left_to_right": [str(animations[i]) for i in order],
                 },
                 indent=2,
@@ -129,6 +136,6 @@ def render(
         )
     frames = max(t.n_frames for t in tracks)
     click.echo(
-        f"{frames} frames at {tracks[0].fps:g} fps on {head.name if head else 'the 2D face'}, left to right: "
+        f"{frames} frames at {tracks[0].fps:g} fps on {shown.name if shown else 'the 2D face'}, left to right: "
         f"{', '.join(animations[i].name for i in order)} -> {output} (key: {key.name})"
     )

@@ -49,8 +49,8 @@ async def get_config(service: Service) -> ConfigResponse:
     animate audio, frame rate."""
     config = service.config
     return ConfigResponse(
-        avatar_url="/avatar.glb" if config.avatar is not None else None,
-        avatar_credit=config.avatar_credit,
+        avatar_url="/avatar.glb" if config.head_file is not None else None,
+        avatar_credit=config.head_credit,
         languages=[v.code for v in sorted(languages(), key=lambda v: (v.phones == "ipa", v.code != "sv"))],
         language_names={v.code: v.name.strip() for v in languages()},
         chat_languages=service.chat_languages,

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from vispeech.errors import VispeechError
+from vispeech.motion.rigging.head import DEFAULT_HEAD, HEAD_CREDIT
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE
 from vispeech.serve.bot import ChatBot, HTTPChatBot, RuleBot
 from vispeech.serve.safety import DEFAULT_ALLOWED_HOSTS
@@ -63,10 +64,12 @@ class ServeConfig:
     ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
     least :data:`~vispeech.serve.service.MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
     bytes. ``static_dir``: the built web app (default
-    :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar_credit``: a line the pages show under the head (its author
-    and licence). ``prepare_avatar``: serve the head with the tongue morph targets and painted
-    looks it lacks (:func:`vispeech.motion.rigging.head.prepared_head`, done once when the app is made);
-    ``False`` serves the file as it is.
+    :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar``: the GLB head the pages show (``None``: the
+    shipped :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`); ``head``: ``False`` shows the built-in
+    2D face instead. ``avatar_credit``: a line the pages show under the head (its author and licence;
+    the shipped head's by default). ``prepare_avatar``: serve ``avatar`` with the tongue morph targets and
+    painted looks it lacks (:func:`vispeech.motion.rigging.head.prepared_head`, done once when the app is
+    made); ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
     in pieces of ``piece_seconds``) with at most ``max_queue`` jobs waiting (503 / stream
@@ -91,13 +94,18 @@ class ServeConfig:
         metadata=_option(
             "--avatar",
             "glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
-            "lacks (vispeech rig prepare).",
+            "lacks (vispeech rig prepare) [default: the shipped ICT-FaceKit head].",
         ),
+    )
+    head: bool = field(
+        default=True,
+        metadata=_option("--face-2d", "Show the built-in 2D face instead of a 3D head.", negated=True),
     )
     avatar_credit: str | None = field(
         default=None,
         metadata=_option(
-            "--avatar-credit", 'Credit line shown under the head, e.g. "3D head: ICT-FaceKit (USC ICT), MIT licence".'
+            "--avatar-credit",
+            "Credit line shown under the head, its author and licence [default: the shipped head's].",
         ),
     )
     prepare_avatar: bool = field(
@@ -212,6 +220,20 @@ class ServeConfig:
             "The avatar's voice: f1-f5 female, m1-m8 male, ... (`vispeech languages --voices`).",
         ),
     )
+
+    @property
+    def head_file(self) -> Path | None:
+        """The GLB head the pages show: ``avatar``, else the shipped head; ``None`` for the 2D face."""
+        if not self.head:
+            return None
+        return DEFAULT_HEAD if self.avatar is None else Path(self.avatar)
+
+    @property
+    def head_credit(self) -> str | None:
+        """The line shown under the head: ``avatar_credit``, else the shipped head's when it is shown."""
+        if self.avatar_credit is not None or not self.head:
+            return self.avatar_credit
+        return HEAD_CREDIT if self.avatar is None else None
 
     def to_json(self) -> str:
         """The settings as JSON, for the server's other processes (:func:`~vispeech.serve.app.app_from_environment`).

@@ -42,12 +42,15 @@ class Site:
 
     @classmethod
     def of(cls, config: ServeConfig) -> Site:
-        """The site of ``config``, its avatar prepared once; :class:`VispeechError` when the avatar
-        file is missing."""
-        avatar = None if config.avatar is None else Path(config.avatar)
+        """The site of ``config``, its avatar prepared once (the shipped head is shipped prepared);
+        :class:`VispeechError` when the avatar file is missing or the 2D face is asked for as well."""
+        if config.avatar is not None and not config.head:
+            raise VispeechError("give --avatar or --face-2d, not both")
+        avatar = config.head_file
         if avatar is not None and not avatar.is_file():
-            raise VispeechError(f"avatar file not found: {config.avatar}")
-        prepared = _avatar_bytes(avatar) if avatar is not None and config.prepare_avatar else None
+            raise VispeechError(f"avatar file not found: {avatar}")
+        prepare = config.avatar is not None and config.prepare_avatar
+        prepared = _avatar_bytes(avatar) if avatar is not None and prepare else None
         return cls(Path(config.static_dir or STATIC_DIR), avatar, prepared)
 
 
@@ -78,9 +81,9 @@ router = APIRouter(include_in_schema=False)
 
 @router.get("/avatar.glb")
 def avatar(site: SiteOf) -> Response:
-    """The head, prepared (or as it is); 404 without one."""
+    """The head, prepared (or as it is); 404 when the pages show the 2D face."""
     if site.avatar is None or not site.avatar.is_file():
-        raise HTTPException(404, "no avatar: start the server with --avatar HEAD.glb")
+        raise HTTPException(404, "no avatar: the server shows the 2D face (--face-2d)")
     if site.avatar_bytes is not None:
         return Response(site.avatar_bytes, media_type="model/gltf-binary")
     return FileResponse(site.avatar, media_type="model/gltf-binary")

@@ -95,22 +95,25 @@ def _write_rhubarb(track: Track, path: Path, options: WriteOptions) -> None:
 
 
 def _write_gltf(track: Track, path: Path, options: WriteOptions) -> None:
-    base_glb = _base_glb(options, "glTF")
+    base_glb = _base_glb(options)
     from vispeech.motion.formats.gltf import write_gltf_animation  # pygltflib: imported only for glTF
 
     write_gltf_animation(track, base_glb, path)
 
 
 def _write_fbx(track: Track, path: Path, options: WriteOptions) -> None:
-    base_glb = _base_glb(options, "FBX")
+    base_glb = _base_glb(options)
     from vispeech.motion.formats.fbx import write_fbx_animation
 
     write_fbx_animation(track, base_glb, path)
 
 
-def _base_glb(options: WriteOptions, what: str) -> str | os.PathLike:
+def _base_glb(options: WriteOptions) -> str | os.PathLike:
+    """The model a glTF or FBX file is written onto: the one given, else the shipped head."""
     if options.base_glb is None:
-        raise VispeechError(f"writing {what} needs a base model (.glb with ARKit-named morph targets)")
+        from vispeech.motion.rigging.head import DEFAULT_HEAD  # the head's modules: imported only for glTF
+
+        return DEFAULT_HEAD
     return options.base_glb
 
 
@@ -219,7 +222,8 @@ def write_track(
     ----------
     phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``); ``oculus``
         and ``rhubarb`` name each consonant's viseme or shape by its features.
-    base_glb : the model ``gltf`` and ``fbx`` add the animation to (required for them).
+    base_glb : the model ``gltf`` and ``fbx`` add the animation to (default: the shipped head,
+        :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`).
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
         replaces the shipped one; for every other format a retargeting applied before writing.
     """

@@ -5,18 +5,32 @@ should see: the tongue channels' morph targets, built from the head's own tongue
 (:mod:`vispeech.motion.rigging.tongue`), and, on a head with flat materials, vertex colours for the
 lips, brows, lash line and the mouth's depth (:mod:`vispeech.motion.rigging.head_paint`). The rest of the
 file is kept as it is (compressed data stays compressed).
+
+vispeech ships one head ready, :data:`DEFAULT_HEAD`, the one ``vispeech serve``, ``convert`` and
+``stimuli render`` use when given none.
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.motion.rigging.glb import extended_glb, read_primitives, skin_primitive
 from vispeech.motion.rigging.head_paint import paint_mouth, paint_skin
 from vispeech.motion.rigging.tongue import tongue_targets
+
+DEFAULT_HEAD = Path(__file__).parent / "data" / "ict_head.glb"
+"""The shipped head: ICT-FaceKit's generic neutral face with its 51 ARKit expression shapes (USC
+Institute for Creative Technologies, MIT licence: ``LICENSE-ICT-FaceKit.txt`` beside it),
+meshoptimizer-compressed, as ``vispeech rig prepare`` writes it from ``shared/assets/ict_head.glb``
+(tongue morph targets added, flat materials painted): run that again when :func:`prepared_head`
+changes."""
+
+HEAD_CREDIT = "3D head: ICT-FaceKit (USC ICT), MIT licence"
+"""The credit line shown under :data:`DEFAULT_HEAD`."""
 
 MOUTH_PARTS = ("tongue", "gum", "teeth", "tooth")
 """Words in a primitive's material or mesh name that put it inside the mouth."""
