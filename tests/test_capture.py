@@ -43,15 +43,17 @@ def face_model_env():
 
 
 @pytest.fixture(scope="module")
-def captured(videos, face_model_env, tmp_path_factory) -> Path:
-    """The 10 videos captured with their transcripts into one corpus folder (capture --batch)."""
+def captured(videos, tmp_path_factory) -> Path:
+    """The 10 videos captured with their transcripts into one corpus folder (capture --batch), with
+    the face model vispeech ships (no --face-model, no VISPEECH_FACE_MODEL)."""
     folder = tmp_path_factory.mktemp("videos")
     sentences = dict(line.split("\t") for line in (GRID / "sentences.tsv").read_text().splitlines())
     for video in videos:
         (folder / video.name).symlink_to(video)
         (folder / f"{video.stem}.txt").write_text(sentences[video.stem] + "\n")
     out = tmp_path_factory.mktemp("corpus")
-    result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(out), "-j", "2"])
+    result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(out), "-j", "2"],
+                                env={"VISPEECH_FACE_MODEL": None})
     assert result.exit_code == 0, result.output
     assert "10 captured, 0 already there, 0 failed" in result.output
     return out
@@ -207,11 +209,25 @@ print(said.exit_code)
     assert (tmp_path / "said" / "animation.csv").is_file()
 
 
-def test_face_model_is_asked_for_not_downloaded(monkeypatch):
-    from vispeech.frontends.video import face_model_path
+def test_the_shipped_face_model_unless_another_is_named(monkeypatch, tmp_path):
+    """MediaPipe's model ships as Google publishes it (the sha256 of shared/models/README.md), with its
+    licence; --face-model, then VISPEECH_FACE_MODEL, name another; nothing is downloaded."""
+    import hashlib
+
+    from vispeech.frontends.video import SHIPPED_FACE_MODEL, face_model_path
 
     monkeypatch.delenv("VISPEECH_FACE_MODEL", raising=False)
-    with pytest.raises(VispeechError, match="--face-model .* VISPEECH_FACE_MODEL"):
+    assert face_model_path() == SHIPPED_FACE_MODEL
+    assert hashlib.sha256(SHIPPED_FACE_MODEL.read_bytes()).hexdigest() == \
+        "64184e229b263107bc2b804c6625db1341ff2bb731874b0bcc2fe6544e0bc9ff"
+    assert (SHIPPED_FACE_MODEL.parent / "LICENSE-MediaPipe.txt").read_text().split()[:3] == ["Apache", "License", "Version"]
+    named, other = tmp_path / "named.task", tmp_path / "other.task"
+    named.write_bytes(b"a")
+    other.write_bytes(b"b")
+    monkeypatch.setenv("VISPEECH_FACE_MODEL", str(other))
+    assert face_model_path() == other and face_model_path(named) == named
+    monkeypatch.setenv("VISPEECH_FACE_MODEL", str(tmp_path / "missing.task"))
+    with pytest.raises(VispeechError, match="face model not found"):
         face_model_path()
 
 

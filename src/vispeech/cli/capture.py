@@ -31,7 +31,7 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
     type=click.Path(path_type=Path, dir_okay=False),
     envvar=FACE_MODEL_VARIABLE,
     show_envvar=True,
-    help="MediaPipe's face_landmarker.task (never downloaded).",
+    help="MediaPipe's face_landmarker.task to track with [default: the one vispeech ships].",
 )
 @click.option(
     "--livelink",

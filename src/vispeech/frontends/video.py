@@ -10,8 +10,8 @@ on x's scale). A frame where no face is found is NaN throughout: marked, never i
 :func:`video_audio` gives the sound track as 16 kHz mono.
 
 MediaPipe and PyAV are the ``capture`` extra. The face model file is never downloaded: it is
-the path given, else :data:`FACE_MODEL_VARIABLE`'s (in development
-``shared/models/face_landmarker.task``).
+the path given, else :data:`FACE_MODEL_VARIABLE`'s, else the one vispeech ships
+(:data:`SHIPPED_FACE_MODEL`).
 """
 
 from __future__ import annotations
@@ -29,6 +29,11 @@ from vispeech.limits import MAX_DURATION_S
 
 FACE_MODEL_VARIABLE = "VISPEECH_FACE_MODEL"
 """The environment variable naming the MediaPipe face landmarker model (``face_landmarker.task``)."""
+
+SHIPPED_FACE_MODEL = Path(__file__).parent / "data" / "face_landmarker.task"
+"""MediaPipe's Face Landmarker model bundle as Google publishes it (face detector, 478-point
+mesh, 52 blend-shape scores; Apache License 2.0: ``LICENSE-MediaPipe.txt`` beside it): the
+tracker that made grid_s1's face tracks."""
 
 LANDMARKS: tuple[int, ...] = (13, 14, 78, 308, 0, 17, 61, 291, 37, 267, 84, 314, 152, 148, 377, 1, 33, 263, 10)
 """The mesh points kept, as in GRID's tracks: inner lips (13, 14), inner and outer mouth corners
@@ -68,14 +73,9 @@ def check_installed() -> None:
 
 
 def face_model_path(path: str | os.PathLike | None = None) -> Path:
-    """The face landmarker model: ``path``, else :data:`FACE_MODEL_VARIABLE`'s; a
-    :class:`VispeechError` when neither names a file."""
-    chosen = path or os.environ.get(FACE_MODEL_VARIABLE)
-    if not chosen:
-        raise VispeechError(
-            f"no face model: give --face-model face_landmarker.task or set {FACE_MODEL_VARIABLE} "
-            "(MediaPipe's Face Landmarker model; vispeech downloads nothing)"
-        )
+    """The face landmarker model: ``path``, else :data:`FACE_MODEL_VARIABLE`'s, else
+    :data:`SHIPPED_FACE_MODEL`; a :class:`VispeechError` when that is not a file."""
+    chosen = path or os.environ.get(FACE_MODEL_VARIABLE) or SHIPPED_FACE_MODEL
     if not Path(chosen).is_file():
         raise VispeechError(f"face model not found: {chosen}")
     return Path(chosen)
