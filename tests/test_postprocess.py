@@ -119,7 +119,7 @@ def test_postprocess_steps_can_be_switched_off():
     phones = phones_sv()
     track = open_track(phones)
     off = PostprocessConfig(jaw_shift=0.0, overlays=False, jaw_peaks_in_vowels=False, ceilings={}, close_within_jaw=False,
-                            vowel_opening=0.0, tongue=False)
+                            vowel_opening=0.0, tongue=False, rest=False)
     out = postprocess(track, phones, off)
     assert out.channels == track.channels
     np.testing.assert_array_equal(out.values, track.values)

@@ -9,6 +9,7 @@ import os
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,8 +25,11 @@ from vispeech.motion.formats.registry import ALIASES, write_track
 from vispeech.motion.rigging.calibration import load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
-from vispeech.postprocess import AUTO, Postprocessing, postprocess, postprocessing_config
+from vispeech.postprocess import AUTO, NONE, Postprocessing, postprocess, postprocessing_config
 from vispeech.utterance import Utterance
+
+if TYPE_CHECKING:
+    from vispeech.frontends.espeak import Speech
 
 DEFAULT_FPS = 30.0
 DEFAULT_SCALE = "arkit"
@@ -81,12 +85,19 @@ def animate(
     return _animate(phones, model, fps, postprocessing)
 
 
-def _animate(phones: PhoneSequence, model: str | Estimator, fps: float, postprocessing: Postprocessing) -> Track:
-    """:func:`animate` at an ``fps`` already checked."""
+def _animate(
+    phones: PhoneSequence,
+    model: str | Estimator,
+    fps: float,
+    postprocessing: Postprocessing,
+    speech: list[tuple[float, float]] | None = None,
+) -> Track:
+    """:func:`animate` at an ``fps`` already checked; ``speech``: where the audio's loudness shows
+    speech, if there is audio (:func:`speech_spans`)."""
     phones.validate()
     check_utterance(phones.duration, len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
-    return _postprocessed(estimator.predict(phones, fps), phones, postprocessing, estimator.postprocessing)
+    return _postprocessed(estimator.predict(phones, fps), phones, postprocessing, estimator.postprocessing, speech)
 
 
 def animate_audio(
@@ -103,7 +114,8 @@ def animate_audio(
     as in :func:`animate`; an audio model's recommended preset (``audio``) needs no phones;
     with ``phones`` given its output gets the ``learned-jaw`` preset's closures, and without,
     a model that hears bilabials (:meth:`~vispeech.models.contract.Estimator.predict_with_closures`)
-    gets the ``audio-closures`` preset's closures on them.
+    gets the ``audio-closures`` preset's closures on them. The mouth rests where the audio is quiet
+    (:func:`speech_spans`).
     """
     check_fps(fps)
     return _animate_audio(clip, model, fps, postprocessing, phones)
@@ -119,21 +131,41 @@ def _animate_audio(
     """:func:`animate_audio` at an ``fps`` already checked."""
     check_utterance(clip.duration, 0 if phones is None else len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
+    speech = None if postprocessing == NONE else speech_spans(clip)
     if estimator.input_kind != "audio":
         if phones is None:
             raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
-        return _animate(phones, estimator, fps, postprocessing).resample(fps, n_frames=clip.n_frames(fps))
+        return _animate(phones, estimator, fps, postprocessing, speech).resample(fps, n_frames=clip.n_frames(fps))
     if phones is not None:
-        return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, "learned-jaw")
+        return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, "learned-jaw", speech)
     track, heard = estimator.predict_with_closures(clip, fps)
     preset = estimator.postprocessing if heard is None else "audio-closures"
-    return _postprocessed(track, heard, postprocessing, preset)
+    return _postprocessed(track, heard, postprocessing, preset, speech)
 
 
-def _postprocessed(track: Track, phones: PhoneSequence | None, postprocessing: Postprocessing, preset: str) -> Track:
-    """``track`` post-processed by ``postprocessing``, with ``preset`` the one ``"auto"`` stands for."""
+def speech_spans(clip: AudioClip) -> list[tuple[float, float]]:
+    """Where ``clip``'s loudness shows speech: its one span from the first to the last speech frame
+    (:func:`~vispeech.frontends.activity.speech_span`, so an audible breath before the first word
+    counts), or none for a clip that is silent or steady noise."""
+    from vispeech.frontends.activity import speech_span
+
+    try:
+        return [speech_span(clip)]
+    except VispeechError:
+        return []
+
+
+def _postprocessed(
+    track: Track,
+    phones: PhoneSequence | None,
+    postprocessing: Postprocessing,
+    preset: str,
+    speech: list[tuple[float, float]] | None = None,
+) -> Track:
+    """``track`` post-processed by ``postprocessing``, with ``preset`` the one ``"auto"`` stands for;
+    the mouth resting away from ``speech`` if given, else from the phones that are not silence."""
     config = postprocessing_config(postprocessing, preset)
-    return track if config is None else postprocess(track, phones, config)
+    return track if config is None else postprocess(track, phones, config, speech=speech)
 
 
 def speak(
@@ -158,6 +190,11 @@ def speak(
     return replace(utterance, track=_animate(utterance.phones, model, fps, postprocessing))
 
 
+LEADING_SILENCE = 0.2
+"""Seconds of silence :func:`utter` puts before espeak-ng's speech, which starts with the first
+sound: the time the mouth takes to open from rest (post-processing's rest in silence), so that
+the first frame shows it at rest. A whole number of frames at 25, 30, 50 and 60 fps, so that the
+frames fall on the phones where they fell without it."""
 TRAILING_SILENCE = 0.25
 """Seconds of silence :func:`utter` adds after espeak-ng's speech, which ends with the last
 sound: the time the mouth takes to come back to rest, so that a player holding the last frame
@@ -166,23 +203,35 @@ shows a closed mouth."""
 
 def utter(text: str, language: str = "en", *, rate: float = 1.0, voice: str | None = None) -> Utterance:
     """The first half of :func:`speak`: the utterance without a track, what of ``text`` is
-    spoken (:func:`spoken_text`) with espeak-ng's audio and phones, and
-    :data:`TRAILING_SILENCE` of silence after them (the last silence phone lengthened)."""
+    spoken (:func:`spoken_text`) with espeak-ng's audio and phones, between
+    :data:`LEADING_SILENCE` and :data:`TRAILING_SILENCE` (:func:`padded`)."""
     from vispeech.frontends.espeak import synthesize
 
     check_text(text)
     spoken = spoken_text(text)
-    speech = synthesize(spoken, language, rate=rate, voice=voice)
-    pad = round(TRAILING_SILENCE * speech.sample_rate)
-    audio = np.concatenate([speech.audio, np.zeros(pad, dtype=speech.audio.dtype)])
-    phones = list(speech.phones.phones)
-    end = len(audio) / speech.sample_rate
+    speech = padded(synthesize(spoken, language, rate=rate, voice=voice), LEADING_SILENCE, TRAILING_SILENCE)
+    return Utterance(text=spoken, phones=speech.phones, audio=speech.audio, sample_rate=speech.sample_rate)
+
+
+def padded(speech: Speech, before: float, after: float) -> Speech:
+    """``speech`` with ``before`` seconds of silence put before it and ``after`` added after it, in
+    its audio and its phones: every time moved by ``before``, the first and last silence phones
+    lengthened to the ends (or silence phones added)."""
+    rate = speech.sample_rate
+    lead, trail = round(before * rate), round(after * rate)
+    audio = np.concatenate([np.zeros(lead, speech.audio.dtype), speech.audio, np.zeros(trail, speech.audio.dtype)])
+    sequence = speech.phones.shifted(lead / rate)
+    phones = list(sequence.phones)
+    if lead and phones[0].is_silence:
+        phones[0] = replace(phones[0], start=0.0)
+    elif lead:
+        phones.insert(0, Phone(SILENCE, 0.0, lead / rate))
+    end = len(audio) / rate
     if phones[-1].is_silence:
         phones[-1] = replace(phones[-1], end=end)
-    else:
+    elif trail:
         phones.append(Phone(SILENCE, phones[-1].end, end))
-    sequence = replace(speech.phones, phones=phones)
-    return Utterance(text=spoken, phones=sequence, audio=audio, sample_rate=speech.sample_rate)
+    return replace(speech, audio=audio, phones=replace(sequence, phones=phones))
 
 
 def spoken_text(text: str) -> str:

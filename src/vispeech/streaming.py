@@ -3,7 +3,9 @@
 **Text.** :func:`speech_messages` splits the text into sentences and clauses (after
 ``. ! ? ; : , …`` followed by white space, and at line breaks), synthesises and animates each
 in turn and gives the ``/api/stream`` protocol messages for it at once, so the first frames
-and audio leave after the first clause, not after the whole text. The clauses follow each
+and audio leave after the first clause, not after the whole text. The first clause starts with
+the silence :func:`~vispeech.pipeline.speak` puts before speech, the last ends with the silence
+it adds after, so that the mouth opens from rest and comes back to it. The clauses follow each
 other on one timeline: frame k sits at ``k / fps`` seconds from the start of the first
 clause's audio, and a frame that falls between two clauses' frame grids is interpolated
 from its own clause's track. Audio goes in pieces of ``chunk_seconds`` (PCM16, base64), each
@@ -21,7 +23,8 @@ microphone or a voice service delivers them, resamples them to the audio model's
 soxr's streaming resampler and gives each frame as soon as the model's
 :class:`~vispeech.models.networks.audio_stream.AudioStream` has the audio it looks ahead to,
 post-processed frame by frame: the frames equal :func:`~vispeech.pipeline.animate_audio` of
-the whole audio (without the closures an audio network's phone head hears offline).
+the whole audio (without the closures an audio network's phone head hears offline, and without
+the rest in silence, which needs the whole audio's loudness).
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ from vispeech.models.contract import Estimator
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
-from vispeech.pipeline import DEFAULT_FPS, animate, spoken_text
+from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
 
 if TYPE_CHECKING:
@@ -116,8 +119,11 @@ def speech_messages(
     channels = stream_channels(model, phone_set(language), fps)
     samples_done = frames_done = seq = 0
     sample_rate = None
-    for clause in clauses:
+    last = len(clauses) - 1
+    for k, clause in enumerate(clauses):
         speech = synthesize(clause, language, rate, voice=voice, reproducible=False)  # latency first
+        before, after = (LEADING_SILENCE if k == 0 else 0.0), (TRAILING_SILENCE if k == last else 0.0)
+        speech = padded(speech, before, after)  # the mouth opens from rest and comes back to it, as in speak()
         track = animate(speech.phones, model, fps).select(channels)
         if scale is not None:
             track = scale.apply(track)
@@ -332,8 +338,9 @@ class LiveAudioStream:
     comes once :attr:`delay` seconds of audio after its time are in. The model's post-processing
     preset must act frame by frame (the ``audio`` preset: clipping and ``mouthClose ≤ jawOpen``),
     so the frames equal :func:`~vispeech.pipeline.animate_audio` of the whole audio, but for the
-    closures a model's phone head hears (``closure_threshold``), which only offline animation
-    makes; the live ``grid-audio-cnn`` hears none.
+    closures a model's phone head hears (``closure_threshold``) and the mouth at rest in leading
+    and trailing silence (which needs the whole audio's loudness), which only offline animation
+    makes; the live ``grid-audio-cnn`` hears no closures.
     """
 
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:
@@ -344,7 +351,8 @@ class LiveAudioStream:
                 f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}.."
                 f"{MAX_SAMPLE_RATE}, got {sample_rate!r}"
             )
-        config = self._config = PostprocessConfig.from_preset(model.postprocessing)
+        config = PostprocessConfig.from_preset(model.postprocessing)
+        config = self._config = replace(config, rest=False)  # the speech's span needs the whole audio
         if config.jaw_shift or config.overlays or config.upper_lip or config.jaw_peaks_in_vowels:
             raise VispeechError(
                 f"model {model.name}'s post-processing ({model.postprocessing}) needs the whole "

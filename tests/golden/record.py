@@ -15,8 +15,10 @@ other languages were read through IPA, issue 14) and
 First recorded at commit 7c41688, before the model-contract rework (issue 7); the fitted
 dominance models shipped by that rework (grid-cohen-massaro, grid-ohman) were added after it.
 Recorded again when post-processing began to open the vowels next to bilabials and
-labiodentals (``open_vowels``, issue 10): every change of a track there is that step's; and
-again when it began to add the tongue channels (``postprocess.tongue``, issue 10).
+labiodentals (``open_vowels``, issue 10): every change of a track there is that step's; again
+when it began to add the tongue channels (``postprocess.tongue``, issue 10); and again when it
+began to bring the mouth to rest in silence (``postprocess.rest``, issue 26): 49 of 14,624
+frames changed, all in the three pauses longer than 0.2 s (0.23-0.35 s), none in speech.
 """
 
 from __future__ import annotations

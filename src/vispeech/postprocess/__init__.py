@@ -1,15 +1,16 @@
-"""Post-processing of predicted tracks: jaw shift, consonant overlays, closures, ceilings.
+"""Post-processing of predicted tracks: jaw shift, consonant overlays, closures, ceilings, rest.
 
 :func:`postprocess` runs, in order: the thesis's jawOpen range shift; the optional upper-lip
 overlay; the consonant overlays (bilabial closure, labiodental contact); the opening of every
 vowel, however short; the tongue channels from the phones' features
 (:mod:`~vispeech.postprocess.tongue`); confinement of the jaw's peaks to vowels; the soft
-ceilings; ``mouthClose ≤ jawOpen``; clipping to [0, 1].
+ceilings; ``mouthClose ≤ jawOpen``; clipping to [0, 1]; the mouth at rest in silence
+(:mod:`~vispeech.postprocess.rest`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,7 @@ from vispeech.postprocess.overlays import (
     open_vowels,
     upper_lip_overlay,
 )
+from vispeech.postprocess.rest import rest_in_silence, speech_intervals
 from vispeech.postprocess.shaping import SoftCeiling, confine_peaks, shift_range
 from vispeech.postprocess.tongue import tongue_channels
 from vispeech.targets.presets import PRESETS
@@ -62,8 +64,9 @@ class PostprocessConfig:
     on its anchor frame (:func:`~vispeech.postprocess.overlays.open_vowels`; 0 = off).
     ``tongue``: add the tongue channels (:data:`~vispeech.motion.arkit.TONGUE_CHANNELS`).
     ``jaw_peaks_in_vowels``: lower jawOpen between vowels so its peaks fall in vowels.
-    ``ceilings``: soft ceilings per channel. ``close_within_jaw``: clamp mouthClose to
-    jawOpen (ARKit's lips interpenetrate beyond that).
+    ``ceilings``: soft ceilings per channel. ``rest``: ease the jaw, lips and tongue to rest
+    away from speech (:mod:`~vispeech.postprocess.rest`). ``close_within_jaw``: clamp mouthClose
+    to jawOpen (ARKit's lips interpenetrate beyond that).
     """
 
     jaw_shift: float = 0.07
@@ -77,6 +80,7 @@ class PostprocessConfig:
     tongue: bool = True
     jaw_peaks_in_vowels: bool = True
     ceilings: Mapping[str, SoftCeiling] = field(default_factory=lambda: dict(DEFAULT_CEILINGS))
+    rest: bool = True
     close_within_jaw: bool = True
 
     @classmethod
@@ -126,11 +130,20 @@ def postprocessing_config(postprocessing: Postprocessing, recommended: str) -> P
     return PostprocessConfig.from_preset(recommended if checked == AUTO else checked)
 
 
-def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessConfig | None = None) -> Track:
+def postprocess(
+    track: Track,
+    phones: PhoneSequence | None,
+    config: PostprocessConfig | None = None,
+    *,
+    speech: Iterable[tuple[float, float]] | None = None,
+) -> Track:
     """The post-processed copy of ``track``, a track for ``phones`` at its own fps.
 
     ``phones`` may be ``None`` (audio animated without a transcript) when ``config`` has no
-    step keyed on phones (the ``audio`` preset).
+    step keyed on phones (the ``audio`` preset). ``speech``: for a track of audio, the spans
+    (start, end seconds) in which its loudness shows speech
+    (:func:`~vispeech.frontends.activity.speech_span`; ``[]``: none), away from which the mouth
+    rests; without them it rests away from the phones that are not silence.
 
     The result keeps the track's channels and adds those the overlays set; all values lie
     in [0, 1]. With overlays on, every /p b m/ reaches lip closure
@@ -170,6 +183,11 @@ def postprocess(track: Track, phones: PhoneSequence | None, config: PostprocessC
         close = out.index("mouthClose")
         out.values[:, close] = np.minimum(out.values[:, close], out["jawOpen"])
     np.clip(out.values, 0.0, 1.0, out=out.values)
+    if config.rest:
+        where = phones if speech is None else speech
+        if where is None:
+            raise VispeechError("post-processing with the mouth at rest in silence needs phones or the speech spans")
+        out = rest_in_silence(out, speech_intervals(where))
     return out
 
 

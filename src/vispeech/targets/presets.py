@@ -43,6 +43,7 @@ data-free models (jaw range shift, soft ceilings, all consonant overlays). ``lea
 models fitted to recordings: no jaw shift or absolute ceilings, overlays only for /p b m/ and
 /f v/, closing the lips through mouthClose and leaving the learned jaw alone. ``audio``: for
 models that animate audio without phones: nothing keyed on phones (no overlays, no vowel
-opening, no tongue, no jaw confinement), only ``mouthClose ≤ jawOpen`` and clipping.
+opening, no tongue, no jaw confinement), only ``mouthClose ≤ jawOpen``, clipping and the
+mouth at rest where the audio is quiet.
 ``audio-closures``: ``audio`` plus the /p b m/ overlay of ``learned-jaw``, for audio networks
 that hear the bilabials themselves (their phone head gives phones for the bilabials only)."""
