@@ -17,7 +17,9 @@ many espeak reads out), stripped of surrounding punctuation, each from its first
 its last. espeak sometimes runs a short word into the one before ("for the"); the phones of
 both then belong to the first.
 
-espeak-ng is global state: one module-level lock serialises every call. Its wave generator
+espeak-ng runs in worker processes (:func:`vispeech.frontends.isolation.run_isolated`): a text
+it crashes or hangs on is a :class:`~vispeech.errors.NativeFailure`, and the caller goes on.
+In a worker it is global state: one module-level lock serialises every call. Its wave generator
 also keeps state from one utterance to the next (the phase of its pitch flutter, its echo
 buffer, its gain control are C statics), so within one process the same text would come out
 a few samples longer or shorter each time, its phone onsets moving by up to a few ms and
@@ -26,7 +28,7 @@ afresh and unloads it after (about 7 ms more than reusing it, most of it reading
 the same text, voice and rate give the same samples and phones in any process and any order
 (what a batch writes equals what ``vispeech say`` writes, byte for byte). Live streams, where
 latency counts and nothing is compared, pass ``reproducible=False`` and keep one library
-loaded between calls.
+loaded between calls (in each worker).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
+from vispeech.frontends.isolation import run_isolated
 from vispeech.phonetics.espeak_names import espeak_ipa_to_symbols, espeak_to_symbols
 from vispeech.phonetics.inventory import IPA, SILENCE, is_silence
 
@@ -338,9 +341,9 @@ def synthesize(
     factor (1.0 = 175 words per minute, from 0.5 to 2.5). The phones cover ``[0, duration]``
     exactly. ``reproducible=False`` saves about 7 ms by reusing the library loaded by the last
     such call, at the price of samples and phone onsets that depend on what was spoken before
-    (see the module docstring).
+    (see the module docstring). A crash or hang of espeak-ng on the text is a
+    :class:`~vispeech.errors.NativeFailure`.
     """
-    global _engine
     spoken = find_language(language)
     check_voice(voice)
     ipa = spoken.phones == IPA
@@ -352,25 +355,40 @@ def synthesize(
         factor = math.nan
     if not MIN_RATE <= factor <= MAX_RATE:
         raise VispeechError(f"rate must be between {MIN_RATE} and {MAX_RATE}, got {rate!r}")
+    selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
+    samples, events, sample_rate = run_isolated(
+        "espeak-ng",
+        f"this text in language {spoken.code}",
+        _speak,
+        text,
+        selector,
+        round(DEFAULT_WPM * factor),
+        ipa,
+        reproducible,
+    )
+    if len(samples) == 0:
+        raise VispeechError("espeak-ng produced no audio for this text")
+    audio = samples.astype(np.float32) / 32768.0
+    phones = _phone_sequence(text, events, len(audio), sample_rate, spoken.phones, spoken.code)
+    return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
+
+
+def _speak(text: str, selector: str, wpm: int, ipa: bool, reproducible: bool) -> tuple[np.ndarray, list[tuple], int]:
+    """In a worker process: espeak-ng's samples (int16), events and sample rate for ``text``."""
+    global _engine
     with _lock:
         if _engine is not None and (reproducible or _engine.ipa != ipa):  # unload to start afresh
             _engine.close()
             _engine = None
         engine = _engine or _Engine(ipa)
         try:
-            selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
-            samples, events = engine.synthesize(text, selector, round(DEFAULT_WPM * factor))
+            samples, events = engine.synthesize(text, selector, wpm)
         finally:
             if reproducible:
                 engine.close()
             else:
                 _engine = engine
-        sample_rate = engine.sample_rate
-    if len(samples) == 0:
-        raise VispeechError("espeak-ng produced no audio for this text")
-    audio = samples.astype(np.float32) / 32768.0
-    phones = _phone_sequence(text, events, len(audio), sample_rate, spoken.phones, spoken.code)
-    return Speech(audio=audio, sample_rate=sample_rate, phones=phones)
+        return samples, events, engine.sample_rate
 
 
 def _phone_sequence(

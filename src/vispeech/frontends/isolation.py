@@ -1,0 +1,152 @@
+"""Native libraries' work in supervised worker processes, where a crash or a hang cannot hurt.
+
+espeak-ng, pocketsphinx and libsndfile are C code run on input someone else chose, and C code
+can crash (espeak-ng segfaults on ``"1 2 3 4 5 6 7 8 9 10 100"`` in Greenlandic) or hang; in
+the process of a server or a batch that would end every request or line at once.
+:func:`run_isolated` runs such work in one of a pool of worker processes instead: pebble's
+``ProcessPool``, whose workers are forked from this process (in milliseconds, sharing its
+memory; the modules a worker needs are imported before the first fork, so that a worker forked
+while another thread imports never waits on that import's lock). A worker that dies is
+replaced; a job that runs past its time limit has its worker killed and replaced; either is a
+:class:`~vispeech.errors.NativeFailure` for that job alone, and the other jobs go on (the
+standard library's ``ProcessPoolExecutor``, and loky's, fail every job in flight when one
+worker dies, and have no time limit per job). A job pays about 0.3 ms plus the copying of its
+arguments and result (``benchmarks/bench_isolation.py``).
+
+Chaos tests make a worker crash or hang on purpose through :data:`FAULT_VARIABLE`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import faulthandler
+import importlib
+import logging
+import multiprocessing
+import multiprocessing.util
+import os
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import CancelledError
+from concurrent.futures import TimeoutError as FutureTimeout
+from typing import Any, TypeVar
+
+from vispeech.errors import NativeFailure
+
+TIME_LIMIT = 60.0
+"""The most seconds one job may run in its worker; then the worker is killed and the job fails."""
+
+FAULT_VARIABLE = "VISPEECH_FAULT"
+"""For chaos tests: ``crash:MARKER`` (a segmentation fault) or ``hang:MARKER`` (sleeps past any
+time limit) in the worker of every job with a text or bytes argument holding ``MARKER``; read
+when a job is sent, so setting it takes effect at once."""
+
+PRELOAD = ("soundfile", "pocketsphinx")
+"""Modules imported before the pool starts (those the workers import: libsndfile's and
+pocketsphinx's bindings), so that no worker imports anything."""
+
+Result = TypeVar("Result")
+
+log = logging.getLogger("vispeech")
+
+_lock = threading.Lock()
+_pool: Any = None  # the pebble ProcessPool, made on first use
+_pool_size = 0
+_workers = 1
+
+
+def set_workers(workers: int) -> None:
+    """Run at most ``workers`` jobs at once (default 1; a server sets its worker threads'
+    number); a pool of another size is replaced after its jobs end."""
+    global _pool, _workers
+    if workers < 1:
+        raise ValueError("workers must be at least 1")
+    with _lock:
+        _workers = workers
+        if _pool is not None and _pool_size != workers:
+            _pool.close()
+            _pool = None
+
+
+def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any) -> Result:
+    """``fn(*args)`` in a worker process (``fn`` a module-level function, the arguments and
+    result picklable); its exceptions are raised here.
+
+    A worker that crashes on the job, or runs it longer than :data:`TIME_LIMIT`, raises
+    :class:`~vispeech.errors.NativeFailure`: ``"<library> crashed on <what>"`` or
+    ``"<library> took more than 60 s on <what>"`` (``what``: ``"this text in language kl"``).
+    """
+    from pebble import ProcessExpired
+
+    limit = TIME_LIMIT
+    pool = _running_pool()
+    future = pool.schedule(_call, args=(os.environ.get(FAULT_VARIABLE), fn, args), timeout=limit)
+    try:
+        return future.result()
+    except ProcessExpired as exc:
+        failure = NativeFailure(f"{library} crashed on {what}")
+        log.warning("%s (worker exit code %s); the worker is replaced", failure, exc.exitcode)
+    except FutureTimeout:
+        failure = NativeFailure(f"{library} took more than {limit:g} s on {what}")
+        log.warning("%s; the worker is killed and replaced", failure)
+    except (CancelledError, RuntimeError) as exc:  # the pool broke (every worker gone at once)
+        if isinstance(exc, RuntimeError) and pool.active:
+            raise
+        _discard(pool)
+        failure = NativeFailure(f"{library} could not run {what}: its worker processes ended")
+        log.warning("%s; a new pool is started", failure)
+    raise failure
+
+
+def _running_pool():
+    """The pool, made (or made anew, when it broke) once :data:`PRELOAD` is imported."""
+    global _pool, _pool_size
+    from pebble import ProcessPool
+
+    with _lock:
+        if _pool is None or not _pool.active:
+            for module in PRELOAD:
+                importlib.import_module(module)
+            context = multiprocessing.get_context("fork")
+            _pool = ProcessPool(max_workers=_workers, initializer=faulthandler.disable, context=context)
+            _pool_size = _workers
+            # at exit (of the program, or of a multiprocessing child), before its children are waited for
+            multiprocessing.util.Finalize(_pool, _stop, (_pool,), exitpriority=10)
+        return _pool
+
+
+def _discard(pool) -> None:
+    global _pool
+    with _lock:
+        if _pool is pool:
+            _pool = None
+    _stop(pool)
+
+
+def _stop(pool) -> None:
+    """Stop ``pool``'s workers (their jobs lost)."""
+    pool.stop()
+    pool.join(timeout=5)
+
+
+def _forget() -> None:
+    """In a forked child: the parent's pool and its threads are not there."""
+    global _pool, _lock
+    _pool, _lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget)
+
+
+def _call(fault: str | None, fn: Callable[..., Result], args: tuple) -> Result:
+    """In the worker: ``fn(*args)``, after the fault :data:`FAULT_VARIABLE` asks for, if any."""
+    kind, _, marker = (fault or "").partition(":")
+    if marker and any(
+        (isinstance(a, str) and marker in a) or (isinstance(a, bytes) and marker.encode() in a) for a in args
+    ):
+        if kind == "crash":
+            ctypes.string_at(0)  # reads address 0: SIGSEGV, as a crashing library would
+        elif kind == "hang":
+            time.sleep(1e6)
+    return fn(*args)
