@@ -13,7 +13,9 @@ phone pass fails with "Failed to set up sub-word alignment"). So the audio gets 
 deterministic triangular dither; if the word search still finds no path (very fast or noisy
 speech), it is run once more with the beams opened to :data:`WIDE_BEAM`. If the phone pass
 fails (pocketsphinx's issue #339), each word's span is shared evenly among the phones of the
-pronunciation the word pass chose.
+pronunciation the word pass chose. pocketsphinx aligns in a worker process
+(:mod:`vispeech.frontends.isolation`), espeak-ng too: a crash or hang on one recording is a
+:class:`~vispeech.errors.NativeFailure`.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.activity import speech_span
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.dtw_align import dtw_align
+from vispeech.frontends.isolation import run_isolated
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 
 SAMPLE_RATE = 16000
@@ -85,7 +88,7 @@ def align(
         raise VispeechError(f"unknown alignment method {method!r} (use {' or '.join(METHODS)})")
     if language != "en":
         raise VispeechError(f"pocketsphinx aligns English only (language 'en'), not {language!r}; use the dtw method")
-    return _pocketsphinx_align(clip, text)
+    return run_isolated("pocketsphinx", "this recording and transcript", _pocketsphinx_align, clip, text)
 
 
 def normalize_transcript(text: str) -> list[str]:

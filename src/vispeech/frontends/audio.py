@@ -1,6 +1,7 @@
 """Speech audio: reading files (WAV, FLAC, MP3, OGG and the other formats libsndfile knows), from
 a path or as the bytes of an upload, the checked mono clip every audio path takes, and conversions
-to 16-bit PCM."""
+to 16-bit PCM. libsndfile reads in a worker process (:mod:`vispeech.frontends.isolation`): a file
+it crashes or hangs on is a :class:`~vispeech.errors.NativeFailure`."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import numpy as np
 
 from vispeech.alignment.phones import n_frames_for
 from vispeech.errors import VispeechError
+from vispeech.frontends.isolation import run_isolated
 from vispeech.limits import MAX_DURATION_S
 
 MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 4_000, 384_000
@@ -97,13 +99,8 @@ class AudioClip:
 
 def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     """The samples of an audio file as float32 in [-1, 1], mono (channels averaged), and its sample rate in Hz."""
-    import soundfile
-
     _check_exists(path)
-    try:
-        samples, sample_rate = soundfile.read(path, dtype="float32", always_2d=True)
-    except (OSError, RuntimeError) as exc:  # libsndfile errors are RuntimeErrors
-        raise VispeechError(f"cannot read audio {path}: {exc}") from None
+    samples, sample_rate = _decoded(str(path), f"cannot read audio {path}", f"audio {path}")
     if samples.size == 0:
         raise VispeechError(f"audio file {path} is empty")
     return samples.mean(axis=1), int(sample_rate)
@@ -111,16 +108,11 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, int]:
 
 def audio_duration(path: str | os.PathLike) -> float:
     """Length of an audio file in seconds, read from its header."""
-    import soundfile
-
     _check_exists(path)
-    try:
-        info = soundfile.info(path)
-    except (OSError, RuntimeError) as exc:
-        raise VispeechError(f"cannot read audio {path}: {exc}") from None
-    if info.frames == 0:
+    frames, sample_rate, _ = _header(str(path), f"cannot read audio {path}", f"audio {path}")
+    if frames == 0:
         raise VispeechError(f"audio file {path} is empty")
-    return info.frames / info.samplerate
+    return frames / sample_rate
 
 
 MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
@@ -130,39 +122,55 @@ MAX_UPLOAD_SAMPLES = int(MAX_DURATION_S * 48_000 * 2)
 def probe_upload(data: bytes) -> tuple[str, float]:
     """The SHA-256 (hex) and length in seconds of an uploaded audio file, read from its header;
     :class:`VispeechError` when it is empty, not audio, too long or too large decoded."""
-    import soundfile
-
     if not data:
         raise VispeechError("the request body is empty: send an audio file (WAV, FLAC, MP3 or OGG) as the body")
-    try:
-        info = soundfile.info(io.BytesIO(data))
-    except (RuntimeError, OSError, EOFError) as exc:
-        raise VispeechError(
-            "the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG): "
-            f"{getattr(exc, 'error_string', exc)}"
-        ) from None
-    if info.frames <= 0 or info.samplerate <= 0:
+    frames, sample_rate, channels = _header(
+        data, "the request body is not an audio file this server reads (WAV, FLAC, MP3, OGG)", "the uploaded audio"
+    )
+    if frames <= 0 or sample_rate <= 0:
         raise VispeechError("the uploaded audio is empty")
-    duration = info.frames / info.samplerate
+    duration = frames / sample_rate
     if duration > MAX_DURATION_S:
         raise VispeechError(f"the uploaded audio lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
-    if info.frames * info.channels > MAX_UPLOAD_SAMPLES:
+    if frames * channels > MAX_UPLOAD_SAMPLES:
         raise VispeechError(
-            f"the uploaded audio holds {info.frames * info.channels} samples ({info.channels} channels "
-            f"at {info.samplerate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)"
+            f"the uploaded audio holds {frames * channels} samples ({channels} channels "
+            f"at {sample_rate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)"
         )
     return hashlib.sha256(data).hexdigest(), duration
 
 
 def read_upload(data: bytes) -> AudioClip:
     """The checked clip of an uploaded audio file (see :func:`probe_upload`), channels averaged."""
+    samples, sample_rate = _decoded(data, "cannot read the uploaded audio", "the uploaded audio")
+    return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
+
+
+def _header(source: str | bytes, failure: str, what: str) -> tuple[int, int, int]:
+    """libsndfile's frames, sample rate and channels of an audio file (its path or its bytes), read
+    in a worker process; :class:`VispeechError` ``"<failure>: <why>"``."""
+    return run_isolated("libsndfile", what, _read_sound, source, failure, True)
+
+
+def _decoded(source: str | bytes, failure: str, what: str) -> tuple[np.ndarray, int]:
+    """The samples (float32, ``(samples, channels)``) and sample rate of an audio file (its path or
+    its bytes), decoded by libsndfile in a worker process; :class:`VispeechError` as :func:`_header`."""
+    return run_isolated("libsndfile", what, _read_sound, source, failure, False)
+
+
+def _read_sound(source: str | bytes, failure: str, header: bool):
+    """In a worker: :func:`_header` (``header``) or :func:`_decoded` of ``source``."""
     import soundfile
 
     try:
-        samples, sample_rate = soundfile.read(io.BytesIO(data), dtype="float32", always_2d=True)
-    except (RuntimeError, OSError, EOFError) as exc:
-        raise VispeechError(f"cannot read the uploaded audio: {getattr(exc, 'error_string', exc)}") from None
-    return AudioClip.from_array(samples, sample_rate, where="the uploaded audio")
+        if header:
+            info = soundfile.info(io.BytesIO(source) if isinstance(source, bytes) else source)
+            return info.frames, info.samplerate, info.channels
+        return soundfile.read(
+            io.BytesIO(source) if isinstance(source, bytes) else source, dtype="float32", always_2d=True
+        )
+    except (RuntimeError, OSError, EOFError) as exc:  # libsndfile's errors are RuntimeErrors
+        raise VispeechError(f"{failure}: {getattr(exc, 'error_string', None) or exc}") from None
 
 
 def _check_exists(path: str | os.PathLike) -> None:
