@@ -12,7 +12,7 @@ from fastapi.exceptions import RequestValidationError
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 
-from vispeech.errors import VispeechError
+from vispeech.errors import NativeFailure, VispeechError
 from vispeech.serve.bot import ChatBotError
 from vispeech.serve.pool import Busy, Cancelled
 from vispeech.serve.safety import RateLimited
@@ -76,6 +76,7 @@ async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
 EXCEPTION_HANDLERS: dict[int | type[Exception], Handler] = {
     RequestValidationError: _invalid_request,
     VispeechError: _answer(400),
+    NativeFailure: _answer(422),
     ChatBotError: _answer(502),
     RateLimited: _answer(429),
     Busy: _answer(503),

@@ -18,6 +18,7 @@ from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import read_upload
 from vispeech.frontends.espeak import check_voice, find_language, languages
+from vispeech.frontends.isolation import set_workers
 from vispeech.frontends.text import detect_language
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
@@ -132,6 +133,7 @@ class SpeechService:
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue)
+        set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
         self.pushes = PushBatcher(self)
         self.connections = ConnectionCounter(config.max_streams, config.max_streams_per_ip)
 
