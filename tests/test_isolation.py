@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import io
 import json
+import multiprocessing
+import os
+import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,6 +63,21 @@ def test_a_crash_is_that_call_s_error_and_the_next_call_runs(crash):
         synthesize(KALAALLISUT["text"], KALAALLISUT["language"])  # the real thing, no fault needed
     with pytest.raises(NativeFailure, match="^libsndfile crashed on the uploaded audio$"):
         probe_upload(f"RIFF {MARKER}".encode())
+
+
+def test_a_worker_holds_none_of_the_caller_s_sockets(crash):
+    with socket.socket() as listening:  # as a server's: a worker holding it would keep connections open
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        with pytest.raises(NativeFailure):
+            synthesize(f"Say {MARKER} now.", "en")
+        synthesize("Say hello now.", "en")  # by a worker forked while the socket was open
+        held = f"socket:[{os.fstat(listening.fileno()).st_ino}]"
+        workers = multiprocessing.active_children()
+        assert workers
+        for worker in workers:
+            fds = Path(f"/proc/{worker.pid}/fd")
+            assert held not in {os.readlink(fd) for fd in fds.iterdir()}
 
 
 def test_a_hang_is_stopped_at_the_time_limit(hang):

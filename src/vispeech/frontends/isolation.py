@@ -6,7 +6,8 @@ the process of a server or a batch that would end every request or line at once.
 :func:`run_isolated` runs such work in one of a pool of worker processes instead: pebble's
 ``ProcessPool``, whose workers are forked from this process (in milliseconds, sharing its
 memory; the modules a worker needs are imported before the first fork, so that a worker forked
-while another thread imports never waits on that import's lock). A worker that dies is
+while another thread imports never waits on that import's lock; it closes the sockets it
+inherits, so that a server's connections end when the server closes them). A worker that dies is
 replaced; a job that runs past its time limit has its worker killed and replaced; either is a
 :class:`~vispeech.errors.NativeFailure` for that job alone, and the other jobs go on (the
 standard library's ``ProcessPoolExecutor``, and loky's, fail every job in flight when one
@@ -18,6 +19,7 @@ Chaos tests make a worker crash or hang on purpose through :data:`FAULT_VARIABLE
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import faulthandler
 import importlib
@@ -25,6 +27,7 @@ import logging
 import multiprocessing
 import multiprocessing.util
 import os
+import stat
 import threading
 import time
 from collections.abc import Callable
@@ -109,7 +112,7 @@ def _running_pool():
             for module in PRELOAD:
                 importlib.import_module(module)
             context = multiprocessing.get_context("fork")
-            _pool = ProcessPool(max_workers=_workers, initializer=faulthandler.disable, context=context)
+            _pool = ProcessPool(max_workers=_workers, initializer=_start_worker, context=context)
             _pool_size = _workers
             # at exit (of the program, or of a multiprocessing child), before its children are waited for
             multiprocessing.util.Finalize(_pool, _stop, (_pool,), exitpriority=10)
@@ -137,6 +140,18 @@ def _forget() -> None:
 
 
 os.register_at_fork(after_in_child=_forget)
+
+
+def _start_worker() -> None:
+    """In a new worker: no crash report of its own on stderr (the caller logs the crash), and none
+    of the caller's sockets held open (a server's connections end when the server closes them;
+    the pool's own channels are pipes)."""
+    faulthandler.disable()
+    folder = "/proc/self/fd" if os.path.isdir("/proc/self/fd") else "/dev/fd"
+    for name in os.listdir(folder):
+        with contextlib.suppress(OSError):
+            if stat.S_ISSOCK(os.fstat(int(name)).st_mode):
+                os.close(int(name))
 
 
 def _call(fault: str | None, fn: Callable[..., Result], args: tuple) -> Result:
