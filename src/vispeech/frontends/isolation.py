@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeout
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
 
 from vispeech.errors import NativeFailure
@@ -72,33 +73,40 @@ def set_workers(workers: int) -> None:
             _pool = None
 
 
-def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any) -> Result:
-    """``fn(*args)`` in a worker process (``fn`` a module-level function, the arguments and
-    result picklable); its exceptions are raised here.
+def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any, extra_time: float = 0.0) -> Result:
+    """``fn(*args)`` in a worker process (``fn`` a module-level function without side effects,
+    the arguments and result picklable); its exceptions are raised here.
 
-    A worker that crashes on the job, or runs it longer than :data:`TIME_LIMIT`, raises
+    A worker that crashes on the job, or runs it longer than :data:`TIME_LIMIT` (plus
+    ``extra_time`` seconds, for a job that grows with its input), raises
     :class:`~vispeech.errors.NativeFailure`: ``"<library> crashed on <what>"`` or
     ``"<library> took more than 60 s on <what>"`` (``what``: ``"this text in language kl"``).
+    When pebble loses track of a crash (a worker dying before its job's start was seen breaks
+    the whole pool, failing every job in it), the pool is started anew and the job run once more.
     """
     from pebble import ProcessExpired
 
-    limit = TIME_LIMIT
-    pool = _running_pool()
-    future = pool.schedule(_call, args=(os.environ.get(FAULT_VARIABLE), fn, args), timeout=limit)
-    try:
-        return future.result()
-    except ProcessExpired as exc:
-        failure = NativeFailure(f"{library} crashed on {what}")
-        log.warning("%s (worker exit code %s); the worker is replaced", failure, exc.exitcode)
-    except FutureTimeout:
-        failure = NativeFailure(f"{library} took more than {limit:g} s on {what}")
-        log.warning("%s; the worker is killed and replaced", failure)
-    except (CancelledError, RuntimeError) as exc:  # the pool broke (every worker gone at once)
-        if isinstance(exc, RuntimeError) and pool.active:
-            raise
-        _discard(pool)
-        failure = NativeFailure(f"{library} could not run {what}: its worker processes ended")
-        log.warning("%s; a new pool is started", failure)
+    limit = TIME_LIMIT + extra_time
+    for _ in range(2):
+        pool = _running_pool()
+        try:
+            future = pool.schedule(_call, args=(os.environ.get(FAULT_VARIABLE), fn, args), timeout=limit)
+            return future.result()
+        except ProcessExpired as exc:
+            failure = NativeFailure(f"{library} crashed on {what}")
+            log.warning("%s (worker exit code %s); the worker is replaced", failure, exc.exitcode)
+            raise failure from None
+        except FutureTimeout:
+            failure = NativeFailure(f"{library} took more than {limit:g} s on {what}")
+            log.warning("%s; the worker is killed and replaced", failure)
+            raise failure from None
+        except (CancelledError, RuntimeError) as exc:
+            if isinstance(exc, RuntimeError) and not isinstance(exc, BrokenProcessPool) and pool.active:
+                raise  # the job's own error
+            _discard(pool)
+            log.warning("the pool of native workers broke; it is started anew")
+    failure = NativeFailure(f"{library} crashed on {what}")
+    log.warning("%s, breaking the pool of native workers twice", failure)
     raise failure
 
 
