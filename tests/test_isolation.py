@@ -7,6 +7,7 @@ import io
 import json
 import multiprocessing
 import os
+import signal
 import socket
 import time
 from pathlib import Path
@@ -132,6 +133,24 @@ def test_a_batch_writes_every_other_line(tmp_path, crash, workers):
     assert report.results[2].error == "espeak-ng crashed on this text in language kl"
     index = [json.loads(line) for line in (tmp_path / "out" / INDEX).read_text(encoding="utf-8").splitlines()]
     assert [entry["status"] for entry in index] == ["written", "failed", "failed", "written"]
+
+
+def test_a_batch_line_whose_worker_process_dies_fails_alone(tmp_path, monkeypatch):
+    import vispeech.batch.line as line_module
+
+    prepare = line_module.prepare
+
+    def dying(line):  # out of memory, say: the kernel kills the line's process
+        if line.id == "b":
+            os.kill(os.getpid(), signal.SIGKILL)
+        return prepare(line)
+
+    monkeypatch.setattr(line_module, "prepare", dying)  # the forked workers run it too
+    rows = ["id,text,language", "a,First line.,en", "b,Second line.,en", "c,Third line.,en", "d,Last.,en"]
+    (tmp_path / "job.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    report = run_batch(tmp_path / "job.csv", tmp_path / "out", workers=2)
+    assert [r.status for r in report.results] == ["written", "failed", "written", "written"]
+    assert report.results[1].error == "its worker process ended (exit code -9)"
 
 
 def test_a_cli_command_ends_with_one_line_and_exit_2(tmp_path, crash):

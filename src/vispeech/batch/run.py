@@ -12,21 +12,27 @@ rate, speaking rate, formats and post-processing. A line whose folder holds a re
 key and every file it names is left alone; so a rerun redoes exactly the lines that changed or
 never finished. ``OUT/index.jsonl`` lists every line of the last run (written at its end).
 
-Lines run on a pool of processes, one per core by default; each process loads a model once
-(with the ``fork`` start method the workers share the models the parent loaded). A line that
-fails is reported with its message and never stops the others.
+Lines run on a pool of processes (pebble's), one per core by default; each process loads a
+model once (forked, the workers share the models the parent loaded). A line that fails is
+reported with its message and never stops the others, not even when its worker process dies:
+a new worker takes the next line. Native code (espeak-ng, pocketsphinx, libsndfile) runs in
+worker processes of its own (:mod:`vispeech.frontends.isolation`) in any case, so a line it
+crashes on fails with that one line with ``--jobs 1`` too.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+from pebble import ProcessExpired, ProcessPool
 
 import vispeech
 from vispeech.batch.job import BatchLine, JobDefaults, read_job
@@ -218,16 +224,24 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
         for line, key, record in todo:
             yield run_line(line, out, key, record)
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        pending = {pool.submit(run_line, line, out, key, record): line for line, key, record in todo}
+    pool = ProcessPool(max_workers=workers, context=multiprocessing.get_context("fork"))
+    try:
+        pending: dict[Future[LineResult], tuple[BatchLine, str]] = {
+            pool.schedule(run_line, (line, out, key, record)): (line, key) for line, key, record in todo
+        }
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                line = pending.pop(future)
+                line, key = pending.pop(future)
                 try:
                     yield future.result()
-                except Exception as exc:  # a worker that died (killed, out of memory): the line failed
-                    yield failed(line, key=None, error=f"worker failed: {type(exc).__name__}: {exc}")
+                except ProcessExpired as exc:  # killed, out of memory: that line failed, a new worker takes the next
+                    yield failed(line, key, f"its worker process ended (exit code {exc.exitcode})")
+                except Exception as exc:  # noqa: BLE001 (a result that could not come back)
+                    yield failed(line, key, exc)
+    finally:
+        pool.stop()
+        pool.join()
 
 
 def _scale_settings(scale: str) -> str | dict[str, float]:
