@@ -9,8 +9,10 @@ model, as with a transcript given.
 **Models.** English (``en`` and its varieties) is transcribed by ``whisper-tiny.en``, every
 other language by ``whisper-base`` with the language given, never detected: the named models of
 :mod:`vispeech.frontends.whisper` (``$VISPEECH_WHISPER_MODEL`` replaces both). faster-whisper
-runs them on the CPU in int8 on :data:`~vispeech.frontends.whisper.THREADS` threads, each
-folder loaded once per process and shared between threads; only the local folder is read
+runs them on the CPU in int8 on :data:`~vispeech.frontends.whisper.THREADS` threads, in a
+worker process (:mod:`vispeech.frontends.isolation`: a crash of CTranslate2 or a hang is a
+:class:`~vispeech.errors.NativeFailure`), each folder loaded once per worker and shared
+between threads; only the local folder is read
 (a folder without ``tokenizer.json`` is refused: faster-whisper would fetch one).
 
 **Decoding.** Silero VAD (shipped inside faster-whisper) drops what is not speech first: on
@@ -44,10 +46,13 @@ import re
 import threading
 from pathlib import Path
 
+import numpy as np
+
 from vispeech.alignment.edits import edit_path
 from vispeech.errors import VispeechError
 from vispeech.frontends.align import EDGE_PUNCTUATION, in_dictionary
 from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.isolation import run_isolated
 from vispeech.frontends.whisper import INSTALL, SAMPLE_RATE, THREADS, model_folder
 
 ENGLISH_MODEL = "whisper-tiny.en"
@@ -101,21 +106,11 @@ def transcribe(clip: AudioClip, language: str = "en", model: str | None = None) 
     code = language.split("-")[0]
     code = _WHISPER_CODES.get(code, code)
     folder = model_folder(model or (ENGLISH_MODEL if code == "en" else MULTILINGUAL_MODEL))
-    whisper = _whisper_model(str(folder))
-    if code not in whisper.supported_languages:
-        only = " (it transcribes English only)" if whisper.supported_languages == ["en"] else ""
-        raise VispeechError(f"Whisper model {folder} cannot transcribe language {language!r}{only}")
-    window = min(max(clip.duration, 0.0), WINDOW_SECONDS)
-    segments, _ = whisper.transcribe(
-        clip.resampled(SAMPLE_RATE).samples,
-        language=code,
-        beam_size=BEAM_SIZE,
-        temperature=0.0,
-        condition_on_previous_text=False,
-        vad_filter=True,
-        max_new_tokens=math.ceil(TOKENS_PER_SECOND * window) + EXTRA_TOKENS,
+    _whisper_class()  # a missing extra is told here, before any worker
+    samples = clip.resampled(SAMPLE_RATE).samples
+    heard = run_isolated(
+        "faster-whisper", "this recording", _heard, str(folder), samples, language, code, extra_time=clip.duration
     )
-    heard = " ".join(segment.text.strip() for segment in segments)
     text = aligner_text(heard, language)
     if not text:
         raise VispeechError("no words recognised in the audio" + (f" (Whisper heard {heard[:80]!r})" if heard else ""))
@@ -220,6 +215,35 @@ def word_error_rate(reference: str, hypothesis: str) -> float:
     return edit_path(expected, words_of(hypothesis))[0] / len(expected)
 
 
+def _heard(folder: str, samples: np.ndarray, language: str, code: str) -> str:
+    """In a worker process: what the Whisper model in ``folder`` hears in ``samples`` (16 kHz) in
+    ``language`` (Whisper's ``code`` for it), as it writes it."""
+    whisper = _whisper_model(folder)
+    if code not in whisper.supported_languages:
+        only = " (it transcribes English only)" if whisper.supported_languages == ["en"] else ""
+        raise VispeechError(f"Whisper model {folder} cannot transcribe language {language!r}{only}")
+    window = min(max(len(samples) / SAMPLE_RATE, 0.0), WINDOW_SECONDS)
+    segments, _ = whisper.transcribe(
+        samples,
+        language=code,
+        beam_size=BEAM_SIZE,
+        temperature=0.0,
+        condition_on_previous_text=False,
+        vad_filter=True,
+        max_new_tokens=math.ceil(TOKENS_PER_SECOND * window) + EXTRA_TOKENS,
+    )
+    return " ".join(segment.text.strip() for segment in segments)
+
+
+def _whisper_class():
+    """faster-whisper's ``WhisperModel``; :class:`VispeechError` when the extra is missing."""
+    try:
+        from faster_whisper import WhisperModel
+    except ImportError:
+        raise VispeechError(f"transcription needs faster-whisper: {INSTALL}") from None
+    return WhisperModel
+
+
 def _whisper_model(folder: str):
     """faster-whisper's model of a CTranslate2 Whisper folder, loaded once per process."""
     with _LOAD_LOCK:
@@ -228,13 +252,10 @@ def _whisper_model(folder: str):
 
 @functools.cache
 def _load(folder: str):
-    try:
-        from faster_whisper import WhisperModel
-    except ImportError:
-        raise VispeechError(f"transcription needs faster-whisper: {INSTALL}") from None
+    whisper_model = _whisper_class()
     if not (Path(folder) / "tokenizer.json").is_file():
         raise VispeechError(f"Whisper model {folder} has no tokenizer.json (faster-whisper would download one)")
     try:
-        return WhisperModel(folder, device="cpu", compute_type="int8", cpu_threads=THREADS, local_files_only=True)
+        return whisper_model(folder, device="cpu", compute_type="int8", cpu_threads=THREADS, local_files_only=True)
     except (OSError, ValueError, RuntimeError) as exc:
         raise VispeechError(f"cannot load Whisper model {folder}: {str(exc).splitlines()[0]}") from None
