@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import io
 import json
 import multiprocessing
@@ -151,6 +152,23 @@ def test_a_batch_line_whose_worker_process_dies_fails_alone(tmp_path, monkeypatc
     report = run_batch(tmp_path / "job.csv", tmp_path / "out", workers=2)
     assert [r.status for r in report.results] == ["written", "failed", "written", "written"]
     assert report.results[1].error == "its worker process ended (exit code -9)"
+
+
+def test_a_video_whose_capture_process_dies_fails_alone(tmp_path, monkeypatch):
+    import vispeech.corpus.capture as capture
+
+    def tracked(video, *args, **kwargs):  # MediaPipe or PyAV crashing on one video
+        if video.stem == "b":
+            faulthandler.disable()  # pytest's report of the crash would only be noise
+            os.kill(os.getpid(), signal.SIGSEGV)
+
+    monkeypatch.setattr(capture, "capture_take", tracked)  # the forked workers run these too
+    monkeypatch.setattr(capture, "check_installed", lambda: None)
+    monkeypatch.setattr(capture, "face_model_path", lambda path: path)
+    for name in "abc":
+        (tmp_path / f"{name}.mp4").write_bytes(b"")
+    report = capture.capture_corpus(tmp_path, tmp_path / "out", jobs=2)
+    assert report.captured == 2 and report.failed == [("b", "its worker process ended (exit code -11)")]
 
 
 def test_a_cli_command_ends_with_one_line_and_exit_2(tmp_path, crash):

@@ -28,11 +28,12 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pebble import ProcessExpired, ProcessPool
 
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
@@ -200,10 +201,16 @@ def capture_corpus(
     if progress is not None:
         progress(done, len(videos))
     face_model = str(face_model) if face_model is not None else None
-    with ProcessPoolExecutor(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1))) as pool:
-        futures = {pool.submit(_capture_into, video, out, language, face_model, sync, smooth): video for video in todo}
+    pool = ProcessPool(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1)))
+    try:
+        futures: dict[Future[str | None], Path] = {
+            pool.schedule(_capture_into, (video, out, language, face_model, sync, smooth)): video for video in todo
+        }
         for future in as_completed(futures):
-            failure = future.result()
+            try:
+                failure = future.result()
+            except ProcessExpired as exc:  # MediaPipe or PyAV crashed on it: that video failed, a new worker goes on
+                failure = f"its worker process ended (exit code {exc.exitcode})"
             if failure is None:
                 report.captured += 1
             else:
@@ -211,6 +218,9 @@ def capture_corpus(
             done += 1
             if progress is not None:
                 progress(done, len(videos))
+    finally:
+        pool.stop()
+        pool.join()
     report.failed.sort()
     return report
 
