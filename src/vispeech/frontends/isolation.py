@@ -5,14 +5,15 @@ can crash (espeak-ng segfaults on ``"1 2 3 4 5 6 7 8 9 10 100"`` in Greenlandic)
 the process of a server or a batch that would end every request or line at once.
 :func:`run_isolated` runs such work in one of a pool of worker processes instead: pebble's
 ``ProcessPool``, whose workers are forked from this process (in milliseconds, sharing its
-memory; the modules a worker needs are imported before the first fork, so that a worker forked
-while another thread imports never waits on that import's lock; it closes the sockets it
-inherits, so that a server's connections end when the server closes them). A worker that dies is
-replaced; a job that runs past its time limit has its worker killed and replaced; either is a
-:class:`~vispeech.errors.NativeFailure` for that job alone, and the other jobs go on (the
-standard library's ``ProcessPoolExecutor``, and loky's, fail every job in flight when one
-worker dies, and have no time limit per job). A job pays about 0.3 ms plus the copying of its
-arguments and result (``benchmarks/bench_isolation.py``).
+memory; in a process with threads the modules a worker needs are imported first, so that one
+forked while another thread imports never waits on that import's lock; a worker closes the
+sockets it inherits, so that a server's connections end when the server closes them). A
+worker that dies is replaced; a job that runs past its time limit has its worker killed and
+replaced; either is a :class:`~vispeech.errors.NativeFailure` for that job alone, and the
+other jobs go on (the standard library's ``ProcessPoolExecutor``, and loky's, fail every job
+in flight when one worker dies, and have no time limit per job). A job pays about 0.15 ms
+plus the copying of its arguments and result, a program about 0.1 s for starting and
+stopping the pool (``benchmarks/bench_isolation.py``).
 
 Chaos tests make a worker crash or hang on purpose through :data:`FAULT_VARIABLE`.
 """
@@ -47,8 +48,8 @@ time limit) in the worker of every job with a text or bytes argument holding ``M
 when a job is sent, so setting it takes effect at once."""
 
 PRELOAD = ("soundfile", "pocketsphinx")
-"""Modules imported before the pool starts (those the workers import: libsndfile's and
-pocketsphinx's bindings), so that no worker imports anything."""
+"""Modules imported before the pool starts when other threads run (those the workers import:
+libsndfile's and pocketsphinx's bindings), so that no worker imports anything."""
 
 Result = TypeVar("Result")
 
@@ -111,14 +112,15 @@ def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any,
 
 
 def _running_pool():
-    """The pool, made (or made anew, when it broke) once :data:`PRELOAD` is imported."""
+    """The pool, made (or made anew, when it broke), :data:`PRELOAD` imported first in a threaded process."""
     global _pool, _pool_size
     from pebble import ProcessPool
 
     with _lock:
         if _pool is None or not _pool.active:
-            for module in PRELOAD:
-                importlib.import_module(module)
+            if threading.active_count() > 1:  # another thread could be importing one when a worker is forked
+                for module in PRELOAD:
+                    importlib.import_module(module)
             context = multiprocessing.get_context("fork")
             _pool = ProcessPool(max_workers=_workers, initializer=_start_worker, context=context)
             _pool_size = _workers
