@@ -70,7 +70,8 @@ def set_workers(workers: int) -> None:
     with _lock:
         _workers = workers
         if _pool is not None and _pool_size != workers:
-            _pool.close()
+            _pool.close()  # its jobs end, then its workers
+            threading.Thread(target=_pool.join, name="vispeech-native-pool-join", daemon=True).start()
             _pool = None
 
 
