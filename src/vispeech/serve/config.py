@@ -72,7 +72,8 @@ class ServeConfig:
     made); ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
-    in pieces of ``piece_seconds``) with at most ``max_queue`` jobs waiting (503 / stream
+    in pieces of ``piece_seconds``), the native libraries' part of it in as many worker processes
+    (:mod:`vispeech.frontends.isolation`), with at most ``max_queue`` jobs waiting (503 / stream
     error beyond). ``max_streams`` WebSocket connections at once, ``max_streams_per_ip`` of
     them from one address; each closes after ``idle_timeout`` s without a message while
     nothing is being computed, and after ``stream_timeout`` s in all. A phones message may add
