@@ -364,10 +364,10 @@ def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
 
 def test_utterance_cache_keys_and_eviction(tmp_path):
     cache = UtteranceCache(tmp_path / "c.sqlite3", max_entries=2)
-    key = CacheKey("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
+    key = CacheKey("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0, "arkit")
     ident = cache.entry_id
-    assert len(ident(key)) == 32 and ident(key) == ident(CacheKey("hi", "en", "en-us", 1, "baseline", "v1", 30))
-    fields = ("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0)
+    assert len(ident(key)) == 32 and ident(key) == ident(CacheKey("hi", "en", "en-us", 1, "baseline", "v1", 30, "arkit"))
+    fields = ("hi", "en", "en-us", 1.0, "baseline", "v1", 30.0, "arkit")
     changes = ("sv", "sv", 1.1, "ohman", "v2", 60.0)  # one field of the key after the text each
     variants = [CacheKey(*fields[:i + 1], change, *fields[i + 2:]) for i, change in enumerate(changes)]
     assert len({ident(key), *(ident(v) for v in variants)}) == 7
@@ -433,3 +433,25 @@ def test_the_avatars_voice(tmp_path):
     assert audio[None] != audio["f3"]
     with pytest.raises(VispeechError, match="unknown voice"):
         create_app(ServeConfig(cache=":memory:", voice="nobody"))
+
+
+def test_options_per_request(client):
+    """voice, fps and scale are the request's own, each part of the cache key; a misspelt or
+    unknown option is a 422 naming it."""
+    request = {"text": "Hello there.", "model": "baseline"}
+    plain = client.post("/api/speak", json=request).json()
+    asked = {"voice": {"voice": "f3"}, "fps": {"fps": 60}, "scale": {"scale": "tracker"}}
+    answers = {name: client.post("/api/speak", json={**request, **option}).json() for name, option in asked.items()}
+    assert all(answer["cached"] is False for answer in answers.values())  # none was the default's answer
+    assert client.get(answers["voice"]["audio_url"]).content != client.get(plain["audio_url"]).content
+    assert answers["fps"]["animation"]["fps"] == 60.0
+    assert abs(answers["fps"]["animation"]["n_frames"] - 2 * plain["animation"]["n_frames"]) <= 1
+    jaw = plain["animation"]["channels"].index("jawOpen")
+    assert max(r[jaw] for r in answers["scale"]["animation"]["frames"]) < max(r[jaw] for r in plain["animation"]["frames"])
+    assert client.post("/api/speak", json={**request, "voice": "f3"}).json()["cached"] is True
+    spoken = client.post("/api/chat", json={"message": "Hello", "voice": "m2", "fps": 60}).json()["speech"]
+    assert spoken["animation"]["fps"] == 60.0
+    for bad, words in (({"vioce": "f3"}, "vioce"), ({"voice": "nobody"}, "unknown voice"),
+                       ({"scale": "/etc/passwd"}, "scale"), ({"fps": 5000}, "fps")):
+        refused = client.post("/api/speak", json={**request, **bad})
+        assert refused.status_code == 422 and words in refused.json()["detail"], bad

@@ -327,7 +327,7 @@ def test_a_client_that_leaves_stops_its_work(tmp_path, monkeypatch):
 
 def test_cache_byte_cap_evicts_the_least_recently_used(tmp_path):
     cache = UtteranceCache(tmp_path / "c.sqlite3", max_bytes=100)
-    keys = [CacheKey(f"text {i}", "en", "en-us", 1.0, "baseline", "v1", 30.0) for i in range(4)]
+    keys = [CacheKey(f"text {i}", "en", "en-us", 1.0, "baseline", "v1", 30.0, "arkit") for i in range(4)]
     for key in keys[:2]:
         cache.put(key, b"w" * 38, "{}")  # 40 bytes each
     assert cache.get(keys[0]) is not None  # keys[0] used after keys[1]
@@ -339,7 +339,7 @@ def test_cache_byte_cap_evicts_the_least_recently_used(tmp_path):
 
 
 def test_audio_ids_cannot_be_guessed_from_the_text(tmp_path):
-    key = CacheKey("my secret", "en", "en-us", 1.0, "baseline", "v1", 30.0)
+    key = CacheKey("my secret", "en", "en-us", 1.0, "baseline", "v1", 30.0, "arkit")
     first, second = UtteranceCache(tmp_path / "a.sqlite3"), UtteranceCache(tmp_path / "b.sqlite3")
     assert first.entry_id(key) != second.entry_id(key)  # a secret per cache file
     public = hashlib.sha256(key.canonical()).hexdigest()[:32]
@@ -352,21 +352,29 @@ def test_audio_ids_cannot_be_guessed_from_the_text(tmp_path):
     again.close()
 
 
-def test_a_cache_file_of_the_old_layout_is_emptied(tmp_path):
+@pytest.mark.parametrize("version", [None, "2"])
+def test_a_cache_file_of_an_old_layout_is_emptied_once(tmp_path, version):
+    """Layout 1 (no meta table) and 2 (no output scale) are emptied; what is written then stays."""
     path = tmp_path / "old.sqlite3"
     db = sqlite3.connect(path)
     db.executescript("""CREATE TABLE utterances (id TEXT PRIMARY KEY, text TEXT NOT NULL, language TEXT NOT NULL,
         voice TEXT NOT NULL, rate REAL NOT NULL, model TEXT NOT NULL, model_version TEXT NOT NULL, fps REAL NOT NULL,
         wav BLOB NOT NULL, animation TEXT NOT NULL, created REAL NOT NULL, used REAL NOT NULL);""")
     db.execute("INSERT INTO utterances VALUES ('0123', 't', 'en', 'en-us', 1, 'm', 'v', 30, x'00', '{}', 0, 0)")
+    if version is not None:
+        db.executescript("CREATE TABLE meta (name TEXT PRIMARY KEY, value TEXT NOT NULL);")
+        db.execute("INSERT INTO meta VALUES ('schema', ?)", (version,))
     db.commit()
     db.close()
     cache = UtteranceCache(path)
     assert len(cache) == 0
-    key = CacheKey("t", "en", "en-us", 1.0, "m", "v", 30.0)
+    key = CacheKey("t", "en", "en-us", 1.0, "m", "v", 30.0, "arkit")
     cache.put(key, b"wav", json.dumps({}))
     assert cache.get(key) is not None
     cache.close()
+    again = UtteranceCache(path)
+    assert again.get(key) is not None
+    again.close()
 
 
 # -- property-based: whatever arrives, no 5xx and no internal error ----------------------------------

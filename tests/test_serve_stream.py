@@ -445,3 +445,20 @@ def test_the_server_pushes_the_sessions_of_one_tick_together():
         assert got["start_frame"] == start
         np.testing.assert_allclose(got["frames"], service.scaled(expected, alone.channels, alone.fps).round(6), atol=2e-6)
     service.pool.close()
+
+
+def test_a_text_message_sets_its_voice_frame_rate_and_scale(client):
+    def spoken(**options) -> tuple[dict, bytes]:
+        with client.websocket_connect("/api/stream") as ws:
+            ws.send_json({"type": "text", "text": "Hello there.", **options})
+            messages = receive_until_end(ws)
+        audio = b"".join(base64.b64decode(m["pcm16"]) for m in messages if m["type"] == "audio")
+        return messages[0], audio
+
+    plain, plain_audio = spoken()
+    start, audio = spoken(voice="f3", fps=60, scale="tracker")
+    assert (plain["fps"], start["fps"]) == (30.0, 60.0) and audio != plain_audio
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": "Hello there.", "vioce": "f3"})
+        error = ws.receive_json()
+    assert error["type"] == "error" and "vioce" in error["message"]

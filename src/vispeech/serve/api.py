@@ -12,7 +12,6 @@ from starlette.concurrency import run_in_threadpool
 
 from vispeech.frontends.audio import probe_upload
 from vispeech.frontends.espeak import languages
-from vispeech.motion.life import check_layers
 from vispeech.serve.dependencies import ClientIP, Service
 from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
@@ -23,6 +22,7 @@ from vispeech.serve.schemas import (
     ErrorResponse,
     SpeakRequest,
     SpeakResponse,
+    SpeechOptions,
 )
 from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
 
@@ -67,18 +67,10 @@ async def get_config(service: Service) -> ConfigResponse:
 
 @router.post("/speak", responses=_ERRORS)
 async def post_speak(request: SpeakRequest, service: Service, ip: ClientIP) -> SpeakResponse:
-    """Speak ``text``: the audio's URL and the animation (served from the cache when repeated)."""
+    """Speak ``text`` with the request's options: the audio's URL and the animation (served from
+    the cache when repeated)."""
     service.pay(ip, service.text_cost(request.text))
-    return await _spoken(
-        service,
-        ip,
-        request.text,
-        request.language,
-        request.model,
-        request.rate,
-        check_layers(request.life),
-        request.seed,
-    )
+    return await _spoken(service, ip, request.text, request)
 
 
 @router.post("/animate", responses={**_ERRORS, 415: {"model": ErrorResponse}}, openapi_extra=_AUDIO_BODY)
@@ -129,14 +121,14 @@ async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> Cha
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
-        speech = await _spoken(service, ip, reply, spoken, request.model, 1.0, check_layers(request.life), request.seed)
+        speech = await _spoken(service, ip, reply, request.model_copy(update={"language": spoken}))
     return ChatResponse(reply=reply, language=spoken, speech=speech)
 
 
-async def _spoken(service: SpeechService, ip: str, text: str, *args) -> SpeakResponse:
-    """:meth:`SpeechService.speak` of ``text`` and ``args``: from the cache at once when it is there,
-    else in the work pool (a job of ``ip``'s)."""
-    cached = await run_in_threadpool(service.lookup, text, *args)
+async def _spoken(service: SpeechService, ip: str, text: str, options: SpeechOptions) -> SpeakResponse:
+    """:meth:`SpeechService.speak` of ``text`` with ``options``: from the cache at once when it is
+    there, else in the work pool (a job of ``ip``'s)."""
+    cached = await run_in_threadpool(service.lookup, text, options)
     if cached is not None:
         return cached
-    return await service.pool.run(ip, service.speak, text, *args, weight=len(text) * TEXT_WORK_PER_CHAR)
+    return await service.pool.run(ip, service.speak, text, options, weight=len(text) * TEXT_WORK_PER_CHAR)

@@ -1,7 +1,7 @@
 """The server's utterance cache: audio and animation of spoken texts in one SQLite file.
 
 An entry is keyed by everything that changes the result: text, language, espeak voice,
-speaking rate, model name, model version and frame rate. Its id, which names the audio at
+speaking rate, model name, model version, frame rate and output scale. Its id, which names the audio at
 ``/api/audio/<id>.wav``, is 32 hex digits of an HMAC-SHA256 of the key under a random secret
 kept in the file's ``meta`` table: the same request finds the same entry (also after a
 restart), but nobody without the file can compute the id of a text, so the audio of what
@@ -44,6 +44,8 @@ class CacheKey:
     model: str
     model_version: str
     fps: float
+    scale: str
+    """The output scale: a digest of its gains (:meth:`vispeech.serve.service.SpeechService.scale`)."""
 
     def canonical(self) -> bytes:
         """The key's fields as canonical JSON (what its id is computed from)."""
@@ -55,6 +57,7 @@ class CacheKey:
             self.model,
             self.model_version,
             float(self.fps),
+            self.scale,
         ]
         return json.dumps(fields, ensure_ascii=False).encode("utf-8", "surrogatepass")
 
@@ -76,15 +79,16 @@ _SCHEMA = """
 CREATE TABLE IF NOT EXISTS utterances (
     id TEXT PRIMARY KEY,
     text TEXT NOT NULL, language TEXT NOT NULL, voice TEXT NOT NULL, rate REAL NOT NULL,
-    model TEXT NOT NULL, model_version TEXT NOT NULL, fps REAL NOT NULL,
+    model TEXT NOT NULL, model_version TEXT NOT NULL, fps REAL NOT NULL, scale TEXT NOT NULL,
     wav BLOB NOT NULL, animation TEXT NOT NULL,
     created REAL NOT NULL, used REAL NOT NULL, size INTEGER NOT NULL
 );
 CREATE INDEX IF NOT EXISTS utterances_used ON utterances (used);
 CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
-_SCHEMA_VERSION = "2"
-"""2: ids are HMACs under the file's secret, rows know their size (version 1 files are emptied)."""
+_SCHEMA_VERSION = "3"
+"""2: ids are HMACs under the file's secret, rows know their size; 3: rows know their output scale
+(files of older versions are emptied)."""
 
 
 class UtteranceCache:
@@ -141,7 +145,7 @@ class UtteranceCache:
 
     def _secret(self) -> bytes:
         with self._db:
-            self._db.execute("INSERT OR IGNORE INTO meta VALUES ('schema', ?)", (_SCHEMA_VERSION,))
+            self._db.execute("INSERT OR REPLACE INTO meta VALUES ('schema', ?)", (_SCHEMA_VERSION,))
             self._db.execute("INSERT OR IGNORE INTO meta VALUES ('secret', ?)", (secrets.token_hex(32),))
             return bytes.fromhex(self._db.execute("SELECT value FROM meta WHERE name = 'secret'").fetchone()[0])
 
@@ -178,6 +182,7 @@ class UtteranceCache:
             key.model,
             key.model_version,
             float(key.fps),
+            key.scale,
             sqlite3.Binary(wav),
             animation,
             now,
@@ -185,7 +190,7 @@ class UtteranceCache:
             size,
         )
         with self._lock, self._db:
-            self._db.execute("INSERT OR REPLACE INTO utterances VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)", row)
+            self._db.execute("INSERT OR REPLACE INTO utterances VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?)", row)
             self._db.execute(
                 "DELETE FROM utterances WHERE id IN (SELECT id FROM utterances ORDER BY used DESC LIMIT -1 OFFSET ?)",
                 (self.max_entries,),

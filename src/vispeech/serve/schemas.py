@@ -35,6 +35,17 @@ def _printable(text: str) -> str:
     return text
 
 
+def _known_voice(voice: str) -> str:
+    from vispeech.errors import VispeechError
+    from vispeech.frontends.espeak import check_voice
+
+    try:
+        check_voice(voice)
+    except VispeechError as exc:
+        raise ValueError(str(exc)) from None
+    return voice
+
+
 def _spoken_language(code: str) -> str:
     from vispeech.frontends.espeak import find_language
 
@@ -50,6 +61,13 @@ PhoneSet = Literal["sv", "en", "ipa"]
 Text = Annotated[
     str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS), AfterValidator(_printable)
 ]
+Voice = Annotated[
+    str, StringConstraints(strip_whitespace=True, min_length=1, max_length=40), AfterValidator(_known_voice)
+]
+"""An espeak-ng voice (``vispeech languages --voices``): f1-f5 female, m1-m8 male, ..."""
+Scale = Literal["arkit", "tracker"]
+"""A named output scale (:func:`vispeech.motion.rigging.calibration.load_scale`): ``arkit`` (the
+shipped calibration) or ``tracker`` (the models' own)."""
 Rate = Annotated[float, Field(ge=MIN_RATE, le=MAX_RATE, allow_inf_nan=False)]
 Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=False)]
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
@@ -68,16 +86,26 @@ class ClientInput(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class SpeakRequest(ClientInput):
-    """Text to speak; ``model`` ``null`` means the server's default model. ``life`` names the
-    non-verbal layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``."""
+class SpeechOptions(ClientInput):
+    """How a text is spoken and animated; ``null`` means the server's setting (its default model,
+    voice, frame rate and output scale). ``voice`` is an espeak-ng voice, ``scale`` an output
+    scale; ``life`` names the non-verbal layers to add to the animation
+    (:mod:`vispeech.motion.life`), drawn with ``seed``."""
 
-    text: Text
     language: Language = "en"
     model: ModelName | None = None
+    voice: Voice | None = None
     rate: Rate = 1.0
+    fps: Fps | None = None
+    scale: Scale | None = None
     life: Layers = []
     seed: Seed = 0
+
+
+class SpeakRequest(SpeechOptions):
+    """Text to speak, with the options of :class:`SpeechOptions`."""
+
+    text: Text
 
 
 class AnimateQuery(BaseModel):
@@ -85,12 +113,14 @@ class AnimateQuery(BaseModel):
 
     Without ``text`` the audio model animates the audio; with it the transcript is aligned
     with the audio in ``language`` and ``model`` (default: the server's default model) animates the
-    phones, as :func:`vispeech.pipeline.listen` does. ``fps`` ``null`` means the server's frame rate.
+    phones, as :func:`vispeech.pipeline.listen` does. ``fps`` and ``scale`` ``null`` mean the
+    server's frame rate and output scale.
     """
 
     text: Text | None = None
     language: Language = "en"
     fps: Fps | None = None
+    scale: Scale | None = None
     model: ModelName | None = None
 
 
@@ -138,16 +168,12 @@ class SpeakResponse(BaseModel):
     cached: bool
 
 
-class ChatRequest(ClientInput):
-    """A chat message; with ``speak`` the reply comes spoken (``speech``) as well, with the
-    non-verbal layers ``life`` drawn with ``seed`` (as in :class:`SpeakRequest`)."""
+class ChatRequest(SpeechOptions):
+    """A chat message; with ``speak`` the reply comes spoken (``speech``) with the options of
+    :class:`SpeechOptions` (``language``: the page's; the reply is spoken in its own)."""
 
     message: Text
-    language: Language = "en"
     speak: bool = True
-    model: ModelName | None = None
-    life: Layers = []
-    seed: Seed = 0
 
 
 class ChatResponse(BaseModel):
@@ -184,13 +210,17 @@ class ErrorResponse(BaseModel):
 
 
 class TextMessage(ClientInput):
-    """Stream client message: speak ``text`` clause by clause."""
+    """Stream client message: speak ``text`` clause by clause; ``null`` means the server's
+    model, voice, frame rate and output scale (as in :class:`SpeechOptions`)."""
 
     type: Literal["text"]
     text: Text
     language: Language = "en"
     model: ModelName | None = None
+    voice: Voice | None = None
     rate: Rate = 1.0
+    fps: Fps | None = None
+    scale: Scale | None = None
 
 
 class StreamPhone(ClientInput):

@@ -23,7 +23,7 @@ from vispeech.frontends.text import detect_language
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
-from vispeech.motion.life import with_life
+from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
@@ -32,7 +32,15 @@ from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import WorkPool
 from vispeech.serve.safety import ConnectionCounter, RateLimited, TokenBucket
-from vispeech.serve.schemas import MAX_TEXT_CHARS, AnimateQuery, AnimationJSON, FramesMessage, SpeakResponse
+from vispeech.serve.schemas import (
+    MAX_TEXT_CHARS,
+    AnimateQuery,
+    AnimationJSON,
+    FramesMessage,
+    Scale,
+    SpeakResponse,
+    SpeechOptions,
+)
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
 from vispeech.utterance import Utterance
 
@@ -161,12 +169,16 @@ class SpeechService:
             raise RateLimited(self.bucket)
 
     def _add(self, name: str, model: Estimator, folder: Path | None = None) -> None:
-        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's
-        files) and the output scale's gains, so a cached answer is never of another scale."""
+        """Offer ``model`` as ``name``; its version digests its parameters (and its saved folder's files)."""
         self.models[name] = model
-        gains = {} if self.calibration is None else self.calibration.gains
-        scale = hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest()[:8]
-        self.versions[name] = f"{model_version(model, folder)}+scale-{scale}"
+        self.versions[name] = model_version(model, folder)
+
+    def scale(self, name: Scale | None) -> tuple[str, Calibration | None]:
+        """The output scale ``name`` (``None``: the server's): a digest of its gains (what the cache
+        keys it by, so a cached answer is never of another scale) and its calibration."""
+        calibration = self.calibration if name is None else load_scale(name)
+        gains = {} if calibration is None else calibration.gains
+        return hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest()[:8], calibration
 
     def scaled(self, rows: np.ndarray, channels: tuple[str, ...], fps: float) -> np.ndarray:
         """Frames of a stream (rows over ``channels``) in the server's output scale."""
@@ -244,79 +256,84 @@ class SpeechService:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
         return name, self.models[name]
 
-    def _key(self, text: str, language: str, model_name: str | None, rate: float) -> tuple[CacheKey, Estimator]:
-        name, model = self.model(model_name)
-        spoken = find_language(language)
-        selector = spoken.selector if self.config.voice is None else f"{spoken.selector}+{self.config.voice}"
-        return CacheKey(text, spoken.code, selector, float(rate), name, self.versions[name], self.config.fps), model
+    def _key(self, text: str, options: SpeechOptions) -> tuple[CacheKey, Estimator, Calibration | None]:
+        name, model = self.model(options.model)
+        spoken = find_language(options.language)
+        voice = options.voice or self.config.voice
+        selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
+        fps = options.fps or self.config.fps
+        scale, calibration = self.scale(options.scale)
+        key = CacheKey(text, spoken.code, selector, float(options.rate), name, self.versions[name], fps, scale)
+        return key, model, calibration
 
-    def lookup(
-        self, text: str, language: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
-    ) -> SpeakResponse | None:
-        """The cached answer to this request, or ``None`` (nothing computed)."""
-        key, _ = self._key(text, language, model_name, rate)
+    def lookup(self, text: str, options: SpeechOptions) -> SpeakResponse | None:
+        """The cached answer to speaking ``text`` so, or ``None`` (nothing computed)."""
+        key, _, calibration = self._key(text, options)
         entry = self.cache.get(key)
-        return None if entry is None else self._answer(entry, text, cached=True, life=life, seed=seed)
+        return None if entry is None else self._answer(entry, text, True, calibration, options)
 
-    def speak(
-        self, text: str, language: str, model_name: str | None, rate: float, life: tuple[str, ...] = (), seed: int = 0
-    ) -> SpeakResponse:
-        """The answer to this request, from the cache when the same request was answered before.
+    def speak(self, text: str, options: SpeechOptions) -> SpeakResponse:
+        """The answer to speaking ``text`` so, from the cache when the same request was answered before.
 
-        The cache holds the speech alone; the non-verbal layers ``life`` (drawn with ``seed``) are
-        added to each answer, so every seed shares the speech's entry and its audio."""
-        key, model = self._key(text, language, model_name, rate)
+        The cache holds the speech alone; the non-verbal layers ``options.life`` are added to each
+        answer, so every seed shares the speech's entry and its audio."""
+        key, model, calibration = self._key(text, options)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = speak(text, language, model=model, rate=rate, fps=self.config.fps, voice=self.config.voice)
+            voice = options.voice or self.config.voice
+            utterance = speak(text, options.language, model=model, rate=options.rate, fps=key.fps, voice=voice)
             wav = utterance.wav_bytes()
             assert wav is not None  # speak gives the audio it synthesised
-            entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
-        return self._answer(entry, text, cached, life=life, seed=seed)
+            entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
+        return self._answer(entry, text, cached, calibration, options)
 
-    def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator]:
+    def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator, Calibration | None]:
         """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
         name, model = self.model(query.model, audio=query.text is None)
         fps = query.fps or self.config.fps
-        return CacheKey(
-            query.text or "", query.language, f"upload:{digest}", 1.0, name, self.versions[name], fps
-        ), model
+        scale, calibration = self.scale(query.scale)
+        voice = f"upload:{digest}"
+        key = CacheKey(query.text or "", query.language, voice, 1.0, name, self.versions[name], fps, scale)
+        return key, model, calibration
 
     def lookup_upload(self, digest: str, query: AnimateQuery) -> SpeakResponse | None:
         """The cached answer for this upload, or ``None`` (nothing computed)."""
-        key, _ = self._upload_key(digest, query)
+        key, _, calibration = self._upload_key(digest, query)
         entry = self.cache.get(key)
-        return None if entry is None else self._answer(entry, query.text or "", cached=True)
+        return None if entry is None else self._answer(entry, query.text or "", True, calibration)
 
     def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> SpeakResponse:
         """The answer for an uploaded recording (``data``, the file's bytes):
         :func:`vispeech.pipeline.listen`, from the cache when the same file came with the same options."""
-        key, model = self._upload_key(digest, query)
+        key, model, calibration = self._upload_key(digest, query)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
             utterance = listen(read_upload(data), query.text, query.language, model=model, fps=key.fps)
             wav = utterance.wav_bytes()
             assert wav is not None  # listen keeps the audio it animated
-            entry = self.cache.put(key, wav, _animation_json(utterance, self.calibration))
-        return self._answer(entry, query.text or "", cached)
+            entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
+        return self._answer(entry, query.text or "", cached, calibration)
 
     def _answer(
-        self, entry: CachedUtterance, text: str, cached: bool, life: tuple[str, ...] = (), seed: int = 0
+        self,
+        entry: CachedUtterance,
+        text: str,
+        cached: bool,
+        calibration: Calibration | None,
+        options: SpeechOptions | None = None,
     ) -> SpeakResponse:
+        """A cache entry as the answer to ``text``, with the non-verbal layers of ``options`` added
+        (timed by its phones, in the output scale ``calibration``)."""
         animation = AnimationJSON.model_validate_json(entry.animation)
-        if life:
-            animation = self._with_life(animation, life, seed)
+        if options is not None and options.life:
+            data = animation.model_dump()
+            phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
+            layers = check_layers(options.life)
+            track = with_life(Track.from_dict(data), phones, layers, options.seed, scale=calibration)
+            animation = AnimationJSON.model_validate({**data, **track.to_dict()})
         return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
-
-    def _with_life(self, animation: AnimationJSON, life: tuple[str, ...], seed: int) -> AnimationJSON:
-        """``animation`` with the channels of the non-verbal layers ``life`` added (replacing any it
-        had), timed by its phones and in the server's output scale."""
-        data = animation.model_dump()
-        phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
-        track = with_life(Track.from_dict(data), phones, life, seed, scale=self.calibration)
-        return AnimationJSON.model_validate({**data, **track.to_dict()})
 
     def reply(self, message: str, language: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language

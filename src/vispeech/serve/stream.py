@@ -70,10 +70,10 @@ class StreamConnection(Connection):
             message.text,
             message.language,
             model,
-            fps=self.config.fps,
+            fps=message.fps or self.config.fps,
             rate=message.rate,
-            scale=self.service.calibration,
-            voice=self.config.voice,
+            scale=self.service.scale(message.scale)[1],
+            voice=message.voice or self.config.voice,
         )
 
         def next_clause() -> tuple[list[str], float | None] | None:
