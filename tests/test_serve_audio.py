@@ -24,7 +24,7 @@ from vispeech.pipeline import animate_audio  # noqa: E402
 from vispeech.postprocess import PostprocessConfig  # noqa: E402
 from vispeech.serve import ServeConfig, create_app  # noqa: E402
 from vispeech.serve.safety import TokenBucket  # noqa: E402
-from vispeech.streaming import LiveAudioStream  # noqa: E402
+from vispeech.streaming import STREAM_CHANNELS, LiveAudioStream  # noqa: E402
 
 CLIP = "bbaf2n"
 """A GRID speaker-1 utterance: "bin blue at f two now", 2.978 s at 16 kHz."""
@@ -106,9 +106,10 @@ def random_chunks(data: bytes, rng: np.random.Generator, largest: int = CHUNK_BY
 # -- the engine ---------------------------------------------------------------------------------
 
 def test_live_audio_stream_equals_the_offline_animation(model, pcm, clip):
-    reference = live_offline(clip, model, 30.0).values  # model.predict with the audio preset
     stream = LiveAudioStream(model, 16000, 30.0)
-    assert (stream.delay, stream.lookahead, stream.channels) == (model.delay, 6, model.channels)
+    assert (stream.delay, stream.lookahead) == (model.delay, 6)
+    assert stream.channels == STREAM_CHANNELS + tuple(c for c in model.channels if c not in STREAM_CHANNELS)
+    reference = live_offline(clip, model, 30.0).select(stream.channels).values  # model.predict, the audio preset
     parts = []
     for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(0)):
         start, rows = stream.push(chunk)
@@ -120,7 +121,8 @@ def test_live_audio_stream_equals_the_offline_animation(model, pcm, clip):
     parts.append(stream.finish()[1])
     np.testing.assert_allclose(np.concatenate(parts), reference, atol=1e-4)
     jaw = model.channels.index("jawOpen")  # the raw frame, clipped (the preset clamps mouthClose to it)
-    np.testing.assert_allclose(np.clip(model.predict(clip, 30.0).values[:, jaw], 0, 1), reference[:, jaw], atol=1e-4)
+    np.testing.assert_allclose(np.clip(model.predict(clip, 30.0).values[:, jaw], 0, 1),
+                               reference[:, stream.channels.index("jawOpen")], atol=1e-4)
     with pytest.raises(VispeechError, match="ended"):
         stream.push(b"\x00\x00")
 
@@ -207,7 +209,8 @@ def test_live_audio_in_random_chunks_gives_the_offline_frames(client, pcm, clip,
     with client.websocket_connect("/api/listen") as ws:
         ws.send_json({"type": "start", "sample_rate": 16000, "encoding": "pcm16"})
         start = ws.receive_json()
-        assert start == {"type": "start", "fps": 30.0, "channels": list(model.channels), "sample_rate": 16000,
+        channels = LiveAudioStream(model, 16000).channels
+        assert start == {"type": "start", "fps": 30.0, "channels": list(channels), "sample_rate": 16000,
                          "model": client.get("/api/config").json()["audio_model"], "lookahead": 6,
                          "delay": pytest.approx(model.delay)}
         for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(1)):
@@ -216,7 +219,26 @@ def test_live_audio_in_random_chunks_gives_the_offline_frames(client, pcm, clip,
         messages = receive_until_end(ws)
     assert messages[-1] == {"type": "end", "n_frames": 90, "duration": pytest.approx(len(pcm) / 16000)}
     assert "too_fast" in [m["code"] for m in messages if m["type"] == "warning"]  # all of it at once
-    np.testing.assert_allclose(frames_of(messages), live_offline(clip, model, 30.0).values, atol=1e-4)
+    np.testing.assert_allclose(frames_of(messages), live_offline(clip, model, 30.0).select(channels).values, atol=1e-4)
+
+
+def test_every_stream_sends_the_same_channels(client, pcm):
+    """A text stream (phones, tongue from them) and a listen stream (audio alone, no tongue) start
+    with the same channel list; the listen stream's tongue stays at rest."""
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": "Hello.", "model": "grid-cohen-massaro"})
+        spoken = ws.receive_json()
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000})
+        heard = ws.receive_json()
+        for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(2)):
+            ws.send_bytes(chunk)
+        ws.send_json({"type": "stop"})
+        frames = frames_of(receive_until_end(ws))
+    assert spoken["type"] == heard["type"] == "start" and spoken["channels"] == heard["channels"]
+    assert set(spoken["channels"]) >= {"cheekPuff", "tongueTipUp", "jawOpen"}
+    tongue = [heard["channels"].index(name) for name in ("tongueOut", "tongueTipUp", "tongueBodyUp", "tongueBack")]
+    assert frames.shape[1] == len(heard["channels"]) and not frames[:, tongue].any() and frames.any()
 
 
 def test_live_audio_at_48_khz_and_25_fps(client, clip, model):
@@ -232,7 +254,7 @@ def test_live_audio_at_48_khz_and_25_fps(client, clip, model):
         messages = receive_until_end(ws)
     frames = frames_of(messages)
     assert len(frames) == messages[-1]["n_frames"] == clip.n_frames(25.0) == 75
-    assert np.abs(frames - live_offline(clip, model, 25.0).values).mean() < 0.01
+    assert np.abs(frames - live_offline(clip, model, 25.0).select(start["channels"]).values).mean() < 0.01
 
 
 def test_bad_listen_messages_get_errors_and_the_connection_goes_on(client, pcm):

@@ -25,6 +25,11 @@ soxr's streaming resampler and gives each frame as soon as the model's
 post-processed frame by frame: the frames equal :func:`~vispeech.pipeline.animate_audio` of
 the whole audio (without the closures an audio network's phone head hears offline, and without
 the rest in silence, which needs the whole audio's loudness).
+
+**Channels.** Every stream's frames carry :data:`STREAM_CHANNELS`, whatever its model drives
+(a channel the model does not drive stays at rest, 0: the rule models' cheeks and nose, the
+audio models' tongue, which only phones tell), then any channels of the model's beyond them:
+a client keys one list of channels, text, phone and audio streams alike.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
+from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
@@ -86,11 +92,50 @@ def split_clauses(text: str) -> list[str]:
     return clauses
 
 
+STREAM_CHANNELS: tuple[str, ...] = (
+    "jawForward",
+    "jawOpen",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthSmileLeft",
+    "mouthDimpleLeft",
+    "mouthStretchLeft",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthLowerDownLeft",
+    "mouthUpperUpLeft",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "noseSneerLeft",
+    "mouthSmileRight",
+    "mouthDimpleRight",
+    "mouthStretchRight",
+    "mouthPressRight",
+    "mouthLowerDownRight",
+    "mouthUpperUpRight",
+    "cheekSquintRight",
+    "noseSneerRight",
+    *TONGUE_CHANNELS,
+)
+"""The channels every stream's frames begin with, in this order: those the shipped networks
+learned from the tracked corpus, and the tongue's (:data:`~vispeech.motion.arkit.TONGUE_CHANNELS`)."""
+
+
+def _with_stream_channels(channels: Sequence[str]) -> tuple[str, ...]:
+    """:data:`STREAM_CHANNELS`, then those of ``channels`` that are not among them."""
+    return STREAM_CHANNELS + tuple(name for name in channels if name not in STREAM_CHANNELS)
+
+
 def stream_channels(model: Estimator, language: str, fps: float) -> tuple[str, ...]:
-    """The channels of ``model``'s post-processed tracks (those a stream's frames carry) for
-    phones of ``language`` (a phone set: ``sv``, ``en`` or ``ipa``)."""
+    """The channels a stream of ``model``'s frames carries for phones of ``language`` (a phone
+    set: ``sv``, ``en`` or ``ipa``): :data:`STREAM_CHANNELS` and any others its post-processed
+    tracks have."""
     probe = PhoneSequence([Phone(SILENCE, 0.0, 1.0 / fps)], language)
-    return animate(probe, model, fps).channels
+    return _with_stream_channels(animate(probe, model, fps).channels)
 
 
 def speech_messages(
@@ -340,7 +385,8 @@ class LiveAudioStream:
     so the frames equal :func:`~vispeech.pipeline.animate_audio` of the whole audio, but for the
     closures a model's phone head hears (``closure_threshold``) and the mouth at rest in leading
     and trailing silence (which needs the whole audio's loudness), which only offline animation
-    makes; the live ``grid-audio-cnn`` hears no closures.
+    makes (the live ``grid-audio-cnn`` hears no closures), over :attr:`channels`, those of every
+    stream (:data:`STREAM_CHANNELS`: the tongue at rest).
     """
 
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:
@@ -362,7 +408,7 @@ class LiveAudioStream:
         # an audio model that streams is an audio network: its stream takes no language, and is an AudioStream
         self._inner = cast("AudioNetwork", model).stream(None, check_fps(fps))
         self.fps = self._inner.fps
-        self.channels = self._inner.channels
+        self.channels = _with_stream_channels(self._inner.channels)
         self.sample_rate = sample_rate
         self._resampler = None
         resampling_delay = 0.0
@@ -422,8 +468,9 @@ class LiveAudioStream:
 
     def _postprocessed(self, start: int, rows: np.ndarray) -> tuple[int, np.ndarray]:
         if not len(rows):
-            return start, rows
-        return start, postprocess(Track(rows, self.channels, self.fps), None, self._config).values
+            return start, np.zeros((0, len(self.channels)))
+        track = postprocess(Track(rows, self._inner.channels, self.fps), None, self._config)
+        return start, track.select(self.channels).values
 
 
 @functools.lru_cache(maxsize=64)
