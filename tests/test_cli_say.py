@@ -181,3 +181,12 @@ def test_say_reads_a_text_file(tmp_path):
         result = run("say", *args, "-o", str(tmp_path / "bad"))
         assert_clean_error(result)
         assert message in result.output and not (tmp_path / "bad").exists()
+
+
+def test_a_grid_word_alignment_points_to_animate_text(tmp_path):
+    """GRID's .align files time words: animate-phones says so and names `animate --text`."""
+    words = tmp_path / "bbaf2n.align"
+    words.write_text("0 23750 sil\n23750 29500 bin\n29500 34000 blue\n34000 74500 sil\n")
+    result = run("animate-phones", str(words), "-o", str(tmp_path / "o"))
+    assert_clean_error(result)
+    assert "'bin'" in result.output and "vispeech animate AUDIO --text" in result.output

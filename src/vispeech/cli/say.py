@@ -135,7 +135,15 @@ def animate_phones(
     check_outputs(out_dir)
     load_scale(scale)
     layers = check_layers(life)
-    phones = read_alignment(alignment, language)
+    try:
+        phones = read_alignment(alignment, language)
+    except VispeechError as exc:
+        if alignment.suffix.lower() == ".align" and "unknown phone symbol" in str(exc):
+            raise VispeechError(
+                f"{exc}; a GRID .align file times words, not phones: animate its audio with "
+                '`vispeech animate AUDIO --text "THE WORDS"`'
+            ) from None
+        raise
     track = with_life(animate(phones, model, fps, postprocessing), phones, layers, seed)
     write_outputs(Utterance(phones=phones, track=track), out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps -> {out_dir}/animation.csv, animation.json")
