@@ -89,3 +89,22 @@ def test_cli_align_errors_in_one_line(grid_utterance, tmp_path, audio_name, text
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], result.output
     assert not out.exists()
+
+
+def test_a_transcript_that_does_not_fit_the_audio_is_refused(grid_s1):
+    """Five grid_s1 utterances: each one's own transcript fits (taken with the least fit asked for),
+    the next one's does not (refused), and min_fit=None takes any."""
+    from vispeech.frontends.align import MIN_FIT, TranscriptMismatch, transcript_fit
+    from vispeech.frontends.audio import AudioClip
+
+    texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
+    ids = sorted(texts)[::180][:5]
+    for name, other in zip(ids, ids[1:] + ids[:1]):
+        clip = AudioClip.read(grid_s1 / "utterances" / f"{name}.flac")
+        phones = align(clip.samples, clip.sample_rate, texts[name], min_fit=MIN_FIT)
+        assert [w.text for w in phones.words] == texts[name].split()
+        with pytest.raises(TranscriptMismatch, match="does not fit the audio"):
+            align(clip.samples, clip.sample_rate, texts[other], min_fit=MIN_FIT)
+        assert transcript_fit(clip, texts[other]) < MIN_FIT <= transcript_fit(clip, texts[name])
+    forced = align(clip.samples, clip.sample_rate, texts[other])
+    assert [w.text for w in forced.words] == texts[other].split()

@@ -195,6 +195,16 @@ def test_transcript_in_english(grid_clip, tmp_path):
     assert "N" in phones.symbols and phones.phones[0].symbol == "sil"
 
 
+def test_a_transcript_that_does_not_fit_is_refused_unless_forced(grid_clip, tmp_path):
+    wrong = "The quick brown fox jumps over the lazy dog."
+    result = run("animate", str(grid_clip), "--text", wrong, "-o", str(tmp_path / "out"))
+    assert_clean_error(result)
+    assert "does not fit the audio" in result.output and "--force" in result.output
+    assert not (tmp_path / "out").exists()
+    animate(grid_clip, tmp_path / "forced", "--text", wrong, "--force")
+    assert [w.text for w in read_alignment(tmp_path / "forced" / "phones.TextGrid").words][:2] == ["the", "quick"]
+
+
 def test_transcript_from_sentences_tsv_with_a_named_phone_model(grid_s1, grid_clip, tmp_path):
     texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
     animate(grid_clip, tmp_path / "out", "--text", texts[GRID_ID], "--model", "grid-tdnn", "--language", "en")

@@ -168,6 +168,16 @@ def test_animate_with_a_transcript_and_another_frame_rate(client, pcm):
     assert words == "bin blue at f two now".split() and answer.json()["text"] == "bin blue at f two now"
 
 
+def test_a_transcript_that_does_not_fit_is_a_400_unless_forced(client, pcm):
+    data, wrong = encoded(pcm, "FLAC"), {"text": "the quick brown fox jumps over the lazy dog"}
+    refused = client.post("/api/animate", params=wrong, content=data)
+    assert refused.status_code == 400 and "does not fit the audio" in refused.json()["detail"]
+    assert "force=true" in refused.json()["detail"]
+    forced = client.post("/api/animate", params={**wrong, "force": "true"}, content=data)
+    assert forced.status_code == 200 and forced.json()["animation"]["phones"]["words"][0]["text"] == "the"
+    assert client.post("/api/animate", params=wrong, content=data).status_code == 400  # not the forced answer
+
+
 def test_bad_uploads_get_a_clear_4xx(client, pcm):
     good = encoded(pcm, "FLAC")
     long_silence = encoded(np.zeros(601 * 8000, dtype=np.int16), "FLAC", rate=8000)

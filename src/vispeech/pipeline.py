@@ -257,6 +257,7 @@ def listen(
     model: str | Estimator | None = None,
     fps: float = DEFAULT_FPS,
     postprocessing: Postprocessing = AUTO,
+    force: bool = False,
 ) -> Utterance:
     """Animate recorded speech: audio, text, phones (``None`` without ``text``) and a track of
     ``clip.n_frames(fps)`` frames from time 0.
@@ -267,24 +268,27 @@ def listen(
     those phones (default :data:`DEFAULT_MODEL`). A recording without its transcript gets one
     from :func:`vispeech.frontends.transcribe.transcribe` (the ``whisper`` extra):
     ``listen(clip, transcribe(clip, language), language)``. The utterance keeps the clip's
-    audio at its own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster.
+    audio at its own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster. An
+    English transcript that does not fit the audio is refused (``force``: taken all the same).
     """
     check_fps(fps)
-    utterance = hear(clip, text, language)
+    utterance = hear(clip, text, language, force=force)
     default = default_audio_model() if utterance.phones is None else DEFAULT_MODEL
     track = _animate_audio(clip, default if model is None else model, fps, postprocessing, utterance.phones)
     return replace(utterance, track=track)
 
 
-def hear(clip: AudioClip, text: str | None = None, language: str = "en") -> Utterance:
+def hear(clip: AudioClip, text: str | None = None, language: str = "en", *, force: bool = False) -> Utterance:
     """The first half of :func:`listen`: the recording's utterance without a track, its audio at
-    most :data:`MAX_OUTPUT_SAMPLE_RATE` and, with ``text``, the transcript's aligned phones."""
+    most :data:`MAX_OUTPUT_SAMPLE_RATE` and, with ``text``, the transcript's aligned phones
+    (:class:`~vispeech.frontends.align.TranscriptMismatch` for an English transcript whose fit
+    is below :data:`~vispeech.frontends.align.MIN_FIT`, unless ``force``)."""
     phones = None
     if text is not None:
-        from vispeech.frontends.align import align
+        from vispeech.frontends.align import MIN_FIT, align
 
         check_text(text)
-        phones = align(clip.samples, clip.sample_rate, text, language)
+        phones = align(clip.samples, clip.sample_rate, text, language, min_fit=None if force else MIN_FIT)
     audio = clip.resampled(min(clip.sample_rate, MAX_OUTPUT_SAMPLE_RATE))
     return Utterance(text=text or "", phones=phones, audio=audio.samples, sample_rate=audio.sample_rate)
 

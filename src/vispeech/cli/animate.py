@@ -26,6 +26,7 @@ from vispeech.pipeline import (
     listen,
     write_outputs,
 )
+from vispeech.utterance import Utterance
 
 
 @main.command()
@@ -41,6 +42,7 @@ from vispeech.pipeline import (
     help="A CTranslate2 Whisper folder used for this run instead of the installed models: "
     "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).",
 )
+@click.option("--force", is_flag=True, help="Animate an English transcript that does not fit the audio all the same.")
 @language_option("Language of the transcript: any `vispeech languages` lists.")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option(
@@ -60,6 +62,7 @@ def animate(
     text: str | None,
     transcribe: bool,
     whisper_model: Path | None,
+    force: bool,
     language: str,
     out_dir: Path,
     model: str | None,
@@ -75,7 +78,8 @@ def animate(
     phones.TextGrid. Without either an audio model animates the sound; with --text the
     transcript is aligned with the audio and the model animates its phones; --transcribe has
     Whisper hear the transcript first (English by Whisper tiny.en, other languages by Whisper
-    base; docs/audio.md).
+    base; docs/audio.md). An English transcript that does not fit the audio is refused
+    (--force: animated all the same).
     """
     if text is not None and transcribe:
         raise VispeechError("give --text or --transcribe, not both")
@@ -89,7 +93,7 @@ def animate(
             from vispeech.frontends.transcribe import transcribe as heard
 
             text = heard(clip, language)
-        utterance = listen(clip, text, language, model=model, fps=fps, postprocessing=postprocessing)
+        utterance = _listened(clip, text, language, force, model=model, fps=fps, postprocessing=postprocessing)
     assert utterance.track is not None  # listen() animates the clip
     track = with_life(utterance.track, utterance.phones, layers, seed)
     utterance = replace(utterance, track=track)
@@ -99,6 +103,16 @@ def animate(
     click.echo(f"{track.n_frames} frames at {fps:g} fps, {clip.duration:.2f} s -> {out_dir}/")
     for path in paths:
         click.echo(f"  {path.name}")
+
+
+def _listened(clip: AudioClip, text: str | None, language: str, force: bool, **options) -> Utterance:
+    """:func:`listen`; a transcript that does not fit the audio is refused with a pointer to --force."""
+    from vispeech.frontends.align import TranscriptMismatch
+
+    try:
+        return listen(clip, text, language, force=force, **options)
+    except TranscriptMismatch as exc:
+        raise VispeechError(f"{exc} (--force: animate it all the same)") from None
 
 
 @contextmanager

@@ -16,6 +16,12 @@ fails (pocketsphinx's issue #339), each word's span is shared evenly among the p
 pronunciation the word pass chose. pocketsphinx aligns in a worker process
 (:mod:`vispeech.frontends.isolation`), espeak-ng too: a crash or hang on one recording is a
 :class:`~vispeech.errors.NativeFailure`.
+
+How well a transcript fits the audio (:func:`transcript_fit`) is the mean log-likelihood ratio
+per frame, over the words' span, of the transcript's state alignment against that of the phones
+a free phone loop (pocketsphinx's allphone search) hears: near 0 or above when the audio says
+the transcript, far below when it says something else. :func:`align` refuses a transcript
+whose fit is below ``min_fit`` (:data:`MIN_FIT` where :func:`vispeech.pipeline.listen` asks).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from vispeech.frontends.activity import speech_span
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.dtw_align import dtw_align
 from vispeech.frontends.isolation import run_isolated
-from vispeech.phonetics.inventory import SILENCE, parse_symbol
+from vispeech.phonetics.inventory import SILENCE, get_inventory, is_silence, parse_symbol
 
 SAMPLE_RATE = 16000
 """The acoustic model's sample rate in Hz; other rates are resampled to it."""
@@ -48,6 +54,11 @@ BEAM, WORD_BEAM = 1e-100, 1e-80
 WIDE_BEAM = 1e-300
 """Every beam of the second try, when the first finds no path (about 40 % slower)."""
 
+MIN_FIT = -8.0
+"""The least :func:`transcript_fit` of a transcript that fits its audio. On 100 grid_s1 utterances
+(``benchmarks/transcript_fit.py --choose``) the true transcripts fit from -6.2 up, those of other
+utterances 94 of 100 below -8 (the rest differ in a few similar-sounding words)."""
+
 MIN_PHONE_FRAMES = 3
 """Frames each phone needs at least: the acoustic model's phones have three states."""
 
@@ -61,14 +72,25 @@ ALIGNER = "pocketsphinx 5.1.1 dithered, wide-beam retry; espeak-ng DTW log-mel 1
 EDGE_PUNCTUATION = "\"'.,;:!?()[]{}«»“”‘’—–-"
 """What :func:`normalize_transcript` strips from the ends of words."""
 _ALTERNATE = re.compile(r"\(\d+\)$")
+_LOOP_WORD = "vispeech-phone-"
+"""Prefix of the one-phone words the phone loop's phones are aligned as."""
 _DECODER_LOCK = threading.Lock()  # one shared decoder per process
 
 _Segments = list[tuple[str, list[tuple[str, int, int]]]]
 """Words (pocketsphinx names, fillers included) with their phones: (label, start frame, frames)."""
 
 
+class TranscriptMismatch(VispeechError):
+    """The transcript does not fit the audio (:func:`transcript_fit` below the least asked for)."""
+
+
 def align(
-    audio: np.ndarray, sample_rate: int, text: str, language: str = "en", method: str | None = None
+    audio: np.ndarray,
+    sample_rate: int,
+    text: str,
+    language: str = "en",
+    method: str | None = None,
+    min_fit: float | None = None,
 ) -> PhoneSequence:
     """Time-align ``text`` with ``audio``: phones and words with start/end in seconds.
 
@@ -78,7 +100,9 @@ def align(
     silence before, between and after words is ``sil``. Raises :class:`VispeechError` for an
     unknown method or language, pocketsphinx with a language other than ``"en"``, words missing
     from the pronouncing dictionary (named), empty text, audio that is empty, non-finite or has
-    no speech, or a failed alignment (saying where it failed).
+    no speech, or a failed alignment (saying where it failed); :class:`TranscriptMismatch` when
+    pocketsphinx aligns a transcript whose :func:`transcript_fit` is below ``min_fit``
+    (``None``: any is taken; DTW alignment is not scored).
     """
     clip = AudioClip.from_array(audio, sample_rate)
     method = method or ("pocketsphinx" if language == "en" else "dtw")
@@ -88,7 +112,7 @@ def align(
         raise VispeechError(f"unknown alignment method {method!r} (use {' or '.join(METHODS)})")
     if language != "en":
         raise VispeechError(f"pocketsphinx aligns English only (language 'en'), not {language!r}; use the dtw method")
-    return run_isolated("pocketsphinx", "this recording and transcript", _pocketsphinx_align, clip, text)
+    return run_isolated("pocketsphinx", "this recording and transcript", _pocketsphinx_align, clip, text, min_fit)
 
 
 def normalize_transcript(text: str) -> list[str]:
@@ -115,7 +139,7 @@ def padded_pcm(clip: AudioClip) -> bytes:
     return np.clip(np.round(samples), -32768, 32767).astype("<i2").tobytes()
 
 
-def _pocketsphinx_align(clip: AudioClip, text: str) -> PhoneSequence:
+def _pocketsphinx_align(clip: AudioClip, text: str, min_fit: float | None) -> PhoneSequence:
     words = normalize_transcript(text)
     decoder = _decoder()
     unknown = [w for w in dict.fromkeys(words) if not in_dictionary(w)]
@@ -138,7 +162,57 @@ def _pocketsphinx_align(clip: AudioClip, text: str) -> PhoneSequence:
             segments = _phone_pass(decoder, raw)
         except RuntimeError:
             segments = _shared_spans(decoder, words_found)
+        else:
+            if min_fit is not None and (fit := _fit(decoder, raw)) < min_fit:
+                raise TranscriptMismatch(
+                    f"the transcript does not fit the audio (fit {fit:.1f}, below {min_fit:g}): does the audio say it?"
+                )
     return _to_phone_sequence(segments, clip.duration)
+
+
+def transcript_fit(clip: AudioClip, text: str) -> float:
+    """How well English ``text`` fits ``clip`` (see the module docstring): about 0 or above when the
+    audio says it; ``nan`` when pocketsphinx cannot tell (its phone pass failed)."""
+    words = normalize_transcript(text)
+    raw = padded_pcm(clip)
+    decoder = _decoder()
+    with _DECODER_LOCK:
+        if _word_pass(decoder, raw, words) is None:
+            raise VispeechError(_no_path(decoder, raw, words))
+        try:
+            _phone_pass(decoder, raw)
+        except RuntimeError:
+            return float("nan")
+        return _fit(decoder, raw)
+
+
+def _fit(decoder, raw: bytes) -> float:
+    """The transcript fit of the alignment the last phone pass made (``nan`` when the phone loop's
+    phones cannot be aligned); the decoder is left set up for another alignment."""
+    words = [w for w in decoder.get_alignment() if not w.name.startswith(("<", "["))]
+    first, end = words[0].start, words[-1].start + words[-1].duration
+    forced = _frame_scores(decoder, end)
+    loop = _phone_loop()
+    decode_utterance(loop, raw)
+    heard = [s.word.lower() for s in loop.seg() if s.word != "SIL" and not s.word.startswith(("+", "("))]
+    if not heard or _word_pass(decoder, raw, [_LOOP_WORD + phone for phone in heard]) is None:
+        return float("nan")
+    try:
+        _phone_pass(decoder, raw)
+    except RuntimeError:
+        return float("nan")
+    return float(np.mean(forced[first:end] - _frame_scores(decoder, end)[first:end]))
+
+
+def _frame_scores(decoder, n_frames: int) -> np.ndarray:
+    """Acoustic score of each of the first ``n_frames`` frames in the last phone pass (each state's
+    score shared evenly among its frames)."""
+    scores = np.zeros(n_frames)
+    for word in decoder.get_alignment():
+        for phone in word:
+            for state in phone:
+                scores[state.start : state.start + state.duration] = state.score / max(state.duration, 1)
+    return scores
 
 
 def _word_pass(decoder, raw: bytes, words: list[str]) -> list[tuple[str, int, int]] | None:
@@ -197,8 +271,30 @@ def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments
 def _decoder():
     from pocketsphinx import Decoder
 
-    return Decoder(
+    decoder = Decoder(
         samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=BEAM, wbeam=WORD_BEAM, pbeam=BEAM, loglevel="FATAL"
+    )
+    for phone in get_inventory("en").symbols:  # the phone loop's phones, each a word of its own
+        if not is_silence(phone):
+            decoder.add_word(_LOOP_WORD + phone.lower(), phone, False)
+    return decoder
+
+
+@functools.cache
+def _phone_loop():
+    """pocketsphinx's allphone search: the phones heard, under the shipped phone language model."""
+    from pocketsphinx import Decoder, get_model_path
+
+    phone_lm = f"{get_model_path()}/en-us/en-us-phone.lm.bin"
+    return Decoder(
+        samprate=SAMPLE_RATE,
+        allphone=phone_lm,
+        lm=None,
+        bestpath=False,
+        beam=BEAM,
+        wbeam=WORD_BEAM,
+        pbeam=BEAM,
+        loglevel="FATAL",
     )
 
 

@@ -113,8 +113,9 @@ class AnimateQuery(BaseModel):
 
     Without ``text`` the audio model animates the audio; with it the transcript is aligned
     with the audio in ``language`` and ``model`` (default: the server's default model) animates the
-    phones, as :func:`vispeech.pipeline.listen` does. ``fps`` and ``scale`` ``null`` mean the
-    server's frame rate and output scale.
+    phones, as :func:`vispeech.pipeline.listen` does; an English transcript that does not fit the
+    audio is refused (400) unless ``force``. ``fps`` and ``scale`` ``null`` mean the server's
+    frame rate and output scale.
     """
 
     text: Text | None = None
@@ -122,6 +123,7 @@ class AnimateQuery(BaseModel):
     fps: Fps | None = None
     scale: Scale | None = None
     model: ModelName | None = None
+    force: bool = False
 
 
 class WordJSON(BaseModel):

@@ -16,6 +16,7 @@ import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
+from vispeech.frontends.align import TranscriptMismatch
 from vispeech.frontends.audio import read_upload
 from vispeech.frontends.espeak import check_voice, find_language, languages
 from vispeech.frontends.isolation import set_workers
@@ -289,11 +290,12 @@ class SpeechService:
         return self._answer(entry, text, cached, calibration, options)
 
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator, Calibration | None]:
-        """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>``."""
+        """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>`` (``:forced`` added
+        for a transcript taken whether it fits or not)."""
         name, model = self.model(query.model, audio=query.text is None)
         fps = query.fps or self.config.fps
         scale, calibration = self.scale(query.scale)
-        voice = f"upload:{digest}"
+        voice = f"upload:{digest}:forced" if query.force else f"upload:{digest}"
         key = CacheKey(query.text or "", query.language, voice, 1.0, name, self.versions[name], fps, scale)
         return key, model, calibration
 
@@ -310,7 +312,12 @@ class SpeechService:
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
-            utterance = listen(read_upload(data), query.text, query.language, model=model, fps=key.fps)
+            try:
+                utterance = listen(
+                    read_upload(data), query.text, query.language, model=model, fps=key.fps, force=query.force
+                )
+            except TranscriptMismatch as exc:
+                raise VispeechError(f"{exc} (force=true: animate it all the same)") from None
             wav = utterance.wav_bytes()
             assert wav is not None  # listen keeps the audio it animated
             entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
