@@ -319,6 +319,7 @@ def test_chat_page_offers_every_language_and_says_german(page, server_url):
         chat.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
         menu = chat.evaluate("() => [...document.querySelectorAll('#language option')].map((o) => [o.value, o.text])")
         assert menu[:2] == [["sv", "Svenska"], ["en", "English"]] and ["de", "German"] in menu and len(menu) > 100
+        assert chat.evaluate("() => document.querySelector('#language').value") == "en"  # English, as elsewhere
         assert not chat.is_disabled("#send")
         chat.select_option("#language", "de")
         assert chat.is_disabled("#send") and "Say speaks German" in chat.get_attribute("#send", "title")

@@ -28,7 +28,8 @@ function fillSelect(select, values, chosen, label = (v) => v) {
 async function setup(app) {
   const { config } = app;
   const names = { ...(config.language_names || {}), ...LANGUAGE_NAMES };
-  fillSelect($('language'), config.languages, config.languages[0], (v) => names[v] || v);
+  const initial = config.languages.includes('en') ? 'en' : config.languages[0]; // English, as everywhere else
+  fillSelect($('language'), config.languages, initial, (v) => names[v] || v);
   // Send asks the chat bot, which may answer in some languages only; Say speaks any of them.
   const chatLanguages = config.chat_languages || null;
   const chatRefused = () => chatLanguages !== null && !chatLanguages.includes($('language').value);
