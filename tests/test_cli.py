@@ -11,6 +11,7 @@ from pathlib import Path
 
 import click
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 import vispeech.cli
@@ -91,3 +92,20 @@ def test_start_up_imports_no_extra(tmp_path):
     assert not _imported_by(["--help"], tmp_path) & light
     assert not _imported_by(["convert", "in.csv", "out.json"], tmp_path) & light
     assert (tmp_path / "out.json").is_file()
+
+
+@pytest.mark.parametrize("url,expected", [
+    ("http://127.0.0.1:8000", "ws://127.0.0.1:8000/api/listen"),
+    ("https://example.org/", "wss://example.org/api/listen"),
+    ("ws://host:1/api/stream", "ws://host:1/api/stream"),
+    ("http://host/api/listen?token=x", "ws://host/api/listen?token=x"),
+])
+def test_stream_takes_http_addresses(url, expected):
+    from vispeech.cli.stream import websocket_url
+
+    assert websocket_url(url, "listen") == expected
+
+
+def test_stream_refuses_other_urls():
+    result = CliRunner().invoke(main, ["stream", "hello", "--url", "ftp://host/x"])
+    assert result.exit_code == 2 and "--url" in result.output and "Traceback" not in result.output

@@ -389,7 +389,8 @@ def test_stream_command_replays_audio_to_a_real_server(tiny_audio_model, pcm, tm
         assert "90 at 30 fps" in fast.output and "frame delay" in fast.output and "faster than" in fast.output
         written = json.loads(out.read_text())
         assert written["n_frames"] == 90 and len(written["frames"]) == 90
-        paced = CliRunner().invoke(main, ["stream", "--audio", str(wav), "--url", url, "--fps", "25"])
+        address = f"http://127.0.0.1:{port}"  # the server's address, as a browser has it: /api/listen added
+        paced = CliRunner().invoke(main, ["stream", "--audio", str(wav), "--url", address, "--fps", "25"])
         assert paced.exit_code == 0, paced.output
         assert "25 at 25 fps" in paced.output and "in real time" in paced.output and "frame delay" in paced.output
         refused = CliRunner().invoke(main, ["stream", "--audio", str(wav), "--url", url, "--model", "baseline"])

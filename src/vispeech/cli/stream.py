@@ -14,6 +14,19 @@ from vispeech.limits import MAX_FPS, MIN_FPS
 SERVER = "ws://127.0.0.1:8000"
 
 
+def websocket_url(url: str, route: str) -> str:
+    """``url`` as the WebSocket URL of the server's ``/api/<route>``: ``http(s)://`` becomes
+    ``ws(s)://``, and a bare server address gets the route."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    scheme = {"http": "ws", "https": "wss"}.get(parts.scheme, parts.scheme)
+    if scheme not in ("ws", "wss") or not parts.netloc:
+        raise click.BadParameter(f"{url!r} is no ws://, wss://, http:// or https:// URL", param_hint="--url")
+    path = parts.path if parts.path.strip("/") else f"/api/{route}"
+    return parts._replace(scheme=scheme, path=path).geturl()
+
+
 @main.command()
 @click.argument("text", required=False)
 @click.option(
@@ -44,7 +57,9 @@ SERVER = "ws://127.0.0.1:8000"
     help="With --audio: write the frames to this file (format from the extension: .json, .csv, ...).",
 )
 @click.option(
-    "--url", help=f"The server's WebSocket URL [default: {SERVER}/api/stream; with --audio {SERVER}/api/listen]."
+    "--url",
+    help=f"The server's WebSocket URL, or its http:// address [default: {SERVER}/api/stream; with --audio "
+    f"{SERVER}/api/listen].",
 )
 @language_option("Language of the text: sv, en or any other `vispeech languages` lists.")
 @click.option("--model", "-m", default=None, help="Model name [default: the server's stream or audio model].")
@@ -85,7 +100,7 @@ def stream(
         raise click.UsageError("give a TEXT or an --audio file (not both)")
     if audio is None and (out is not None or fps is not None):
         raise click.UsageError("--out and --fps go with --audio")
-    url = url or f"{SERVER}/api/{'stream' if audio is None else 'listen'}"
+    url = websocket_url(url or SERVER, "stream" if audio is None else "listen")
     try:
         if audio is None:
             from vispeech.serve.client import time_stream
