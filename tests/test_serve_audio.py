@@ -158,6 +158,14 @@ def test_animate_an_uploaded_file(client, pcm, clip, model, fmt):
     assert again.json()["cached"] and again.json()["audio_url"] == body["audio_url"]
 
 
+def test_animate_takes_what_curl_data_binary_sends(client, pcm):
+    """curl --data-binary @file.flac says application/x-www-form-urlencoded: the body is the file."""
+    answer = client.post("/api/animate", content=encoded(pcm, "FLAC"),
+                         headers={"Content-Type": "application/x-www-form-urlencoded"})
+    assert answer.status_code == 200, answer.text
+    assert answer.json()["animation"]["n_frames"] == 90
+
+
 def test_animate_with_a_transcript_and_another_frame_rate(client, pcm):
     data = encoded(pcm, "FLAC")
     answer = client.post("/api/animate", params={"text": "bin blue at f two now", "fps": 25}, content=data)

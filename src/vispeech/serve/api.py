@@ -28,7 +28,9 @@ from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, Sp
 
 AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "application/octet-stream")
 """Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
-_FORM_TYPES = ("multipart/form-data", "application/x-www-form-urlencoded", "application/json")
+_FORM_TYPES = ("multipart/form-data", "application/json")
+"""Bodies that are not the file itself. (``curl --data-binary @file`` says
+``application/x-www-form-urlencoded`` of the file's bytes: taken as the file.)"""
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)
@@ -78,13 +80,14 @@ async def post_animate(
     query: Annotated[AnimateQuery, Query()], http: Request, service: Service, ip: ClientIP
 ) -> SpeakResponse:
     """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
-    content type but a form's), the options are query parameters; answered as ``/api/speak`` is,
+    content type but a multipart form's or JSON), the options are query parameters; answered as ``/api/speak`` is,
     the audio URL serving the recording as WAV (from the cache when the same file came before)."""
     if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
         raise HTTPException(
             415,
             "send the audio file itself as the request body (Content-Type audio/wav, "
-            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream), not a form or JSON",
+            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream; curl --data-binary @FILE), "
+            "not a multipart form or JSON",
         )
     service.pay(ip, 1.0)
     data = await http.body()
