@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vispeech.errors import VispeechError
 from vispeech.frontends.align import MIN_FIT, in_dictionary, normalize_transcript, transcript_fit
 from vispeech.frontends.audio import AudioClip
 
@@ -40,12 +41,17 @@ def fits(folder: Path, ids: list[str], texts: dict[str, str]) -> dict[str, list[
         clip = AudioClip.read(folder / "utterances" / f"{name}.flac")
         for kind, text in (("true", texts[name]), ("wrong", texts[ids[(i + 1) % len(ids)]])):
             if all(in_dictionary(w) for w in normalize_transcript(text)):
-                found[kind].append(transcript_fit(clip, text))
+                try:
+                    found[kind].append(transcript_fit(clip, text))
+                except VispeechError:  # no path through the audio: refused all the same
+                    found[kind].append(-np.inf)
     return found
 
 
-def report(label: str, found: dict[str, list[float]]) -> None:
+def report(label: str, found: dict[str, list[float]], every: bool = False) -> None:
     for kind, values in found.items():
+        if every:
+            print(f"{label} {kind} fits:", " ".join(f"{v:.1f}" for v in sorted(values)))
         v = np.array(values)
         kept = np.sum(v >= MIN_FIT) if kind == "true" else np.sum(~(v >= MIN_FIT))
         verb = "taken" if kind == "true" else "refused"
@@ -67,7 +73,7 @@ def main() -> None:
     others = sorted(set(texts) - set(chosen))
     ids = chosen if args.choose else random.Random(1).sample(others, args.pairs)
     t0 = time.perf_counter()
-    report("grid_s1", fits(grid, ids, texts))
+    report("grid_s1", fits(grid, ids, texts), every=args.choose)
     if args.dev_eval:
         for name in ("grid_s4", "natural"):
             folder = DATA / "dev_eval" / name
