@@ -108,7 +108,7 @@ def test_paint(prepared):
         if primitive.attributes.COLOR_0 is not None:
             colours[name] = primitive.attributes.COLOR_0
     assert set(colours) == {"M_Face", "M_GumsTongue", "M_Teeth", "M_IrisLeft", "M_IrisRight"}
-    face = _colour(prepared[0], "M_Face")
+    face = _attribute(prepared[0], "M_Face", "COLOR_0")[:, :3]
     pos = skin.positions
     lips = (np.abs(pos[:, 0]) < 0.01) & (np.abs(pos[:, 1] + 0.034) < 0.006) & (pos[:, 2] > 0.1)
     cheeks = (np.abs(np.abs(pos[:, 0]) - 0.045) < 0.005) & (np.abs(pos[:, 1] + 0.01) < 0.005)
@@ -117,22 +117,25 @@ def test_paint(prepared):
     redness = face[:, 0] - face[:, 1]
     assert redness[lips].mean() > 0.15 and np.allclose(face[cheeks], 1.0)  # lips red, cheeks as they were
     assert face[brows].mean() < 0.6
-    mouth = _colour(prepared[0], "M_GumsTongue")
+    mouth = _attribute(prepared[0], "M_GumsTongue", "COLOR_0")[:, :3]
     gums = by_name(primitives, "M_GumsTongue").positions
     front, back = gums[:, 2] > np.percentile(gums[:, 2], 90), gums[:, 2] < np.percentile(gums[:, 2], 10)
     assert mouth[front].mean() > 1.8 * mouth[back].mean()  # the throat is darker than the front of the mouth
 
 
-def _colour(path, material):
-    """COLOR_0 of the primitive with ``material``, read with pygltflib alone."""
+def _attribute(path, material, name):
+    """A vertex attribute (as floats) of the primitive with ``material``, read with pygltflib alone."""
     gltf = pygltflib.GLTF2.load(str(path))
     blob = gltf.binary_blob()
     for primitive in gltf.meshes[0].primitives:
         if gltf.materials[primitive.material].name == material:
-            accessor = gltf.accessors[primitive.attributes.COLOR_0]
+            accessor = gltf.accessors[getattr(primitive.attributes, name)]
             view = gltf.bufferViews[accessor.bufferView]
             start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
-            return np.frombuffer(blob, "<f4", count=3 * accessor.count, offset=start).reshape(-1, 3)
+            width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[accessor.type]
+            dtype = {5126: "<f4", 5121: "u1"}[accessor.componentType]
+            values = np.frombuffer(blob, dtype, count=width * accessor.count, offset=start).reshape(accessor.count, -1)
+            return values / 255.0 if accessor.normalized else values.astype(float).squeeze()
     raise AssertionError(material)
 
 

@@ -1,7 +1,7 @@
 """GLB models with ARKit morph targets: a head's primitives and morph geometry read back
-(:func:`read_primitives`, :func:`read_morph_mesh`), morph targets and vertex colours added to
-a copy of it (:func:`extended_glb`), and the checked loading, decoding and packing that
-:mod:`vispeech.motion.formats.gltf` writes its animations with.
+(:func:`read_primitives`, :func:`read_morph_mesh`), and the checked loading, decoding and
+packing that :mod:`vispeech.motion.formats.gltf` writes its animations with and
+:mod:`vispeech.motion.rigging.glb_edit` a head's additions.
 
 The model's meshes must name their morph targets (``mesh.extras.targetNames``, as Blender
 and most exporters write it) with ARKit names (or vispeech's tongue channels,
@@ -32,7 +32,8 @@ from vispeech.limits import MAX_GLB_BYTES, parse_json
 from vispeech.motion.arkit import MORPH_NAMES
 
 _CHANNEL_BY_KEY = {name.lower(): name for name in MORPH_NAMES}
-_FLOAT = 5126
+FLOAT = 5126
+"""glTF's component type of 32-bit floats."""
 
 
 def target_channel(target: str) -> str | None:
@@ -93,7 +94,7 @@ def read_primitives(path: str | os.PathLike) -> list[Primitive]:
         nodes = [k for k, node in enumerate(gltf.nodes) if node.mesh == index]
         if not nodes:
             continue
-        matrix = _world_matrix(gltf, nodes[0])
+        matrix = world_matrix(gltf, nodes[0])
         mesh = gltf.meshes[index]
         for k, primitive in enumerate(mesh.primitives):
             if not primitive.targets or len(primitive.targets) != len(names):
@@ -154,59 +155,6 @@ def read_morph_mesh(path: str | os.PathLike) -> MorphMesh:
     return MorphMesh(skin.positions, skin.targets)
 
 
-def extended_glb(
-    base_glb: str | os.PathLike,
-    *,
-    targets: dict[tuple[int, int], dict[str, np.ndarray]] | None = None,
-    colours: dict[tuple[int, int], np.ndarray] | None = None,
-) -> bytes:
-    """The bytes of a copy of ``base_glb`` with morph targets and vertex colours added to its primitives.
-
-    ``targets[(mesh, primitive)][name]``: a new morph target's offsets (vertices × 3, scene units,
-    as :func:`read_primitives` gives them); every other primitive of that mesh gets the same
-    target with no offsets (an accessor without data, zeros by the glTF rules), and the name is
-    appended to ``mesh.extras.targetNames``. ``colours[(mesh, primitive)]``: ``COLOR_0`` (vertices ×
-    3, linear RGB 0..1, multiplying the material's base colour). Compressed data stays compressed;
-    the new data is appended uncompressed.
-    """
-    gltf = embedded_glb(base_glb)
-    blob = bytearray(gltf.binary_blob() or b"")
-    names_of = animated_meshes(gltf)
-    by_mesh: dict[int, dict[int, dict[str, np.ndarray]]] = {}
-    for (mesh, primitive), offsets in (targets or {}).items():
-        by_mesh.setdefault(mesh, {})[primitive] = offsets
-    for mesh, per_primitive in by_mesh.items():
-        names = [n for offsets in per_primitive.values() for n in offsets]
-        new = list(dict.fromkeys(names))
-        clash = [n for n in new if n in names_of.get(mesh, [])]
-        if clash:
-            raise VispeechError(f"{base_glb}: mesh {mesh} already has a morph target {clash[0]!r}")
-        matrix = _world_matrix(gltf, next(k for k, node in enumerate(gltf.nodes) if node.mesh == mesh))
-        to_local = np.linalg.inv(matrix[:3, :3])
-        for k, primitive in enumerate(gltf.meshes[mesh].primitives):
-            count = gltf.accessors[primitive.attributes.POSITION].count
-            for name in new:
-                moved = per_primitive.get(k, {}).get(name)
-                if moved is None:
-                    gltf.accessors.append(
-                        pygltflib.Accessor(componentType=_FLOAT, count=count, type="VEC3", min=[0.0] * 3, max=[0.0] * 3)
-                    )
-                    accessor = len(gltf.accessors) - 1
-                else:
-                    accessor = append_accessor(gltf, blob, np.asarray(moved, float) @ to_local.T)
-                primitive.targets.append({"POSITION": accessor})
-        extras = gltf.meshes[mesh].extras if gltf.meshes[mesh].extras else {}
-        extras["targetNames"] = [*extras.get("targetNames", []), *new]
-        gltf.meshes[mesh].extras = extras
-        if gltf.meshes[mesh].weights:
-            gltf.meshes[mesh].weights = [*gltf.meshes[mesh].weights, *[0.0] * len(new)]
-    for (mesh, primitive), rgb in (colours or {}).items():
-        gltf.meshes[mesh].primitives[primitive].attributes.COLOR_0 = append_accessor(
-            gltf, blob, np.clip(np.asarray(rgb, float), 0.0, 1.0)
-        )
-    return glb_bytes(gltf, blob)
-
-
 def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | os.PathLike) -> np.ndarray:
     """An accessor's values as float64 (count × components), normalized integers scaled, sparse
     entries applied."""
@@ -247,7 +195,7 @@ def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | o
         raise VispeechError(f"{path}: cannot read accessor {index} ({exc})") from None
 
 
-def _world_matrix(gltf: pygltflib.GLTF2, node_index: int) -> np.ndarray:
+def world_matrix(gltf: pygltflib.GLTF2, node_index: int) -> np.ndarray:
     """The 4x4 transform from node ``node_index``'s space to the scene's (its parents' included)."""
     parents = {child: k for k, node in enumerate(gltf.nodes) for child in (node.children or [])}
     matrix = np.eye(4)
@@ -470,7 +418,7 @@ def append_accessor(gltf: pygltflib.GLTF2, blob: bytearray, data: np.ndarray) ->
     gltf.accessors.append(
         pygltflib.Accessor(
             bufferView=len(gltf.bufferViews) - 1,
-            componentType=_FLOAT,
+            componentType=FLOAT,
             count=len(rows),
             type=kind,
             min=[float(v) for v in rows.min(axis=0)],

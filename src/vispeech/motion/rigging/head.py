@@ -18,7 +18,8 @@ from pathlib import Path
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file
-from vispeech.motion.rigging.glb import extended_glb, read_primitives, skin_primitive
+from vispeech.motion.rigging.glb import read_primitives, skin_primitive
+from vispeech.motion.rigging.glb_edit import extended_glb
 from vispeech.motion.rigging.head_paint import paint_mouth, paint_skin
 from vispeech.motion.rigging.tongue import tongue_targets
 
@@ -91,4 +92,5 @@ def prepared_head(base_glb: str | os.PathLike) -> tuple[bytes, HeadReport]:
             weights = tongue.weights if tongue is not None and primitive is tongue.primitive else None
             colours[(primitive.mesh, primitive.index)] = paint_mouth(primitive, front, back, weights)
         report.painted.append(primitive.name)
-    return extended_glb(base_glb, targets=targets, colours=colours), report
+    attributes = {key: {"COLOR_0": rgb} for key, rgb in colours.items()}
+    return extended_glb(base_glb, targets=targets, attributes=attributes), report
