@@ -168,13 +168,27 @@ def _screenshot(page, path: Path) -> None:
         shutil.copy(path, Path(keep) / path.name)
 
 
-def _mouth_interior(path: Path) -> np.ndarray:
-    """Pixels of a screenshot in the tongue's and gums' pink (red, green under 0.7 of red): skin is not."""
+def _rgb(path: Path) -> np.ndarray:
+    """A screenshot's pixels (rows × columns × RGB, 0..1 as the screen shows them)."""
     from PIL import Image
 
     with Image.open(path) as image:
-        rgb = np.asarray(image.convert("RGB"), dtype=float) / 255.0
-    return (rgb[..., 0] > 0.5) & (rgb[..., 1] < 0.7 * rgb[..., 0])
+        return np.asarray(image.convert("RGB"), dtype=float) / 255.0
+
+
+def _mouth_interior(path: Path) -> np.ndarray:
+    """Pixels of a screenshot where the mouth is open: below the nose in the middle of the face,
+    dark (no channel over 0.45: skin and lips are paler) and reddish (red over 1.2 green: the
+    shaded tongue, gums and throat), in a run at least 5 pixels tall (the crease between closed
+    lips is thinner)."""
+    from scipy.ndimage import binary_erosion
+
+    rgb = _rgb(path)
+    height, width = rgb.shape[:2]
+    where = np.zeros((height, width), dtype=bool)
+    where[int(0.6 * height) : int(0.9 * height), int(0.3 * width) : int(0.7 * width)] = True
+    dark = where & (rgb.max(axis=2) < 0.45) & (rgb[..., 0] > 1.2 * rgb[..., 1])
+    return binary_erosion(dark, structure=np.ones((5, 1), dtype=bool))
 
 
 def test_viewer_loads_the_ict_head_with_its_credit(page):

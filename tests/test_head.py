@@ -99,15 +99,11 @@ def test_raised_tongue_stays_below_the_roof(prepared, ict_head):
 
 def test_paint(prepared):
     _, report, primitives = prepared
-    assert report.painted == ["M_Face", "M_GumsTongue", "M_Teeth"]
+    assert report.painted == ["M_Face", "M_GumsTongue", "M_Teeth", "M_BackHead"]
     skin = skin_primitive(primitives)
-    pygltf = pygltflib.GLTF2.load(str(prepared[0]))
-    colours = {}
-    for primitive in pygltf.meshes[0].primitives:
-        name = pygltf.materials[primitive.material].name
-        if primitive.attributes.COLOR_0 is not None:
-            colours[name] = primitive.attributes.COLOR_0
-    assert set(colours) == {"M_Face", "M_GumsTongue", "M_Teeth", "M_IrisLeft", "M_IrisRight"}
+    gltf = pygltflib.GLTF2.load(str(prepared[0]))
+    coloured = {gltf.materials[p.material].name for p in gltf.meshes[0].primitives if p.attributes.COLOR_0 is not None}
+    assert coloured == {"M_Face", "M_BackHead", "M_GumsTongue", "M_Teeth", "M_IrisLeft", "M_IrisRight"}
     face = _attribute(prepared[0], "M_Face", "COLOR_0")[:, :3]
     pos = skin.positions
     lips = (np.abs(pos[:, 0]) < 0.01) & (np.abs(pos[:, 1] + 0.034) < 0.006) & (pos[:, 2] > 0.1)
@@ -116,11 +112,56 @@ def test_paint(prepared):
     assert lips.sum() > 5 and cheeks.sum() > 5 and brows.sum() > 5
     redness = face[:, 0] - face[:, 1]
     assert redness[lips].mean() > 0.15 and np.allclose(face[cheeks], 1.0)  # lips red, cheeks as they were
-    assert face[brows].mean() < 0.6
+    assert np.ptp(face[cheeks | lips | brows].mean(axis=1)) > 0.3 and face[brows].mean() < 0.6
     mouth = _attribute(prepared[0], "M_GumsTongue", "COLOR_0")[:, :3]
     gums = by_name(primitives, "M_GumsTongue").positions
     front, back = gums[:, 2] > np.percentile(gums[:, 2], 90), gums[:, 2] < np.percentile(gums[:, 2], 10)
-    assert mouth[front].mean() > 1.8 * mouth[back].mean()  # the throat is darker than the front of the mouth
+    assert mouth[front].mean() > 5 * mouth[back].mean()  # the throat is darker than the front of the mouth
+    occlusion = _attribute(prepared[0], "M_GumsTongue", "_OCCLUSION")
+    assert occlusion[front].mean() > 5 * occlusion[back].mean() and occlusion.max() <= 1.0  # the highlights too
+
+
+def test_the_cavity_is_dark(prepared, ict_head):
+    """The ICT head's mouth bag (a part of its back-of-head primitive) is painted dark with depth; the
+    rest of that primitive, the scalp and the neck, is left as it was."""
+    from vispeech.motion.rigging.mouth import cavity
+
+    original = read_primitives(ict_head)
+    walls = cavity(original, skin_primitive(original))
+    back = by_name(original, "M_BackHead")
+    (mask,) = walls.values()
+    assert list(walls) == [(back.mesh, back.index)] and 1500 < mask.sum() < 3000
+    colours = _attribute(prepared[0], "M_BackHead", "COLOR_0")[:, :3]
+    pos = back.positions
+    assert colours[mask].mean() < 0.3 and colours[mask & (pos[:, 2] < 0.04)].max() < 0.1
+    scalp, neck = ~mask & (pos[:, 1] > 0.12), ~mask & (pos[:, 1] < -0.1)
+    assert np.allclose(colours[scalp | neck], 1.0)
+
+
+def test_the_tongue_rests_low_and_the_upper_teeth_show(prepared, ict_head):
+    """The tongue's top lies 4 mm below the lower incisors' edge over its front 60 %, its underside
+    and the gums where they were; the upper front teeth are lowered to 4 mm below the upper lip's
+    lowest point, the back and lower teeth where they were."""
+    _, report, primitives = prepared
+    assert report.reshaped == ["M_GumsTongue", "M_Teeth"]
+    original = read_primitives(ict_head)
+    tongue = find_tongue(original, ict_head)
+    before, after = tongue.primitive.positions, by_name(primitives, "M_GumsTongue").positions
+    teeth_before, teeth_after = tongue.teeth.positions, by_name(primitives, "M_Teeth").positions
+    lower = teeth_before[~tongue.fixed_teeth]
+    edge = lower[lower[:, 2] > lower[:, 2].max() - 0.004, 1].max()
+    core = tongue.core
+    s = (before[core, 2].max() - before[core, 2]) / np.ptp(before[core, 2])
+    front = core[(s <= 0.6) & (np.abs(before[core, 0]) < 0.004)]  # along the midline
+    assert after[front, 1].max() == pytest.approx(edge - 0.004, abs=5e-4)
+    assert before[front, 1].max() > edge  # it was higher than the teeth
+    assert np.array_equal(after[tongue.weights == 0], before[tongue.weights == 0])
+    assert np.abs(after[core, 1] - before[core, 1])[before[core, 1] < np.percentile(before[core, 1], 10)].max() < 5e-4
+    moved = np.linalg.norm(teeth_after - teeth_before, axis=1) > 0
+    assert moved.any() and np.all(tongue.fixed_teeth[moved])
+    assert np.all(teeth_before[moved, 2] > teeth_before[:, 2].max() - 0.02)  # only the front ones
+    upper = tongue.fixed_teeth & (teeth_before[:, 2] > teeth_before[:, 2].max() - 0.004)
+    assert teeth_after[upper, 1].min() == pytest.approx(-0.0332 - 0.004, abs=3e-4)  # the ICT head's upper lip: -33.2 mm
 
 
 def _attribute(path, material, name):
@@ -143,7 +184,7 @@ def test_the_prepared_file_stays_compressed_and_small(prepared, ict_head):
     out, _, _ = prepared
     gltf = pygltflib.GLTF2.load(str(out))
     assert "EXT_meshopt_compression" in gltf.extensionsUsed
-    assert out.stat().st_size < 1.5 * ict_head.stat().st_size
+    assert out.stat().st_size < 1.5 * ict_head.stat().st_size  # hair, lashes and a painted mouth included
     assert gltf.meshes[0].extras["targetNames"][-4:] == list(TONGUE_CHANNELS)
     assert len(gltf.meshes[0].weights) == len(gltf.meshes[0].extras["targetNames"]) == 55
 

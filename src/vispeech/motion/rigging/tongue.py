@@ -1,7 +1,8 @@
 """Tongue morph targets for a head, derived from the head's own tongue geometry.
 
 Heads made for ARKit seldom move the tongue except out of the mouth (``tongueOut``), and many
-(the ICT head) have none. :func:`tongue_targets` finds the tongue and builds the offsets of
+(the ICT head) have none. :func:`find_tongue` finds the tongue, :func:`lowered` lays it low
+behind the lower teeth, where a tongue rests, and :func:`tongue_targets` builds the offsets of
 :data:`~vispeech.motion.arkit.TONGUE_CHANNELS` that the head lacks, so that the tracks'
 tongue channels show:
 
@@ -14,13 +15,21 @@ tongue channels show:
    median: 0 below 0.3, 1 above 0.7: the palate and the throat stay where they are). The
    largest connected part of the vertices with weight over 0.5 is the tongue's core; its
    front is the tip, its back the root.
-2. **Where it can go.** Along the tongue's midline (within 4 mm of the middle, in 2 mm slices
+2. **At rest** (:func:`lowered`) the tongue lies low: a head modelled with the tongue filling
+   the mouth (the ICT head's is higher than the lower incisors' edge) shows it as a slab
+   between the teeth whenever the jaw opens. The top of its midline over the front 60 % is
+   brought to :data:`REST_BELOW_TEETH` below the lower incisors' edge: each vertex goes down
+   by that drop times its weight, times its height in its slice of the midline (in tenths of
+   the length; 0 at the underside, which stays, 1 at the top: the tongue flattens rather than
+   sinking through the floor of the mouth), fading out from 0.6 to 1 of the length (the root
+   stays). The channels then raise it from there.
+3. **Where it can go.** Along the tongue's midline (within 4 mm of the middle, in 2 mm slices
    from tip to root, each looking 2 mm either side), the roof above it: the lowest point, above
    the tongue's top surface, of whatever does not move with the jaw (palate, upper gums and
    upper teeth); the gap between the two, less 1 mm, is how far the tongue may rise there. The
    tip rises by the smallest gap over the front fifth of the tongue, the body by that over 0.5
    to 0.8 of its length, so that neither goes through the roof.
-3. **The shapes**, each offset scaled by the vertex's tongue weight; ``s`` runs from 0 at the
+4. **The shapes**, each offset scaled by the vertex's tongue weight; ``s`` runs from 0 at the
    tip to 1 at the root, ``x`` across over the core's half-width:
 
    - ``tongueTipUp``: the front rises by the tip's gap (the tip to the alveolar ridge and
@@ -42,7 +51,7 @@ the jaw's own morph target takes it.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -59,6 +68,8 @@ CLEARANCE = 0.001
 MIDLINE = 0.004
 SLICE = 0.002
 OUT_REACH = 0.006
+REST_BELOW_TEETH = 0.004
+"""Metres the resting tongue's top lies below the lower incisors' edge (module docstring, step 2)."""
 
 
 @dataclass(frozen=True)
@@ -124,22 +135,52 @@ def find_tongue(primitives: list[Primitive], source: str | os.PathLike = "the he
     return Tongue(primitive, weights, core, teeth_mesh, fixed, fixed_teeth)
 
 
-def tongue_targets(
-    primitives: list[Primitive], source: str | os.PathLike = "the head"
-) -> tuple[Tongue, dict[str, np.ndarray]]:
-    """The tongue of a head (:func:`find_tongue`) and the offsets (vertices × 3, scene units) of
-    each tongue channel its tongue primitive lacks (see the module docstring)."""
-    tongue = find_tongue(primitives, source)
+def _lengthwise(tongue: Tongue) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The tongue's core vertices, each vertex's ``s`` (0 at the tip, 1 at the root), and the tip's and the root's z."""
+    core = tongue.primitive.positions[tongue.core]
+    tip_z, root_z = float(core[:, 2].max()), float(core[:, 2].min())
+    s = np.clip((tip_z - tongue.primitive.positions[:, 2]) / (tip_z - root_z), 0.0, 1.0)
+    return core, s, tip_z, root_z
+
+
+def lowered(tongue: Tongue) -> Tongue:
+    """``tongue`` resting low behind the lower teeth (module docstring, step 2); as it is when it
+    already does or there are no teeth that move with the jaw."""
+    teeth = tongue.teeth.positions
+    lower = teeth[~tongue.fixed_teeth]
+    if not len(lower):
+        return tongue
+    edge = float(lower[lower[:, 2] > lower[:, 2].max() - 0.004, 1].max())
+    positions = tongue.primitive.positions
+    core, s, _, _ = _lengthwise(tongue)
+    bins = np.linspace(0.0, 1.0, 11)
+    midline = np.abs(core[:, 0] - np.median(core[:, 0])) < MIDLINE
+    core_s = s[tongue.core]
+    slices = [core[midline & (core_s >= a) & (core_s <= b)] for a, b in zip(bins[:-1], bins[1:])]
+    middle = [(a + b) / 2 for a, b, part in zip(bins[:-1], bins[1:], slices) if len(part)]
+    top = np.array([part[:, 1].max() for part in slices if len(part)])
+    bottom = np.array([part[:, 1].min() for part in slices if len(part)])
+    front = np.array(middle) <= 0.6
+    drop = float((top[front] - (edge - REST_BELOW_TEETH)).max()) if front.any() else 0.0
+    if drop <= 0:
+        return tongue
+    height = (positions[:, 1] - np.interp(s, middle, bottom)) / np.maximum(np.interp(s, middle, top - bottom), 1e-3)
+    moved = positions.copy()
+    moved[:, 1] -= drop * tongue.weights * np.clip(height, 0.0, 1.0) * (1 - smoothstep(s, (0.6, 1.0)))
+    return replace(tongue, primitive=replace(tongue.primitive, positions=moved))
+
+
+def tongue_targets(tongue: Tongue) -> dict[str, np.ndarray]:
+    """The offsets (vertices × 3, scene units) of each tongue channel the primitive of ``tongue``
+    (:func:`find_tongue`, perhaps :func:`lowered`) lacks (see the module docstring)."""
     primitive = tongue.primitive
     teeth = tongue.teeth.positions
     roof_points = np.concatenate([primitive.positions[tongue.fixed], teeth[tongue.fixed_teeth]])
     positions = primitive.positions
-    core = positions[tongue.core]
+    core, s, tip_z, root_z = _lengthwise(tongue)
     centre_x = float(np.median(core[:, 0]))
-    tip_z, root_z = float(core[:, 2].max()), float(core[:, 2].min())
     length = tip_z - root_z
     half_width = float(np.abs(core[:, 0] - centre_x).max())
-    s = np.clip((tip_z - positions[:, 2]) / length, 0.0, 1.0)
     x = np.clip((positions[:, 0] - centre_x) / half_width, -1.0, 1.0)
     gap = _gap_along(core, roof_points, centre_x, tip_z, root_z)
     along = np.linspace(0, 1, len(gap))
@@ -168,9 +209,7 @@ def tongue_targets(
         out[:, 2] = w * (teeth[:, 2].max() + OUT_REACH - tip_z) * reach
         out[:, 1] = w * (between - tip_y) * reach
         offsets["tongueOut"] = out
-    return tongue, {
-        name: offsets[name] for name in TONGUE_CHANNELS if name in offsets and name not in primitive.targets
-    }
+    return {name: offsets[name] for name in TONGUE_CHANNELS if name in offsets and name not in primitive.targets}
 
 
 def _gap_along(core: np.ndarray, roof: np.ndarray, centre_x: float, tip_z: float, root_z: float) -> np.ndarray:
