@@ -227,8 +227,8 @@ def calibrate(head: Path, output: Path, corpus_dir: Path | None, frames_path: Pa
 def prepare(head: Path, output: Path) -> None:
     """Give HEAD (a GLB with ARKit morph targets) the tongue morph targets it lacks, built from its own
     tongue geometry, lay the tongue low and let the upper teeth show, and on flat materials paint
-    lips, brows, lash line and the mouth's depth (docs/avatar.md). vispeech serve --avatar does
-    this by itself."""
+    lips, brows, complexion and the mouth's depth and grow hair and eyelashes (docs/avatar.md).
+    vispeech serve --avatar does this by itself."""
     from vispeech.motion.rigging.head import prepare_head
 
     if output.resolve() == head.resolve():
@@ -236,7 +236,8 @@ def prepare(head: Path, output: Path) -> None:
     report = prepare_head(head, output)
     click.echo(
         f"{head.name}: tongue morph targets {', '.join(report.targets) or 'none added'}; "
-        f"reshaped {', '.join(report.reshaped) or 'nothing'}; painted {', '.join(report.painted) or 'nothing'}"
+        f"reshaped {', '.join(report.reshaped) or 'nothing'}; painted {', '.join(report.painted) or 'nothing'}; "
+        f"added {', '.join(report.added) or 'nothing'}"
     )
     for note in report.notes:
         click.echo(f"note: {note}")

@@ -3,7 +3,8 @@
 A head's skin is a surface with holes: the mouth (the hole ``jawOpen`` moves furthest) and the
 eyes (the two ``eyeBlinkLeft``/``eyeBlinkRight`` move furthest); its outer edge (the longest
 boundary loop) is where the skin ends at the neck or the scalp. :func:`find_face` finds them;
-what :mod:`~vispeech.motion.rigging.head_paint` paints is placed by them.
+what :mod:`~vispeech.motion.rigging.head_paint` paints and
+:mod:`~vispeech.motion.rigging.head_hair` grows is placed by them.
 """
 
 from __future__ import annotations

@@ -17,6 +17,11 @@ multiplies each material's base colour):
     one, its centre line 0.55 W above the eye's centre rising by 0.12 W to a peak two thirds of
     the way out, 0.4 W thick at the inner end and 0.16 W at the tail, a dark brown;
   - lash line: the upper rim of each eye hole, within 0.06 W of it, nearly black;
+  - complexion: the cheeks (0.3 ED around a point 0.45 ED below and 0.05 ED outside each eye's
+    centre), the nose's tip (0.12 ED around the skin's foremost point above the mouth) and the
+    ears (the skin beyond 0.85 of its half-width at eye height) flushed red, the skin under
+    each eye a little darker, and the whole skin mottled by ±3 % over a few centimetres, so it
+    is not one flat colour;
 - **the mouth** (the primitives named for the tongue, gums or teeth, and the cavity's walls,
   :mod:`~vispeech.motion.rigging.mouth`): darker with depth behind the lips' front, as the
   little light that gets past the lips falls off (:func:`mouth_light`: ``0.02 + 0.98·exp(−d /
@@ -43,12 +48,20 @@ INNER_LIP = (0.04, 0.35)  # × ED within the rim, the light left at the rim
 BROWS = np.array([0.3, 0.22, 0.18])
 LASHES = np.array([0.15, 0.12, 0.12])
 LASH_WIDTH = 0.06  # × W
+FLUSH = np.array([1.0, 0.84, 0.82])
+UNDER_EYE = np.array([0.9, 0.86, 0.9])
+MOTTLE = 0.03
 TONGUE = np.array([0.82, 0.62, 0.66])
 """Multiplies the mouth material's base colour on the tongue."""
 MUCOSA = np.array([0.95, 0.75, 0.78])
 """Multiplies the base colour of the gums and of the cavity's walls (the skin's colour on the ICT head: the
 walls are tinted further to :data:`WALLS`)."""
 WALLS = np.array([0.75, 0.36, 0.4])
+SKIN_SHEEN = {"sheenColorFactor": [0.35, 0.14, 0.1], "sheenRoughnessFactor": 0.55}
+"""``KHR_materials_sheen`` of a painted skin: a soft reddish glow at grazing angles, as light scattered under
+the skin gives (flat materials look like plastic or clay without it)."""
+ROOTS = np.array([0.07, 0.055, 0.045])
+"""Multiplies the skin's base colour where hair covers it (the ICT head's skin colour to a dark brown)."""
 MOUTH_LIGHT = (0.02, 0.012)  # the light left deep in the mouth, the metres over which it falls by e
 
 
@@ -72,11 +85,11 @@ def lip_weights(skin: Primitive, face: Face) -> np.ndarray:
 
 
 def paint_skin(skin: Primitive, face: Face) -> np.ndarray:
-    """``COLOR_0`` of the skin primitive: lips, brows and lash line (module docstring)."""
+    """``COLOR_0`` of the skin primitive: lips, brows, lash line and complexion (module docstring)."""
     from scipy.spatial import cKDTree  # scipy: the `rig` extra, imported only to prepare a head
 
     pos = skin.positions
-    colours = np.ones((len(pos), 3))
+    colours = _complexion(pos, face)
     colours = _mix(colours, LIPS * colours, 0.9 * lip_weights(skin, face))
     rim_distance, _ = cKDTree(pos[face.mouth]).query(pos)
     inner = (1 - smoothstep(rim_distance, (0.0, INNER_LIP[0] * face.eye_distance))) * (
@@ -114,6 +127,40 @@ def _brow_and_lashes(colours: np.ndarray, pos: np.ndarray, eye: np.ndarray, mout
 
     lash_distance, _ = cKDTree(lid).query(pos)
     return _mix(colours, LASHES, 1 - smoothstep(lash_distance, (0.0, LASH_WIDTH * w)))
+
+
+def _complexion(pos: np.ndarray, face: Face) -> np.ndarray:
+    """Per-vertex multipliers of the skin's colour: flushed cheeks, nose and ears, shadowed under-eyes, mottling."""
+    ed = face.eye_distance
+    colours = np.ones((len(pos), 3))
+    mouth = pos[face.mouth]
+    eyes = [pos[rim].mean(axis=0) for rim in face.eyes]
+
+    def blob(centre: np.ndarray, radius: float) -> np.ndarray:
+        return 1 - smoothstep(np.linalg.norm(pos - centre, axis=1) / radius, (0.2, 1.0))
+
+    for eye in eyes:
+        outward = np.sign(eye[0] - mouth[:, 0].mean())
+        cheek = eye + np.array([outward * 0.05 * ed, -0.45 * ed, 0.0])
+        cheek[2] = pos[np.argmin(np.linalg.norm(pos[:, :2] - cheek[:2], axis=1)), 2]
+        colours = _mix(colours, FLUSH, 0.6 * blob(cheek, 0.3 * ed))
+        under = eye + np.array([0.0, -0.12 * ed, 0.0])
+        colours = _mix(colours, UNDER_EYE, 0.5 * blob(under, 0.12 * ed))
+    above = (pos[:, 1] > mouth[:, 1].max()) & (pos[:, 1] < np.mean([e[1] for e in eyes]))
+    if above.any():
+        nose = pos[above][np.argmax(pos[above, 2])]
+        colours = _mix(colours, FLUSH, 0.5 * blob(nose, 0.12 * ed))
+    centre_x = mouth[:, 0].mean()
+    half = np.abs(pos[:, 0] - centre_x).max()
+    ear_height = np.abs(pos[:, 1] - np.mean([e[1] for e in eyes])) < 0.5 * ed
+    ears = smoothstep(np.abs(pos[:, 0] - centre_x) / half, (0.85, 0.95)) * ear_height
+    colours = _mix(colours, FLUSH, 0.6 * ears)
+    k = 2 * np.pi / (0.6 * ed)
+    mottle = (
+        np.sin(k * pos[:, 0] + 1.3) * np.sin(0.8 * k * pos[:, 1] + 0.4)
+        + np.sin(1.7 * k * pos[:, 1] + 2.1) * np.sin(1.3 * k * pos[:, 2] + 0.7)
+    ) / 2
+    return colours * (1 + MOTTLE * mottle)[:, None]
 
 
 def mouth_front(skin: Primitive, face: Face | None, parts: list[Primitive]) -> float | None:
