@@ -177,17 +177,17 @@ def _rgb(path: Path) -> np.ndarray:
 
 
 def _mouth_interior(path: Path) -> np.ndarray:
-    """Pixels of a screenshot where the mouth is open: below the nose in the middle of the face,
-    dark (no channel over 0.45: skin and lips are paler) and reddish (red over 1.2 green: the
-    shaded tongue, gums and throat), in a run at least 5 pixels tall (the crease between closed
-    lips is thinner)."""
+    """Pixels of a screenshot where the mouth is open: in the lower middle of the face, dark (no
+    channel over 0.45: skin and lips are paler) and deep red (green under 0.4 of red: the shaded
+    tongue, gums and throat; nostrils and shadows are browner), in a run at least 5 pixels tall
+    (the crease between closed lips is thinner)."""
     from scipy.ndimage import binary_erosion
 
     rgb = _rgb(path)
     height, width = rgb.shape[:2]
     where = np.zeros((height, width), dtype=bool)
     where[int(0.6 * height) : int(0.9 * height), int(0.3 * width) : int(0.7 * width)] = True
-    dark = where & (rgb.max(axis=2) < 0.45) & (rgb[..., 0] > 1.2 * rgb[..., 1])
+    dark = where & (rgb.max(axis=2) < 0.45) & (rgb[..., 1] < 0.4 * rgb[..., 0])
     return binary_erosion(dark, structure=np.ones((5, 1), dtype=bool))
 
 

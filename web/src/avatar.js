@@ -19,6 +19,7 @@ export class HeadScene {
     let best = -1;
     gltf.scene.updateMatrixWorld(true);
     gltf.scene.traverse((obj) => {
+      if (obj.isMesh && obj.geometry.attributes._occlusion) occludeHighlights(obj.material);
       if (!obj.isMesh || !obj.morphTargetDictionary) return;
       let matched = 0;
       for (const [targetName, index] of Object.entries(obj.morphTargetDictionary)) {
@@ -40,13 +41,14 @@ export class HeadScene {
       if (own) this.headIndex.set(MORPH_NAMES[k], own.index);
     });
 
-    // Frame the face: the largest driven mesh's box, looking down -Z at its front.
+    // Frame the face: the largest driven mesh's box, looking down -Z at its front, close enough
+    // that the mouth reads in a chat window.
     const box = new THREE.Box3().setFromObject(this.head);
     const size = box.getSize(new THREE.Vector3());
     const center = box.getCenter(new THREE.Vector3());
-    this.target = new THREE.Vector3(center.x, center.y + 0.085 * size.y, box.min.z + 0.6 * size.z);
-    this.lift = 0.055 * size.y;
-    this.distance = 1.7 * size.y;
+    this.target = new THREE.Vector3(center.x, center.y + 0.1 * size.y, box.min.z + 0.6 * size.z);
+    this.lift = 0.05 * size.y;
+    this.distance = 1.3 * size.y;
 
     // Turn the head about a point low in the neck.
     const pivot = new THREE.Vector3(center.x, box.min.y + 0.25 * size.y, center.z);
@@ -57,10 +59,7 @@ export class HeadScene {
 
     this.scene = new THREE.Scene();
     this.scene.add(this.neck);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x3a3530, 1.6));
-    const key = new THREE.DirectionalLight(0xffffff, 2.2);
-    key.position.set(0.3, 0.5, 1);
-    this.scene.add(key);
+    this.scene.add(...portraitLights());
 
     this.camera = new THREE.PerspectiveCamera(25, 1, 0.01 * size.y, 100 * size.y);
   }
@@ -93,6 +92,52 @@ export class HeadScene {
   }
 }
 
+/**
+ * Dim the highlights of `material` by its vertices' `_occlusion` (vispeech rig prepare writes it
+ * inside the mouth): there are no shadows here, so without it the throat would shine like the lips.
+ */
+function occludeHighlights(material) {
+  if (material.userData.occluded) return;
+  material.userData.occluded = true;
+  material.customProgramCacheKey = () => 'vispeech-occlusion';
+  material.onBeforeCompile = (shader) => {
+    shader.vertexShader = shader.vertexShader
+      .replace('#include <common>', '#include <common>\nattribute float _occlusion;\nvarying float vOcclusion;')
+      .replace('#include <begin_vertex>', '#include <begin_vertex>\nvOcclusion = _occlusion;');
+    shader.fragmentShader = shader.fragmentShader
+      .replace('#include <common>', '#include <common>\nvarying float vOcclusion;')
+      .replace('#include <lights_fragment_end>', '#include <lights_fragment_end>\n'
+        + 'reflectedLight.directSpecular *= vOcclusion;\nreflectedLight.indirectSpecular *= vOcclusion;');
+  };
+}
+
+/**
+ * A portrait's lights: a warm key light from the upper left, a cool fill from the right, a
+ * rim light from behind that parts the hair from the background, and a dim sky over a warm
+ * floor for the shadows.
+ */
+function portraitLights() {
+  const light = (colour, intensity, x, y, z) => {
+    const directional = new THREE.DirectionalLight(colour, intensity);
+    directional.position.set(x, y, z);
+    return directional;
+  };
+  return [
+    new THREE.HemisphereLight(0xf4f1ee, 0x4a3a32, 1.0),
+    light(0xfff0e2, 2.6, -0.55, 0.6, 1),
+    light(0xdfe8ff, 0.7, 0.9, 0.05, 0.6),
+    light(0xffffff, 1.6, 0.25, 0.7, -1),
+  ];
+}
+
+/** Set up `renderer` to draw heads: sRGB output with filmic tone mapping (highlights roll off as a camera's do). */
+export function portraitRenderer(renderer) {
+  renderer.outputColorSpace = THREE.SRGBColorSpace;
+  renderer.toneMapping = THREE.NeutralToneMapping;
+  renderer.toneMappingExposure = 1.0;
+  return renderer;
+}
+
 /** Load a GLB head (meshopt-compressed or not) from `url`; resolves to three.js's glTF result. */
 export function loadHead(url) {
   const loader = new GLTFLoader();
@@ -111,7 +156,7 @@ export class Avatar3D extends HeadScene {
     super(gltf);
     this.container = container;
     this.blinks = false;
-    this.renderer = new THREE.WebGLRenderer({ antialias: true, alpha: true });
+    this.renderer = portraitRenderer(new THREE.WebGLRenderer({ antialias: true, alpha: true }));
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
     this.canvas = this.renderer.domElement;
     container.appendChild(this.canvas);

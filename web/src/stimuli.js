@@ -9,7 +9,7 @@
 import * as THREE from 'three';
 import { clone } from 'three/examples/jsm/utils/SkeletonUtils.js';
 import { MORPH_INDEX, MORPH_NAMES, morphName } from './arkit.js';
-import { HeadScene, loadHead } from './avatar.js';
+import { HeadScene, loadHead, portraitRenderer } from './avatar.js';
 import { HEAD_CHANNELS, trackHeadPose } from './performer.js';
 
 /** One head per slot in a scene of its own, drawn into its own viewport of one canvas. */
@@ -32,7 +32,7 @@ class Stimuli {
         weights: new Float32Array(MORPH_NAMES.length),
       };
     });
-    this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.renderer = portraitRenderer(new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true }));
     this.renderer.setPixelRatio(1);
     this.renderer.setSize(width * channels.length, height, false);
     this.renderer.setClearColor(background);
