@@ -299,14 +299,14 @@ def test_non_verbal_layers_in_a_batch_are_those_say_adds(tmp_path):
 
     job = _csv(tmp_path / "job.csv", ["id,text,language", 'one,"Hello there, my friend.",en'])
     runner = CliRunner()
-    done = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head", "--seed", "4",
-                                "--quiet"])
+    life = ["--life", "blink,head,expression", "--seed", "4"]
+    done = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), *life, "--quiet"])
     assert done.exit_code == 0, done.output
-    said = runner.invoke(main, ["say", "Hello there, my friend.", "-o", str(tmp_path / "said"), "--life",
-                                "blink,head", "--seed", "4"])
+    said = runner.invoke(main, ["say", "Hello there, my friend.", "-o", str(tmp_path / "said"), *life])
     assert said.exit_code == 0, said.output
     _assert_same_files(tmp_path / "out" / "one", tmp_path / "said")
-    assert np.abs(read_livelink_csv(tmp_path / "said" / "animation.csv")["headYaw"]).max() > 0
-    again = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head", "--seed", "5",
-                                 "--quiet"])
+    take = read_livelink_csv(tmp_path / "said" / "animation.csv")
+    assert np.abs(take["headYaw"]).max() > 0 and take["cheekSquintLeft"].max() > 0  # "friend": a glad face
+    again = runner.invoke(main, ["batch", str(job), "-o", str(tmp_path / "out"), "--life", "blink,head,expression",
+                                 "--seed", "5", "--quiet"])
     assert again.exit_code == 0 and "1 written" in again.output, again.output  # another seed: redone

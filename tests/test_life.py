@@ -32,7 +32,7 @@ def test_layers_are_seeded_and_separable():
     c = nonverbal(300, FPS, seed=2)
     np.testing.assert_array_equal(a.values, b.values)
     assert not np.array_equal(a.values, c.values)
-    assert a.channels == tuple(c for layer in LAYERS for c in CHANNELS[layer])
+    assert a.channels == tuple(dict.fromkeys(c for layer in LAYERS for c in CHANNELS[layer]))
     head_only = nonverbal(300, FPS, layers=["head"], seed=1)
     np.testing.assert_array_equal(head_only.values, a.select(CHANNELS["head"]).values)  # independent of the others
     assert 0.5 < np.abs(head_only.values).max() < 4  # degrees: moving, within about 4
@@ -135,3 +135,44 @@ def test_say_adds_the_layers_it_is_asked_for(tmp_path):
     assert np.abs(lively["headYaw"]).max() > 0 and lively["browInnerUp"].max() > 0
     refused = runner.invoke(main, ["say", "hi", "--life", "dance", "-o", str(tmp_path / "no")])
     assert refused.exit_code == 2 and "unknown non-verbal layer" in refused.output
+
+
+SPOKEN = [("sil", 0.0, 0.5), ("HH", 0.5, 0.6), ("AH", 0.6, 0.7, 0), ("L", 0.7, 0.8), ("OW", 0.8, 1.0, 1),
+          ("sil", 1.0, 3.0)]  # fmt: skip
+
+
+def test_the_expression_smiles_or_frowns_gently_by_the_mood_while_speaking():
+    phones = _phones(SPOKEN)
+    glad = nonverbal(90, FPS, phones, layers=["expression"], seed=2, mood=0.8)
+    sorry = nonverbal(90, FPS, phones, layers=["expression"], seed=2, mood=-0.8)
+    neutral = nonverbal(90, FPS, phones, layers=["expression"], seed=2, mood=0.0)
+    assert glad.channels == CHANNELS["expression"] and not neutral.values.any()
+    speaking = slice(int(0.7 * FPS), int(1.0 * FPS))
+    assert 0.15 < glad["mouthSmileLeft"][speaking].mean() < 0.35 and glad["cheekSquintLeft"][speaking].min() > 0.05
+    assert not glad["mouthFrownLeft"].any() and not sorry["mouthSmileLeft"].any()
+    assert 0.1 < sorry["mouthFrownRight"][speaking].mean() < 0.25 and sorry["browInnerUp"][speaking].min() > 0.15
+    assert glad.values[0].max() == 0 and glad.values[int(2.1 * FPS) :].max() == 0  # in before speech, out after it
+    assert glad.values.max() <= 0.4  # gently
+    again = nonverbal(90, FPS, phones, layers=["expression"], seed=2, mood=0.8)
+    other = nonverbal(90, FPS, phones, layers=["expression"], seed=3, mood=0.8)
+    np.testing.assert_array_equal(glad.values, again.values)
+    assert not np.array_equal(glad.values, other.values)
+    with pytest.raises(VispeechError, match="mood"):
+        nonverbal(10, FPS, layers=["expression"], mood=1.5)
+
+
+def test_the_expression_adds_to_the_speech_and_the_brows():
+    """The speech's smile (at /i/) stays under the expression's; the brows layer's emphasis and the
+    expression's concern sum in one browInnerUp; the other speech channels are untouched."""
+    phones = _phones(SPOKEN)
+    rng = np.random.default_rng(0)
+    speech = Track(rng.uniform(0, 0.5, (90, 3)), ("jawOpen", "mouthSmileLeft", "mouthSmileRight"), FPS)
+    expression = nonverbal(90, FPS, phones, layers=["expression"], seed=1, mood=0.9)
+    lively = with_life(speech, phones, ["expression"], seed=1, mood=0.9)
+    np.testing.assert_array_equal(lively["jawOpen"], speech["jawOpen"])
+    np.testing.assert_allclose(lively["mouthSmileLeft"], np.minimum(speech["mouthSmileLeft"] + expression["mouthSmileLeft"], 1))
+    both = nonverbal(90, FPS, phones, layers=["brows", "expression"], seed=1, mood=-1.0)
+    brows = nonverbal(90, FPS, phones, layers=["brows"], seed=1)
+    sorry = nonverbal(90, FPS, phones, layers=["expression"], seed=1, mood=-1.0)
+    assert both.channels.count("browInnerUp") == 1
+    np.testing.assert_allclose(both["browInnerUp"], np.minimum(brows["browInnerUp"] + sorry["browInnerUp"], 1))

@@ -41,5 +41,6 @@ def test_plain_negated_and_unknown():
     assert sentiment("I am not happy.", "en") < 0 and sentiment("Det är inte bra.", "sv") < 0
     assert sentiment("Good. Great. Wonderful. Perfect.", "en") < 1 and sentiment("", "en") == 0
     assert sentiment("Das ist wunderbar.", "de") == 0  # a language the rules do not know: neutral
+    assert sentiment("That is wonderful.", "en-gb") == sentiment("That is wonderful.", "en") > 0
     long = "Good. " + "The train leaves at nine from platform two. " * 5
     assert 0 < sentiment(long, "en") < sentiment("Good.", "en")  # one glad word in a long reply counts less

@@ -116,8 +116,22 @@ def test_speak_adds_the_non_verbal_layers_asked_for(client):
     assert "eyeLookInLeft" in chat["speech"]["animation"]["channels"]
 
 
+def test_the_expression_smiles_at_glad_words_and_frowns_at_sad_ones(client):
+    """The expression layer reads the spoken text's mood: a glad one smiles on top of the speech's own
+    smile, a sorry one frowns and raises the inner brows; the speech's other channels stay."""
+    def spoken(text, life):
+        answer = client.post("/api/speak", json={"text": text, "language": "en", "life": life, "seed": 3}).json()
+        return dict(zip(answer["animation"]["channels"], np.array(answer["animation"]["frames"]).T))
+
+    glad, plain = spoken("Thank you, that is wonderful!", ["expression"]), spoken("Thank you, that is wonderful!", [])
+    assert (glad["mouthSmileLeft"] - plain["mouthSmileLeft"]).max() > 0.1 and glad["mouthFrownLeft"].max() == 0
+    np.testing.assert_array_equal(glad["jawOpen"], plain["jawOpen"])
+    sorry = spoken("I am so sorry, that is terrible news.", ["expression"])
+    assert sorry["mouthFrownLeft"].max() > 0.05 and sorry["browInnerUp"].max() > 0.15
+
+
 @pytest.mark.parametrize(("body", "words"), [
-    ({"life": ["blink", "dance"]}, "life.1: Input should be 'blink', 'gaze', 'head', 'brows' or 'breath'"),
+    ({"life": ["blink", "dance"]}, "life.1: Input should be 'blink', 'gaze', 'head', 'brows', 'breath' or 'expression'"),
     ({"life": "blink"}, "life"),
     ({"seed": -1}, "seed"),
 ])

@@ -6,7 +6,7 @@ import { Performer } from './performer.js';
 import { fetchConfig, listenLive, requestSpeech } from './server.js';
 
 const FACE2D_SRC = 'static/face2d.js';
-const LIFE = ['blink', 'gaze', 'head', 'brows', 'breath']; // the non-verbal layers the pages ask the server for
+const LIFE = ['blink', 'gaze', 'head', 'brows', 'breath', 'expression']; // the non-verbal layers the pages ask the server for
 
 /** An Animation from an Animation, a parsed JSON object, or a file's text. */
 export function toAnimation(data, name = 'animation') {

@@ -34,7 +34,7 @@ export async function fetchConfig() {
 
 /**
  * POST api/speak: `{audio_url, animation, text, cached}` for `text`, the animation with the
- * channels of the non-verbal layers `life` (blink, gaze, head, brows, breath) drawn with `seed`.
+ * channels of the non-verbal layers `life` (blink, gaze, head, brows, breath, expression) drawn with `seed`.
  */
 export function requestSpeech({ text, language, model = null, rate = 1.0, life = [], seed = 0 }) {
   return postJson('api/speak', { text, language, model, rate, life, seed });

@@ -15,6 +15,7 @@ from pathlib import Path
 from vispeech.batch.job import BatchLine
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.sentiment import sentiment
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.motion.life import with_life
@@ -116,7 +117,8 @@ def animate_prepared(line: BatchLine, prepared: Prepared) -> Utterance:
     else:
         assert utterance.phones is not None  # text and alignment lines prepare phones
         track = animate(utterance.phones, model, line.fps, line.postprocessing)
-    return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed))
+    mood = sentiment(line.text or "", line.language or "en")
+    return replace(utterance, track=with_life(track, utterance.phones, line.life, line.seed, mood=mood))
 
 
 def write_line(line: BatchLine, out: Path, utterance: Utterance, key: str, record: str) -> tuple[str, ...]:

@@ -104,7 +104,7 @@ def life_options(command):
         "--life",
         default="",
         metavar="LAYERS",
-        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, or all "
+        help="Non-verbal layers to add, comma-separated: blink, gaze, head, brows, breath, expression, or all "
         "(vispeech.motion.life) [default: none].",
     )(command)
 

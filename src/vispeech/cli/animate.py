@@ -12,6 +12,7 @@ import click
 from vispeech.cli import language_option, life_options, main, postprocessing_option, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.sentiment import sentiment
 from vispeech.limits import check_fps
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.life import check_layers, with_life
@@ -95,7 +96,7 @@ def animate(
             text = heard(clip, language)
         utterance = _listened(clip, text, language, force, model=model, fps=fps, postprocessing=postprocessing)
     assert utterance.track is not None  # listen() animates the clip
-    track = with_life(utterance.track, utterance.phones, layers, seed)
+    track = with_life(utterance.track, utterance.phones, layers, seed, mood=sentiment(utterance.text or "", language))
     utterance = replace(utterance, track=track)
     paths = write_outputs(utterance, out_dir, title=utterance.text or audio.name, scale=scale)
     if transcribe:

@@ -10,6 +10,7 @@ import click
 from vispeech.cli import language_option, life_options, main, postprocessing_option, scale_option
 from vispeech.errors import VispeechError
 from vispeech.frontends.espeak import check_voice
+from vispeech.frontends.sentiment import sentiment
 from vispeech.limits import check_fps, check_text
 from vispeech.models.registry import RUNNABLE
 from vispeech.motion.life import check_layers, with_life
@@ -96,7 +97,7 @@ def say(
     utterance = speak(text, language, model=model, rate=rate, fps=fps, postprocessing=postprocessing, voice=voice)
     phones = utterance.phones
     assert utterance.track is not None and phones is not None  # speak() animates espeak-ng's phones
-    track = with_life(utterance.track, phones, layers, seed)
+    track = with_life(utterance.track, phones, layers, seed, mood=sentiment(text, language))
     utterance = replace(utterance, track=track)
     paths = write_outputs(utterance, out_dir, scale=scale)
     click.echo(f"{track.n_frames} frames at {fps:g} fps, {phones.duration:.2f} s -> {out_dir}/")

@@ -82,7 +82,8 @@ def _valence(word: str, lexicon: dict[str, float]) -> float:
 
 def sentiment(text: str, language: str) -> float:
     """How glad (up to 1) or sorry (down to -1) ``text`` in ``language`` sounds (see the module
-    docstring); 0 for a language other than ``en`` and ``sv``."""
+    docstring); 0 for a language other than English and Swedish (``en``, ``en-gb``, ``sv``, ...)."""
+    language = language.split("-")[0].lower()
     lexicon = LEXICON.get(language)
     if lexicon is None:
         return 0.0

@@ -24,6 +24,16 @@ Live Link Face CSV carries the blinks, the gaze and the head rotation.
   most 1); over the stretch the lungs empty at a steady rate (a straight line) back to 0, and
   the resting rhythm starts again where the speech stops. ``breath`` is vispeech's own channel:
   JSON carries it, Live Link Face CSV (ARKit shapes and head and eye rotations only) does not.
+- ``expression``: ``mouthSmile``, ``cheekSquint``, ``mouthFrown``, ``browInnerUp`` and
+  ``browDown`` (left and right), gently, by the ``mood`` of what is said (-1 sorry to 1 glad:
+  :func:`vispeech.frontends.sentiment.sentiment` of the text): at mood 1 a smile of 0.3 with
+  the cheeks raised 0.15 and the brows lifted 0.08; at -1 a frown of 0.2, the inner brows
+  raised 0.3 and lowered 0.1 (concern). It eases in over 0.6 s from 0.3 s before the first
+  phone (from the start without phones), holds while speaking with a slow drift (±15 %, the
+  two sides apart by up to 5 %), and eases out over 1 s after the last phone; each utterance's
+  strength is drawn within ±15 %. Its channels are *added* to the track's (the speech's smile
+  at /i/ stays, the expression smiles on top; the sum clipped to 1), where every other layer
+  replaces its own channels.
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import is_vowel
 
-LAYERS = ("blink", "gaze", "head", "brows", "breath")
+LAYERS = ("blink", "gaze", "head", "brows", "breath", "expression")
 """The non-verbal layers, in the order their channels come."""
 
 CHANNELS: dict[str, tuple[str, ...]] = {
@@ -57,6 +67,17 @@ CHANNELS: dict[str, tuple[str, ...]] = {
     "head": ("headYaw", "headPitch", "headRoll"),
     "brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"),
     "breath": ("breath",),
+    "expression": (
+        "mouthSmileLeft",
+        "mouthSmileRight",
+        "cheekSquintLeft",
+        "cheekSquintRight",
+        "mouthFrownLeft",
+        "mouthFrownRight",
+        "browInnerUp",
+        "browDownLeft",
+        "browDownRight",
+    ),
 }
 """The channels each layer sets."""
 
@@ -73,6 +94,11 @@ REST_DEPTH = 0.35  # lungs' fill at the top of a resting breath
 SPEECH_INHALE = (0.3, 0.5)  # seconds of the quick inhalation before speech
 SPEECH_PAUSE = 0.4  # seconds of silence after which speech resumes with a new breath
 SPEECH_DEPTH, SPEECH_DEPTH_PER_S = 0.5, 0.1  # fill after that inhalation: this plus so much per second of speech
+GLAD = (0.3, 0.3, 0.15, 0.15, 0.0, 0.0, 0.08, 0.0, 0.0)  # the expression's channels at mood 1
+SORRY = (0.0, 0.0, 0.0, 0.0, 0.2, 0.2, 0.3, 0.1, 0.1)  # and at mood -1
+EXPRESSION_IN, EXPRESSION_LEAD, EXPRESSION_OUT = 0.6, 0.3, 1.0  # seconds
+ADDED = ("expression",)
+"""The layers whose channels are added to the track's rather than put in their place."""
 
 
 def check_layers(layers: str | Iterable[str]) -> tuple[str, ...]:
@@ -95,45 +121,67 @@ def nonverbal(
     layers: Iterable[str] = LAYERS,
     seed: int = 0,
     start_time: float = 0.0,
+    mood: float = 0.0,
 ) -> Track:
-    """The channels of ``layers`` over ``n_frames`` frames at ``fps`` (see the module docstring).
+    """The channels of ``layers`` over ``n_frames`` frames at ``fps`` (see the module docstring; a
+    channel two layers set, ``browInnerUp`` of the brows and the expression, is their sum).
 
-    ``phones`` time the nods, the brows and the breaths taken for speech (without them there are
-    no nods or brows, and the breathing is the resting rhythm). Each layer draws from
-    its own random stream of ``seed`` (0 or more), so a layer's motion does not depend on the others.
+    ``phones`` time the nods, the brows, the breaths taken for speech and the expression
+    (without them there are no nods or brows, the breathing is the resting rhythm and the
+    expression holds from the start); ``mood`` (-1 to 1) is what the expression shows. Each
+    layer draws from its own random stream of ``seed`` (0 or more), so a layer's motion does not
+    depend on the others.
     """
+    if not -1.0 <= mood <= 1.0:
+        raise VispeechError(f"the mood of the expression layer must be from -1 to 1, got {mood}")
     chosen = check_layers(layers)
     if seed < 0:
         raise VispeechError(f"the seed of the non-verbal layers must be 0 or more, got {seed}")
     times = start_time + np.arange(n_frames) / fps
-    columns: list[np.ndarray] = []
-    names: list[str] = []
+    columns: dict[str, np.ndarray] = {}
     for k, layer in enumerate(LAYERS):
         if layer not in chosen:
             continue
         rng = np.random.default_rng([seed, k])
-        values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows, "breath": _breath}[layer](
-            times, rng, phones
-        )
-        columns.append(values)
-        names += CHANNELS[layer]
-    values = np.column_stack(columns) if columns else np.zeros((n_frames, 0))
-    return Track(values, tuple(names), fps, start_time)
+        if layer == "expression":
+            values = _expression(times, rng, phones, mood)
+        else:
+            values = {"blink": _blinks, "gaze": _gaze, "head": _head, "brows": _brows, "breath": _breath}[layer](
+                times, rng, phones
+            )
+        for name, column in zip(CHANNELS[layer], values.reshape(len(times), -1).T):
+            columns[name] = np.minimum(columns[name] + column, 1.0) if name in columns else column
+    values = np.column_stack(list(columns.values())) if columns else np.zeros((n_frames, 0))
+    return Track(values, tuple(columns), fps, start_time)
 
 
 def with_life(
-    track: Track, phones: PhoneSequence | None, layers: Iterable[str], seed: int = 0, scale: Calibration | None = None
+    track: Track,
+    phones: PhoneSequence | None,
+    layers: Iterable[str],
+    seed: int = 0,
+    scale: Calibration | None = None,
+    mood: float = 0.0,
 ) -> Track:
-    """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had); ``scale``
-    puts the added channels in an output scale (for a ``track`` already in it)."""
-    life = nonverbal(track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time)
+    """``track`` with the channels of the non-verbal ``layers`` added (replacing any it had, but the
+    expression's, which are summed with the track's and clipped to 1; ``mood`` is what it shows);
+    ``scale`` puts the added channels in an output scale (for a ``track`` already in it)."""
+    life = nonverbal(
+        track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time, mood=mood
+    )
     if scale is not None:
         life = scale.apply(life)
     if not life.channels:
         return track
+    added = {c for layer in ADDED for c in CHANNELS[layer]}
+    values = life.values.copy()
+    for k, channel in enumerate(life.channels):
+        if channel in added and channel in track.channels:
+            values[:, k] = np.minimum(values[:, k] + track[channel], 1.0)
     keep = [c for c in track.channels if c not in life.channels]
-    values = np.column_stack([track.select(keep).values, life.values])
-    return Track(values, (*keep, *life.channels), track.fps, track.start_time)
+    return Track(
+        np.column_stack([track.select(keep).values, values]), (*keep, *life.channels), track.fps, track.start_time
+    )
 
 
 def _blinks(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
@@ -222,6 +270,18 @@ def _breath(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:
     after = times >= since
     out[after] = rest(times[after])
     return out
+
+
+def _expression(times: np.ndarray, rng: np.random.Generator, phones: PhoneSequence | None, mood: float) -> np.ndarray:
+    spoken = [p for p in phones or () if not p.is_silence and p.end > p.start]
+    start = spoken[0].start - EXPRESSION_LEAD if spoken else (times[0] if len(times) else 0.0)
+    on = smoothstep(times, (start, start + EXPRESSION_IN))
+    if spoken:
+        on = on * (1 - smoothstep(times, (spoken[-1].end, spoken[-1].end + EXPRESSION_OUT)))
+    strength = abs(mood) * rng.uniform(0.85, 1.15) * (1 + 0.15 * _noise(times, rng, 2.5))
+    sides = 1 + rng.uniform(-0.05, 0.05) * np.array([1, -1, 1, -1, 1, -1, 0, 1, -1])
+    shape = np.array(GLAD if mood >= 0 else SORRY) * sides
+    return np.clip((on * strength)[:, None] * shape, 0.0, 1.0)
 
 
 def _speech_stretches(phones: PhoneSequence | None) -> list[tuple[float, float]]:

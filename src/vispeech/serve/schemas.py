@@ -73,7 +73,7 @@ Seconds = Annotated[float, Field(ge=0.0, le=MAX_STREAM_SECONDS, allow_inf_nan=Fa
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=100)]
 Fps = Annotated[float, Field(ge=MIN_FPS, le=MAX_FPS, allow_inf_nan=False)]
 SampleRate = Annotated[int, Field(ge=MIN_SAMPLE_RATE, le=MAX_SAMPLE_RATE)]
-Layer = Literal["blink", "gaze", "head", "brows", "breath"]
+Layer = Literal["blink", "gaze", "head", "brows", "breath", "expression"]
 """A non-verbal layer (:data:`vispeech.motion.life.LAYERS`)."""
 Layers = Annotated[list[Layer], Field(max_length=10)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]

@@ -20,6 +20,7 @@ from vispeech.frontends.align import TranscriptMismatch
 from vispeech.frontends.audio import read_upload
 from vispeech.frontends.espeak import check_voice, find_language, languages
 from vispeech.frontends.isolation import set_workers
+from vispeech.frontends.sentiment import sentiment
 from vispeech.frontends.text import detect_language
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
@@ -332,13 +333,15 @@ class SpeechService:
         options: SpeechOptions | None = None,
     ) -> SpeakResponse:
         """A cache entry as the answer to ``text``, with the non-verbal layers of ``options`` added
-        (timed by its phones, in the output scale ``calibration``)."""
+        (timed by its phones, the expression showing ``text``'s mood, in the output scale
+        ``calibration``)."""
         animation = AnimationJSON.model_validate_json(entry.animation)
         if options is not None and options.life:
             data = animation.model_dump()
             phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
             layers = check_layers(options.life)
-            track = with_life(Track.from_dict(data), phones, layers, options.seed, scale=calibration)
+            mood = sentiment(text, options.language)
+            track = with_life(Track.from_dict(data), phones, layers, options.seed, scale=calibration, mood=mood)
             animation = AnimationJSON.model_validate({**data, **track.to_dict()})
         return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
 
