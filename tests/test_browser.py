@@ -15,6 +15,11 @@ compared with the audio heard at that moment, read from the audio output clock
 ``AudioBufferSourceNode.start(when, offset)`` call that started the sound. SwiftShader paints
 only a few frames a second here, so what is asserted is the time of the pose each draw puts
 on screen, not how often the screen is painted.
+
+How the open mouth looks (issue 26) is measured on screenshots of held vowels: the inside of
+the mouth is found by drawing the head a second time flat (skin and lips in two colours, all
+else black: black between the lips is where the mouth shows), its luma compared with the
+lips' and its whitish pixels counted as teeth.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ import numpy as np
 import pytest
 
 from conftest import SHARED, require, require_module
-from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
+from vispeech.motion.arkit import LIP_CLOSED, TONGUE_CHANNELS, lip_aperture
 from vispeech.motion.track import Track
 
 pytestmark = pytest.mark.browser
@@ -466,4 +471,133 @@ def test_the_head_shows_the_tongue(page):
         at_vowels = [shown[t][probe_name] / full[probe_name] for t in centres["vowel"]]
         assert min(reached) > 0.5, (name, reached)
         assert max(at_vowels) < 0.3, (name, at_vowels)
+    assert page.errors == []
+
+
+MOUTH_VOWELS = {"a": "AA", "i": "IY"}
+"""The open vowels whose rendered mouth is measured, and their ARPAbet symbols."""
+MASK_PASS = """
+([lips, mouth, on]) => {
+  // Draw the skin flat, green with its lips yellow (its vertex colours: lip weight, 1, 0), and
+  // nothing else, on black (or all back as it was): what is black between the lips is where the
+  // mouth's inside shows. Returns the box (page pixels) around the mouth hole's rim as shown now.
+  const v = window.vispeech, avatar = v.avatar, head = avatar.head, colour = head.geometry.attributes.color;
+  const saved = avatar.maskSaved;
+  if (on && !saved) {
+    const state = {material: head.material, colours: colour.array.slice(), background: avatar.container.style.background,
+                   hidden: [], lights: []};
+    avatar.scene.traverse((o) => {
+      if ((o.isMesh && o !== head) || o.isDirectionalLight) { if (o.visible) state.hidden.push(o); o.visible = false; }
+      if (o.isHemisphereLight) { state.lights.push([o, o.color.clone(), o.groundColor.clone(), o.intensity]);
+                                 o.color.setRGB(1, 1, 1); o.groundColor.setRGB(1, 1, 1); o.intensity = Math.PI; }
+    });
+    const flat = head.material.clone();  // lit only by a white sky all round: its vertex colours exactly
+    Object.assign(flat, {toneMapped: false, roughness: 1, metalness: 0, vertexColors: true, map: null});
+    flat.color.setRGB(1, 1, 1);
+    flat.emissive.setRGB(0, 0, 0);
+    if ('sheen' in flat) flat.sheen = 0;
+    head.material = flat;
+    for (let i = 0; i < lips.length; i++) colour.setXYZ(i, lips[i], 1, 0);
+    colour.needsUpdate = true;
+    avatar.container.style.background = '#000';
+    avatar.maskSaved = state;
+  } else if (!on && saved) {
+    saved.hidden.forEach((o) => { o.visible = true; });
+    saved.lights.forEach(([o, sky, ground, intensity]) => { o.color.copy(sky); o.groundColor.copy(ground); o.intensity = intensity; });
+    head.material = saved.material;
+    colour.array.set(saved.colours);
+    colour.needsUpdate = true;
+    avatar.container.style.background = saved.background;
+    avatar.maskSaved = null;
+  }
+  const base = head.geometry.attributes.position, offsets = head.geometry.morphAttributes.position;
+  const rect = avatar.canvas.getBoundingClientRect(), e = head.matrixWorld.elements;
+  const points = mouth.map((i) => {
+    const p = [base.getX(i), base.getY(i), base.getZ(i)];
+    head.morphTargetInfluences.forEach((w, t) => {
+      if (w) { p[0] += w * offsets[t].getX(i); p[1] += w * offsets[t].getY(i); p[2] += w * offsets[t].getZ(i); }
+    });
+    const world = [0, 1, 2].map((r) => e[r] * p[0] + e[4 + r] * p[1] + e[8 + r] * p[2] + e[12 + r]);
+    const ndc = avatar.camera.position.clone().set(...world).project(avatar.camera);
+    return [rect.left + (ndc.x + 1) / 2 * rect.width, rect.top + (1 - ndc.y) / 2 * rect.height];
+  });
+  const xs = points.map((p) => p[0]), ys = points.map((p) => p[1]);
+  return [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
+}
+"""
+
+
+def _vowel_pose(symbol: str) -> dict[str, float]:
+    """A vowel's pose held: the model's targets (``phone_targets``) and its tongue channels."""
+    from vispeech.phonetics.features import phone_rows
+    from vispeech.postprocess.tongue import tongue_targets
+    from vispeech.targets.tables import phone_targets
+
+    pose = {c: v for c, v in phone_targets(symbol, "en", 1).items() if v is not None}
+    rows = phone_rows("en")
+    tongue = tongue_targets(rows.features[rows.indices([symbol], [1])])[0]
+    return {**pose, **dict(zip(TONGUE_CHANNELS, tongue.tolist()))}
+
+
+def _hold(page, pose: dict[str, float]) -> None:
+    """Hold ``pose`` on the head (as a one-frame animation) and wait for it to be drawn."""
+    track = Track(np.array([list(pose.values())]), tuple(pose), 30.0)
+    page.evaluate(
+        """async (animation) => {
+          const v = window.vispeech;
+          await v.playAnimation(animation, null, { autoplay: false });
+          v.seek(0);
+          await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
+        }""",
+        {"format": "vispeech-animation", "version": 1, **track.to_dict()},
+    )
+
+
+def _mouth_measures(shown: Path, flat: Path, box: list[float]) -> dict[str, float]:
+    """Luma of the mouth's inside over the lips', and its pixels, teeth and upper teeth, from a
+    screenshot and its flat drawing (:data:`MASK_PASS`) near the mouth's ``box``."""
+    rgb, mask = _rgb(shown), _rgb(flat)
+    luma = rgb @ np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luma of the screen's sRGB
+    near = np.zeros(luma.shape, dtype=bool)
+    x0, y0, x1, y1 = box
+    pad_x, pad_y = 0.3 * (x1 - x0), 0.3 * (y1 - y0)
+    near[max(int(y0 - pad_y), 0) : int(y1 + pad_y) + 1, max(int(x0 - pad_x), 0) : int(x1 + pad_x) + 1] = True
+    inside = near & (mask.max(axis=2) < 0.1)
+    on_lips = near & (mask[..., 0] > 0.9) & (mask[..., 1] > 0.9) & (mask[..., 2] < 0.1)
+    assert inside.sum() > 200 and on_lips.sum() > 200, (inside.sum(), on_lips.sum())
+    chroma = rgb.max(axis=2) - rgb.min(axis=2)
+    teeth = inside & (luma > 0.5 * luma[on_lips].mean()) & (chroma < 0.2 * rgb.max(axis=2))
+    upper = teeth & (np.arange(luma.shape[0])[:, None] < np.nonzero(inside)[0].mean())
+    return {"ratio": float(luma[inside].mean() / luma[on_lips].mean()), "inside": int(inside.sum()),
+            "teeth": int(teeth.sum()), "upper teeth": int(upper.sum())}
+
+
+def test_the_open_mouth_is_dark_inside_and_shows_its_teeth(page, screenshot_dir):
+    """At /a/ and /i/ (the model's targets and tongue channels, held), where the mouth's inside
+    shows between the lips (found by drawing the head again flat: skin green, lips yellow, the
+    rest black), it is at /a/ on average under a third as bright as the lips (luma of the
+    screen's sRGB), and at both teeth show in it: whitish pixels (luma over half the lips', chroma
+    under a fifth of the brightest channel), at least 5 % of it, upper teeth 2 % (above its middle)."""
+    from vispeech.motion.rigging.face import find_face
+    from vispeech.motion.rigging.glb import read_primitives, skin_primitive
+    from vispeech.motion.rigging.head_paint import lip_weights
+
+    skin = skin_primitive(read_primitives(ICT_HEAD))
+    face = find_face(skin)
+    regions = [lip_weights(skin, face).tolist(), face.mouth.tolist()]
+    drawn = "() => new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)))"
+    measured = {}
+    for name, symbol in MOUTH_VOWELS.items():
+        _hold(page, _vowel_pose(symbol))
+        shown, flat = screenshot_dir / f"mouth_{name}.png", screenshot_dir / f"mouth_{name}_flat.png"
+        _screenshot(page, shown)
+        box = page.evaluate(MASK_PASS, [*regions, True])
+        page.evaluate(drawn)
+        _screenshot(page, flat)
+        page.evaluate(MASK_PASS, [*regions, False])
+        page.evaluate(drawn)
+        measured[name] = _mouth_measures(shown, flat, box)
+    assert measured["a"]["ratio"] < 1 / 3, measured
+    for name, m in measured.items():
+        assert m["teeth"] >= 0.05 * m["inside"] and m["upper teeth"] >= 0.02 * m["inside"], (name, measured)
     assert page.errors == []
