@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from languages_grid import CELL, ROOT, serving, viewer
+from languages_grid import CELL, FACE, ROOT, serving, viewer
 from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_MODEL
@@ -75,7 +75,8 @@ def _figure(rows: list, out: Path) -> None:
         for c, (label, shot, aperture) in enumerate(shots):
             with Image.open(io.BytesIO(shot)) as image:
                 w, h = image.size
-                face = image.crop((int(0.3 * w), int(0.44 * h), int(0.7 * w), int(0.84 * h))).resize((CELL, CELL))
+                face = image.crop((int(FACE[0] * w), int(FACE[1] * h), int(FACE[2] * w), int(FACE[3] * h)))
+                face = face.resize((CELL, CELL))
             x, y = c * CELL, r * (CELL + 22)
             grid.paste(face, (x, y))
             draw.text((x + 4, y + CELL + 3), f"{scale}: {label}  ({aperture:.2f})", fill="black", font=font)

@@ -36,6 +36,9 @@ CHROMIUM = "/usr/bin/chromium"
 FLAGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--autoplay-policy=no-user-gesture-required"]
 CELL = 240
+FACE = (0.26, 0.47, 0.74, 0.95)
+"""The box (shares of a screenshot's width and height: left, top, right, bottom) from the nose to the
+chin, as the viewer frames the head."""
 
 
 def main() -> None:
@@ -101,7 +104,8 @@ def _grid(shots: list[bytes], figures: list[dict], columns: int, out: Path) -> N
     for i, (shot, figure) in enumerate(zip(shots, figures)):
         with Image.open(io.BytesIO(shot)) as image:  # nose to chin
             w, h = image.size
-            face = image.crop((int(0.3 * w), int(0.44 * h), int(0.7 * w), int(0.84 * h))).resize((CELL, CELL))
+            face = image.crop((int(FACE[0] * w), int(FACE[1] * h), int(FACE[2] * w), int(FACE[3] * h)))
+            face = face.resize((CELL, CELL))
         x, y = (i % columns) * CELL, (i // columns) * (CELL + 22)
         grid.paste(face, (x, y))
         draw.text((x + 4, y + CELL + 3), f"{figure['language']}  /{figure['phone at widest']}/  "
