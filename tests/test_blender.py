@@ -88,14 +88,16 @@ def test_fbx_made_by_blender_carries_the_animation(tmp_path, shared_dir):
     np.testing.assert_allclose(keys[:track.n_frames, 1], track["jawOpen"], atol=1e-3)
 
 
-def test_fbx_without_base_model_or_blender_is_one_error(tmp_path, monkeypatch):
+def test_fbx_without_blender_or_with_a_missing_base_model_is_one_error(tmp_path, monkeypatch):
     from test_cli_say import assert_clean_error, run
 
     write_outputs(speak("Hello.", "en"), tmp_path / "said")
     animation = str(tmp_path / "said" / "animation.json")
-    assert_clean_error(run("convert", animation, str(tmp_path / "a.fbx")))
+    missing = run("convert", animation, str(tmp_path / "a.fbx"), "--glb", str(tmp_path / "none.glb"))
+    assert_clean_error(missing)
+    assert "none.glb" in missing.output and not (tmp_path / "a.fbx").exists()
     monkeypatch.setenv("PATH", str(tmp_path))  # no blender here
     monkeypatch.delenv("BLENDER", raising=False)
-    result = run("convert", animation, str(tmp_path / "a.fbx"), "--glb", str(tmp_path / "none.glb"))
+    result = run("convert", animation, str(tmp_path / "a.fbx"))  # onto the shipped head
     assert_clean_error(result)
     assert "needs Blender" in result.output and not (tmp_path / "a.fbx").exists()
