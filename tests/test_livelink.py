@@ -85,6 +85,32 @@ def test_write_of_read_is_byte_exact_for_an_iphone_like_take(tmp_path):
     assert (tmp_path / "again.csv").read_bytes() == (tmp_path / "take.csv").read_bytes()
 
 
+@pytest.mark.parametrize("fps,start,origin", [(30.0, 0.0, "00:00:00:00"), (120.0, 0.5, "99:59:59:00"),
+                                              (29.97, 12.48, "123456:00:00:00")])
+def test_values_and_timecodes_are_printed_as_python_prints_them(tmp_path, fps, start, origin):
+    """Every field as ``%02d`` and ``%.10f`` print it (the writer lays all rows out at once):
+    ties of the 10th decimal, -0.0, tiny negatives, widths of 1 to 301 digits, frames past 99."""
+    rng = np.random.default_rng(int(fps))
+    special = [0.0, -0.0, 1.0, 1 / 2048, -3 / 8192, 2.5e-10, 1.5e-10, -1e-11, 0.99999999995, 12.3456789012345,
+               -999.5, 4.5e5 + 0.123, 1e8 + 0.5, -3e15, 1e300, 5e-324]
+    values = rng.random((130, len(LIVELINK_CHANNELS)))
+    values[:, :len(special)] = special
+    values[:, 20] = np.round(values[:, 20], 10) + 0.5e-10
+    values[:, 21] = rng.uniform(-50, 50, 130)
+    track = Track(values, LIVELINK_CHANNELS, fps, start)
+    write_livelink_csv(track, tmp_path / "t.csv", start_timecode=origin)
+    rate = int(np.ceil(fps))
+    hours, minutes, seconds, frame = map(int, origin.split(":"))
+    base = hours * 3600 + minutes * 60 + seconds + frame / rate
+    expected = [IPHONE_HEADER]
+    for k, row in enumerate(values.tolist()):
+        frames, milli = divmod(round((base + start + k / fps) * rate * 1000), 1000)
+        seconds, frame = divmod(frames, rate)
+        code = f"{seconds // 3600:02d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}:{frame:02d}.{milli:03d}"
+        expected.append(",".join([code, "61"] + [f"{v:.10f}" for v in row]))
+    assert (tmp_path / "t.csv").read_text().split("\n") == expected + [""]
+
+
 def test_real_iphone_timecodes_with_drift(tmp_path):
     # The first rows of an iPhone take (MySlate_164): the sub-frame fraction drifts.
     fractions = [273, 275, 276, 278, 278, 281, 282, 284, 285, 287, 288, 290, 291, 293, 295, 297, 298, 300,
