@@ -173,7 +173,7 @@ def test_a_kill_at_any_point_leaves_the_old_or_the_new_folder(tmp_path, exchange
     else:
         pytest.fail("write_outputs never finished")
     print(f"{n - 1} kill points")
-    assert n > 20  # every call of a whole run was a kill point
+    assert n > 15  # every call of a whole run (17 of them with no old folder) was a kill point
     assert seen >= ({"old", "new"} if start == "old" else {"none", "new"})
     write_outputs(new_utt, out)  # and the next run writes the new folder, leaving nothing else
     assert _snapshot(out) == new and os.listdir(parent) == ["out"]

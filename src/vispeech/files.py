@@ -103,7 +103,7 @@ def _umask() -> int:
 # Everything a run leaves beside its target while it works is named ``.vispeech-<key>.<role>``
 # in the target's parent folder: ``<key>.lock`` (a small file naming the target, flock-ed by the
 # live run), ``<key>.tmp/`` (the folder being written), ``<key>.new/`` (the same folder once
-# complete: every file and the folder fsync-ed), ``<key>.old/`` (the replaced folder, where the
+# complete: every file fsync-ed), ``<key>.old/`` (the replaced folder, where the
 # exchange is unavailable), and ``<key>.part`` (a file being written by atomic_output_file,
 # flock-ed while live). Runs take an flock on the parent folder itself while they clean up and
 # create their entries, so a cleaner never sees another run's entries before they are locked.
@@ -218,14 +218,13 @@ def _fsync(path: str | os.PathLike, directory: bool = False) -> None:
         os.close(fd)
 
 
-def _fsync_tree(folder: Path) -> None:
-    """fsync every file and folder under ``folder``, then ``folder`` itself."""
+def _fsync_tree(folder: Path, *, folders: bool) -> None:
+    """fsync every file under ``folder`` (``folders``: every folder instead, then ``folder`` itself)."""
     for root, dirs, files in os.walk(folder):
-        for name in files:
-            _fsync(os.path.join(root, name))
-        for name in dirs:
-            _fsync(os.path.join(root, name), directory=True)
-    _fsync(folder, directory=True)
+        for name in dirs if folders else files:
+            _fsync(os.path.join(root, name), directory=folders)
+    if folders:
+        _fsync(folder, directory=True)
 
 
 def _remove(path: Path) -> None:
@@ -333,15 +332,20 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     """Yield a fresh folder to write into; when the block succeeds it replaces ``path`` as a whole.
 
     The folder is made beside ``path`` (same parent, so renames are atomic). When the block
-    ends without an error every file in it and the folder are fsync-ed, and it is swapped with
-    ``path`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``, macOS ``renamex_np``); the old
-    folder is then removed. A kill at any moment leaves ``path`` as the old complete folder or
-    the new complete one, never a mix, and never files of two runs side by side. Where no
-    exchange exists the old folder is renamed aside and the new one into place; a kill between
-    the two renames leaves ``path`` missing until the next run into the same parent folder,
-    which puts the complete new (else old) folder back. Every run first removes what killed
-    runs left in the parent (only ``.vispeech-<key>.*`` entries whose lock no live process
-    holds; see ``_clean_stale``). A block that raises leaves ``path`` untouched.
+    ends without an error every file in it is fsync-ed, and it is swapped with ``path`` in one
+    step (Linux ``renameat2(RENAME_EXCHANGE)``, macOS ``renamex_np``); the old folder is then
+    removed. A kill at any moment leaves ``path`` as the old complete folder or the new
+    complete one, never a mix, and never files of two runs side by side; so does a power cut,
+    since the new folder is on disk, whole, before the swap (the file systems that exchange
+    two paths journal their metadata: a file's fsync makes its name durable too, and the swap
+    reaches the disk with their next commit, in order with the old folder's removal). Where
+    no exchange exists the old folder is renamed aside and the new one into place, with the
+    new folder, the lock naming the target and the swap each fsync-ed before the next step; a
+    kill between the two renames leaves ``path`` missing until the next run into the same
+    parent folder, which puts the complete new (else old) folder back; so does a first run
+    (no old folder), with the new folders fsync-ed before it shows them. Every run first
+    removes what killed runs left in the parent (only ``.vispeech-<key>.*`` entries whose lock
+    no live process holds; see ``_clean_stale``). A block that raises leaves ``path`` untouched.
 
     An existing folder is replaced only when everything in it is named like an entry of the
     new folder or one of ``replaces`` (the names this kind of folder holds), or is a
@@ -362,8 +366,7 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
                 _clean_stale(parent)
             lock_fd, lock_name = tempfile.mkstemp(prefix=_PREFIX, suffix=".lock", dir=parent)
             _try_lock(lock_fd)
-            os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))
-            os.fsync(lock_fd)  # the next run restores the target by this name
+            os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))  # restored by this name
             key = lock_name[: -len(".lock")]
             staging, complete = Path(f"{key}.tmp"), Path(f"{key}.new")
             os.mkdir(staging)
@@ -377,11 +380,9 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     try:
         yield staging
         try:
-            _fsync_tree(staging)
+            _fsync_tree(staging, folders=False)  # whole on disk before anything points to it (_swap)
             os.rename(staging, complete)
-            _fsync(parent, directory=True)
-            old = _swap(complete, target, Path(f"{key}.old"), replaces, shown)
-            _fsync(parent, directory=True)
+            old = _swap(complete, target, Path(f"{key}.old"), replaces, shown, lock_fd)
         except OSError as exc:
             raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
         if old is not None:
@@ -401,24 +402,35 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
         os.close(lock_fd)
 
 
-def _swap(complete: Path, target: Path, aside: Path, replaces: Iterable[str], shown: Path) -> Path | None:
+def _swap(complete: Path, target: Path, aside: Path, replaces: Iterable[str], shown: Path, lock_fd: int) -> Path | None:
     """Put the folder ``complete`` at ``target``; the old folder's path afterwards (to remove), if
     there was one. A folder another run puts at ``target`` between the check and the rename is
-    replaced like any existing one."""
+    replaced like any existing one.
+
+    Every file in ``complete`` is fsync-ed already: where the exchange works (journaling file
+    systems: ext4, XFS, Btrfs, F2FS; APFS), that makes their names durable too, and the swap
+    reaches the disk in order with what follows it. Elsewhere the new folders are fsync-ed
+    before the rename that shows them, the lock (``lock_fd``, naming the target) before the old
+    folder leaves the target, and the parent folder after the new one is in place, so that a
+    power cut never leaves the target missing for good."""
     while True:
         if target.is_dir():
             _refuse_foreign(target, set(os.listdir(complete)) | set(replaces), shown)
             os.chmod(complete, stat.S_IMODE(target.stat().st_mode))
             if _exchange(str(complete), str(target)):
                 return complete  # the old folder now lies where the new one was
+            _fsync_tree(complete, folders=True)
+            os.fsync(lock_fd)
             os.rename(target, aside)
             try:
                 os.rename(complete, target)
             except OSError:
                 os.rename(aside, target)  # put the old folder back
                 raise
+            _fsync(target.parent, directory=True)
             return aside
         os.chmod(complete, 0o777 & ~_umask())
+        _fsync_tree(complete, folders=True)  # no exchange tried: the file system may need it
         try:
             os.rename(complete, target)
             return None
@@ -432,8 +444,9 @@ def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds.
 
     The temporary file (``.vispeech-*.part`` in the same folder) is fsync-ed before the
-    rename, so ``path`` is always the old complete file or the new complete one; a block that
-    raises removes it, and what a killed run left is removed by the next write into that
+    rename, so ``path`` is always the old complete file or the new complete one, after a kill
+    or a power cut (the rename reaches the disk with the file system's next commit); a block
+    that raises removes it, and what a killed run left is removed by the next write into that
     folder (once per process and folder; only files no live process holds). Inside a folder
     that :func:`atomic_output_dir` is writing, the file is written in place: nobody sees that
     folder before it is fsync-ed whole and swapped in.
@@ -463,7 +476,6 @@ def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
         yield Path(tmp)
         _fsync(tmp)
         os.replace(tmp, target)
-        _fsync(parent, directory=True)
     finally:
         os.close(fd)
         if os.path.exists(tmp):
