@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 
 from vispeech.errors import VispeechError
 from vispeech.phonetics.ipa import ipa_symbols, parse_ipa
@@ -175,6 +175,13 @@ def parse_symbol(label: str, language: str) -> tuple[str, int]:
     mark ``'`` (1) or ``"`` (2); IPA takes one segment (:func:`~vispeech.phonetics.ipa.parse_ipa`:
     ``ˈaː`` -> ``("aː", 1)``, diacritics that the face does not show dropped).
     """
+    get_inventory(language)  # an unknown language is an error, whatever the label
+    return _parse_symbol(label, language)
+
+
+@lru_cache(maxsize=4096)
+def _parse_symbol(label: str, language: str) -> tuple[str, int]:
+    """:func:`parse_symbol` (labels recur: every alignment file repeats the same few dozen)."""
     inventory = get_inventory(language)
     text = label.strip()
     folded = text.lower()
@@ -211,10 +218,10 @@ def guess_language(labels: Iterable[str]) -> str:
     """
     labels = list(labels)
     sets = {"en": "ARPAbet", "sv": "Swedish", IPA: "IPA"}
-    parses = {language: [_parses(label, language) for label in labels] for language in sets}
     for language in sets:
-        if all(parses[language]):
+        if all(_parses(label, language) for label in labels):
             return language
+    parses = {language: [_parses(label, language) for label in labels] for language in sets}
     for position, label in enumerate(labels):
         if not any(parses[language][position] for language in sets):
             raise VispeechError(f"unknown phone symbol {label!r} (phone {position}): neither ARPAbet, Swedish nor IPA")
