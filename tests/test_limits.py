@@ -172,6 +172,7 @@ def test_read_text_size_limit_and_encodings(tmp_path):
     ("size = 1\n", "size = 2\n", "declares 2 tiers but holds 1"),
     ("xmax = 0.7\ntiers", "xmax = 0.6\ntiers", "outside the grid"),
     ("xmax = 0.7\ntiers", "xmax = 1e6\ntiers", "limit of 600 s"),
+    ("xmin = 0.2\n            xmax = 0.5", "xmin = 0.1999999\n            xmax = 0.5", "line 20: .*before the previous"),
 ])
 def test_textgrid_strict(tmp_path, old, new, message):
     text = textgrid_text()
@@ -179,6 +180,22 @@ def test_textgrid_strict(tmp_path, old, new, message):
     (tmp_path / "bad.TextGrid").write_text(text.replace(old, new, 1))
     with pytest.raises(VispeechError, match=message):
         read_alignment(tmp_path / "bad.TextGrid")
+
+
+def test_textgrid_tier_names_are_unique(tmp_path):
+    text = textgrid_text().replace("size = 1\n", "size = 2\n")
+    tier = text[text.index("    item [1]:"):]
+    (tmp_path / "twice.TextGrid").write_text(text + tier.replace("item [1]", "item [2]"))
+    with pytest.raises(VispeechError, match=r"line 28: tier 2 has the name of an earlier one \('phones'\)"):
+        read_alignment(tmp_path / "twice.TextGrid")
+    (tmp_path / "two.TextGrid").write_text(text + tier.replace("item [1]", "item [2]").replace('"phones"', '"words"'))
+    assert read_alignment(tmp_path / "two.TextGrid").symbols == ["sil", "AH", "sil"]
+
+
+def test_textgrid_times_as_praat_may_write_them(tmp_path):
+    text = textgrid_text().replace("xmin = 0.2\n            xmax = 0.5", "xmin = 2e-1\n            xmax = 5.0E-1")
+    (tmp_path / "e.TextGrid").write_text(text)
+    assert [(p.start, p.end) for p in read_alignment(tmp_path / "e.TextGrid")] == [(0, 0.2), (0.2, 0.5), (0.5, 0.7)]
 
 
 def test_textgrid_good_and_short_form(tmp_path):

@@ -19,11 +19,13 @@ naming it, its position and its time.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, Word
 from vispeech.errors import VispeechError
@@ -175,26 +177,22 @@ def _excerpt(line: str, width: int = 60) -> str:
 
 
 def _textgrid_spans(path: Path, text: str) -> tuple[list[_Span], list[_Span]]:
-    from praatio import textgrid
-
-    _check_textgrid(text, path)
-    try:
-        grid = textgrid.openTextgrid(str(path), includeEmptyIntervals=True, reportingMode="silence")
-    except Exception as exc:  # praatio raises assorted exception types on malformed input
-        detail = " ".join(str(exc).split()) or type(exc).__name__
-        raise VispeechError(f"malformed TextGrid {path}: {detail[:200]}") from None
-    names = list(grid.tierNames)
+    """The phones tier's and the words tier's intervals (no words tier: none) of a TextGrid."""
+    tiers = _parse_textgrid(text, path)
+    names = list(tiers)
     phones_name = _find_tier(names, "phones") or (names[0] if len(names) == 1 else None)
     if phones_name is None:
         raise VispeechError(f"{path} has no phones tier (tiers: {', '.join(names) or 'none'})")
     words_name = _find_tier(names, "words")
-    tiers = [grid.getTier(name) for name in (phones_name, words_name) if name is not None]
-    for tier in tiers:
-        if not isinstance(tier, textgrid.IntervalTier):
-            raise VispeechError(f"{path}: tier {tier.name!r} is not an interval tier")
-    phones = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[0].entries]
-    words = [(float(e.start), float(e.end), e.label.strip()) for e in tiers[1].entries] if words_name else []
-    return phones, words
+    spans: list[list[_Span]] = []
+    for name in (phones_name, words_name):
+        if name is None:
+            spans.append([])
+        elif tiers[name][0] != "IntervalTier":
+            raise VispeechError(f"{path}: tier {name!r} is not an interval tier")
+        else:
+            spans.append([(low, high, label.strip()) for low, high, label in tiers[name][1]])
+    return spans[0], spans[1]
 
 
 _INTEGER = re.compile(r"[-+]?[0-9]{1,18}")
@@ -202,104 +200,137 @@ _TEXTGRID_TOKEN = re.compile(r'"(?:[^"]|"")*"|<exists>|<absent>|\[[^\]\n]*\]|[^\
 
 
 class _Tokens:
-    """The numbers, strings and flags of a Praat text file (long or short form), with line numbers.
+    """The numbers, strings and flags of a Praat text file (long or short form), with where they are.
 
     Praat's long form is the short one with labels (``xmin =``, ``intervals [3]:``) that carry
-    no data; both read as the same stream here.
+    no data; both read as the same stream here. A bare word is a number if :class:`float`
+    reads it (``inf`` and ``nan`` too: the checks name them), else a label.
     """
 
     def __init__(self, text: str, path: Path):
-        self.path = path
-        self.items: list[tuple[str, object, int]] = []
-        line, last = 1, 0
+        self.path, self.text = path, text
+        self.kinds: list[str] = []
+        self.values: list[Any] = []  # str for strings and flags, float for numbers
+        self.offsets: list[int] = []
         for match in _TEXTGRID_TOKEN.finditer(text):
-            line += text.count("\n", last, match.start())
-            last = match.start()
             token = match.group()
-            if token.startswith('"'):
-                self.items.append(("string", token[1:-1].replace('""', '"'), line))
-            elif token.startswith("<"):
-                self.items.append(("flag", token, line))
-            elif not token.startswith("["):
+            first = token[0]
+            value: Any = token
+            if first == '"':
+                kind, value = "string", token[1:-1].replace('""', '"')
+            elif first == "<":
+                kind = "flag"
+            elif first == "[" or (first.isalpha() and token.lower() not in _FLOAT_WORDS):
+                continue  # a label: xmin, size, intervals, [3], ...
+            else:
                 try:
-                    self.items.append(("number", float(token), line))
+                    kind, value = "number", float(token)
                 except ValueError:
-                    pass  # a label: xmin, size, intervals, ...
+                    continue
+            self.kinds.append(kind)
+            self.values.append(value)
+            self.offsets.append(match.start())
         self.position = 0
-        self.end_line = line
 
-    def line(self) -> int:
-        return self.items[self.position][2] if self.position < len(self.items) else self.end_line
+    def line(self, item: int | None = None) -> int:
+        """The line of item number ``item``, by default the next one (the last one past the end)."""
+        offsets = self.offsets
+        if not offsets:
+            return 1
+        item = self.position if item is None else item
+        return self.text.count("\n", 0, offsets[min(item, len(offsets) - 1)]) + 1
 
-    def peek(self) -> str | None:
-        return self.items[self.position][0] if self.position < len(self.items) else None
+    def peek(self, item: int | None = None) -> str | None:
+        """The kind of item number ``item``, by default the next one (``None`` past the end)."""
+        item = self.position if item is None else item
+        return self.kinds[item] if item < len(self.kinds) else None
 
-    def take(self, kind: str, what: str):
+    def take(self, kind: str, what: str, *args: object):
+        """The next item, which must be of ``kind``; else an error naming ``what`` (formatted
+        with ``args`` if there are any: messages are made only for errors)."""
         if self.peek() != kind:
             found = "the end of the file" if self.peek() is None else f"a {self.peek()}"
-            raise VispeechError(f"{self.path}, line {self.line()}: expected {what}, found {found}")
-        value = self.items[self.position][1]
+            raise VispeechError(f"{self.path}, line {self.line()}: expected {_described(what, args)}, found {found}")
         self.position += 1
-        return value
+        return self.values[self.position - 1]
 
-    def time(self, what: str) -> float:
-        line = self.line()
-        value = self.take("number", what)
-        if not math.isfinite(value):
-            raise VispeechError(f"{self.path}, line {line}: {what} is not a finite number ({value})")
-        if value < 0:
-            raise VispeechError(f"{self.path}, line {line}: {what} {value:g} is negative")
-        if value > MAX_DURATION_S:
-            raise VispeechError(
-                f"{self.path}, line {line}: {what} {value:g} s is past the limit of {MAX_DURATION_S:g} s"
-            )
-        return value
+    def time(self, what: str, *args: object) -> float:
+        value = self.take("number", what, *args)
+        if not (0 <= value <= MAX_DURATION_S):
+            where = f"{self.path}, line {self._last_line()}: {_described(what, args)}"
+            if not math.isfinite(value):
+                raise VispeechError(f"{where} is not a finite number ({value})")
+            if value < 0:
+                raise VispeechError(f"{where} {value:g} is negative")
+            raise VispeechError(f"{where} {value:g} s is past the limit of {MAX_DURATION_S:g} s")
+        return value + 0.0  # -0 reads as 0
 
     def count(self, what: str) -> int:
-        line = self.line()
         value = self.take("number", what)
         if not (math.isfinite(value) and value >= 0 and value == int(value)):
-            raise VispeechError(f"{self.path}, line {line}: {what} must be a whole number, got {value:g}")
+            raise VispeechError(f"{self.path}, line {self._last_line()}: {what} must be a whole number, got {value:g}")
         return int(value)
 
+    def _last_line(self) -> int:
+        """The line of the item just taken."""
+        return self.line(self.position - 1)
 
-def _check_textgrid(text: str, path: Path) -> None:
-    """Check a TextGrid's structure before praatio reads it (praatio is lenient).
+
+def _described(what: str, args: tuple) -> str:
+    return what.format(*args) if args else what  # a tier's name may hold braces: never a template
+
+
+_FLOAT_WORDS = frozenset({"inf", "infinity", "nan"})
+"""The words :class:`float` reads as numbers."""
+_Tier = tuple[str, list[tuple]]
+"""A TextGrid tier: its class and its entries, ``(xmin, xmax, text)`` or ``(time, mark)``."""
+
+
+def _parse_textgrid(text: str, path: Path) -> dict[str, _Tier]:
+    """Every tier of a TextGrid by name, its structure checked (Praat's readers are lenient).
 
     Times finite and non-negative, every tier inside the grid's xmin..xmax, intervals inside
-    their tier, each after the previous one and not empty, points in order, and as many
-    tiers, intervals and points as declared. Raises :class:`VispeechError` naming the line.
+    their tier, each after the previous one and not empty, points in order, tier names
+    unique, and as many tiers, intervals and points as declared. Raises
+    :class:`VispeechError` naming the line.
     """
     tokens = _Tokens(text, path)
     tokens.take("string", 'the file type ("ooTextFile")')
     if tokens.take("string", 'the object class ("TextGrid")') != "TextGrid":
         raise VispeechError(f'{path}: not a TextGrid (object class is not "TextGrid")')
     grid_start = tokens.time("the grid's xmin")
-    line = tokens.line()
     grid_end = tokens.time("the grid's xmax")
     if grid_end < grid_start:
-        raise VispeechError(f"{path}, line {line}: the grid's xmax {grid_end:g} is before its xmin {grid_start:g}")
+        raise VispeechError(
+            f"{path}, line {tokens._last_line()}: the grid's xmax {grid_end:g} is before its xmin {grid_start:g}"
+        )
     if tokens.take("flag", "<exists> or <absent>") == "<absent>":
         n_tiers = 0
     else:
         n_tiers = tokens.count("the number of tiers")
+    tiers: dict[str, _Tier] = {}
     for tier in range(1, n_tiers + 1):
         if tokens.peek() is None:
             raise VispeechError(f"{path}: declares {n_tiers} tiers but holds {tier - 1}")
-        _check_tier(tokens, tier, grid_start, grid_end)
+        line = tokens.line()
+        name, parsed = _parse_tier(tokens, tier, grid_start, grid_end)
+        if name in tiers:
+            raise VispeechError(f"{path}, line {line}: tier {tier} has the name of an earlier one ({name!r})")
+        tiers[name] = parsed
     if tokens.peek() is not None:
         raise VispeechError(f"{path}, line {tokens.line()}: data after the {n_tiers} declared tiers")
+    return tiers
 
 
-def _check_tier(tokens: _Tokens, tier: int, grid_start: float, grid_end: float) -> None:
-    """Check tier number ``tier``: its class, its bounds inside the grid's, and its entries."""
+def _parse_tier(tokens: _Tokens, tier: int, grid_start: float, grid_end: float) -> tuple[str, _Tier]:
+    """Tier number ``tier``, checked: its class, its bounds inside the grid's, and its entries."""
     path = tokens.path
     kind = tokens.take("string", f"the class of tier {tier}")
     name = tokens.take("string", f"the name of tier {tier}")
     label = f"tier {tier} ({name!r})"
     start = tokens.time(f"the xmin of {label}")
-    line = tokens.line()
     end = tokens.time(f"the xmax of {label}")
+    line = tokens._last_line()
     if end < start:
         raise VispeechError(f"{path}, line {line}: {label} ends at {end:g}, before its start {start:g}")
     if start < grid_start - TIME_TOLERANCE or end > grid_end + TIME_TOLERANCE:
@@ -309,49 +340,77 @@ def _check_tier(tokens: _Tokens, tier: int, grid_start: float, grid_end: float) 
     if kind not in ("IntervalTier", "TextTier"):
         raise VispeechError(f"{path}, line {line}: {label} has unknown class {kind!r}")
     entries = "intervals" if kind == "IntervalTier" else "points"
-    check_entry = _check_interval if kind == "IntervalTier" else _check_point
+    parse_entry = _parse_interval if kind == "IntervalTier" else _parse_point
     declared = tokens.count(f"the number of {entries} of {label}")
-    previous = start
+    parsed = _intervals(tokens, declared, start, end) if kind == "IntervalTier" else None
+    if parsed is not None:
+        return name, (kind, parsed)
+    parsed = []
+    previous, slack = start, TIME_TOLERANCE  # intervals: only the first may start a little early
     for index in range(1, declared + 1):
         if tokens.peek() != "number":
             raise VispeechError(
                 f"{path}, line {tokens.line()}: {label} declares {declared} {entries} but holds {index - 1}"
             )
-        previous = check_entry(tokens, index, label, previous, end)
+        parsed.append(parse_entry(tokens, index, label, (previous, slack), end))
+        previous, slack = (parsed[-1][1], 0.0) if kind == "IntervalTier" else (parsed[-1][0], slack)
     if tokens.peek() == "number":
         raise VispeechError(
             f"{path}, line {tokens.line()}: {label} holds more {entries} than the {declared} it declares"
         )
+    return name, (kind, parsed)
 
 
-def _check_interval(tokens: _Tokens, index: int, label: str, previous: float, tier_end: float) -> float:
-    """Check interval ``index`` of a tier, after the one ending at ``previous``; returns its end."""
-    line = tokens.line()
-    low = tokens.time(f"xmin of interval {index} of {label}")
-    high = tokens.time(f"xmax of interval {index} of {label}")
-    tokens.take("string", f"the text of interval {index} of {label}")
-    where = f"{tokens.path}, line {line}: interval {index} of {label}"
-    if high <= low:
-        raise VispeechError(f"{where} ends at {high:g}, not after its start {low:g}")
-    if low < previous - TIME_TOLERANCE:
-        raise VispeechError(
-            f"{where} starts at {low:g}, before the previous one ends ({previous:g}): out of order or overlapping"
-        )
-    if high > tier_end + TIME_TOLERANCE:
+def _intervals(tokens: _Tokens, declared: int, start: float, end: float) -> list[tuple] | None:
+    """The ``declared`` intervals of a tier from ``start`` to ``end``, when they and what follows
+    them pass every check of :func:`_parse_interval`, checked all at once; else ``None`` (and
+    nothing taken), for the one by one reading to name what is wrong."""
+    first, stop = tokens.position, tokens.position + 3 * declared
+    if tokens.kinds[first:stop] != ["number", "number", "string"] * declared or tokens.peek(stop) == "number":
+        return None
+    values = tokens.values[first:stop]
+    lows, highs = values[0::3], values[1::3]
+    after = [start - TIME_TOLERANCE, *highs[:-1]]  # only the first may start a little early
+    if not all(previous <= low < high for previous, low, high in zip(after, lows, highs)):
+        return None
+    if declared and not (lows[0] >= 0 and highs[-1] <= min(end + TIME_TOLERANCE, MAX_DURATION_S)):
+        return None
+    tokens.position = stop
+    if declared:
+        lows[0] += 0.0  # -0 reads as 0
+    return list(zip(lows, highs, values[2::3]))
+
+
+def _parse_interval(tokens: _Tokens, index: int, label: str, after: tuple[float, float], tier_end: float) -> tuple:
+    """Interval ``index`` of a tier, ``(xmin, xmax, text)``, starting no earlier than ``after``
+    (the previous end and how much earlier is the same time)."""
+    first = tokens.position
+    low = tokens.time("xmin of interval {} of {}", index, label)
+    high = tokens.time("xmax of interval {} of {}", index, label)
+    text = tokens.take("string", "the text of interval {} of {}", index, label)
+    if high <= low or low < after[0] - after[1] or high > tier_end + TIME_TOLERANCE:
+        where = f"{tokens.path}, line {tokens.line(first)}: interval {index} of {label}"
+        if high <= low:
+            raise VispeechError(f"{where} ends at {high:g}, not after its start {low:g}")
+        if low < after[0] - after[1]:
+            raise VispeechError(
+                f"{where} starts at {low:g}, before the previous one ends ({after[0]:g}): out of order or overlapping"
+            )
         raise VispeechError(f"{where} ends at {high:g}, after the tier's xmax {tier_end:g}")
-    return high
+    return low, high, text
 
 
-def _check_point(tokens: _Tokens, index: int, label: str, previous: float, tier_end: float) -> float:
-    """Check point ``index`` of a tier, after the one at ``previous``; returns its time."""
-    line = tokens.line()
-    time = tokens.time(f"time of point {index} of {label}")
-    tokens.take("string", f"the mark of point {index} of {label}")
-    if time < previous - TIME_TOLERANCE or time > tier_end + TIME_TOLERANCE:
+def _parse_point(tokens: _Tokens, index: int, label: str, after: tuple[float, float], tier_end: float) -> tuple:
+    """Point ``index`` of a tier, ``(time, mark)``, no earlier than ``after`` (as for intervals)."""
+    first = tokens.position
+    time = tokens.time("time of point {} of {}", index, label)
+    mark = tokens.take("string", "the mark of point {} of {}", index, label)
+    if time < after[0] - after[1] or time > tier_end + TIME_TOLERANCE:
         raise VispeechError(
-            f"{tokens.path}, line {line}: point {index} of {label} at {time:g} s is out of order or outside the tier"
+            f"{tokens.path}, line {tokens.line(first)}: point {index} of {label} at {time:g} s "
+            "is out of order or outside the tier"
         )
-    return time
+    return time, mark
 
 
 def _find_tier(names: list[str], kind: str) -> str | None:
@@ -378,18 +437,18 @@ def _build(phone_spans: list[_Span], word_spans: list[_Span], path: Path, langua
         except VispeechError as exc:
             raise VispeechError(f"{path}: phone {position} at {start:.3f} s: {exc}") from None
     words = [Word(label, start, end) for start, end, label in word_spans if label.lower() not in _SILENT_WORDS]
+    starts = [w.start for w in words]  # in order, not overlapping: a tier's intervals
     phones = []
     for (start, end, _), (symbol, stress) in zip(phone_spans, parsed):
-        word = None if is_silence(symbol) else _word_at((start + end) / 2, words)
+        word = None if is_silence(symbol) else _word_at((start + end) / 2, words, starts)
         phones.append(Phone(symbol, start, end, word, stress))
     return _validated(PhoneSequence(phones, language, words), path)
 
 
-def _word_at(time: float, words: list[Word]) -> int | None:
-    for i, w in enumerate(words):
-        if w.start <= time < w.end:
-            return i
-    return None
+def _word_at(time: float, words: list[Word], starts: list[float]) -> int | None:
+    """The word (index) whose span holds ``time``, if any."""
+    i = bisect.bisect_right(starts, time) - 1
+    return i if i >= 0 and time < words[i].end else None
 
 
 def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
