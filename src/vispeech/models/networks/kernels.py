@@ -168,9 +168,10 @@ class RecurrentKernel:
         """
         n = len(drive)
         states, start = [], 0
-        dot, tanh = np.dot, np.tanh
+        tanh = np.tanh
         for net in self.nets:
-            hidden, delays, matrix = net["hidden"], net["delays"], net["recurrent_and_drive"]
+            hidden, delays = net["hidden"], net["delays"]
+            dot = net["recurrent_and_drive"].dot  # the method: no dispatch through np.dot's wrapper
             buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
             buffer[delays:] = drive[:, start : start + hidden]
             flat = buffer.reshape(-1)
@@ -180,8 +181,8 @@ class RecurrentKernel:
                 flat, shape=(n, size), strides=(flat.strides[0] * hidden, flat.strides[0])
             )
             for window, out in zip(windows, buffer[delays:]):
-                dot(matrix, window, out=step)
-                tanh(step, out=out)
+                dot(window, step)
+                tanh(step, out)
             states.append(buffer[delays:])
             start += hidden
         return states
