@@ -148,10 +148,10 @@ class Calibration:
     def apply(self, track: Track) -> Track:
         """``track`` in the head's weights: each calibrated channel times its gain, clipped to [0, 1]."""
         values = np.array(track.values, dtype=float, copy=True)
-        for name, gain in self.gains.items():
-            if name in track.channels:
-                k = track.channels.index(name)
-                values[:, k] = np.clip(values[:, k] * gain, 0.0, 1.0)
+        calibrated = [(track.channels.index(name), gain) for name, gain in self.gains.items() if name in track.channels]
+        if calibrated:
+            columns, gains = zip(*calibrated)
+            values[:, list(columns)] = np.clip(values[:, list(columns)] * np.array(gains), 0.0, 1.0)
         return Track(values, track.channels, track.fps, track.start_time)
 
     def to_dict(self) -> dict:
