@@ -360,8 +360,6 @@ def write_outputs(
     if calibration is not None and utterance.track is not None:
         utterance = replace(utterance, track=calibration.apply(utterance.track))
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise VispeechError(f"output path {out_dir} exists and is not a folder")
     names: list[str] = []
     extra = dict(extra or {})
     with atomic_output_dir(out_dir, replaces=(*OUTPUT_FILES.values(), *extra)) as staging:
