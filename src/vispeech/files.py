@@ -453,7 +453,7 @@ def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
     """
     target = Path(path)
     parent = target.parent
-    if os.path.realpath(parent) in _staging:
+    if str(parent) in _staging or os.path.realpath(parent) in _staging:
         yield target
         return
     fd = None
