@@ -21,6 +21,8 @@ not ARKit's: JSON carries them, Live Link Face CSV only ``tongueOut``.
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 from vispeech.alignment.phones import PhoneSequence
@@ -66,6 +68,14 @@ def tongue_targets(features: np.ndarray) -> np.ndarray:
     return np.column_stack([out, tip, body, back])
 
 
+@cache
+def _row_targets(language: str) -> np.ndarray:
+    """:func:`tongue_targets` of every phone row of ``language`` (a row's targets are its own)."""
+    targets = tongue_targets(phone_rows(language).features)
+    targets.setflags(write=False)
+    return targets
+
+
 def tongue_channels(track: Track, phones: PhoneSequence) -> Track:
     """``track`` with :data:`TONGUE_CHANNELS` from ``phones`` (added, or for ``tongueOut`` the larger)."""
     spoken = [p for p in phones if not p.is_silence]
@@ -73,7 +83,7 @@ def tongue_channels(track: Track, phones: PhoneSequence) -> Track:
     values = np.zeros((n, len(TONGUE_CHANNELS)))
     if spoken and n:
         rows = phone_rows(phones.language)
-        targets = tongue_targets(rows.features[rows.indices([p.symbol for p in spoken], [p.stress for p in spoken])])
+        targets = _row_targets(phones.language)[rows.indices([p.symbol for p in spoken], [p.stress for p in spoken])]
         starts = np.array([p.start for p in spoken]) - track.start_time
         ends = np.array([p.end for p in spoken]) - track.start_time
         anchors = anchor_frames(starts, ends, track.fps, n)
