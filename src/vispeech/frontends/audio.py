@@ -5,7 +5,6 @@ it crashes or hangs on is a :class:`~vispeech.errors.NativeFailure`."""
 
 from __future__ import annotations
 
-import hashlib
 import io
 import math
 import os
@@ -137,6 +136,8 @@ def probe_upload(data: bytes) -> tuple[str, float]:
             f"the uploaded audio holds {frames * channels} samples ({channels} channels "
             f"at {sample_rate} Hz); the limit is {MAX_UPLOAD_SAMPLES} (600 s of stereo at 48 kHz)"
         )
+    import hashlib  # here: OpenSSL's library is loaded only for uploads
+
     return hashlib.sha256(data).hexdigest(), duration
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
-from fractions import Fraction
 from typing import TYPE_CHECKING, Generic, Self, TypeVar
 
 import numpy as np
@@ -21,6 +20,8 @@ from vispeech.alignment.phones import Phone, PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 
 if TYPE_CHECKING:
+    from fractions import Fraction
+
     from vispeech.models.contract import Estimator
 
 ChunkT = TypeVar("ChunkT")
@@ -183,5 +184,7 @@ class ResampledFrames:
 def rate_ratio(model_fps: float, fps: float) -> Fraction | None:
     """``model_fps / fps`` as a simple fraction (denominator at most 1000), or ``None`` when it is none:
     every ``denominator`` frames at ``fps`` are a whole number (``numerator``) of model frames."""
+    from fractions import Fraction  # here: fractions imports decimal, and only streams need it
+
     ratio = Fraction(model_fps / fps).limit_denominator(1000)
     return ratio if abs(float(ratio) - model_fps / fps) < 1e-9 else None

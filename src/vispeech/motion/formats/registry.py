@@ -36,7 +36,6 @@ from vispeech.motion.formats.animation_json import (
     write_talkinghead_json,
 )
 from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, read_livelink_csv, write_livelink_csv
-from vispeech.motion.formats.visemes import write_oculus_csv, write_oculus_json, write_rhubarb_json, write_rhubarb_tsv
 from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.motion.track import Track
 
@@ -83,11 +82,15 @@ def _write_talkinghead(track: Track, path: Path, options: WriteOptions) -> None:
 
 
 def _write_oculus(track: Track, path: Path, options: WriteOptions) -> None:
+    from vispeech.motion.formats.visemes import write_oculus_csv, write_oculus_json  # only for viseme files
+
     write = write_oculus_json if _is_json(path) else write_oculus_csv
     write(track, path, options.pose_table, options.phones)
 
 
 def _write_rhubarb(track: Track, path: Path, options: WriteOptions) -> None:
+    from vispeech.motion.formats.visemes import write_rhubarb_json, write_rhubarb_tsv  # only for mouth cues
+
     if _is_json(path):
         write_rhubarb_json(track, path, options.pose_table, sound_file=options.audio or "", phones=options.phones)
     else:
