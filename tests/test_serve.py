@@ -26,7 +26,7 @@ from vispeech.pipeline import DEFAULT_MODEL, GREETINGS  # noqa: E402
 from vispeech.serve import (  # noqa: E402
     CacheKey, ChatBotError, HTTPChatBot, RuleBot, ServeConfig, UtteranceCache, create_app,
 )
-from vispeech.serve.safety import TokenBucket  # noqa: E402
+from vispeech.guards import TokenBucket  # noqa: E402
 
 FACE2D = Path(vispeech.preview.__file__).parent / "face2d.js"
 

@@ -21,7 +21,7 @@ from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from vispeech.serve import CacheKey, ServeConfig, UtteranceCache, create_app  # noqa: E402
 from vispeech.serve.pool import Busy, Cancelled, WorkPool  # noqa: E402
-from vispeech.serve.safety import TokenBucket  # noqa: E402
+from vispeech.guards import TokenBucket  # noqa: E402
 from vispeech.streaming import PhoneStream  # noqa: E402
 
 

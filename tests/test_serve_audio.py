@@ -23,7 +23,7 @@ from vispeech.models.registry import create_model, load_model  # noqa: E402
 from vispeech.pipeline import animate_audio  # noqa: E402
 from vispeech.postprocess import PostprocessConfig  # noqa: E402
 from vispeech.serve import ServeConfig, create_app  # noqa: E402
-from vispeech.serve.safety import TokenBucket  # noqa: E402
+from vispeech.guards import TokenBucket  # noqa: E402
 from vispeech.streaming import STREAM_CHANNELS, LiveAudioStream  # noqa: E402
 
 CLIP = "bbaf2n"

@@ -127,9 +127,9 @@ def serve(
     """
     import uvicorn
 
+    from vispeech.guards import LOOPBACK_HOSTS
     from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig, create_app
     from vispeech.serve.config import CONFIG_VARIABLE
-    from vispeech.serve.safety import LOOPBACK_HOSTS
 
     bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
     hosts = tuple(dict.fromkeys((*LOOPBACK_HOSTS, *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)))

@@ -30,11 +30,12 @@ from starlette.concurrency import run_in_threadpool
 
 import vispeech
 from vispeech.errors import VispeechError
+from vispeech.guards import BodySizeLimit, HostOriginCheck
 from vispeech.serve import api, listen, pages, stream
 from vispeech.serve.config import CONFIG_VARIABLE, ServeConfig
 from vispeech.serve.errors import EXCEPTION_HANDLERS
 from vispeech.serve.pages import Site
-from vispeech.serve.safety import BodySizeLimit, HostOriginCheck, TokenAuth
+from vispeech.serve.safety import TokenAuth
 from vispeech.serve.service import SpeechService
 
 

@@ -9,10 +9,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from vispeech.errors import VispeechError
+from vispeech.guards import DEFAULT_ALLOWED_HOSTS
 from vispeech.motion.rigging.head import DEFAULT_HEAD, HEAD_CREDIT
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE
 from vispeech.serve.bot import ChatBot, HTTPChatBot, RuleBot
-from vispeech.serve.safety import DEFAULT_ALLOWED_HOSTS
 from vispeech.serve.schemas import MAX_STREAM_SECONDS
 
 _MIB = 1024 * 1024
@@ -83,7 +83,7 @@ class ServeConfig:
     (``too_fast``), and so is one whose frames leave more than ``max_audio_lag`` s after their
     audio arrived (``behind``); the server reads no more of a connection's audio while
     ``max_audio_backlog`` s of it wait (TCP then slows the client).
-    ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.serve.safety.HostOriginCheck`;
+    ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.guards.HostOriginCheck`;
     ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
     ``cache_bytes`` caps the cache's size. ``switch_interval``: the GIL switch interval the
     server sets when it starts (seconds; ``None`` leaves Python's 5 ms), so the event loop wins

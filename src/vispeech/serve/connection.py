@@ -13,8 +13,8 @@ from pydantic import BaseModel
 from starlette.types import Message
 from starlette.websockets import WebSocketDisconnect, WebSocketDisconnected
 
+from vispeech.guards import client_key
 from vispeech.serve.pool import Cancelled
-from vispeech.serve.safety import client_key
 from vispeech.serve.schemas import ErrorMessage, ServerMessage
 from vispeech.serve.service import SpeechService
 

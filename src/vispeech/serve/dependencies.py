@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import Depends
 from starlette.requests import HTTPConnection
 
-from vispeech.serve.safety import client_key
+from vispeech.guards import client_key
 from vispeech.serve.service import SpeechService
 
 

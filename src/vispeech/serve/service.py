@@ -22,6 +22,7 @@ from vispeech.frontends.espeak import check_voice, find_language, languages
 from vispeech.frontends.isolation import set_workers
 from vispeech.frontends.sentiment import sentiment
 from vispeech.frontends.text import detect_language
+from vispeech.guards import TokenBucket
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
@@ -33,7 +34,7 @@ from vispeech.serve.bot import ChatBotError
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import WorkPool
-from vispeech.serve.safety import ConnectionCounter, RateLimited, TokenBucket
+from vispeech.serve.safety import ConnectionCounter, RateLimited
 from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
     AnimateQuery,
