@@ -14,8 +14,9 @@ Starts `vispeech serve` on 127.0.0.1 on a free port in a subprocess with its def
 - ``--idle`` WebSocket connections that never send anything (reopened when the server closes
   them for idleness);
 
-each client from its own loopback address (127.0.1.x heavy, 127.0.2.x / 127.0.3.x idle), as
-distinct clients on the network would be, so the per-IP limits apply to each separately.
+each client from its own loopback address, each heavy one in a /24 of its own (127.1.x.1) and
+the idle ones spread over /24s (127.2.x.y), as distinct clients on the network would be, so the
+per-address and per-network limits apply to each separately.
 Meanwhile this process measures, each from fresh loopback addresses of its own:
 
 - ``GET /api/config`` every 100 ms: p50 / p95 / max latency;
@@ -66,7 +67,7 @@ LONG_TEXT = ("hello there my friend how are you doing on this fine day " * 20)[:
 # -- the load (its own process) ----------------------------------------------------------------------
 
 async def heavy_client(i: int, url: str, end: float, kind: str, stats: dict) -> None:
-    ip = f"127.0.1.{i + 1}"
+    ip = f"127.1.{i}.1"
     while time.monotonic() < end:
         try:
             async with connect(url, local_addr=(ip, 0), max_size=None, open_timeout=10) as ws:
@@ -111,7 +112,7 @@ async def heavy_client(i: int, url: str, end: float, kind: str, stats: dict) -> 
 
 
 async def idle_client(j: int, url: str, end: float, stats: dict) -> None:
-    ip = f"127.0.{2 + j // 200}.{j % 200 + 1}"
+    ip = f"127.2.{j % 250}.{j // 250 + 1}"
     while time.monotonic() < end:
         try:
             async with connect(url, local_addr=(ip, 0), open_timeout=10) as ws:
@@ -168,7 +169,7 @@ async def new_clients(base: str, end: float, out: list) -> None:
     k = 0
     while time.monotonic() < end:
         k += 1
-        ip = f"127.0.5.{k % 250 + 1}"
+        ip = f"127.5.{k % 250}.1"
         record = {"k": k}
         started = time.perf_counter()
         try:
@@ -187,7 +188,7 @@ async def new_clients(base: str, end: float, out: list) -> None:
                         break
         except (ConnectionClosed, OSError, TimeoutError, InvalidStatus) as exc:
             record["error"] = repr(exc)[:200]
-        transport = httpx.AsyncHTTPTransport(local_address=f"127.0.6.{k % 250 + 1}")
+        transport = httpx.AsyncHTTPTransport(local_address=f"127.6.{k % 250}.1")
         async with httpx.AsyncClient(base_url=base, transport=transport, timeout=30) as client:
             sent = time.perf_counter()
             try:

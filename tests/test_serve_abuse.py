@@ -221,7 +221,7 @@ def test_idle_and_long_connections_are_closed(tmp_path):
             assert receive_until(ws)[-1]["type"] == "end"
             started = time.monotonic()
             message = ws.receive_json()
-            assert message["type"] == "error" and "no message for 0.3 s" in message["message"]
+            assert message["type"] == "error" and "no valid message for 0.3 s" in message["message"]
             with pytest.raises(WebSocketDisconnect) as closed:
                 ws.receive_json()
             assert closed.value.code == 1001 and time.monotonic() - started < 3

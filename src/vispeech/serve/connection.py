@@ -15,6 +15,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketDisconnected
 
 from vispeech.guards import client_key
 from vispeech.serve.pool import Cancelled
+from vispeech.serve.safety import NoSlot, Slot
 from vispeech.serve.schemas import ErrorMessage, ServerMessage
 from vispeech.serve.service import SpeechService
 
@@ -43,19 +44,22 @@ GONE = (WebSocketDisconnect, WebSocketDisconnected, Cancelled)
 
 
 async def serve_connection(websocket: WebSocket, service: SpeechService, kind: type[Connection]) -> None:
-    """One WebSocket connection of ``kind``: counted against the caps, served, then freed."""
+    """One WebSocket connection of ``kind``: given a slot (or refused one), served, then freed."""
     await websocket.accept()
-    ip = client_key(websocket.scope)
-    refusal = service.connections.open(ip)
-    if refusal is not None:
-        with contextlib.suppress(*GONE, RuntimeError, OSError):
-            await send_error(websocket, refusal)
-            await websocket.close(1013)
+    connection = kind(websocket, service, client_key(websocket.scope))
+    try:
+        connection.slot = service.connections.open(connection.ip, connection.evicted.set)
+    except NoSlot as exc:
+        await connection._close(1013, str(exc))
         return
     try:
-        await kind(websocket, service, ip).serve()
+        await connection.serve()
     finally:
-        service.connections.close(ip)
+        service.connections.close(connection.slot)
+
+
+GAVE_WAY = "the server is full and this connection was idle longest: it gave way to a new one (reconnect to go on)"
+"""The error (and close reason, code 1013) of a connection that made room for a new one."""
 
 
 class Connection:
@@ -72,20 +76,26 @@ class Connection:
         self.config = service.config
         self.ip = ip
         self.cancelled = threading.Event()
+        self.evicted = asyncio.Event()
+        """Set when the connection must give its slot to a new one (it was idle longest)."""
+        self.slot: Slot
         self.inbox: asyncio.Queue = asyncio.Queue(maxsize=self.inbox_size)
 
     async def serve(self) -> None:
         worker = asyncio.create_task(self._process())
         reader = asyncio.create_task(self._read())
+        evicted = asyncio.create_task(self.evicted.wait())
         try:
             done, _ = await asyncio.wait(
-                {worker, reader}, timeout=self.config.stream_timeout, return_when=asyncio.FIRST_COMPLETED
+                {worker, reader, evicted}, timeout=self.config.stream_timeout, return_when=asyncio.FIRST_COMPLETED
             )
             self.cancelled.set()
             if worker not in done:
                 worker.cancel()
                 await asyncio.gather(worker, return_exceptions=True)
-                if not done:
+                if evicted in done:
+                    await self._close(1013, GAVE_WAY)
+                elif not done:
                     await self._close(
                         1001,
                         f"the connection was open {self.config.stream_timeout:g} s, the most "
@@ -93,9 +103,9 @@ class Connection:
                     )
         finally:
             self.cancelled.set()
-            reader.cancel()
-            worker.cancel()
-            await asyncio.gather(worker, reader, return_exceptions=True)
+            for task in (reader, worker, evicted):
+                task.cancel()
+            await asyncio.gather(worker, reader, evicted, return_exceptions=True)
             self._release()
 
     def _release(self) -> None:
@@ -116,23 +126,34 @@ class Connection:
         return await self.inbox.get()
 
     async def _close(self, code: int, message: str) -> None:
+        """Send ``message`` as an error, then close with ``code`` and the message as the reason."""
         with contextlib.suppress(*GONE, RuntimeError, OSError):
             await send_error(self.ws, message)
-            await self.ws.close(code)
+            await self.ws.close(code, message.encode()[:123].decode("utf-8", "ignore"))
 
     async def _run(self, fn, *args, weight: float = 0.0):
         return await self.service.pool.run(self.ip, fn, *args, cancelled=self.cancelled, weight=weight)
 
+    def _worked(self) -> None:
+        """The message just answered was valid work: the connection is not idle (nothing else
+        keeps it open)."""
+        self.service.connections.worked(self.slot)
+
     async def _process(self) -> None:
+        timeout, slots = self.config.idle_timeout, self.service.connections
         try:
             while True:
                 try:
-                    event = await asyncio.wait_for(self._next(), self.config.idle_timeout)
+                    event = await asyncio.wait_for(self._next(), max(0.0, timeout - slots.idle_for(self.slot)))
                 except TimeoutError:
-                    await self._close(1001, f"no message for {self.config.idle_timeout:g} s: closing")
+                    await self._close(1001, f"no valid message for {timeout:g} s: closing")
                     return
-                if not await self._handle(event):
-                    return
+                self.slot.busy = True
+                try:
+                    if not await self._handle(event):
+                        return
+                finally:
+                    self.slot.busy = False
         except GONE:
             pass
         except Exception:
@@ -140,7 +161,8 @@ class Connection:
             await self._close(1011, "internal server error")
 
     async def _handle(self, event: dict) -> bool:
-        """Answer one client message; ``False`` once the connection is closed."""
+        """Answer one client message (:meth:`_worked` once it was valid work); ``False`` once the
+        connection is closed."""
         raise NotImplementedError
 
     async def _oversize(self, event: dict) -> bool:

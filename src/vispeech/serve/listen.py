@@ -111,6 +111,7 @@ class ListenConnection(Connection):
                 await self._start(message)
             else:
                 await self._stop()
+            self._worked()
         except REFUSALS as exc:
             await send_error(self.ws, str(exc))
         return True
@@ -182,6 +183,7 @@ class ListenConnection(Connection):
             self.audio, self.refusing = None, True
             await send_error(self.ws, f"{exc}; the audio stream has ended (send a start message to begin another)")
             return
+        self._worked()
         if text is not None:
             await self.ws.send_text(text)
         now = time.monotonic()

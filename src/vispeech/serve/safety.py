@@ -1,11 +1,16 @@
 """``vispeech serve``'s own defences: the token (ASGI middleware), the rate limit's refusal and the
-WebSocket slots per address and network (the shared guards are :mod:`vispeech.guards`; the work
+WebSocket slots, capped per address and per network (the shared guards are :mod:`vispeech.guards`; the work
 pool is :mod:`vispeech.serve.pool`)."""
 
 from __future__ import annotations
 
 import hmac
+import ipaddress
 import math
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
 from urllib.parse import parse_qs
 
 from vispeech.guards import TokenBucket, refuse, request_headers
@@ -98,32 +103,96 @@ class TokenAuth:
         await self.app(scope, receive, send)
 
 
-# -- connections -----------------------------------------------------------------------------------
+# -- WebSocket slots -------------------------------------------------------------------------------
 
 
-class ConnectionCounter:
-    """Open WebSocket connections, server-wide and per client IP, against their caps."""
+def network_of(ip: str) -> str:
+    """The network the per-network cap counts ``ip`` in: its /24 (IPv4, an IPv4-mapped IPv6 address
+    too) or its /64 (IPv6); anything else (``"unknown"``) stands for itself."""
+    try:
+        address = ipaddress.ip_address(ip)
+    except ValueError:
+        return ip
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped
+    return str(ipaddress.ip_network(f"{address}/{24 if address.version == 4 else 64}", strict=False))
 
-    def __init__(self, max_total: int, max_per_ip: int) -> None:
+
+class NoSlot(Exception):
+    """A WebSocket connection refused a slot (the message says why)."""
+
+
+@dataclass(eq=False)
+class Slot:
+    """One open WebSocket connection's place: its address and network, when it last finished valid
+    work (or opened), whether it is working now, and how to ask it to give way."""
+
+    ip: str
+    network: str
+    active: float
+    give_way: Callable[[], None]
+    busy: bool = False
+
+
+class Slots:
+    """Open WebSocket connections against their caps: ``max_total`` in all, ``max_per_ip`` from one
+    address, ``max_per_network`` from one network (:func:`network_of`).
+
+    A new connection past an address's or a network's cap is refused; one that finds the server
+    full takes the slot of the connection idle longest (not working now), which is asked to give
+    way. Only valid work keeps a connection from going idle (:meth:`worked`).
+    """
+
+    def __init__(
+        self, max_total: int, max_per_ip: int, max_per_network: int, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.max_total = max_total
         self.max_per_ip = max_per_ip
-        self.total = 0
-        self.per_ip: dict[str, int] = {}
+        self.max_per_network = max_per_network
+        self.clock = clock
+        self.slots: set[Slot] = set()
+        self.per_ip: Counter[str] = Counter()
+        self.per_network: Counter[str] = Counter()
 
-    def open(self, ip: str) -> str | None:
-        """Count a new connection of ``ip``; the reason it is refused (then nothing is counted)."""
+    @property
+    def total(self) -> int:
+        return len(self.slots)
+
+    def open(self, ip: str, give_way: Callable[[], None]) -> Slot:
+        """A slot for a new connection of ``ip`` (``give_way``: called should it have to make room);
+        :class:`NoSlot` when it gets none."""
+        network = network_of(ip)
+        if self.per_ip[ip] >= self.max_per_ip:
+            raise NoSlot(f"too many streams from your address (at most {self.max_per_ip} at once)")
+        if self.per_network[network] >= self.max_per_network:
+            raise NoSlot(f"too many streams from your network {network} (at most {self.max_per_network} at once)")
         if self.total >= self.max_total:
-            return f"server busy: {self.max_total} streams open, try again later"
-        if self.per_ip.get(ip, 0) >= self.max_per_ip:
-            return f"too many streams from your address (at most {self.max_per_ip} at once)"
-        self.total += 1
-        self.per_ip[ip] = self.per_ip.get(ip, 0) + 1
-        return None
+            idle = [slot for slot in self.slots if not slot.busy]
+            if not idle:
+                raise NoSlot(f"server busy: {self.max_total} streams open and working, try again later")
+            longest = min(idle, key=lambda slot: slot.active)
+            self.close(longest)
+            longest.give_way()
+        slot = Slot(ip, network, self.clock(), give_way)
+        self.slots.add(slot)
+        self.per_ip[ip] += 1
+        self.per_network[network] += 1
+        return slot
 
-    def close(self, ip: str) -> None:
-        self.total -= 1
-        left = self.per_ip.get(ip, 1) - 1
-        if left > 0:
-            self.per_ip[ip] = left
-        else:
-            self.per_ip.pop(ip, None)
+    def worked(self, slot: Slot) -> None:
+        """``slot``'s connection has just finished valid work: it is no longer idle."""
+        slot.active = self.clock()
+
+    def idle_for(self, slot: Slot) -> float:
+        """Seconds since ``slot``'s connection last finished valid work (or opened)."""
+        return self.clock() - slot.active
+
+    def close(self, slot: Slot) -> None:
+        """Free ``slot`` (again: nothing)."""
+        if slot not in self.slots:
+            return
+        self.slots.remove(slot)
+        for counts, key in ((self.per_ip, slot.ip), (self.per_network, slot.network)):
+            counts[key] -= 1
+            if counts[key] <= 0:
+                del counts[key]

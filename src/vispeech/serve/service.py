@@ -34,7 +34,7 @@ from vispeech.serve.bot import ChatBotError
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import WorkPool
-from vispeech.serve.safety import ConnectionCounter, RateLimited
+from vispeech.serve.safety import RateLimited, Slots
 from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
     AnimateQuery,
@@ -146,7 +146,7 @@ class SpeechService:
         self.pool = WorkPool(config.workers, config.max_queue)
         set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
         self.pushes = PushBatcher(self)
-        self.connections = ConnectionCounter(config.max_streams, config.max_streams_per_ip)
+        self.connections = Slots(config.max_streams, config.max_streams_per_ip, config.max_streams_per_network)
 
     @property
     def active_streams(self) -> int:

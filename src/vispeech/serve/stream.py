@@ -58,6 +58,7 @@ class StreamConnection(Connection):
                 await self._text(message)
             else:
                 await self._phones(message)
+            self._worked()
         except REFUSALS as exc:
             if self.phones is not None and self.phones.closed:
                 self.phones = None
