@@ -8,6 +8,7 @@ import ipaddress
 import json
 import logging
 import math
+import re
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -294,3 +295,38 @@ class HostOriginCheck:
             )
             return
         await self.app(scope, receive, send)
+
+
+# -- secrets in logs -------------------------------------------------------------------------------
+
+_TOKEN_QUERY = re.compile(r"([?&](?:[^=&\s]*token)=)[^&#\s\"]*", re.IGNORECASE)
+"""A ``token=`` (or ``admin_token=``, ...) query value in a request line."""
+
+SERVER_LOGGERS = ("uvicorn.access", "uvicorn.error")
+"""uvicorn's loggers that write request paths: HTTP requests, and WebSocket handshakes."""
+
+
+def redact_tokens(text: str) -> str:
+    """``text`` with every ``token=`` query value replaced by ``[redacted]``."""
+    return _TOKEN_QUERY.sub(r"\1[redacted]", text)
+
+
+class RedactTokens(logging.Filter):
+    """A logging filter that redacts ``token=`` query values (:func:`redact_tokens`) in a record's
+    message and its string arguments (uvicorn's access log formats the path from the arguments)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str):
+            record.msg = redact_tokens(record.msg)
+        if isinstance(record.args, tuple):
+            record.args = tuple(redact_tokens(a) if isinstance(a, str) else a for a in record.args)
+        return True
+
+
+def keep_tokens_out_of_logs(loggers: Iterable[str] = SERVER_LOGGERS) -> None:
+    """Redact ``token=`` query values in what ``loggers`` write (once per logger; uvicorn's logging
+    set-up keeps a logger's filters)."""
+    for name in loggers:
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, RedactTokens) for f in logger.filters):
+            logger.addFilter(RedactTokens())

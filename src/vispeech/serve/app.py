@@ -30,7 +30,7 @@ from starlette.concurrency import run_in_threadpool
 
 import vispeech
 from vispeech.errors import VispeechError
-from vispeech.guards import BodySizeLimit, HostOriginCheck
+from vispeech.guards import BodySizeLimit, HostOriginCheck, keep_tokens_out_of_logs
 from vispeech.serve import api, listen, pages, stream
 from vispeech.serve.config import CONFIG_VARIABLE, ServeConfig
 from vispeech.serve.errors import EXCEPTION_HANDLERS
@@ -42,6 +42,7 @@ from vispeech.serve.service import SpeechService
 def create_app(config: ServeConfig | None = None) -> FastAPI:
     """The FastAPI application serving ``config`` (defaults: see :class:`ServeConfig`)."""
     config = config or ServeConfig()
+    keep_tokens_out_of_logs()
     site = Site.of(config)  # a missing avatar is refused before the models load
     app = FastAPI(
         title="vispeech",
