@@ -547,3 +547,29 @@ def test_study_prepare_renders_the_recording_and_the_models_into_a_study_that_ru
     assert {t.task for t in plan_trials(study, 0)} == {"rating", "pairwise"}
     again = _cli("prepare", "--corpus", root, "-m", "recorded", "-m", "recorded", "-o", tmp_path / "other")
     assert again.exit_code == 2 and "each --model once" in again.output and not (tmp_path / "other").exists()
+
+
+def test_the_study_server_has_the_guards_of_serve(study_file, tmp_path):
+    testclient = require_module("fastapi.testclient", "FastAPI (the serve extra)")
+    from vispeech.guards import TokenBucket
+    from vispeech.study.app import create_app
+
+    study = read_study(study_file)
+    app = create_app(study, StudyStore(tmp_path / "a.sqlite3", study), "x", max_body_bytes=1000,
+                     joins=TokenBucket(0.001, 3))
+    joining = {"consent": True, "intro": {"experience": "Expert"}}
+    with testclient.TestClient(app) as client:
+        assert client.get("/api/study", headers={"host": "rebind.attacker.example"}).status_code == 400
+        foreign = client.post("/api/join", json=joining, headers={"origin": "https://attacker.example"})
+        assert foreign.status_code == 403 and "Origin" in foreign.json()["detail"]
+        declared = client.post("/api/join", content=b"{" + b" " * 5000 + b"}",
+                               headers={"content-type": "application/json"})
+        assert declared.status_code == 413 and "too large" in declared.json()["detail"]
+        streamed = client.post("/api/join", content=iter([b"{" + b" " * 600, b" " * 600 + b"}"]),
+                               headers={"content-type": "application/json"})  # chunked: no Content-Length
+        assert streamed.status_code == 413
+        for n in range(3):
+            assert client.post("/api/join", json={**joining, "pid": f"p{n}"}).status_code == 200
+        refused = client.post("/api/join", json={**joining, "pid": "p3"})
+        assert refused.status_code == 429 and "too many joins" in refused.json()["detail"]
+        assert client.get("/api/me").status_code == 200  # only joining is limited

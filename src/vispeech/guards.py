@@ -188,6 +188,12 @@ DEFAULT_ALLOWED_HOSTS = (*LOOPBACK_HOSTS, "testserver")
 TestClient, which no DNS name can be)."""
 
 
+def hosts_for(bind: str, extra: Iterable[str] = ()) -> tuple[str, ...]:
+    """The host names a server listening on ``bind`` answers to: loopback, ``bind`` (unless it is
+    every interface) and ``extra``."""
+    return tuple(dict.fromkeys((*LOOPBACK_HOSTS, *([bind] if bind not in ("0.0.0.0", "::", "") else []), *extra)))
+
+
 def _hostname(value: str) -> str | None:
     """The host name of a ``Host`` header value or an origin (lower case, no port, no brackets)."""
     value = value.strip()

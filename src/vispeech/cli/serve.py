@@ -127,12 +127,12 @@ def serve(
     """
     import uvicorn
 
-    from vispeech.guards import LOOPBACK_HOSTS
+    from vispeech.guards import hosts_for
     from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig, create_app
     from vispeech.serve.config import CONFIG_VARIABLE
 
     bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
-    hosts = tuple(dict.fromkeys((*LOOPBACK_HOSTS, *([host] if host not in ("0.0.0.0", "::", "") else []), *allow_host)))
+    hosts = hosts_for(host, allow_host)
     settings["token"] = settings["token"] or None  # --token "" asks for none
     config = ServeConfig(
         **{name: value for name, value in settings.items() if value is not None},

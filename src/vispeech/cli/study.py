@@ -136,13 +136,36 @@ _db_option = click.option(
     help="Token of the CSV export (/admin/answers.csv) [default: a random one, printed at start].",
 )
 @click.option(
+    "--allow-host",
+    multiple=True,
+    metavar="NAME",
+    help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
+    "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).",
+)
+@click.option(
+    "--allow-origin",
+    multiple=True,
+    metavar="ORIGIN",
+    help="Browser origin allowed to post answers, beside the server's own and the allowed hosts "
+    "(repeatable; * for any). Others get 403.",
+)
+@click.option(
     "--log-level",
     default="warning",
     show_default=True,
     type=click.Choice(["critical", "error", "warning", "info", "debug"]),
     help="Server log level.",
 )
-def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str | None, log_level: str) -> None:
+def serve(
+    study: Path,
+    db: Path | None,
+    host: str,
+    port: int,
+    admin_token: str | None,
+    allow_host: tuple[str, ...],
+    allow_origin: tuple[str, ...],
+    log_level: str,
+) -> None:
     """Run the study in STUDY.toml at http://HOST:PORT/ (participants: send them there, with
     ?pid=ID from a recruitment platform for one response set per id). Every answer is committed
     to the SQLite file before the page goes on. Stop with Ctrl+C."""
@@ -150,6 +173,7 @@ def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str |
 
     import uvicorn
 
+    from vispeech.guards import hosts_for
     from vispeech.study.app import create_app
     from vispeech.study.config import read_study
     from vispeech.study.store import StudyStore
@@ -162,7 +186,9 @@ def serve(study: Path, db: Path | None, host: str, port: int, admin_token: str |
         f"participants: http://{host}:{port}/   export: http://{host}:{port}/admin/answers.csv "
         f"(Authorization: Bearer {'<the admin token>' if admin_token else token})"
     )
-    uvicorn.run(create_app(plan, store, token), host=host, port=port, log_level=log_level)
+    hosts = hosts_for(host, allow_host)
+    app = create_app(plan, store, token, hosts, tuple(dict.fromkeys((*hosts, *allow_origin))))
+    uvicorn.run(app, host=host, port=port, log_level=log_level)
 
 
 @study_group.command("export")

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import secrets
 
-from fastapi import APIRouter, Cookie, Response
+from fastapi import APIRouter, Cookie, Request, Response
 from fastapi.responses import FileResponse
 
+from vispeech.guards import client_key
 from vispeech.study.dependencies import Running, RunningStudy
 from vispeech.study.schemas import AnswerRequest, FaceView, JoinRequest, Progress, QuestionView, StudyView, TrialView
 from vispeech.study.store import Participant, StudyError
@@ -56,10 +57,16 @@ def describe(running: Running) -> StudyView:
 
 @router.post("/api/join", response_model=Progress)
 def join(
-    request: JoinRequest, response: Response, running: Running, vispeech_study: str | None = Cookie(default=None)
+    request: JoinRequest,
+    response: Response,
+    running: Running,
+    connection: Request,
+    vispeech_study: str | None = Cookie(default=None),
 ) -> Progress:
     if not request.consent:
         raise StudyError("the study needs your consent to go on", 400)
+    if not running.joins.take(client_key(connection.scope)):
+        raise StudyError(f"too many joins from your address: {running.joins.message()}", 429)
     store = running.store
     participant = store.rejoin(vispeech_study) if request.pid is None and vispeech_study else None
     if participant is None:

@@ -20,6 +20,7 @@ Routes:
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 from fastapi import FastAPI, Request
@@ -27,21 +28,52 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+from vispeech.guards import (
+    DEFAULT_ALLOWED_HOSTS,
+    BodySizeLimit,
+    HostOriginCheck,
+    TokenBucket,
+    keep_tokens_out_of_logs,
+)
 from vispeech.study import admin, api
 from vispeech.study.config import Study
 from vispeech.study.dependencies import RunningStudy
 from vispeech.study.store import StudyError, StudyStore
 
 STATIC = Path(__file__).with_name("static")
+MAX_BODY_BYTES = 64 * 1024
+"""The largest request body (bytes): a join's intro answers or an answer need far less."""
+JOIN_RATE = 0.2
+"""Joins a second a client address may make (one every 5 s) once its burst is spent."""
+JOIN_BURST = 10
+"""Joins a client address may make at once."""
 
 
-def create_app(study: Study, store: StudyStore, admin_token: str) -> FastAPI:
-    """The study's FastAPI app; ``admin_token`` opens the CSV export."""
+def create_app(
+    study: Study,
+    store: StudyStore,
+    admin_token: str,
+    allowed_hosts: Iterable[str] = DEFAULT_ALLOWED_HOSTS,
+    allowed_origins: Iterable[str] | None = None,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    joins: TokenBucket | None = None,
+) -> FastAPI:
+    """The study's FastAPI app; ``admin_token`` opens the CSV export.
+
+    The guards of ``vispeech serve`` (:mod:`vispeech.guards`): a ``Host`` outside
+    ``allowed_hosts`` gets 400 and a POST from a foreign ``Origin`` 403
+    (:class:`~vispeech.guards.HostOriginCheck`), a body over ``max_bytes`` 413 before it is
+    parsed, and joins past ``joins`` (per client address; default :data:`JOIN_RATE` a second in
+    bursts of :data:`JOIN_BURST`) 429. ``token=`` query values are kept out of uvicorn's logs.
+    """
+    keep_tokens_out_of_logs()
     app = FastAPI(
         title=f"vispeech study: {study.title}",
         exception_handlers={StudyError: _refused, RequestValidationError: _invalid},
     )
-    app.state.study = RunningStudy(study, store, admin_token)
+    app.state.study = RunningStudy(study, store, admin_token, joins or TokenBucket(JOIN_RATE, JOIN_BURST))
+    app.add_middleware(BodySizeLimit, max_bytes=max_body_bytes)
+    app.add_middleware(HostOriginCheck, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     app.include_router(api.router)
     app.include_router(admin.router)
     app.mount("/", StaticFiles(directory=STATIC, html=True), name="page")

@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import Depends
 from starlette.requests import HTTPConnection
 
+from vispeech.guards import TokenBucket
 from vispeech.study.config import Clip, Study
 from vispeech.study.store import StudyStore
 
@@ -15,11 +16,12 @@ from vispeech.study.store import StudyStore
 @dataclass
 class RunningStudy:
     """A study being served: its plan, the store of its answers, the token that opens the export,
-    and its clips by sentence."""
+    the rate limit of joins (per client address), and its clips by sentence."""
 
     study: Study
     store: StudyStore
     admin_token: str
+    joins: TokenBucket
     clips: dict[str, Clip] = field(init=False)
 
     def __post_init__(self) -> None:
