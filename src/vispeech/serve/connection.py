@@ -48,7 +48,7 @@ async def serve_connection(websocket: WebSocket, service: SpeechService, kind: t
     await websocket.accept()
     connection = kind(websocket, service, client_key(websocket.scope))
     try:
-        connection.slot = service.connections.open(connection.ip, connection.evicted.set)
+        connection.slot = service.connections.open(connection.ip, connection.give_way)
     except NoSlot as exc:
         await connection._close(1013, str(exc))
         return
@@ -76,24 +76,30 @@ class Connection:
         self.config = service.config
         self.ip = ip
         self.cancelled = threading.Event()
-        self.evicted = asyncio.Event()
-        """Set when the connection must give its slot to a new one (it was idle longest)."""
+        self.evicted = False
+        """Whether the connection gave its slot to a new one (it was idle longest)."""
+        self._reader: asyncio.Task | None = None
         self.slot: Slot
         self.inbox: asyncio.Queue = asyncio.Queue(maxsize=self.inbox_size)
 
+    def give_way(self) -> None:
+        """Make room for a new connection: stop reading, so :meth:`serve` closes this one."""
+        self.evicted = True
+        if self._reader is not None:
+            self._reader.cancel()
+
     async def serve(self) -> None:
         worker = asyncio.create_task(self._process())
-        reader = asyncio.create_task(self._read())
-        evicted = asyncio.create_task(self.evicted.wait())
+        reader = self._reader = asyncio.create_task(self._read())
         try:
             done, _ = await asyncio.wait(
-                {worker, reader, evicted}, timeout=self.config.stream_timeout, return_when=asyncio.FIRST_COMPLETED
+                {worker, reader}, timeout=self.config.stream_timeout, return_when=asyncio.FIRST_COMPLETED
             )
             self.cancelled.set()
             if worker not in done:
                 worker.cancel()
                 await asyncio.gather(worker, return_exceptions=True)
-                if evicted in done:
+                if self.evicted:
                     await self._close(1013, GAVE_WAY)
                 elif not done:
                     await self._close(
@@ -103,9 +109,9 @@ class Connection:
                     )
         finally:
             self.cancelled.set()
-            for task in (reader, worker, evicted):
-                task.cancel()
-            await asyncio.gather(worker, reader, evicted, return_exceptions=True)
+            reader.cancel()
+            worker.cancel()
+            await asyncio.gather(worker, reader, return_exceptions=True)
             self._release()
 
     def _release(self) -> None:
