@@ -8,7 +8,7 @@ import pytest
 from vispeech import Phone, PhoneSequence, Track, VispeechError
 from vispeech.alignment.phones import n_frames_for
 from vispeech.models.fitting import Splits
-from vispeech.models.networks.network import THESIS_CHANNELS
+from vispeech.motion.arkit import THESIS_CHANNELS
 from vispeech.models.networks.sliding_window import SlidingWindowNetwork, TaylorNetwork
 from vispeech.models.networks.tdnn import LowLatencyNetwork, RecurrentStream, TimeDelayNetwork
 from vispeech.models.registry import create_model, load_model

@@ -49,7 +49,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
-from vispeech.motion.arkit import TONGUE_CHANNELS
+from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
@@ -93,33 +93,9 @@ def split_clauses(text: str) -> list[str]:
 
 
 STREAM_CHANNELS: tuple[str, ...] = (
-    "jawForward",
-    "jawOpen",
-    "mouthClose",
-    "mouthFunnel",
-    "mouthPucker",
-    "mouthSmileLeft",
-    "mouthDimpleLeft",
-    "mouthStretchLeft",
-    "mouthRollLower",
-    "mouthRollUpper",
-    "mouthShrugLower",
-    "mouthShrugUpper",
-    "mouthPressLeft",
-    "mouthLowerDownLeft",
-    "mouthUpperUpLeft",
-    "cheekPuff",
-    "cheekSquintLeft",
-    "noseSneerLeft",
-    "mouthSmileRight",
-    "mouthDimpleRight",
-    "mouthStretchRight",
-    "mouthPressRight",
-    "mouthLowerDownRight",
-    "mouthUpperUpRight",
-    "cheekSquintRight",
-    "noseSneerRight",
-    *TONGUE_CHANNELS,
+    THESIS_CHANNELS
+    + tuple(name[: -len("Left")] + "Right" for name in THESIS_CHANNELS if name.endswith("Left"))
+    + TONGUE_CHANNELS
 )
 """The channels every stream's frames begin with, in this order: those the shipped networks
 learned from the tracked corpus, and the tongue's (:data:`~vispeech.motion.arkit.TONGUE_CHANNELS`)."""

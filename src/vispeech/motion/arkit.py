@@ -73,6 +73,28 @@ MOUTH_CHANNELS: tuple[str, ...] = tuple(
 )
 """Jaw, lip, cheek-puff and tongue channels: what speech animation drives."""
 
+THESIS_CHANNELS: tuple[str, ...] = (
+    "jawForward",
+    "jawOpen",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthSmileLeft",
+    "mouthDimpleLeft",
+    "mouthStretchLeft",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthLowerDownLeft",
+    "mouthUpperUpLeft",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "noseSneerLeft",
+)
+"""The thesis's 18 output channels, in its order (Left kept of each pair)."""
+
 ARTICULATORY_CHANNELS: tuple[str, ...] = ("jaw_opening", "lip_aperture", "lip_width", "protrusion")
 """Beskow-style articulatory parameters (not ARKit shapes), in eye-corner distances; measured on
 face landmarks by :func:`vispeech.corpus.articulation.articulatory_parameters`."""

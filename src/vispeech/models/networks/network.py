@@ -5,7 +5,7 @@ A phone network (:class:`PhoneNetwork`) reads per-frame input vectors
 corpus's unless ``fps`` is set) and predicts target channels:
 
 - ``targets="mouth"`` (default): the thesis's 18 reduced mouth channels
-  (:data:`THESIS_CHANNELS`; the Left channel of every left/right pair);
+  (:data:`~vispeech.motion.arkit.THESIS_CHANNELS`; the Left channel of every left/right pair);
 - ``"all"``: every channel of :data:`~vispeech.motion.arkit.MOUTH_CHANNELS` the corpus has;
 - ``"articulatory"``: Beskow-style jaw opening, lip aperture, lip width and protrusion
   (:data:`~vispeech.motion.arkit.ARTICULATORY_CHANNELS`), which the corpus's tracks must
@@ -44,7 +44,7 @@ from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.persistence import FOLDER_NAMES, write_model
 from vispeech.models.streams import ModelStream, WindowStream
-from vispeech.motion.arkit import ARKIT_NAMES, ARTICULATORY_CHANNELS, MOUTH_CHANNELS
+from vispeech.motion.arkit import ARKIT_NAMES, ARTICULATORY_CHANNELS, MOUTH_CHANNELS, THESIS_CHANNELS
 from vispeech.motion.track import Track
 
 if TYPE_CHECKING:
@@ -52,28 +52,6 @@ if TYPE_CHECKING:
 
     from vispeech.models.networks.audio_encoding import AudioEncoding
     from vispeech.models.networks.training import TrainingState
-
-THESIS_CHANNELS: tuple[str, ...] = (
-    "jawForward",
-    "jawOpen",
-    "mouthClose",
-    "mouthFunnel",
-    "mouthPucker",
-    "mouthSmileLeft",
-    "mouthDimpleLeft",
-    "mouthStretchLeft",
-    "mouthRollLower",
-    "mouthRollUpper",
-    "mouthShrugLower",
-    "mouthShrugUpper",
-    "mouthPressLeft",
-    "mouthLowerDownLeft",
-    "mouthUpperUpLeft",
-    "cheekPuff",
-    "cheekSquintLeft",
-    "noseSneerLeft",
-)
-"""The thesis's 18 output channels, in its order (Left kept of each pair)."""
 
 PHONE_INPUT_PARAMS: dict[str, Any] = {
     "inputs": "phones",
