@@ -76,6 +76,15 @@ def postprocessing_option(help: str = "How tracks are post-processed"):
     )
 
 
+allow_host_option = click.option(
+    "--allow-host",
+    multiple=True,
+    metavar="NAME",
+    help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
+    "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).",
+)
+"""The ``--allow-host`` option of the servers (``serve``, ``study serve``): the Host names they answer to."""
+
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
 """The ``--quiet/-q`` flag of the commands that show progress bars."""
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main, scale_option
+from vispeech.cli import allow_host_option, main, scale_option
 from vispeech.pipeline import DEFAULT_SCALE
 
 
@@ -73,13 +73,7 @@ def _config_option(field: dataclasses.Field, hint: typing.Any) -> click.Option:
     show_default=True,
     help="Where the chat service's JSON answer holds the reply (dotted path: choices.0.message.content).",
 )
-@click.option(
-    "--allow-host",
-    multiple=True,
-    metavar="NAME",
-    help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
-    "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).",
-)
+@allow_host_option
 @click.option(
     "--allow-origin",
     multiple=True,

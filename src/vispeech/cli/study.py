@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main, quiet_option
+from vispeech.cli import allow_host_option, main, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.corpus.corpus import SPLITS
 
@@ -135,13 +135,7 @@ _db_option = click.option(
     show_envvar=True,
     help="Token of the CSV export (/admin/answers.csv) [default: a random one, printed at start].",
 )
-@click.option(
-    "--allow-host",
-    multiple=True,
-    metavar="NAME",
-    help="Host name the server answers to, beside localhost, 127.0.0.1, ::1, --host and IP addresses "
-    "(repeatable; * for any). Other Host headers get 400 (DNS rebinding).",
-)
+@allow_host_option
 @click.option(
     "--allow-origin",
     multiple=True,
