@@ -205,7 +205,9 @@ def test_textgrid_structure(tmp_path, spans, extra, labels):
 def test_table_structure(tmp_path, spans, suffix):
     units = 1e7 if suffix == "a.lab" else 25000
     text = "".join(f"{a * 1000} {b * 1000} {'sil' if i % 2 else 'AH1'}\n" for i, (a, b) in enumerate(spans))
-    seconds = [(a * 1000 / units, b * 1000 / units) for a, b in spans]
+    # a pause of no length (sil at odd lines here) is dropped, as forced aligners write one at a clip's end
+    kept = [(a, b) for i, (a, b) in enumerate(spans) if not (i % 2 and a == b >= 0)]
+    seconds = [(a * 1000 / units, b * 1000 / units) for a, b in kept]
     assert outcome(suffix, text.encode(), tmp_path) == ("ok" if _well_formed(seconds) else "error")
 
 
