@@ -88,7 +88,7 @@ def test_a_failed_phone_pass_shares_each_word_among_its_phones(bbaf2n, monkeypat
 
     monkeypatch.setattr(align_module, "_phone_pass", fail)
     # align's own work, in this process where the patch holds (align runs it in a worker process)
-    phones = align_module._pocketsphinx_align(AudioClip.from_array(samples, rate), text)
+    phones = align_module._pocketsphinx_align(AudioClip.from_array(samples, rate), text, None)
     _check_covers(phones, len(samples) / rate)
     assert phones.symbols == ["sil", "B", "IH", "N", "B", "L", "UW", "AE", "T", "EH", "F", "T", "UW", "N", "AW", "sil"]
     for aligned, ref in zip(phones.words, reference, strict=True):  # the word pass is unchanged
