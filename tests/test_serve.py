@@ -6,6 +6,7 @@ import io
 import json
 import math
 import random
+import re
 import threading
 from datetime import datetime
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -23,6 +24,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 import vispeech.preview  # noqa: E402
 from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.pipeline import DEFAULT_MODEL, GREETINGS  # noqa: E402
+from vispeech.serve.pages import SWAGGER_UI  # noqa: E402
 from vispeech.serve import (  # noqa: E402
     CacheKey, ChatBotError, HTTPChatBot, RuleBot, ServeConfig, UtteranceCache, create_app,
 )
@@ -39,6 +41,9 @@ def site(tmp_path_factory) -> dict:
     for name in ("index.html", "player.html", "viewer.html"):
         (static / name).write_text(f"<!doctype html><title>{name}</title>", encoding="utf-8")
     (static / "style.css").write_text("body{}", encoding="utf-8")
+    (static / "swagger-ui").mkdir()
+    for name in SWAGGER_UI.values():
+        (static / name).write_text(f"/* {name} */", encoding="utf-8")
     avatar = root / "head.glb"
     avatar.write_bytes(b"glTF\x02\x00\x00\x00" + bytes(range(64)))
     (root / "secret.txt").write_text("root:x:0:0", encoding="utf-8")
@@ -185,7 +190,22 @@ def test_pages_static_files_and_the_2d_face(client, site):
     face = client.get("/static/face2d.js")
     assert face.status_code == 200 and face.content == FACE2D.read_bytes()
     assert "/api/speak" in client.get("/openapi.json").json()["paths"]
-    assert client.get("/docs").status_code == 200
+
+
+
+def test_api_docs_load_nothing_from_outside(client, site, tmp_path):
+    docs = client.get("/docs")
+    assert docs.status_code == 200 and "SwaggerUIBundle" in docs.text
+    urls = re.findall(r"""(?:src|href|url)\s*[=:]\s*['"]([^'"]+)['"]""", docs.text)
+    assert {"/openapi.json", "/static/swagger-ui/swagger-ui-bundle.js", "/static/swagger-ui/swagger-ui.css"} <= set(urls)
+    assert not re.search(r"(?:https?:)?//", docs.text), "the docs page loads something from another host"
+    for url in urls:
+        if not url.startswith("data:"):
+            assert client.get(url).status_code == 200, url
+    assert '"validatorUrl": null' in docs.text  # no badge fetched from validator.swagger.io
+    assert client.get("/redoc").status_code == 404  # ReDoc would come from a CDN
+    with TestClient(create_app(ServeConfig(cache=":memory:", static_dir=tmp_path, head=False))) as bare:
+        assert "npm run build" in bare.get("/docs").json()["detail"]  # not built: no blank page
 
 
 def test_the_avatar_is_served_prepared_unless_asked_as_is(tmp_path):

@@ -1,6 +1,7 @@
 // Build the web app into src/vispeech/serve/static/: bundle the three page scripts and the
 // stimuli renderer's (three.js included, shared code split into chunks/), copy the pages, the
-// style sheet and the 2D face.
+// style sheet and the 2D face, and Swagger UI's script and style for the API docs at /docs
+// (served from here, so that the docs work offline).
 // The folder is generated: it is emptied first and ignores itself in git.
 import { build } from 'esbuild';
 import { copyFileSync, mkdirSync, rmSync, writeFileSync } from 'node:fs';
@@ -33,4 +34,9 @@ for (const name of ['index.html', 'player.html', 'viewer.html', 'style.css']) {
   copyFileSync(join(src, name), join(out, name));
 }
 copyFileSync(face2d, join(out, 'face2d.js'));
+const swagger = join(here, 'node_modules', 'swagger-ui-dist');
+mkdirSync(join(out, 'swagger-ui'));
+for (const name of ['swagger-ui-bundle.js', 'swagger-ui-bundle.js.LICENSE.txt', 'swagger-ui.css', 'LICENSE']) {
+  copyFileSync(join(swagger, name), join(out, 'swagger-ui', name));
+}
 console.log(`built ${out}`);

@@ -8,7 +8,8 @@ Routes (the browser contract is ``docs/web.md``; ``docs/serve.md`` describes the
   timed phones to frames);
 - :mod:`~vispeech.serve.listen`: ``WebSocket /api/listen`` (live audio in, frames out);
 - :mod:`~vispeech.serve.pages`: ``/``, ``/player``, ``/viewer`` and ``/static/...`` (the built
-  web app), ``/static/face2d.js`` (the preview's 2D face), ``/avatar.glb``; OpenAPI at ``/docs``.
+  web app), ``/static/face2d.js`` (the preview's 2D face), ``/avatar.glb``; the OpenAPI docs at
+  ``/docs`` (Swagger UI from ``/static/``, no CDN).
 
 Every bad request gets a 4xx JSON ``{"detail": "..."}`` (:mod:`~vispeech.serve.errors`): 422
 for a malformed body, 400 for input the library refuses (or a Host not allowed), 401 without the
@@ -50,6 +51,8 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
         lifespan=_lifespan,
         description="Speech animation: text to audio and ARKit blend-shape animation.",
         exception_handlers=EXCEPTION_HANDLERS,
+        docs_url=None,  # pages.api_docs serves Swagger UI from /static/, not from a CDN
+        redoc_url=None,
     )
     app.state.service = SpeechService(config)
     app.state.site = site

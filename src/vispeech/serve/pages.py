@@ -1,5 +1,6 @@
 """What a browser opens: the web app's pages and scripts (``/``, ``/player``, ``/viewer``,
-``/static/...``), the preview's 2D face (``/static/face2d.js``) and the avatar (``/avatar.glb``);
+``/static/...``), the preview's 2D face (``/static/face2d.js``), the avatar (``/avatar.glb``)
+and the API docs (``/docs``, Swagger UI served from the built web app, so that it works offline);
 none of them in the OpenAPI description."""
 
 from __future__ import annotations
@@ -10,8 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, FastAPI, HTTPException
-from fastapi.responses import FileResponse, Response
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, Request
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.requests import HTTPConnection
 
@@ -28,6 +30,8 @@ PAGES = {"/": "index.html", "/player": "player.html", "/viewer": "viewer.html"}
 """Each page's path and its file in the built web app."""
 
 _NOT_BUILT = "the web app is not built: run `npm run build` in web/"
+SWAGGER_UI = {"js": "swagger-ui/swagger-ui-bundle.js", "css": "swagger-ui/swagger-ui.css"}
+"""Swagger UI's script and style sheet in the built web app (``web/build.mjs`` copies them)."""
 _FACE2D = Path(vispeech.preview.__file__).parent / "face2d.js"
 
 
@@ -103,6 +107,22 @@ def _page(name: str) -> Callable[[Site], FileResponse]:
         return FileResponse(path, media_type="text/html")
 
     return page
+
+
+@router.get("/docs")
+def api_docs(request: Request, site: SiteOf) -> HTMLResponse:
+    """Swagger UI on ``/openapi.json``, every asset from ``/static/`` (no CDN, no validator badge)."""
+    if not all((site.static_dir / name).is_file() for name in SWAGGER_UI.values()):
+        raise HTTPException(404, _NOT_BUILT)
+    root = request.scope.get("root_path", "")
+    return get_swagger_ui_html(
+        openapi_url=f"{root}{request.app.openapi_url}",
+        title=f"{request.app.title} API",
+        swagger_js_url=f"{root}/static/{SWAGGER_UI['js']}",
+        swagger_css_url=f"{root}/static/{SWAGGER_UI['css']}",
+        swagger_favicon_url="data:,",
+        swagger_ui_parameters={"validatorUrl": None},
+    )
 
 
 for _path, _name in PAGES.items():
