@@ -16,6 +16,7 @@ from vispeech.motion.formats.animation_json import (
 )
 from vispeech.motion.formats.registry import FORMATS, read_animation, read_track, track_format, write_track
 from vispeech.motion.formats.visemes import OCULUS_VISEMES, MouthCue, mouth_cues, oculus_visemes
+from vispeech.motion.rigging.retarget import PoseTable
 
 DATA = Path(vispeech.motion.rigging.__file__).parent / "data"
 
@@ -153,6 +154,32 @@ def test_cues_at_high_frame_rates_round_to_centiseconds():
     shapes = poses("rhubarb_shapes")
     cues = mouth_cues(pose_track([{}] * 7 + [shapes["F"]] * 5, fps=120))
     assert cues == [MouthCue(0.0, 0.06, "X"), MouthCue(0.06, 0.1, "F")]
+
+
+def test_mouth_cues_come_from_the_phones_when_they_are_known():
+    """Rhubarb's rules on a said sentence: A on /p b m/, G on /f v/, H on /l/, D or C on open
+    vowels, X in silence; every cue boundary on a phone boundary; no pose involved."""
+    from vispeech.alignment.phones import n_frames_for
+    from vispeech.pipeline import utter
+
+    phones = utter("Bob will move five pale palms far away.", "en").phones
+    track = Track(np.zeros((n_frames_for(phones.duration, 30), 1)), ("jawOpen",), 30)  # a pose: X throughout
+    cues = mouth_cues(track, phones=phones)
+    assert cues[0].start == 0 and cues[-1].end == round(track.n_frames / 30, 2)
+    assert all(a.end == b.start and a.value != b.value for a, b in zip(cues, cues[1:]))
+    expected = {"P": "A", "B": "A", "M": "A", "F": "G", "V": "G", "L": "H", "AA": "D", "AE": "C", "AY": "D",
+                "EY": "C", "UW": "F", "W": "F", "sil": "X"}
+    seen = set()
+    for phone in phones:
+        middle = (phone.start + phone.end) / 2
+        cue = next(c for c in cues if c.start <= middle < c.end)
+        if phone.symbol in expected:
+            assert cue.value == expected[phone.symbol], (phone, cue)
+            seen.add(phone.symbol)
+    assert {"P", "B", "M", "F", "V", "L", "AA", "sil"} <= seen
+    boundaries = {round(phone.start, 2) for phone in phones} | {round(phone.end, 2) for phone in phones}
+    assert {c.start for c in cues} <= boundaries
+    assert {c.value for c in mouth_cues(track, PoseTable.load("rhubarb_shapes"), phones)} == {"X"}  # the frames'
 
 
 def test_format_dispatch():

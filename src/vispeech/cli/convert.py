@@ -20,7 +20,7 @@ from vispeech.motion.formats.registry import FORMATS, read_animation, write_trac
 @click.option(
     "--pose-table",
     help="Pose table (JSON file or built-in name): retargets the track, or for "
-    "oculus/rhubarb replaces the ARKit -> visemes/shapes table.",
+    "oculus/rhubarb replaces the ARKit -> visemes/shapes table (rhubarb: cues from the frames, not the phones).",
 )
 @click.option(
     "--glb",

@@ -224,7 +224,8 @@ def write_track(
     Parameters
     ----------
     phones, audio : stored by ``json`` (audio also as Rhubarb JSON's ``soundFile``); ``oculus``
-        and ``rhubarb`` name each consonant's viseme or shape by its features.
+        names each consonant's viseme by its features, ``rhubarb`` each phone's shape (unless
+        given a ``pose_table``).
     base_glb : the model ``gltf`` and ``fbx`` add the animation to (default: the shipped head,
         :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`).
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that

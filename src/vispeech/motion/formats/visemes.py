@@ -1,21 +1,29 @@
 """Viseme exports: Oculus/OVRLipSync viseme curves and Rhubarb Lip Sync mouth cues.
 
-Both go through a morph :class:`PoseTable` from ARKit channels: by default the shipped
-``oculus_visemes`` and ``rhubarb_shapes`` tables. A pose cannot tell closed lips for /m/ from
-closed lips at rest, so when the phones are known (``phones``), each consonant's frames take
-the viseme or shape its articulatory features name, in any language: Oculus ``PP`` for
+The curves go through a morph :class:`PoseTable` from ARKit channels (by default the shipped
+``oculus_visemes``). A pose cannot tell closed lips for /m/ from closed lips at rest, so when
+the phones are known (``phones``), each consonant's frames take the viseme its articulatory
+features name, in any language: Oculus ``PP`` for
 bilabials, ``FF`` labiodentals, ``TH`` dentals, ``CH`` postalveolar and palatal fricatives and
 affricates, ``SS`` other sibilants, ``nn`` other nasals and laterals, ``RR`` rhotic
 approximants, ``DD`` other coronal stops, ``kk`` dorsal and glottal consonants (glides keep
-the pose's); Rhubarb ``A`` for bilabials, ``G`` labiodentals, ``H`` laterals. Vowels and
-silences keep the pose's visemes and shapes.
+the pose's); vowels and silences keep the pose's visemes.
+
+Rhubarb cues, when the phones are known, come from the phones alone, one shape a phone by its
+features as Rhubarb's own rules name them: ``A`` closed (bilabials), ``G`` labiodentals, ``H``
+laterals, ``F`` rounded glides (/w/) and close or protruded rounded vowels (/u o y/), ``B``
+every other consonant and the close unrounded vowels (/i/), ``E`` other rounded vowels (/ɔ ɝ ø/),
+``D`` open back and central vowels (/ɑ a/), ``C`` the other open and mid vowels (/æ ɛ ʌ/), ``X``
+silences and the time no phone covers; /h/ takes the next phone's shape. Without phones, or
+with a pose table given, each frame takes the strongest shape of the table (by default the shipped
+``rhubarb_shapes``).
 
 - Oculus curves: 15 channels in OVRLipSync order ``sil PP FF TH DD kk CH SS nn RR aa E ih oh
   ou``, as CSV (``time`` in seconds, then the 15 values) or as vispeech animation JSON.
   A table's controls may use either spelling (``viseme_I``/``I``/``ih`` ...).
-- Rhubarb cues: the strongest shape of every frame, runs merged into cues, written exactly
-  as Rhubarb writes TSV and JSON (times in seconds with 2 decimals, measured from the first
-  frame; the TSV's last line holds the end time and ``X``).
+- Rhubarb cues: the phones' shapes (or the strongest shape of every frame), runs merged into
+  cues, written exactly as Rhubarb writes TSV and JSON (times in seconds with 2 decimals,
+  measured from the first frame; the TSV's last line holds the end time and ``X``).
 """
 
 from __future__ import annotations
@@ -73,12 +81,29 @@ def oculus_viseme(symbol: str, language: str) -> str | None:
 
 
 def rhubarb_shape(symbol: str, language: str) -> str | None:
-    """The Rhubarb shape a consonant's features name (``A`` bilabial, ``G`` labiodental, ``H``
-    lateral); ``None`` for every other phone."""
+    """The Rhubarb shape ``A`` ... ``H`` or ``X`` a phone's features name (see the module
+    docstring); ``None`` for a glottal consonant (/h/), which takes the next phone's shape."""
     f = dict(zip(FEATURE_NAMES, phone_features(symbol, language)))
-    if f["vowel"] or f["silence"]:
-        return None
-    return "A" if f["bilabial"] else "G" if f["labiodental"] else "H" if f["lateral"] else None
+    if f["silence"] or f["pause"]:
+        return "X"
+    if f["vowel"]:
+        if f["rounded"] >= 1 and (f["protruded"] >= 1 or f["open"] == 0):
+            return "F"
+        if f["open"] >= 1:
+            return "C" if f["front"] >= 1 else "D"
+        if f["rounded"] > 0:
+            return "E"
+        return "C" if f["open"] > 0 else "B"
+    for shape, holds in (
+        ("A", f["bilabial"]),
+        ("G", f["labiodental"]),
+        ("H", f["lateral"]),
+        ("F", f["approximant"] and f["rounded"] >= 1),
+        (None, f["glottal"] and not f["stop"]),
+    ):
+        if holds:
+            return shape
+    return "B"
 
 
 def _phone_frames(track: Track, phones: PhoneSequence, name_of) -> list[tuple[np.ndarray, str]]:
@@ -144,26 +169,28 @@ def write_oculus_json(
 def mouth_cues(
     track: Track, pose_table: PoseTable | None = None, phones: PhoneSequence | None = None
 ) -> list[MouthCue]:
-    """Rhubarb mouth cues: per frame the shape with the largest weight (with ``phones``, the shape
-    a consonant's features name, see the module docstring), runs merged.
+    """Rhubarb mouth cues, runs merged: with ``phones`` (and no ``pose_table``), each phone's shape
+    over its time (see the module docstring); otherwise each frame's strongest shape in
+    ``pose_table`` (default: the shipped ``rhubarb_shapes``).
 
-    Frame k covers ``[k / fps, (k + 1) / fps)`` seconds from the first frame; boundaries are
-    rounded to centiseconds as Rhubarb's are, and cues that round to nothing are dropped.
+    Times are seconds from the first frame, whose frame k covers ``[k / fps, (k + 1) / fps)``;
+    boundaries are rounded to centiseconds as Rhubarb's are, and cues that round to nothing are dropped.
     """
-    table = pose_table or PoseTable.load("rhubarb_shapes")
-    if table.kind != "morph":
-        raise VispeechError(f"mouth cues need a morph pose table; {table.name!r} is a {table.kind} table")
-    shapes = table.apply(track)
-    labels = [shapes.channels[i] for i in np.argmax(shapes.values, axis=1)]
-    if phones is not None:
-        for frames, shape in _phone_frames(track, phones, rhubarb_shape):
-            if shape in shapes.channels:
-                for k in frames:
-                    labels[k] = shape
-    bounds = [round(k * 100 / track.fps) for k in range(track.n_frames + 1)]
+    if phones is not None and pose_table is None:
+        spans = _phone_spans(track, phones)
+    else:
+        table = pose_table or PoseTable.load("rhubarb_shapes")
+        if table.kind != "morph":
+            raise VispeechError(f"mouth cues need a morph pose table; {table.name!r} is a {table.kind} table")
+        shapes = table.apply(track)
+        spans = [
+            (k / track.fps, (k + 1) / track.fps, shapes.channels[i]) for k, i in enumerate(shapes.values.argmax(1))
+        ]
     cues: list[list] = []
-    for k, label in enumerate(labels):
-        start, end = bounds[k], bounds[k + 1]
+    end_of_track = _duration(track)
+    for start_s, end_s, label in spans:
+        start, end = (round(min(max(t, 0.0), end_of_track) * 100) for t in (start_s, end_s))
+        start = cues[-1][1] if cues else start  # the spans are contiguous; so are the cues
         if end <= start:
             continue
         if cues and cues[-1][2] == label:
@@ -171,6 +198,25 @@ def mouth_cues(
         else:
             cues.append([start, end, label])
     return [MouthCue(start / 100, end / 100, label) for start, end, label in cues]
+
+
+def _phone_spans(track: Track, phones: PhoneSequence) -> list[tuple[float, float, str]]:
+    """``(start, end, shape)`` in seconds from the track's first frame: each phone's shape, ``X``
+    where no phone is, through the track's end."""
+    shapes = [rhubarb_shape(phone.symbol, phones.language) for phone in phones]
+    for k in range(len(shapes) - 1, -1, -1):  # /h/ is shaped as what follows it
+        if shapes[k] is None:
+            shapes[k] = shapes[k + 1] if k + 1 < len(shapes) and shapes[k + 1] != "X" else "B"
+    spans = []
+    now = 0.0
+    for phone, shape in zip(phones, shapes):
+        start, end = phone.start - track.start_time, phone.end - track.start_time
+        if start > now + TIME_TOLERANCE:
+            spans.append((now, start, "X"))
+        spans.append((start, end, str(shape)))
+        now = max(now, end)
+    spans.append((now, _duration(track), "X"))
+    return spans
 
 
 def write_rhubarb_tsv(
