@@ -601,3 +601,27 @@ def test_the_open_mouth_is_dark_inside_and_shows_its_teeth(page, screenshot_dir)
     for name, m in measured.items():
         assert m["teeth"] >= 0.05 * m["inside"] and m["upper teeth"] >= 0.02 * m["inside"], (name, measured)
     assert page.errors == []
+
+
+def test_the_api_docs_render_offline(page, server_url):
+    """/docs lists the API's operations with every request to another host refused (no CDN)."""
+    docs = page.context.browser.new_page(viewport={"width": 1024, "height": 768})  # one Playwright
+    docs.errors, foreign = [], []
+    docs.on("pageerror", lambda error: docs.errors.append(str(error)))
+
+    def offline(route):
+        if route.request.url.startswith(server_url) or route.request.url.startswith("data:"):
+            route.continue_()
+        else:
+            foreign.append(route.request.url)
+            route.abort()
+
+    docs.route("**/*", offline)
+    try:
+        docs.goto(f"{server_url}/docs")
+        docs.wait_for_selector(".opblock", timeout=30_000)
+        operations = docs.locator(".opblock-summary-path").all_inner_texts()
+        assert {"/api/speak", "/api/config"} <= {text.strip().replace("\u200b", "") for text in operations}
+        assert not foreign and not docs.errors, (foreign, docs.errors)
+    finally:
+        docs.close()
