@@ -200,6 +200,20 @@ def test_json_rejects_other_formats_and_stressed_symbols(tmp_path):
         read_alignment(tmp_path / "b.json")
 
 
+@pytest.mark.parametrize("stress", [7, -3, 3])
+def test_stress_is_0_1_or_2(tmp_path, stress):
+    data = {"format": "vispeech-phones", "version": 1, **english().to_dict()}
+    data["phones"][4]["stress"] = stress
+    (tmp_path / "a.json").write_text(json.dumps(data))
+    with pytest.raises(VispeechError, match=rf"a.json: phone 4 \(OW\) has stress {stress}; stress is 0, 1 or 2$"):
+        read_alignment(tmp_path / "a.json")
+    phones = english()
+    phones.phones[4] = Phone("OW", 0.3, 0.45, 0, stress)
+    with pytest.raises(VispeechError, match="stress is 0, 1 or 2"):
+        write_alignment(phones, tmp_path / "a.TextGrid")
+    assert not (tmp_path / "a.TextGrid").exists()
+
+
 def test_failed_write_keeps_the_old_file(tmp_path):
     path = tmp_path / "keep.TextGrid"
     write_alignment(english(), path)

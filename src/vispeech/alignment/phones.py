@@ -76,7 +76,8 @@ class PhoneSequence:
         return np.array([p.end for p in self.phones], dtype=float)
 
     def validate(self) -> PhoneSequence:
-        """Raise :class:`VispeechError` unless phones are non-empty, ordered and non-overlapping."""
+        """Raise :class:`VispeechError` unless phones are non-empty, ordered and non-overlapping, with
+        stress 0, 1 or 2 and words that exist."""
         if not self.phones:
             raise VispeechError("phone sequence is empty")
         previous_end = 0.0
@@ -87,6 +88,8 @@ class PhoneSequence:
                 raise VispeechError(f"phone {i} ({p.symbol}) has start {p.start} >= end {p.end}")
             if p.start < previous_end - TIME_TOLERANCE:
                 raise VispeechError(f"phone {i} ({p.symbol}) starts at {p.start:.3f} s, before the previous phone ends")
+            if p.stress not in (0, 1, 2):
+                raise VispeechError(f"phone {i} ({p.symbol}) has stress {p.stress}; stress is 0, 1 or 2")
             if p.word is not None and not 0 <= p.word < len(self.words):
                 raise VispeechError(f"phone {i} ({p.symbol}) refers to missing word {p.word}")
             previous_end = p.end
