@@ -183,6 +183,21 @@ def test_say_reads_a_text_file(tmp_path):
         assert message in result.output and not (tmp_path / "bad").exists()
 
 
+def test_bytes_that_are_not_utf8(tmp_path):
+    """In an argument they are refused (the shell passes 0xff on as U+DCFF); in a file they are Latin-1."""
+    result = run("say", "Hello \udcff world", "-o", str(tmp_path / "arg"))
+    assert_clean_error(result)
+    assert "lone surrogate U+DCFF at character 7 (the byte 0xff, which is not UTF-8)" in result.output
+    assert not (tmp_path / "arg").exists()
+    (tmp_path / "latin.txt").write_bytes(b"Hello \xff world")
+    result = run("say", "--text-file", str(tmp_path / "latin.txt"), "-o", str(tmp_path / "file"))
+    assert result.exit_code == 0, result.output
+    from vispeech.alignment.formats import read_alignment
+
+    words = [w.text for w in read_alignment(tmp_path / "file" / "phones.TextGrid", "en").words]
+    assert words[0] == "Hello" and words[-1] == "world"
+
+
 def test_a_grid_word_alignment_points_to_animate_text(tmp_path):
     """GRID's .align files time words: animate-phones says so and names `animate --text`."""
     words = tmp_path / "bbaf2n.align"

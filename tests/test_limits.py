@@ -100,6 +100,9 @@ def test_utterance_and_text_limits():
         limits.check_utterance(1.0, limits.MAX_PHONES + 1)
     with pytest.raises(VispeechError, match="characters"):
         limits.check_text("a" * (limits.MAX_TEXT_CHARS + 1))
+    assert limits.check_text("Hällo 🙂") == "Hällo 🙂"
+    with pytest.raises(VispeechError, match=r"lone surrogate U\+D83D at character 2$"):  # half an emoji
+        limits.check_text("a\ud83d")
 
 
 def test_pipeline_refuses_before_work():
@@ -345,6 +348,7 @@ def bad_files(tmp_path_factory) -> Path:
     (["say", "Hello", "--fps", "inf", "-o", "{d}/out"], "--fps"),
     (["say", "Hello", "--fps", "1e6", "-o", "{d}/out"], "--fps"),
     (["say", "a" * 10001, "-o", "{d}/out"], "characters"),
+    (["say", "Hello \udcff world", "-o", "{d}/out"], "lone surrogate U+DCFF at character 7 (the byte 0xff"),
     (["convert", "{d}/digits.json", "{d}/x.csv"], "integer of 400 digits"),
     (["convert", "{d}/zero.csv", "{d}/x.json"], "not a regular file"),
     (["convert", "{d}/garbage.csv", "{d}/x.json"], "NUL byte"),

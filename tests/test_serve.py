@@ -274,6 +274,9 @@ def test_bad_json_and_oversize_bodies(client):
     nan = client.post("/api/speak", content=b'{"text": "hi", "rate": NaN}',
                       headers={"content-type": "application/json"})
     assert nan.status_code == 422
+    surrogate = client.post("/api/speak", content=b'{"text": "Hello \\udcff world"}',  # a shell's undecodable byte
+                            headers={"content-type": "application/json"})
+    assert surrogate.status_code == 422 and "valid string" in surrogate.json()["detail"]
     huge = client.post("/api/speak", content=b"{" + b" " * 70_000 + b"}")
     assert huge.status_code == 413 and "too large" in huge.json()["detail"]
     chunked = client.post("/api/chat", content=(b" " * 8192 for _ in range(10)))  # no Content-Length

@@ -54,6 +54,8 @@ MAX_JSON_DEPTH = 32
 MAX_JSON_INT_DIGITS = 18
 """Digits: the longest integer literal in JSON input (anything longer is no count or index)."""
 
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 
 
@@ -80,10 +82,23 @@ def check_utterance(duration: float, n_phones: int, where: str = "") -> None:
 
 
 def check_text(text: str) -> str:
-    """``text`` if it has at most :data:`MAX_TEXT_CHARS` characters."""
+    """``text`` if it has at most :data:`MAX_TEXT_CHARS` characters, all of them Unicode (:func:`check_unicode`)."""
     if len(text) > MAX_TEXT_CHARS:
         raise VispeechError(f"the text has {len(text)} characters; the limit is {MAX_TEXT_CHARS}")
-    return text
+    return check_unicode(text)
+
+
+def check_unicode(text: str) -> str:
+    """``text`` unless it holds a lone surrogate: a byte that is not UTF-8 as the shell passes
+    it on (``\\xff`` becomes U+DCFF), or a ``\\udcff`` escape in JSON. No encoder takes one."""
+    bad = _SURROGATE.search(text)
+    if bad is None:
+        return text
+    code = ord(bad.group())
+    byte = f" (the byte 0x{code - 0xDC00:02x}, which is not UTF-8)" if 0xDC80 <= code <= 0xDCFF else ""
+    raise VispeechError(
+        f"the text is not valid Unicode: lone surrogate U+{code:04X} at character {bad.start() + 1}{byte}"
+    )
 
 
 def check_track_size(n_frames: int, n_channels: int, where: str = "") -> None:
