@@ -67,6 +67,32 @@ def test_animation_json_errors(tmp_path, change, message):
         read_animation_json(tmp_path / "bad.json")
 
 
+@pytest.mark.parametrize("name", ["t.csv", "t.json", "t.talkinghead.json"])
+def test_writers_refuse_what_their_readers_refuse(tmp_path, name):
+    huge = Track(np.array([[0.5], [1e308]]), ("jawOpen",), 30.0)
+    with pytest.raises(VispeechError, match=f"^cannot write {tmp_path / name}: frame 1, value 0 is 1e"):
+        write_track(huge, tmp_path / name)
+    assert not (tmp_path / name).exists()
+    late = small_track(start=1e306)
+    if name == "t.talkinghead.json":  # holds no start time
+        write_track(late, tmp_path / name)
+        assert read_track(tmp_path / name).start_time == 0.0
+    else:
+        with pytest.raises(VispeechError, match="start time 1e\\+306 s is out of range"):
+            write_track(late, tmp_path / name)
+        assert not (tmp_path / name).exists()
+
+
+def test_animation_json_phones_are_checked_both_ways(tmp_path):
+    phones = PhoneSequence([Phone("sil", 0, 0.1), Phone("AA", 0.1, 0.3, None, 7)], "en")
+    with pytest.raises(VispeechError, match="cannot write .*phone 1 \\(AA\\) has stress 7"):
+        write_animation_json(small_track(), tmp_path / "a.json", phones=phones)
+    data = {"format": "vispeech-animation", "version": 1, **small_track().to_dict(), "phones": phones.to_dict()}
+    (tmp_path / "a.json").write_text(json.dumps(data))
+    with pytest.raises(VispeechError, match="a.json: phone 1 \\(AA\\) has stress 7"):
+        read_animation_json(tmp_path / "a.json")
+
+
 def test_not_json_and_empty(tmp_path):
     (tmp_path / "x.json").write_text("{oops")
     with pytest.raises(VispeechError, match="not valid JSON"):

@@ -105,6 +105,17 @@ def test_utterance_and_text_limits():
         limits.check_text("a\ud83d")
 
 
+def test_track_range():
+    values = np.array([[0.5, -limits.MAX_TRACK_VALUE], [limits.MAX_TRACK_VALUE, 0.0]])
+    limits.check_track_range(values, -limits.MAX_START_TIME_S)
+    with pytest.raises(VispeechError, match=r"^f.csv: frame 0, value 1 is -1e\+07: out of range"):
+        limits.check_track_range(values * 10, 0.0, "f.csv")
+    with pytest.raises(VispeechError, match="start time 360001 s is out of range"):
+        limits.check_track_range(values, limits.MAX_START_TIME_S + 1)
+    with pytest.raises(VispeechError, match="start time nan s"):
+        limits.check_track_range(values, float("nan"))
+
+
 def test_pipeline_refuses_before_work():
     long = PhoneSequence([Phone("sil", 0.0, 0.2), Phone("AH", 0.2, 1e6)], "en")
     with pytest.raises(VispeechError, match="600 s"):
@@ -256,7 +267,7 @@ def test_track_readers_strict(tmp_path):
     with pytest.raises(VispeechError):
         read_talkinghead_json(tmp_path / "long.json")
     (tmp_path / "nan.csv").write_text("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,nan\n")
-    with pytest.raises(VispeechError, match="line 2: a value is not a finite number"):
+    with pytest.raises(VispeechError, match="line 2: JawOpen is nan, not a finite number"):
         read_livelink_csv(tmp_path / "nan.csv")
     (tmp_path / "tc.csv").write_text("Timecode,BlendshapeCount,JawOpen\n00:00:00:" + "9" * 400 + ",1,0\n")
     with pytest.raises(VispeechError, match="line 2: bad timecode"):
@@ -328,6 +339,9 @@ def bad_files(tmp_path_factory) -> Path:
     (folder / "digits.json").write_text('{"format": "vispeech-animation", "fps": ' + "9" * 400 + "}")
     (folder / "zero.csv").symlink_to("/dev/zero")
     (folder / "garbage.csv").write_bytes(bytes(range(256)) * 4)
+    (folder / "huge.csv").write_text("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,1e308\n")
+    good = {"format": "vispeech-animation", "version": 1, "fps": 30, "channels": ["jawOpen"], "frames": [[0.5]]}
+    (folder / "late.json").write_text(json.dumps({**good, "start_time": 1e306}))
     (folder / "good.TextGrid").write_text(textgrid_text())
     write_animation_json(Track(np.full((3, 1), 0.5), ("jawOpen",), 30.0), folder / "good.json")
     tiny_glb(folder / "half.glb", cut=200)
@@ -349,6 +363,8 @@ def bad_files(tmp_path_factory) -> Path:
     (["say", "Hello", "--fps", "1e6", "-o", "{d}/out"], "--fps"),
     (["say", "a" * 10001, "-o", "{d}/out"], "characters"),
     (["say", "Hello \udcff world", "-o", "{d}/out"], "lone surrogate U+DCFF at character 7 (the byte 0xff"),
+    (["convert", "{d}/huge.csv", "{d}/x.json"], "line 2: JawOpen is 1e308, not a finite number within"),
+    (["convert", "{d}/late.json", "{d}/x.csv"], "start time 1e+306 s is out of range"),
     (["convert", "{d}/digits.json", "{d}/x.csv"], "integer of 400 digits"),
     (["convert", "{d}/zero.csv", "{d}/x.json"], "not a regular file"),
     (["convert", "{d}/garbage.csv", "{d}/x.json"], "NUL byte"),

@@ -30,7 +30,7 @@ from vispeech.motion.formats.animation_json import (
 )
 from vispeech.motion.formats.gltf import write_gltf_animation
 from vispeech.motion.formats.livelink import read_livelink_csv, write_livelink_csv
-from vispeech.motion.formats.registry import read_track
+from vispeech.motion.formats.registry import read_track, write_track
 from vispeech.motion.rigging.retarget import PoseTable
 
 SETTINGS = settings(max_examples=60, deadline=None,
@@ -278,3 +278,25 @@ def test_track_round_trips(tmp_path, n, fps, seed):
     write_livelink_csv(track, tmp_path / "a.csv")
     back = read_livelink_csv(tmp_path / "a.csv", fps=fps if n <= fps else None)  # shorter than 1 s: rate unknown
     assert back.fps == fps and np.allclose(back.select(track.channels).values, values, atol=1e-9)
+
+
+WRITTEN_AS = {"livelink": "t.csv", "json": "t.json", "talkinghead": "t.talkinghead.json"}
+
+
+@SETTINGS
+@given(rows=st.lists(st.tuples(st.floats(allow_nan=False, allow_infinity=False),
+                               st.floats(-2, 2)), min_size=1, max_size=4),
+       start=st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.floats(359_999, 360_001)),
+       fps=st.sampled_from([24.0, 30000 / 1001, 60.0]), fmt=st.sampled_from(sorted(WRITTEN_AS)))
+def test_what_write_track_writes_read_track_reads(tmp_path, rows, start, fps, fmt):
+    """Any finite track: written and read back as it was, or refused before a file is written."""
+    track = Track(np.array(rows), ("jawOpen", "headYaw"), fps, start)
+    path = tmp_path / WRITTEN_AS[fmt]
+    path.unlink(missing_ok=True)
+    try:
+        write_track(track, path)
+    except VispeechError as exc:
+        assert str(exc).startswith(f"cannot write {path}") and not path.exists()
+        return
+    back = read_track(path).select(track.channels)
+    assert np.allclose(back.values, track.values, rtol=0, atol=1e-6)

@@ -35,6 +35,15 @@ MAX_FRAMES = int(MAX_DURATION_S * MAX_FPS)
 MAX_CHANNELS = 1_024
 """Channels: the most curves in one track read from a file (ARKit has 52, Live Link 61)."""
 
+MAX_TRACK_VALUE = 1e6
+"""The largest magnitude of a track value read or written: blend shapes are 0 ... 1 and rotations
+at most a few hundred degrees; past this a value is no motion, and 10 decimals of it (Live Link
+CSV) or 6 (JSON) stay exact in a float."""
+
+MAX_START_TIME_S = 360_000.0
+"""Seconds: the largest magnitude of a track's start time (100 hours): Live Link timecodes are a
+time of day, and a running counter may pass 24 h; past this a timecode is no take's."""
+
 MAX_TEXT_CHARS = 10_000
 """Characters: the longest text ``say`` and :func:`vispeech.pipeline.speak` synthesise at once."""
 
@@ -99,6 +108,20 @@ def check_unicode(text: str) -> str:
     raise VispeechError(
         f"the text is not valid Unicode: lone surrogate U+{code:04X} at character {bad.start() + 1}{byte}"
     )
+
+
+def check_track_range(values: np.ndarray, start_time: float, where: str = "") -> None:
+    """Refuse track values (frames × channels) beyond ±:data:`MAX_TRACK_VALUE` or not finite,
+    and a start time beyond ±:data:`MAX_START_TIME_S`, naming the first frame and column."""
+    prefix = f"{where}: " if where else ""
+    if not (math.isfinite(start_time) and abs(start_time) <= MAX_START_TIME_S):
+        raise VispeechError(f"{prefix}start time {start_time:g} s is out of range (±{MAX_START_TIME_S:g} s)")
+    bad = ~(np.abs(values) <= MAX_TRACK_VALUE)
+    if bad.any():
+        frame, column = (int(i) for i in np.argwhere(bad)[0])
+        raise VispeechError(
+            f"{prefix}frame {frame}, value {column} is {values[frame, column]:g}: out of range (±{MAX_TRACK_VALUE:g})"
+        )
 
 
 def check_track_size(n_frames: int, n_channels: int, where: str = "") -> None:

@@ -26,7 +26,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_json
-from vispeech.limits import MAX_DURATION_S, check_fps, check_track_size
+from vispeech.limits import MAX_DURATION_S, check_fps, check_track_range, check_track_size, check_utterance
 from vispeech.motion.track import Track
 
 ANIMATION_FORMAT: Final = "vispeech-animation"
@@ -50,7 +50,15 @@ def write_animation_json(
     phones: PhoneSequence | None = None,
     audio: str | None = None,
 ) -> None:
-    """Write ``track`` (and optionally its phones and audio file name) as vispeech JSON, atomically."""
+    """Write ``track`` (and optionally its phones and audio file name) as vispeech JSON, atomically;
+    refused (:class:`VispeechError`) where :func:`read_animation_json` would refuse it."""
+    check_track_range(track.values, track.start_time, f"cannot write {path}")
+    if phones is not None:
+        try:
+            check_utterance(phones.duration, len(phones))
+            phones.validate()
+        except VispeechError as exc:
+            raise VispeechError(f"cannot write {path}: {exc}") from None
     data = {"format": ANIMATION_FORMAT, "version": 1, **track.to_dict()}
     if phones is not None:
         data["phones"] = phones.to_dict()
@@ -93,7 +101,10 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
         raise VispeechError(f"{path}: 'phones' must be an object")
     try:
         track = Track.from_dict(data)
+        check_track_range(track.values, track.start_time)
         phones = PhoneSequence.from_dict(data["phones"]).validate() if data.get("phones") is not None else None
+        if phones is not None:
+            check_utterance(phones.duration, len(phones))
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
     audio = data.get("audio")
@@ -103,8 +114,10 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
 def write_talkinghead_json(track: Track, path: str | os.PathLike, name: str = "blendshapes") -> None:
     """Write ``track`` in TalkingHead's ``{"name", "dt", "vs"}`` form (atomically).
 
-    ``dt`` holds ``1000 / fps`` ms for every frame; values are rounded to 6 decimals.
+    ``dt`` holds ``1000 / fps`` ms for every frame; values are rounded to 6 decimals. Values
+    out of the range :func:`read_talkinghead_json` reads are refused.
     """
+    check_track_range(track.values, 0.0, f"cannot write {path}")
     dt = [1000.0 / track.fps] * track.n_frames
     vs = {c: np.round(track.values[:, j], 6).tolist() for j, c in enumerate(track.channels)}
     _write_json({"name": name, "dt": dt, "vs": vs}, path)
@@ -141,6 +154,7 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
         raise VispeechError(f"{path}: two 'vs' curves have the same name")
     channels = tuple(curves)
     values = np.stack([curves[c] for c in channels], axis=1)
+    check_track_range(values, 0.0, str(path))
     uniform = np.allclose(durations, durations[0], rtol=1e-9, atol=0.0)
     rate = fps if fps is not None else 1000.0 / float(np.median(durations))
     rate = round(rate, 6) if abs(rate - round(rate, 6)) < 1e-9 else rate

@@ -25,7 +25,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
-from vispeech.limits import check_fps, check_track_size
+from vispeech.limits import MAX_START_TIME_S, MAX_TRACK_VALUE, check_fps, check_track_range, check_track_size
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
 
@@ -52,6 +52,9 @@ LIVELINK_COLUMNS: tuple[str, ...] = tuple(c[0].upper() + c[1:] for c in LIVELINK
 DEFAULT_TIMECODE_RATE = 60
 """Timecode frame rate assumed when a take never crosses a second boundary and no fps is given."""
 
+_ROUNDING = 1e-3
+"""Seconds: more than a timecode's rounding to thousandths of a frame, kept below
+:data:`~vispeech.limits.MAX_START_TIME_S` by the writer so that the reader takes what it writes."""
 _HEADER = ("Timecode", "BlendshapeCount")
 _TIMECODE = re.compile(r"^(\d{1,6}):(\d{1,2}):(\d{1,2})[:;](\d{1,6})(?:\.(\d{1,6}))?$")
 _TIMECODE_RATES = (24, 25, 30, 48, 50, 60, 72, 90, 100, 120, 240)
@@ -70,11 +73,17 @@ def write_livelink_csv(track: Track, path: str | os.PathLike, start_timecode: st
         k / fps``. The timecode rate is ``ceil(fps)`` frames per second.
 
     Values are printed with 10 decimals and ``BlendshapeCount`` is 61, as the app writes them.
+    Values and start time out of the range :func:`read_livelink_csv` reads
+    (:func:`~vispeech.limits.check_track_range`) are refused.
     """
+    check_track_range(track.values, track.start_time, f"cannot write {path}")
     rate = math.ceil(track.fps - 1e-9)
     origin = parse_timecode(start_timecode, rate, "start timecode")
-    if origin + track.start_time < 0:
-        raise VispeechError(f"the first frame would have a negative timecode (start time {track.start_time} s)")
+    if not 0 <= origin + track.start_time <= MAX_START_TIME_S - _ROUNDING:
+        raise VispeechError(
+            f"cannot write {path}: the first frame's timecode would be {origin + track.start_time:g} s;"
+            f" it must be 0 ... {MAX_START_TIME_S - _ROUNDING:g} s"
+        )
     seconds = origin + track.start_time + np.arange(track.n_frames) / track.fps
     header = ",".join(_HEADER + LIVELINK_COLUMNS) + "\n"
     rows = _rows(np.rint(seconds * rate * 1000).astype(np.int64), rate, _columns(track))
@@ -229,11 +238,18 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
             row = [float(v) for v in fields[2:]]
         except ValueError:
             raise VispeechError(f"{path}, line {number}: a value is not a number") from None
-        if not all(math.isfinite(v) for v in row):
-            raise VispeechError(f"{path}, line {number}: a value is not a finite number")
+        wild = next((j for j, v in enumerate(row) if not abs(v) <= MAX_TRACK_VALUE), None)
+        if wild is not None:
+            raise VispeechError(
+                f"{path}, line {number}: {header[wild + 2]} is {fields[wild + 2].strip()[:40]},"
+                f" not a finite number within ±{MAX_TRACK_VALUE:g}"
+            )
         rows.append(row)
     rate = _timecode_rate(timecodes, fps)
     times = np.array([_timecode_seconds(groups, rate) for groups in timecodes])
+    if not times[0] <= MAX_START_TIME_S:
+        first = lines[1].split(",")[0].strip()
+        raise VispeechError(f"{path}, line 2: timecode {first} is past {MAX_START_TIME_S / 3600:g} hours")
     if np.any(np.diff(times) <= 0):
         bad = int(np.flatnonzero(np.diff(times) <= 0)[0]) + 3
         raise VispeechError(f"{path}, line {bad}: timecode does not increase")
