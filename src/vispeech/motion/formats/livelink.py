@@ -133,13 +133,10 @@ def _fixed_point(values: np.ndarray) -> _Text:
     bit is set. One row of text per row of values."""
     n, columns = values.shape
     magnitude = np.abs(values).reshape(-1)
-    with np.errstate(over="ignore", invalid="ignore"):  # huge values: their own formatting below
-        scaled = magnitude * 10**_PLACES
-        exact = (np.abs(scaled - np.floor(scaled) - 0.5) > np.spacing(scaled)) & (scaled < 2**52)
+    scaled = magnitude * 10**_PLACES  # at most 1e16 (MAX_TRACK_VALUE): within int64
+    exact = (np.abs(scaled - np.floor(scaled) - 0.5) > np.spacing(scaled)) & (scaled < 2**52)
     units = np.where(exact, np.rint(scaled), 0.0).astype(np.int64)
-    if not np.all(magnitude < 1e8):  # past int64 once scaled: Python integers
-        units = units.astype(object)
-    for i in np.flatnonzero(~exact).tolist():  # too near a tie to trust the product, or too large
+    for i in np.flatnonzero(~exact).tolist():  # too near a tie to trust the product, or past 2**52
         units[i] = int(f"{magnitude[i]:.{_PLACES}f}".replace(".", ""))
     digits, shown = _digits(units, _PLACES + 1)
     point = digits.shape[1] - _PLACES
@@ -166,10 +163,7 @@ def _digits(numbers: np.ndarray, at_least: int) -> _Text:
     chars = quads.view(np.uint8)[:, 4 * groups - width :]
     if width == at_least:
         return chars, None
-    if numbers.dtype == object:
-        shown = np.array([len(str(number)) for number in numbers.tolist()])
-    else:
-        shown = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), numbers, side="right") + 1
+    shown = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), numbers, side="right") + 1
     return chars, np.arange(width) >= width - np.maximum(shown, at_least)[:, None]
 
 
