@@ -165,7 +165,7 @@ class Estimator(ABC, Generic[InputT]):
         interrupted fit, or a saved model); ``num_threads``, the most threads it may use
         (``None``: the library's default); ``warm_start``, start from what the model has learned
         instead of afresh. A family fitted in one go refuses all but ``progress`` and
-        ``num_threads`` (:func:`~vispeech.models.fitting.fitted_in_one_go`)."""
+        ``num_threads`` (:meth:`~vispeech.models.fitting.FitRun.in_one_go`)."""
         return self._fit(corpus, FitRun.of(progress, checkpoint_dir, resume_from, num_threads, warm_start))
 
     @abstractmethod
