@@ -143,16 +143,27 @@ def _animate_audio(
     return _postprocessed(track, heard, postprocessing, preset, speech)
 
 
+LOUDNESS_ONSET_MARGIN = 0.15
+"""Seconds of speech that a clip's loudness misses before its first loud frame: the silent
+closure of a first stop, a soft first sound. On grid_s1's train split the loudness span starts
+after the first word's timing in 10 % of the utterances, by at most 0.157 s in 99 %."""
+LOUDNESS_OFFSET_MARGIN = 0.1
+"""Seconds of speech that a clip's loudness misses after its last loud frame (a fading last
+sound): on grid_s1's train split the span ends at most 0.12 s before the last word in 99 %."""
+
+
 def speech_spans(clip: AudioClip) -> list[tuple[float, float]]:
     """Where ``clip``'s loudness shows speech: its one span from the first to the last speech frame
     (:func:`~vispeech.frontends.activity.speech_span`, so an audible breath before the first word
-    counts), or none for a clip that is silent or steady noise."""
+    counts), widened by what loudness misses (:data:`LOUDNESS_ONSET_MARGIN`,
+    :data:`LOUDNESS_OFFSET_MARGIN`) within the clip; none for a clip that is silent or steady noise."""
     from vispeech.frontends.activity import speech_span
 
     try:
-        return [speech_span(clip)]
+        start, end = speech_span(clip)
     except VispeechError:
         return []
+    return [(max(0.0, start - LOUDNESS_ONSET_MARGIN), min(clip.duration, end + LOUDNESS_OFFSET_MARGIN))]
 
 
 def _postprocessed(
