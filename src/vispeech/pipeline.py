@@ -56,6 +56,19 @@ def default_audio_model() -> str:
     return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
 
 
+def recording_model(transcript: bool, language: str = "en") -> str:
+    """The model that animates a recording by default: without its ``transcript``,
+    :func:`default_audio_model`; with an English one, :data:`WHISPER_AUDIO_MODEL` where Whisper is
+    installed (its frames blended with the phones', :func:`blend_with_phones`: the best on every
+    English corpus measured, docs/audio.md), else :data:`DEFAULT_MODEL` on the phones. Whisper
+    tiny.en's features carry less of other languages, whose aligned phones say more."""
+    from vispeech.frontends.whisper import installed
+
+    if not transcript:
+        return default_audio_model()
+    return WHISPER_AUDIO_MODEL if language == "en" and installed() else DEFAULT_MODEL
+
+
 DEFAULT_AUDIO_STREAM_MODEL = "grid-audio-cnn"
 """The shipped audio network for live audio: its stream equals its offline output, 126 ms behind."""
 GREETINGS = {
@@ -112,8 +125,9 @@ def animate_audio(
     An audio model (``input_kind == "audio"``) animates the audio itself; a phone model
     animates ``phones``, which must then be given (the audio's alignment). Post-processing
     as in :func:`animate`; an audio model's recommended preset (``audio``) needs no phones;
-    with ``phones`` given its output gets the ``learned-jaw`` preset's closures, and without,
-    a model that hears bilabials (:meth:`~vispeech.models.contract.Estimator.predict_with_closures`)
+    with ``phones`` given its output is blended with :data:`DEFAULT_MODEL`'s animation of them
+    (:func:`blend_with_phones`) and gets the ``audio-closures`` preset's closures on them, and
+    without, a model that hears bilabials (:meth:`~vispeech.models.contract.Estimator.predict_with_closures`)
     gets the ``audio-closures`` preset's closures on them. The mouth rests where the audio is quiet
     (:func:`speech_spans`).
     """
@@ -137,7 +151,8 @@ def _animate_audio(
             raise VispeechError(f"model {estimator.name} animates phones: give the transcript to align the audio with")
         return _animate(phones, estimator, fps, postprocessing, speech).resample(fps, n_frames=clip.n_frames(fps))
     if phones is not None:
-        return _postprocessed(estimator.predict(clip, fps), phones, postprocessing, "learned-jaw", speech)
+        track = blend_with_phones(estimator.predict(clip, fps), _raw_phone_track(phones, fps, clip.n_frames(fps)))
+        return _postprocessed(track, phones, postprocessing, "audio-closures", speech)
     track, heard = estimator.predict_with_closures(clip, fps)
     preset = estimator.postprocessing if heard is None else "audio-closures"
     return _postprocessed(track, heard, postprocessing, preset, speech)
@@ -150,6 +165,33 @@ after the first word's timing in 10 % of the utterances, by at most 0.157 s in 9
 LOUDNESS_OFFSET_MARGIN = 0.1
 """Seconds of speech that a clip's loudness misses after its last loud frame (a fading last
 sound): on grid_s1's train split the span ends at most 0.12 s before the last word in 99 %."""
+
+
+AUDIO_WEIGHT = 0.7
+"""An audio model's share of the frames when the transcript's phones are known as well
+(:func:`blend_with_phones`); the rest is :data:`DEFAULT_MODEL`'s animation of the phones. Chosen
+on grid_s1's validation split for :data:`WHISPER_AUDIO_MODEL` (jawOpen r 0.863 from the phones
+alone, 0.886 from the audio alone, 0.891 at 0.7; 0.5 to 0.8 are within 0.002); docs/audio.md."""
+
+
+def blend_with_phones(audio: Track, phones: Track, audio_weight: float = AUDIO_WEIGHT) -> Track:
+    """An audio model's ``audio`` track with a phone model's ``phones`` track of the same frames
+    mixed in: ``audio_weight`` of the first and the rest of the second on the channels both have;
+    the audio model's own frames on the others. The sound carries how this speaker moves, the
+    phones what was said: each corrects the other's errors (docs/audio.md)."""
+    if audio.n_frames != phones.n_frames:
+        raise ValueError(f"the tracks differ in length: {audio.n_frames} and {phones.n_frames} frames")
+    values = audio.values.copy()
+    for j, channel in enumerate(audio.channels):
+        if channel in phones.channels:
+            values[:, j] = audio_weight * values[:, j] + (1.0 - audio_weight) * phones[channel]
+    return Track(values, audio.channels, audio.fps, audio.start_time)
+
+
+def _raw_phone_track(phones: PhoneSequence, fps: float, n_frames: int) -> Track:
+    """:data:`DEFAULT_MODEL`'s animation of ``phones``, not post-processed, ``n_frames`` long."""
+    phones.validate()
+    return load_model(DEFAULT_MODEL).predict(phones, fps).resample(fps, n_frames=n_frames)
 
 
 def speech_spans(clip: AudioClip) -> list[tuple[float, float]]:
@@ -273,10 +315,11 @@ def listen(
     """Animate recorded speech: audio, text, phones (``None`` without ``text``) and a track of
     ``clip.n_frames(fps)`` frames from time 0.
 
-    Without ``text`` an audio model animates the audio (default :func:`default_audio_model`).
-    With ``text`` the transcript is aligned with the audio in ``language``
-    (:func:`vispeech.frontends.align.align`) and a model of either kind animates it with
-    those phones (default :data:`DEFAULT_MODEL`). A recording without its transcript gets one
+    Without ``text`` an audio model animates the audio. With ``text`` the transcript is aligned
+    with the audio in ``language`` (:func:`vispeech.frontends.align.align`) and a model of
+    either kind animates it with those phones: a phone model the phones, an audio model the
+    audio blended with the phones (:func:`blend_with_phones`). The default model is
+    :func:`recording_model`'s. A recording without its transcript gets one
     from :func:`vispeech.frontends.transcribe.transcribe` (the ``whisper`` extra):
     ``listen(clip, transcribe(clip, language), language)``. The utterance keeps the clip's
     audio at its own sample rate, or at :data:`MAX_OUTPUT_SAMPLE_RATE` if that is faster. An
@@ -284,7 +327,7 @@ def listen(
     """
     check_fps(fps)
     utterance = hear(clip, text, language, force=force)
-    default = default_audio_model() if utterance.phones is None else DEFAULT_MODEL
+    default = recording_model(utterance.phones is not None, language)
     track = _animate_audio(clip, default if model is None else model, fps, postprocessing, utterance.phones)
     return replace(utterance, track=track)
 

@@ -25,8 +25,8 @@ from vispeech.pipeline import (
     Utterance,
     animate,
     animate_audio,
-    default_audio_model,
     hear,
+    recording_model,
     utter,
     write_outputs,
 )
@@ -52,11 +52,11 @@ class LineResult:
 
 
 def model_spec(line: BatchLine) -> str:
-    """The model a line runs: its own, else the default for its input (an audio model for
-    audio without a transcript, else the default phone model)."""
+    """The model a line runs: its own, else the default for its input
+    (:func:`~vispeech.pipeline.recording_model` for audio, else the default phone model)."""
     if line.model is not None:
         return line.model
-    return default_audio_model() if line.kind == "audio" and line.text is None else DEFAULT_MODEL
+    return recording_model(line.text is not None, line.language or "en") if line.kind == "audio" else DEFAULT_MODEL
 
 
 def loaded_model(spec: str) -> Estimator:

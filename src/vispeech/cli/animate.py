@@ -51,8 +51,8 @@ from vispeech.utterance import Utterance
     "-m",
     default=None,
     help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
-    f"[default: {WHISPER_AUDIO_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; "
-    f"{DEFAULT_MODEL} with --text or --transcribe].",
+    f"[default: {WHISPER_AUDIO_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; with --text or "
+    f"--transcribe {DEFAULT_MODEL}, blended with {WHISPER_AUDIO_MODEL} for English with the whisper extra].",
 )
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @postprocessing_option()
@@ -77,7 +77,8 @@ def animate(
 
     Writes speech.wav, animation.csv/.json, preview.html and, with --text or --transcribe,
     phones.TextGrid. Without either an audio model animates the sound; with --text the
-    transcript is aligned with the audio and the model animates its phones; --transcribe has
+    transcript is aligned with the audio and the model animates its phones (an audio model
+    the sound, blended with them); --transcribe has
     Whisper hear the transcript first (English by Whisper tiny.en, other languages by Whisper
     base; docs/audio.md). An English transcript that does not fit the audio is refused
     (--force: animated all the same).
