@@ -6,7 +6,8 @@
 Every model (by default every shipped one, ``vispeech models``) and the loudness floor
 (:class:`vispeech.evaluation.floor.LoudnessFloor`: the sound's level as jawOpen) are scored by
 :func:`vispeech.evaluation.evaluate_models`, as ``vispeech evaluate --channels jawOpen`` scores
-them (post-processed, tracker scale, no lag), on:
+them (post-processed, tracker scale, no lag), and each audio model once more with the
+transcript's phones (``evaluate --transcript``, as ``animate --text`` runs it), on:
 
 - ``grid_s1``: its test split (the models trained on its train split);
 - ``grid_s4`` (``../shared/data/dev_eval/grid_s4``): another GRID speaker, all 25 utterances;
@@ -51,6 +52,8 @@ CORPORA = {
 }
 """The corpora scored by default: name → (folder, split)."""
 FLOOR = "loudness floor"
+TRANSCRIPT = " + transcript"
+"""Appended to an audio model's label for its rows with the transcript's phones (``evaluate --transcript``)."""
 
 
 def main() -> None:
@@ -89,6 +92,9 @@ def run(args: argparse.Namespace) -> None:
         start = time.perf_counter()
         corpus = read_aligned_corpus(folder, "en", None, False).split(split)
         results[name] = evaluate_models(corpus, models, channels=["jawOpen"])
+        with_phones = {f"{label}{TRANSCRIPT}": m for label, m in models.items() if m.input_kind == "audio"
+                       and label != FLOOR}
+        results[name].models += evaluate_models(corpus, with_phones, channels=["jawOpen"], transcript=True).models
         seconds[name] = time.perf_counter() - start
         print(f"{results[name].to_text().splitlines()[0]}: {seconds[name]:.0f} s", file=sys.stderr, flush=True)
     voices = []
@@ -112,6 +118,13 @@ def run(args: argparse.Namespace) -> None:
             tmp.write_text(json.dumps(json_ready(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
+def rows(models: dict[str, Estimator]) -> list[tuple[str, str]]:
+    """The table's rows, label and input: each model, then each audio model with the transcript."""
+    plain = [(label, model.input_kind) for label, model in models.items()]
+    return plain + [(f"{label}{TRANSCRIPT}", "audio + phones") for label, kind in plain
+                    if kind == "audio" and label != FLOOR]
+
+
 def markdown(models: dict[str, Estimator], results: dict[str, Evaluation], columns: dict[str, str],
              voices: list[dict], seconds: dict[str, float]) -> str:
     """The tables: jawOpen r, lip closures and (with ``voices``) espeak-ng's voices."""
@@ -123,10 +136,10 @@ def markdown(models: dict[str, Estimator], results: dict[str, Evaluation], colum
              + ".", "",
              "| model | input | " + " | ".join(columns[n] for n in names) + " |",
              "|---|---|" + "---:|" * len(names)]
-    for label, model in models.items():
+    for label, kind in rows(models):
         cells = [f"{results[n][label].scores['jawOpen']['utterance_r']:.3f} "
                  f"({results[n][label].scores['jawOpen']['r']:.3f})" for n in names]
-        lines.append(f"| {label} | {model.input_kind} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label} | {kind} | " + " | ".join(cells) + " |")
 
     lines += ["", "## Lip closures", "",
               "/p b m/: of the bilabials on which the speaker's lips close, how many the model closes on too; "
@@ -135,7 +148,7 @@ def markdown(models: dict[str, Estimator], results: dict[str, Evaluation], colum
               "only (docs/evaluation.md).", "",
               "| model | " + " | ".join(f"{columns[n]} /p b m/ | {columns[n]} closed %" for n in names) + " |",
               "|---|" + "---:|---:|" * len(names)]
-    for label in models:
+    for label, _ in rows(models):
         cells = []
         for n in names:
             c = results[n][label].closures

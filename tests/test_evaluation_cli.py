@@ -111,6 +111,23 @@ def test_evaluate_on_five_grid_utterances(grid5, tmp_path, monkeypatch):
     assert again.exit_code == 0 and again.output == result.output
 
 
+def test_transcript_gives_an_audio_model_the_phones(grid5):
+    """--transcript: grid-audio-encdec animates the audio blended with the aligned phones, as
+    `animate --text` does, so it closes the lips on every tracked /p b m/ the phones mark."""
+    outputs = {}
+    for flag in ([], ["--transcript"]):
+        result = _evaluate("--corpus", grid5, "-m", "grid-audio-encdec", "--channels", "jawOpen", "-q", *flag)
+        assert result.exit_code == 0, result.output
+        outputs[bool(flag)] = result.output.splitlines()
+    jaw = {k: next(line.split() for line in v if line.startswith("grid-audio-encdec  jawOpen"))
+           for k, v in outputs.items()}
+    assert jaw[True][4] != jaw[False][4] and float(jaw[True][4]) > 0.8
+    closures = {k: next(line.split() for line in v if line.startswith("grid-audio-encdec ") and "/" in line)
+                for k, v in outputs.items()}
+    closed, scored = map(int, closures[True][1].split("/"))
+    assert scored >= 10 and closed == scored and int(closures[False][1].split("/")[0]) < scored
+
+
 def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     """--report writes the HTML page with the ANOVA, the CSV and JSON of every score and the
     figures (PNG and SVG); its numbers are those printed, its ANOVA that of utterances.csv."""

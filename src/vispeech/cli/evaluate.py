@@ -40,6 +40,12 @@ from vispeech.files import atomic_output_file, check_output_dir
 )
 @postprocessing_option("How predictions are post-processed before scoring")
 @click.option(
+    "--transcript",
+    is_flag=True,
+    help="Give audio models the utterances' aligned phones too, as `animate --text` does "
+    "(their frames blended with the phone model's, the lips closed on the phones' bilabials).",
+)
+@click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
@@ -70,6 +76,7 @@ def evaluate_command(
     model_specs: tuple[str, ...],
     channels: str | None,
     postprocessing: str,
+    transcript: bool,
     markdown: Path | None,
     plot: Path | None,
     plot_utterance: str | None,
@@ -102,14 +109,18 @@ def evaluate_command(
     if not len(corpus):
         raise VispeechError(f"the {split} split of corpus {aligned.name} has no utterances")
     example = corpus[plot_utterance] if plot_utterance is not None else corpus[0]
-    evaluation = evaluate_models(corpus, models, channels=wanted, postprocessing=postprocessing, progress=not quiet)
+    evaluation = evaluate_models(
+        corpus, models, channels=wanted, postprocessing=postprocessing, transcript=transcript, progress=not quiet
+    )
     click.echo(evaluation.to_text(), nl=False)
     if markdown is not None:
         with atomic_output_file(markdown) as tmp:
             tmp.write_text(evaluation.to_markdown(), encoding="utf-8")
         click.echo(f"tables -> {markdown}")
     if plot is not None or report_dir is not None:
-        predictions = {label: predict_on_frames(model, example, postprocessing) for label, model in models.items()}
+        predictions = {
+            label: predict_on_frames(model, example, postprocessing, transcript) for label, model in models.items()
+        }
     if plot is not None:
         from vispeech.evaluation.plots import plot_utterance as draw
 

@@ -266,9 +266,12 @@ def target_track(utterance: Utterance, channels: Sequence[str]) -> Track:
     return Track(values, tuple(channels), utterance.track.fps, utterance.track.start_time)
 
 
-def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: str = "auto") -> Track:
+def predict_on_frames(
+    model: Estimator, utterance: Utterance, postprocessing: str = "auto", transcript: bool = False
+) -> Track:
     """The model's animation of the utterance on the frames of its recorded track: of its
-    phones for a phone model, of its audio alone for an audio model.
+    phones for a phone model, of its audio for an audio model, alone or (``transcript``) with
+    its phones as ``vispeech animate --text`` gives them (:func:`vispeech.pipeline.animate_audio`).
 
     The model predicts at the track's frame rate from time 0, post-processed by
     ``postprocessing`` (:data:`vispeech.postprocess.Postprocessing`) when the output has
@@ -282,7 +285,7 @@ def predict_on_frames(model: Estimator, utterance: Utterance, postprocessing: st
     postprocess = postprocessing if "jawOpen" in model.channels else "none"
     if model.input_kind == "audio":
         clip = AudioClip.from_array(*utterance.load_audio(), where=f"audio of {utterance.id}")
-        predicted = animate_audio(clip, model, fps, postprocess)
+        predicted = animate_audio(clip, model, fps, postprocess, _phones(utterance) if transcript else None)
     else:
         predicted = animate(_phones(utterance), model, fps, postprocess)
     times = utterance.track.times
@@ -318,11 +321,13 @@ def evaluate_models(
     *,
     channels: Iterable[str] | None = None,
     postprocessing: str = "auto",
+    transcript: bool = False,
     progress: bool = False,
 ) -> Evaluation:
     """Score each model (by label) on every utterance of ``corpus`` (e.g. ``corpus.split("test")``).
 
-    ``channels`` as in :func:`model_channels`; ``postprocessing`` as in :func:`predict_on_frames`.
+    ``channels`` as in :func:`model_channels`; ``postprocessing`` and ``transcript`` (audio models
+    given the phones too) as in :func:`predict_on_frames`.
     Closure counts need utterances with face
     landmarks and a model output with ``jawOpen`` or ``lip_aperture``; otherwise a model's
     ``closures`` is ``None``. Raises :class:`VispeechError` for an empty corpus or an
@@ -341,7 +346,9 @@ def evaluate_models(
     bar = tqdm(total=len(models) * len(corpus), desc="evaluating", unit="utt", disable=not progress)
     try:
         for label, model in models.items():
-            results.append(_evaluate_model(label, model, plans[label], corpus, reference, postprocessing, bar.update))
+            results.append(
+                _evaluate_model(label, model, plans[label], corpus, reference, (postprocessing, transcript), bar.update)
+            )
     finally:
         bar.close()
     ids = [u.id for u, mask in zip(corpus, reference.masks) if mask.any()]
@@ -395,15 +402,16 @@ def _evaluate_model(
     chosen: tuple[str, ...],
     corpus: Corpus,
     reference: _Reference,
-    postprocessing: str,
+    how: tuple[str, bool],
     advance: Callable[[int], object],
 ) -> ModelEvaluation:
-    """Score ``model`` on the ``chosen`` channels of every utterance, calling ``advance(1)`` after each."""
+    """Score ``model`` on the ``chosen`` channels of every utterance, predicted ``how``
+    (post-processing, transcript: :func:`predict_on_frames`), calling ``advance(1)`` after each."""
     columns = [reference.needed.index(c) for c in chosen]
     target_arrays, predicted_arrays = [], []
     closures: ClosureCounts | None = ClosureCounts()
     for utterance, mask, target, tracked in zip(corpus, reference.masks, reference.targets, reference.closed):
-        predicted = predict_on_frames(model, utterance, postprocessing)
+        predicted = predict_on_frames(model, utterance, *how)
         target_arrays.append(target.values[mask][:, columns])
         predicted_arrays.append(predicted.select(chosen).values[mask])
         if closures is not None and tracked is not None and lip_opening(predicted) is not None:
