@@ -32,6 +32,13 @@ CHUNK_BYTES = 8192
 """The test server's ``max_chunk_bytes``."""
 
 
+@pytest.fixture(autouse=True)
+def without_voice_activity(monkeypatch):
+    """Live streams here rest nowhere, so that their frames equal offline animation's without
+    the rest (:func:`live_offline`); the rest on voice activity is tested in test_vad.py."""
+    monkeypatch.setattr("vispeech.frontends.vad.installed", lambda: False)
+
+
 @pytest.fixture(scope="module")
 def model(tiny_audio_model):
     return load_model(tiny_audio_model)

@@ -46,6 +46,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
+from vispeech.frontends import vad
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
@@ -55,6 +56,7 @@ from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
+from vispeech.postprocess.rest import rest_in_silence
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -359,10 +361,15 @@ class LiveAudioStream:
     comes once :attr:`delay` seconds of audio after its time are in. The model's post-processing
     preset must act frame by frame (the ``audio`` preset: clipping and ``mouthClose ≤ jawOpen``),
     so the frames equal :func:`~vispeech.pipeline.animate_audio` of the whole audio, but for the
-    closures a model's phone head hears (``closure_threshold``) and the mouth at rest in leading
-    and trailing silence (which needs the whole audio's loudness), which only offline animation
-    makes (the live ``grid-audio-cnn`` hears no closures), over :attr:`channels`, those of every
-    stream (:data:`STREAM_CHANNELS`: the tongue at rest).
+    closures a model's phone head hears (``closure_threshold``), which only offline animation
+    makes (the live ``grid-audio-cnn`` hears no closures), and for the mouth at rest in silence,
+    over :attr:`channels`, those of every stream (:data:`STREAM_CHANNELS`: the tongue at rest).
+
+    The mouth rests where Silero VAD (:class:`~vispeech.frontends.vad.VoiceActivity`, with ONNX
+    Runtime installed) hears no speech, as offline animation rests it away from the loudness span
+    (:mod:`vispeech.postprocess.rest`), between utterances too; a frame's rest is decided from the
+    speech heard up to :attr:`delay` after it. Without ONNX Runtime the mouth follows the model
+    throughout.
     """
 
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:
@@ -402,6 +409,8 @@ class LiveAudioStream:
         self.samples = 0
         """Samples received so far, at :attr:`sample_rate`."""
         self.closed = False
+        self.activity = vad.VoiceActivity() if vad.installed() and self._inner.sample_rate == vad.SAMPLE_RATE else None
+        """The stream's voice activity detector (``None`` without ONNX Runtime: no rest)."""
 
     @property
     def duration(self) -> float:
@@ -423,6 +432,8 @@ class LiveAudioStream:
         self.samples += len(samples)
         if self._resampler is not None:
             samples = self._resampler.resample_chunk(samples)
+        if self.activity is not None:
+            self.activity.push(samples)
         return self._postprocessed(*self._inner.push(samples))
 
     def finish(self) -> tuple[int, np.ndarray]:
@@ -432,7 +443,10 @@ class LiveAudioStream:
         start = self.emitted
         rows = []
         if self._resampler is not None:
-            rows.append(self._inner.push(self._resampler.resample_chunk(np.zeros(0, np.float32), last=True))[1])
+            tail = self._resampler.resample_chunk(np.zeros(0, np.float32), last=True)
+            if self.activity is not None:
+                self.activity.push(tail)
+            rows.append(self._inner.push(tail)[1])
         rows.append(self._inner.finish()[1])
         self.close()
         return self._postprocessed(start, np.concatenate(rows))
@@ -445,7 +459,9 @@ class LiveAudioStream:
     def _postprocessed(self, start: int, rows: np.ndarray) -> tuple[int, np.ndarray]:
         if not len(rows):
             return start, np.zeros((0, len(self.channels)))
-        track = postprocess(Track(rows, self._inner.channels, self.fps), None, self._config)
+        track = postprocess(Track(rows, self._inner.channels, self.fps, start / self.fps), None, self._config)
+        if self.activity is not None:
+            track = rest_in_silence(track, self.activity.spans)
         return start, track.select(self.channels).values
 
 
