@@ -472,6 +472,41 @@ def test_the_avatars_voice(tmp_path):
         create_app(ServeConfig(cache=":memory:", voice="nobody"))
 
 
+def test_an_answer_carries_the_files_it_asks_for(client, tmp_path):
+    """formats: the animation's Live Link CSV, TalkingHead JSON, Oculus viseme CSV and Rhubarb
+    cues, as `vispeech say` writes them, in the answer of /api/speak, /api/chat and /api/animate;
+    the same cache entry answers with or without them."""
+    from vispeech.motion.formats.registry import read_track
+
+    request = {"text": "Bob will move five palms.", "model": "baseline"}
+    plain = client.post("/api/speak", json=request).json()
+    assert plain["files"] == {}
+    asked = client.post("/api/speak", json={**request, "formats": ["livelink", "talkinghead", "oculus", "rhubarb"]})
+    answer = asked.json()
+    assert asked.status_code == 200 and answer["cached"] is True and answer["animation"] == plain["animation"]
+    files = answer["files"]
+    assert set(files) == {"livelink", "talkinghead", "oculus", "rhubarb"}
+    frames = answer["animation"]["n_frames"]
+    assert files["livelink"].startswith("Timecode,BlendshapeCount,") and len(files["livelink"].splitlines()) == frames + 1
+    assert json.loads(files["talkinghead"])["name"] == "blendshapes"
+    assert files["oculus"].splitlines()[0].startswith("time,sil,PP,FF,TH")
+    cues = [line.split("\t") for line in files["rhubarb"].splitlines()]
+    assert cues[0][1] == "X" and "A" in {shape for _, shape in cues}  # at rest, then closed on /b/ and /m/
+    (tmp_path / "a.csv").write_text(files["livelink"])
+    jaw = plain["animation"]["channels"].index("jawOpen")
+    read_back = read_track(tmp_path / "a.csv")["jawOpen"]
+    assert np.allclose(read_back, [row[jaw] for row in plain["animation"]["frames"]], atol=1e-5)
+    chat = client.post("/api/chat", json={"message": "Hello", "formats": ["rhubarb"]}).json()
+    assert set(chat["speech"]["files"]) == {"rhubarb"}
+    wav = client.get(plain["audio_url"]).content
+    uploaded = client.post("/api/animate?formats=oculus&formats=rhubarb", content=wav,
+                           headers={"Content-Type": "audio/wav"})
+    assert uploaded.status_code == 200, uploaded.text
+    assert set(uploaded.json()["files"]) == {"oculus", "rhubarb"}
+    refused = client.post("/api/speak", json={**request, "formats": ["gltf"]})
+    assert refused.status_code == 422 and "formats" in refused.json()["detail"]
+
+
 def test_options_per_request(client):
     """voice, fps and scale are the request's own, each part of the cache key; a misspelt or
     unknown option is a 422 naming it."""

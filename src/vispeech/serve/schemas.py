@@ -77,6 +77,9 @@ Layer = Literal["blink", "gaze", "head", "brows", "breath", "expression"]
 """A non-verbal layer (:data:`vispeech.motion.life.LAYERS`)."""
 Layers = Annotated[list[Layer], Field(max_length=10)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+FileFormat = Literal["livelink", "talkinghead", "oculus", "rhubarb"]
+"""A track format an answer can carry as a file (:data:`vispeech.motion.formats.registry.TEXT_FORMATS`)."""
+Formats = Annotated[list[FileFormat], Field(max_length=4)]
 
 
 class ClientInput(BaseModel):
@@ -90,7 +93,8 @@ class SpeechOptions(ClientInput):
     """How a text is spoken and animated; ``null`` means the server's setting (its default model,
     voice, frame rate and output scale). ``voice`` is an espeak-ng voice, ``scale`` an output
     scale; ``life`` names the non-verbal layers to add to the animation
-    (:mod:`vispeech.motion.life`), drawn with ``seed``."""
+    (:mod:`vispeech.motion.life`), drawn with ``seed``; ``formats`` the track formats the answer
+    carries as files besides the animation (:attr:`SpeakResponse.files`)."""
 
     language: Language = "en"
     model: ModelName | None = None
@@ -100,6 +104,7 @@ class SpeechOptions(ClientInput):
     scale: Scale | None = None
     life: Layers = []
     seed: Seed = 0
+    formats: Formats = []
 
 
 class SpeakRequest(SpeechOptions):
@@ -115,7 +120,8 @@ class AnimateQuery(BaseModel):
     with the audio in ``language`` and ``model`` (default: the server's default model) animates the
     phones, as :func:`vispeech.pipeline.listen` does; an English transcript that does not fit the
     audio is refused (400) unless ``force``. ``fps`` and ``scale`` ``null`` mean the server's
-    frame rate and output scale.
+    frame rate and output scale; ``formats`` as in :class:`SpeechOptions` (repeated:
+    ``formats=oculus&formats=rhubarb``).
     """
 
     text: Text | None = None
@@ -124,6 +130,7 @@ class AnimateQuery(BaseModel):
     scale: Scale | None = None
     model: ModelName | None = None
     force: bool = False
+    formats: Formats = []
 
 
 class WordJSON(BaseModel):
@@ -168,6 +175,9 @@ class SpeakResponse(BaseModel):
     animation: AnimationJSON
     text: str
     cached: bool
+    files: dict[FileFormat, str] = {}
+    """Each format the request asked for → the text of the animation's file in it (Live Link Face
+    CSV, TalkingHead JSON, Oculus viseme CSV, Rhubarb cue TSV), as ``vispeech say`` writes it."""
 
 
 class ChatRequest(SpeechOptions):

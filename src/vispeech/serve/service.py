@@ -9,7 +9,7 @@ import contextlib
 import hashlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,7 @@ from vispeech.guards import TokenBucket
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, RUNNABLE, load_model, model_version, pretrained_path
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
+from vispeech.motion.formats.registry import track_text
 from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
@@ -39,6 +40,7 @@ from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
     AnimateQuery,
     AnimationJSON,
+    FileFormat,
     FramesMessage,
     Scale,
     SpeakResponse,
@@ -305,7 +307,9 @@ class SpeechService:
         """The cached answer for this upload, or ``None`` (nothing computed)."""
         key, _, calibration = self._upload_key(digest, query)
         entry = self.cache.get(key)
-        return None if entry is None else self._answer(entry, query.text or "", True, calibration)
+        return (
+            None if entry is None else self._answer(entry, query.text or "", True, calibration, formats=query.formats)
+        )
 
     def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> SpeakResponse:
         """The answer for an uploaded recording (``data``, the file's bytes):
@@ -323,7 +327,7 @@ class SpeechService:
             wav = utterance.wav_bytes()
             assert wav is not None  # listen keeps the audio it animated
             entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
-        return self._answer(entry, query.text or "", cached, calibration)
+        return self._answer(entry, query.text or "", cached, calibration, formats=query.formats)
 
     def _answer(
         self,
@@ -332,19 +336,27 @@ class SpeechService:
         cached: bool,
         calibration: Calibration | None,
         options: SpeechOptions | None = None,
+        formats: Sequence[FileFormat] = (),
     ) -> SpeakResponse:
         """A cache entry as the answer to ``text``, with the non-verbal layers of ``options`` added
         (timed by its phones, the expression showing ``text``'s mood, in the output scale
-        ``calibration``)."""
+        ``calibration``) and the files of ``formats`` (default: those ``options`` asks for)."""
         animation = AnimationJSON.model_validate_json(entry.animation)
+        formats = options.formats if options is not None and not formats else formats
+        if not (options is not None and options.life) and not formats:
+            return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
+        data = animation.model_dump()
+        phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
+        track = Track.from_dict(data)
         if options is not None and options.life:
-            data = animation.model_dump()
-            phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
             layers = check_layers(options.life)
             mood = sentiment(text, options.language)
-            track = with_life(Track.from_dict(data), phones, layers, options.seed, scale=calibration, mood=mood)
+            track = with_life(track, phones, layers, options.seed, scale=calibration, mood=mood)
             animation = AnimationJSON.model_validate({**data, **track.to_dict()})
-        return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
+        files = {fmt: track_text(track, fmt, phones=phones) for fmt in dict.fromkeys(formats)}
+        return SpeakResponse(
+            audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached, files=files
+        )
 
     def reply(self, message: str, language: str) -> tuple[str, str]:
         """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language

@@ -238,6 +238,25 @@ def write_track(
     target.writer(track, path, WriteOptions(phones, audio, base_glb, pose_table))
 
 
+TEXT_FORMATS: tuple[str, ...] = ("livelink", "talkinghead", "oculus", "rhubarb")
+"""The formats :func:`track_text` gives: those whose file is text and needs no base model."""
+
+
+def track_text(track: Track, fmt: str, *, phones: PhoneSequence | None = None) -> str:
+    """The text of ``track``'s file in format ``fmt`` (:data:`TEXT_FORMATS`; Oculus visemes as CSV,
+    Rhubarb cues as TSV), as :func:`write_track` writes it with ``phones``: for a reply that
+    carries the file rather than a link to it."""
+    import tempfile
+
+    name = format_name(fmt)
+    if name not in TEXT_FORMATS:
+        raise VispeechError(f"{name} is not a text format (text formats: {', '.join(TEXT_FORMATS)})")
+    with tempfile.TemporaryDirectory(prefix="vispeech-") as folder:
+        path = Path(folder) / f"track{FORMATS[name].extensions[0]}"
+        write_track(track, path, name, phones=phones)
+        return path.read_text(encoding="utf-8")
+
+
 def _json_kind(path: Path) -> str:
     data = read_json(path)
     if data.get("format") == ANIMATION_FORMAT:
