@@ -207,11 +207,69 @@ def test_bad_uploads_get_a_clear_4xx(client, pcm):
         ({"model": "grid-tdnn"}, good, {}, 400, "transcript"),
         ({"text": "bin blue zqxjv"}, good, {}, 400, "not in the pronouncing dictionary"),
         ({"text": ""}, good, {}, 422, "text"),
-        ({}, good, {"Content-Type": "multipart/form-data; boundary=x"}, 415, "request body"),
+        ({}, good, {"Content-Type": "application/json"}, 415, "not JSON"),
+        ({}, good, {"Content-Type": "multipart/form-data; boundary=x"}, 400, "multipart"),
         ({}, bytes(2 * 1024 * 1024 + 2), {}, 413, "too large"),
     ]:
         answer = client.post("/api/animate", params=params, content=body, headers=headers)
         assert answer.status_code == status and words in answer.json()["detail"], (params, answer.text)
+    assert client.get("/api/config").status_code == 200
+
+
+def test_animate_a_file_sent_as_a_multipart_form(client, pcm):
+    """curl -F file=@take.flac -F text=...: the file is the part "file", the fields set the options
+    over the query's, and the answer is the one of the same file sent as the body."""
+    data = encoded(pcm, "FLAC")
+    answer = client.post("/api/animate", params={"fps": 30}, files={"file": ("take.flac", data, "audio/flac")},
+                         data={"text": "bin blue at f two now", "fps": "25"})
+    assert answer.status_code == 200, answer.text
+    animation = answer.json()["animation"]
+    assert animation["fps"] == 25.0 and animation["n_frames"] == 75
+    assert [w["text"] for w in animation["phones"]["words"]] == "bin blue at f two now".split()
+    as_body = client.post("/api/animate", params={"text": "bin blue at f two now", "fps": 25}, content=data)
+    assert as_body.json()["cached"] and as_body.json()["animation"] == animation
+    plain = client.post("/api/animate", files={"file": ("take.flac", data)})
+    assert plain.status_code == 200 and plain.json()["animation"]["phones"] is None
+
+
+def test_bad_multipart_uploads_get_a_clear_4xx(client, pcm):
+    good = ("take.flac", encoded(pcm, "FLAC"), "audio/flac")
+    for files, fields, status, words in [
+        ({"audio": good}, {}, 422, "part 'file'"),
+        ({"file": ("take.flac", b"")}, {}, 400, "empty"),
+        ({"file": ("take.flac", b"RIFF this is no audio at all")}, {}, 400, "not an audio file"),
+        ({"file": good}, {"voice": "f3"}, 422, "unknown field 'voice'"),
+        ({"file": good}, {"fps": "fast"}, 422, "fps"),
+        ({"file": good}, {"text": ""}, 422, "text"),
+        ({"file": good}, {"model": "nope"}, 400, "unknown model"),
+        ({"file": good}, {"text": "the quick brown fox jumps over the lazy dog"}, 400, "does not fit the audio"),
+        ([("file", good), ("file", good)], {}, 400, "files"),
+    ]:
+        answer = client.post("/api/animate", files=files, data=fields)
+        assert answer.status_code == status and words in answer.json()["detail"], (files, fields, answer.text)
+
+
+def test_a_multipart_upload_over_the_limit_is_refused_before_it_is_parsed(client, monkeypatch):
+    """The audio upload limit (2 MiB in the test server) holds for forms: a form that says its
+    length is refused unread, one sent in chunks once it passes the limit."""
+    import httpx
+    from starlette.requests import Request
+
+    big = httpx.Request("POST", "http://testserver/api/animate",
+                        files={"file": ("take.wav", bytes(2 * 1024 * 1024), "audio/wav")})
+    body, headers = big.read(), dict(big.headers)
+
+    def parse(*args, **kwargs):
+        raise AssertionError("the form was parsed")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(Request, "form", parse)
+        answer = client.post("/api/animate", content=body, headers=headers)
+    assert answer.status_code == 413 and "too large" in answer.json()["detail"]
+    del headers["content-length"]
+    chunks = (body[k:k + 65536] for k in range(0, len(body), 65536))
+    answer = client.post("/api/animate", content=chunks, headers=headers)
+    assert answer.status_code == 413 and "too large" in answer.json()["detail"]
     assert client.get("/api/config").status_code == 200
 
 

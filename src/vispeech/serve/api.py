@@ -7,8 +7,11 @@ import re
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import Response
+from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
 
 from vispeech.frontends.audio import probe_upload
 from vispeech.frontends.espeak import languages
@@ -28,17 +31,26 @@ from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, Sp
 
 AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "application/octet-stream")
 """Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
-_FORM_TYPES = ("multipart/form-data", "application/json")
-"""Bodies that are not the file itself. (``curl --data-binary @file`` says
-``application/x-www-form-urlencoded`` of the file's bytes: taken as the file.)"""
+_FORM = "multipart/form-data"
+"""A form (``curl -F file=@FILE``, a browser's file input): the file is its part ``file``, the
+options may be its fields. (``curl --data-binary @file`` says ``application/x-www-form-urlencoded``
+of the file's bytes: taken as the file.)"""
+_FILE_PART = "file"
 _AUDIO_ID = re.compile(r"^[0-9a-f]{32}$")
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 413, 422, 429, 503)
 }
+_FORM_SCHEMA = {
+    "type": "object",
+    "required": [_FILE_PART],
+    "properties": {_FILE_PART: {"type": "string", "format": "binary"}}
+    | {name: {"type": "string"} for name in AnimateQuery.model_fields},
+}
 _AUDIO_BODY = {
     "requestBody": {
         "required": True,
-        "content": {kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES},
+        "content": {kind: {"schema": {"type": "string", "format": "binary"}} for kind in AUDIO_TYPES}
+        | {_FORM: {"schema": _FORM_SCHEMA}},
     }
 }
 
@@ -80,17 +92,23 @@ async def post_animate(
     query: Annotated[AnimateQuery, Query()], http: Request, service: Service, ip: ClientIP
 ) -> SpeakResponse:
     """Animate a recording: the request body is the audio file itself (WAV, FLAC, MP3 or OGG, any
-    content type but a multipart form's or JSON), the options are query parameters; answered as ``/api/speak`` is,
-    the audio URL serving the recording as WAV (from the cache when the same file came before)."""
-    if http.headers.get("content-type", "").partition(";")[0].strip().lower() in _FORM_TYPES:
+    content type but JSON) with the options as query parameters, or a multipart form whose part
+    ``file`` is the audio file and whose other fields may set the options; answered as
+    ``/api/speak`` is, the audio URL serving the recording as WAV (from the cache when the same
+    file came before)."""
+    kind = http.headers.get("content-type", "").partition(";")[0].strip().lower()
+    if kind == "application/json":
         raise HTTPException(
             415,
-            "send the audio file itself as the request body (Content-Type audio/wav, "
-            "audio/flac, audio/mpeg, audio/ogg or application/octet-stream; curl --data-binary @FILE), "
-            "not a multipart form or JSON",
+            "send the audio file itself as the request body (Content-Type audio/wav, audio/flac, audio/mpeg, "
+            "audio/ogg or application/octet-stream; curl --data-binary @FILE) or as the part 'file' of a "
+            "multipart form (curl -F file=@FILE), not JSON",
         )
     service.pay(ip, 1.0)
-    data = await http.body()
+    if kind == _FORM:
+        data, query = await _form_upload(http, query)
+    else:
+        data = await http.body()
     digest, duration = await run_in_threadpool(probe_upload, data)
     service.bucket.charge(ip, service.audio_cost(duration) - 1.0)
     cached = await run_in_threadpool(service.lookup_upload, digest, query)
@@ -99,6 +117,27 @@ async def post_animate(
     return await service.pool.run(
         ip, service.animate_upload, data, digest, query, weight=duration * AUDIO_WORK_PER_SECOND
     )
+
+
+async def _form_upload(http: Request, query: AnimateQuery) -> tuple[bytes, AnimateQuery]:
+    """The audio file of a multipart form (its part ``file``) and the options: the query's, with
+    the form's fields in place of those it names. A field the query does not take is a 422."""
+    fields = AnimateQuery.model_fields
+    async with http.form(max_files=1, max_fields=len(fields)) as form:
+        upload = form.get(_FILE_PART)
+        if not isinstance(upload, UploadFile):
+            raise HTTPException(
+                422, f"the form has no audio file: send it as the part '{_FILE_PART}' (curl -F file=@FILE)"
+            )
+        options = {name: value for name, value in form.items() if name != _FILE_PART}
+        unknown = [name for name in options if name not in fields]
+        if unknown:
+            raise RequestValidationError([{"type": "extra_forbidden", "loc": (name,)} for name in unknown])
+        try:
+            query = AnimateQuery.model_validate(query.model_dump(exclude_unset=True) | options)
+        except ValidationError as exc:
+            raise RequestValidationError(exc.errors()) from None
+        return await upload.read(), query
 
 
 @router.get(

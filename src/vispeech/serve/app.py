@@ -14,7 +14,7 @@ Routes (the browser contract is ``docs/web.md``; ``docs/serve.md`` describes the
 Every bad request gets a 4xx JSON ``{"detail": "..."}`` (:mod:`~vispeech.serve.errors`): 422
 for a malformed body, 400 for input the library refuses (or a Host not allowed), 401 without the
 token (when one is configured), 403 from a foreign Origin, 413 for a body over the limit, 415 for
-a form where an audio file was wanted, 429 past the rate limit. The CPU-heavy work runs in a bounded
+JSON where an audio file was wanted, 429 past the rate limit. The CPU-heavy work runs in a bounded
 :class:`~vispeech.serve.pool.WorkPool`: when its queue is full the answer is 503 with
 ``Retry-After`` (a stream error on the WebSocket).
 """
