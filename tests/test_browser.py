@@ -625,3 +625,27 @@ def test_the_api_docs_render_offline(page, server_url):
         assert not foreign and not docs.errors, (foreign, docs.errors)
     finally:
         docs.close()
+
+
+def test_the_viewer_loads_a_converted_glb_with_its_compression(page, tmp_path):
+    """A glTF animation written onto the shipped head keeps its meshopt compression, the animation
+    appended uncompressed: three.js (GLTFLoader with MeshoptDecoder) loads the file as it is."""
+    from vispeech.motion.arkit import MORPH_NAMES
+    from vispeech.motion.formats.gltf import write_gltf_animation
+    from vispeech.motion.rigging.head import DEFAULT_HEAD
+
+    track = Track(np.random.default_rng(3).uniform(0, 1, (60, len(MORPH_NAMES))), MORPH_NAMES, 30.0)
+    write_gltf_animation(track, DEFAULT_HEAD, tmp_path / "take.glb")
+    assert b"EXT_meshopt_compression" in (tmp_path / "take.glb").read_bytes()[:200_000]
+    errors: list[str] = []
+    with _serving(tmp_path / "cache.sqlite3", avatar=tmp_path / "take.glb", prepare_avatar=False) as url:
+        viewer = page.context.browser.new_page(viewport={"width": 480, "height": 480})  # one Playwright
+        viewer.on("pageerror", lambda error: errors.append(str(error)))
+        try:
+            viewer.goto(f"{url}/viewer?idle=0")
+            viewer.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+            driven = viewer.evaluate("() => window.vispeech.avatar.headIndex ? window.vispeech.avatar.headIndex.size : 0")
+            assert viewer.request.get(f"{url}/avatar.glb").body() == (tmp_path / "take.glb").read_bytes()
+        finally:
+            viewer.close()
+    assert driven == 55 and errors == []

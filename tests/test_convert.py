@@ -87,15 +87,23 @@ def _glb_weights(path):
 
 
 def test_glb_output_onto_the_shipped_head_or_another(tmp_path, take, shared_dir):
-    """Without --glb the animation goes onto the shipped head, tongue morph targets and all."""
+    """Without --glb the animation goes onto the shipped head, tongue morph targets and all, kept
+    meshopt-compressed (--uncompressed decodes it)."""
+    from vispeech.motion.rigging.head import DEFAULT_HEAD
+
     result = run("convert", take, tmp_path / "head.glb")
     assert result.exit_code == 0, result.output
     names, weights = _glb_weights(tmp_path / "head.glb")
     assert "tongueTipUp" in names and weights.shape == (120, len(names))
     np.testing.assert_allclose(weights[:, names.index("jawOpen")], read_track(take)["jawOpen"], atol=1e-6)
-    other = run("convert", take, tmp_path / "raw.glb", "--glb", shared_dir / "assets/ict_head.glb")
+    size = (tmp_path / "head.glb").stat().st_size
+    assert size < DEFAULT_HEAD.stat().st_size + 4 * 120 * (1 + len(names)) + 4096
+    other = run("convert", take, tmp_path / "raw.glb", "--glb", shared_dir / "assets/ict_head.glb", "--uncompressed")
     assert other.exit_code == 0, other.output
-    assert "tongueTipUp" not in _glb_weights(tmp_path / "raw.glb")[0]
+    names, weights = _glb_weights(tmp_path / "raw.glb")
+    assert "tongueTipUp" not in names
+    np.testing.assert_allclose(weights[:, names.index("jawOpen")], read_track(take)["jawOpen"], atol=1e-6)
+    assert (tmp_path / "raw.glb").stat().st_size > 5 * size  # decoded
 
 
 @pytest.mark.parametrize("args,text", [

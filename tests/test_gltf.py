@@ -7,7 +7,7 @@ import pytest
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.formats.gltf import write_gltf_animation
-from vispeech.motion.rigging.glb import target_channel
+from vispeech.motion.rigging.glb import load_glb, read_primitives, target_channel
 
 
 def accessor_data(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
@@ -51,10 +51,56 @@ def test_target_names(name, arkit):
     assert target_channel(name) == arkit
 
 
-def test_ict_head_animation(tmp_path, shared_dir):
+def check_animation(gltf: pygltflib.GLTF2, track: Track) -> None:
+    """``gltf`` holds ``track`` as one LINEAR weights animation of every node with morph targets."""
+    (animation,) = gltf.animations
+    assert animation.name == "speech"
+    morph_nodes = [i for i, node in enumerate(gltf.nodes) if node.mesh is not None]
+    assert [c.target.node for c in animation.channels] == morph_nodes
+    assert all(c.target.path == "weights" for c in animation.channels)
+    sampler = animation.samplers[animation.channels[0].sampler]
+    assert sampler.interpolation == "LINEAR"
+
+    times = accessor_data(gltf, sampler.input)
+    assert np.allclose(times, np.arange(track.n_frames) / track.fps)
+    assert gltf.accessors[sampler.input].min == [0.0] and gltf.accessors[sampler.input].max == [float(times[-1])]
+    names = gltf.meshes[0].extras["targetNames"]
+    weights = accessor_data(gltf, sampler.output).reshape(track.n_frames, len(names))
+    assert gltf.accessors[sampler.output].count == track.n_frames * len(names)
+    assert gltf.accessors[sampler.output].min == [float(weights.min())]
+    assert gltf.accessors[sampler.output].max == [float(weights.max())]
+    for j, name in enumerate(names):
+        assert np.allclose(weights[:, j], track[name] if name in track.channels else 0.0, atol=1e-7), name
+
+
+def test_ict_head_animation_keeps_the_compression(tmp_path, shared_dir):
+    """The meshopt-compressed head stays compressed byte for byte; the animation is appended."""
     base = shared_dir / "assets/ict_head.glb"
     track = speech_track()
     write_gltf_animation(track, base, tmp_path / "head.glb")
+    original = load_glb(base)
+    gltf = load_glb(tmp_path / "head.glb")  # the project's reader: its container checks pass
+    assert gltf.extensionsUsed == original.extensionsUsed and "EXT_meshopt_compression" in gltf.extensionsRequired
+    assert gltf.buffers[1:] == original.buffers[1:]  # the fallback buffer of the compressed views
+    assert gltf.bufferViews[:len(original.bufferViews)] == original.bufferViews
+    assert gltf.binary_blob().startswith(original.binary_blob())
+    assert len(gltf.accessors) == len(original.accessors) + 2
+    animation_bytes = 4 * track.n_frames * (1 + 51)
+    size = (tmp_path / "head.glb").stat().st_size  # the JSON, rewritten by pygltflib, grows by 10 KB
+    assert base.stat().st_size + animation_bytes < size < base.stat().st_size + animation_bytes + 32 * 1024
+    check_animation(gltf, track)
+    before, after = read_primitives(base), read_primitives(tmp_path / "head.glb")  # decoded from the copy
+    assert len(after) == len(before)
+    for old, new in zip(before, after):
+        assert np.array_equal(new.positions, old.positions) and np.array_equal(new.triangles, old.triangles)
+        assert new.targets.keys() == old.targets.keys()
+        assert all(np.array_equal(new.targets[k], old.targets[k]) for k in old.targets)
+
+
+def test_ict_head_animation_uncompressed(tmp_path, shared_dir):
+    base = shared_dir / "assets/ict_head.glb"
+    track = speech_track()
+    write_gltf_animation(track, base, tmp_path / "head.glb", uncompressed=True)
     original = pygltflib.GLTF2().load(str(base))
     gltf = pygltflib.GLTF2().load(str(tmp_path / "head.glb"))
     # The meshopt-compressed views are decoded into one plain buffer (importers without the
@@ -77,25 +123,21 @@ def test_ict_head_animation(tmp_path, shared_dir):
         size = np.dtype(dtype).itemsize
         values = rows[:, :3 * size].copy().view(dtype).reshape(accessor.count, 3)
         assert values.min(axis=0).tolist() == accessor.min and values.max(axis=0).tolist() == accessor.max
+    check_animation(gltf, track)
 
-    (animation,) = gltf.animations
-    assert animation.name == "speech"
-    morph_nodes = [i for i, node in enumerate(gltf.nodes) if node.mesh is not None]
-    assert [c.target.node for c in animation.channels] == morph_nodes
-    assert all(c.target.path == "weights" for c in animation.channels)
-    sampler = animation.samplers[animation.channels[0].sampler]
-    assert sampler.interpolation == "LINEAR"
 
-    times = accessor_data(gltf, sampler.input)
-    assert np.allclose(times, np.arange(45) / 30.0)
-    assert gltf.accessors[sampler.input].min == [0.0] and gltf.accessors[sampler.input].max == [float(times[-1])]
-    names = gltf.meshes[0].extras["targetNames"]
-    weights = accessor_data(gltf, sampler.output).reshape(45, len(names))
-    assert gltf.accessors[sampler.output].count == 45 * 51
-    assert gltf.accessors[sampler.output].min == [float(weights.min())]
-    assert gltf.accessors[sampler.output].max == [float(weights.max())]
-    assert np.allclose(weights[:, names.index("jawOpen")], track["jawOpen"], atol=1e-7)
-    assert np.allclose(weights[:, names.index("mouthSmileLeft")], track["mouthSmileLeft"], atol=1e-7)
+def test_the_shipped_head_shows_every_channel_of_a_spoken_track(tmp_path):
+    """The shipped head (tongue targets added) takes a spoken track's 30 channels in about its own
+    size: 1.9 MB for 2.5 s, where decoding its compression made 12.9 MB."""
+    from vispeech.motion.rigging.head import DEFAULT_HEAD
+    from vispeech.pipeline import speak
+
+    track = speak("The quick brown fox jumps over it.", "en").track
+    write_gltf_animation(track, DEFAULT_HEAD, tmp_path / "head.glb")
+    gltf = load_glb(tmp_path / "head.glb")
+    assert set(track.channels) <= set(gltf.meshes[0].extras["targetNames"])
+    check_animation(gltf, track)
+    assert (tmp_path / "head.glb").stat().st_size < DEFAULT_HEAD.stat().st_size + 256 * track.n_frames
 
 
 def test_suffixed_names_several_nodes_and_unmatched_targets(tmp_path):
@@ -141,5 +183,5 @@ def test_meshopt_data_that_would_decode_too_large_is_refused(tmp_path, shared_di
     chunks = struct.pack("<I4s", len(text), b"JSON") + text + rest
     (tmp_path / "huge.glb").write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks)
     with pytest.raises(VispeechError, match="would decode to more than 512 MiB"):
-        write_gltf_animation(speech_track(), tmp_path / "huge.glb", tmp_path / "out.glb")
+        write_gltf_animation(speech_track(), tmp_path / "huge.glb", tmp_path / "out.glb", uncompressed=True)
     assert not (tmp_path / "out.glb").exists()

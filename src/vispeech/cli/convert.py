@@ -28,6 +28,12 @@ from vispeech.motion.formats.registry import FORMATS, read_animation, write_trac
     type=click.Path(path_type=Path),
     help="Base model with ARKit-named morph targets for gltf and fbx [default: the shipped ICT-FaceKit head].",
 )
+@click.option(
+    "--uncompressed",
+    is_flag=True,
+    help="gltf: decode the base model's meshopt compression (about 6x larger) for importers without "
+    "EXT_meshopt_compression, such as Blender and Maya [default: kept compressed, as three.js reads it].",
+)
 @scale_option("tracker")
 def convert_command(
     input_path: Path,
@@ -36,15 +42,16 @@ def convert_command(
     fps: float | None,
     pose_table: str | None,
     base_glb: Path | None,
+    uncompressed: bool,
     scale: str,
 ) -> None:
     """Read a track from INPUT (Live Link CSV, vispeech JSON, TalkingHead JSON) and write OUTPUT.
 
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
     .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf and .fbx fbx (Blender) onto the
-    --glb model, by default the shipped head (ICT-FaceKit, MIT licence). The track is taken as it
-    is (--scale tracker); --scale arkit or a calibration file rescales a track in the models'
-    scale on the way.
+    --glb model, by default the shipped head (ICT-FaceKit, MIT licence), whose compression a .glb
+    keeps unless --uncompressed. The track is taken as it is (--scale tracker); --scale arkit or a
+    calibration file rescales a track in the models' scale on the way.
     """
     from vispeech.limits import check_fps
     from vispeech.motion.rigging.calibration import load_scale
@@ -61,5 +68,14 @@ def convert_command(
     if calibration is not None:
         track = calibration.apply(track)
     table = PoseTable.load(pose_table) if pose_table else None
-    write_track(track, output, fmt, phones=animation.phones, audio=animation.audio, base_glb=base_glb, pose_table=table)
+    write_track(
+        track,
+        output,
+        fmt,
+        phones=animation.phones,
+        audio=animation.audio,
+        base_glb=base_glb,
+        pose_table=table,
+        uncompressed=uncompressed,
+    )
     click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

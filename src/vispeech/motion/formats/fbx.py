@@ -1,6 +1,6 @@
 """FBX export for Unity, Maya and other FBX pipelines, made by Blender.
 
-The track is first written as a glTF animation on the base model
+The track is first written as a glTF animation on the base model, its compression decoded
 (:func:`vispeech.motion.formats.gltf.write_gltf_animation`); Blender, run headless (``blender -b``,
 Debian's ``blender`` 3.4 or newer on the ``PATH``, or the ``BLENDER`` environment variable),
 sets its scene to the track's frame rate and imports it with its own glTF importer, so that
@@ -63,7 +63,7 @@ def write_fbx_animation(track: Track, base_glb: str | os.PathLike, out_path: str
     base = fps / track.fps
     with tempfile.TemporaryDirectory(prefix="vispeech-fbx-") as tmp:
         glb, script, fbx = Path(tmp) / "in.glb", Path(tmp) / "export.py", Path(tmp) / "out.fbx"
-        write_gltf_animation(track, base_glb, glb)
+        write_gltf_animation(track, base_glb, glb, uncompressed=True)  # Blender cannot decode meshopt
         script.write_text(_SCRIPT, encoding="utf-8")
         try:
             result = subprocess.run(

@@ -1,8 +1,9 @@
 """glTF 2.0 animation: a morph-target ``weights`` animation added to a copy of a GLB model.
 
-The model is read as :mod:`vispeech.motion.rigging.glb` reads it (ARKit-named morph targets,
-meshoptimizer-compressed data decoded so that Blender, Maya and other importers without that
-extension open the file); its binary data is kept and the animation appended.
+The model is read as :mod:`vispeech.motion.rigging.glb` reads it (ARKit-named morph targets);
+its binary data is kept byte for byte, meshoptimizer-compressed data compressed (or decoded
+on request, for Blender, Maya and other importers without that extension), and the animation
+appended uncompressed.
 """
 
 from __future__ import annotations
@@ -19,14 +20,21 @@ from vispeech.motion.track import Track
 
 
 def write_gltf_animation(
-    track: Track, base_glb: str | os.PathLike, out_path: str | os.PathLike, name: str = "speech"
+    track: Track,
+    base_glb: str | os.PathLike,
+    out_path: str | os.PathLike,
+    name: str = "speech",
+    *,
+    uncompressed: bool = False,
 ) -> None:
     """Write a copy of ``base_glb`` with ``track`` added as the animation ``name``.
 
     Every node whose mesh has ARKit-named morph targets gets one ``weights`` channel with a
     LINEAR sampler: input times ``k / fps`` seconds (k = 0 .. n_frames-1, from the track's
     first frame), output the weights of all the mesh's targets in target order for each frame
-    (targets with no ARKit name, or a channel the track lacks, stay 0). Written atomically.
+    (targets with no ARKit name, or a channel the track lacks, stay 0). The model's
+    ``EXT_meshopt_compression`` data stays compressed unless ``uncompressed``, which decodes
+    it into one plain buffer. Written atomically.
     """
     gltf = embedded_glb(base_glb)
     try:
@@ -39,7 +47,7 @@ def write_gltf_animation(
     if not nodes:
         raise VispeechError(f"{base_glb}: no node uses the meshes with ARKit-named morph targets")
 
-    blob = bytearray(decompressed(gltf, base_glb))
+    blob = bytearray(decompressed(gltf, base_glb) if uncompressed else gltf.binary_blob() or b"")
     times = (np.arange(track.n_frames) / track.fps).astype(np.float32)
     time_accessor = append_accessor(gltf, blob, times)
     outputs: dict[int, int] = {}

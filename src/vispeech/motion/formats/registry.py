@@ -48,6 +48,8 @@ class WriteOptions:
     audio: str | None = None
     base_glb: str | os.PathLike | None = None
     pose_table: PoseTable | None = None
+    uncompressed: bool = False
+    """Whether ``gltf`` decodes the base model's meshopt compression (for importers without it)."""
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,7 @@ def _write_gltf(track: Track, path: Path, options: WriteOptions) -> None:
     base_glb = _base_glb(options)
     from vispeech.motion.formats.gltf import write_gltf_animation  # pygltflib: imported only for glTF
 
-    write_gltf_animation(track, base_glb, path)
+    write_gltf_animation(track, base_glb, path, uncompressed=options.uncompressed)
 
 
 def _write_fbx(track: Track, path: Path, options: WriteOptions) -> None:
@@ -218,6 +220,7 @@ def write_track(
     audio: str | None = None,
     base_glb: str | os.PathLike | None = None,
     pose_table: PoseTable | None = None,
+    uncompressed: bool = False,
 ) -> None:
     """Write ``track`` to ``path`` in format ``fmt`` (default: from the extension), atomically.
 
@@ -230,12 +233,14 @@ def write_track(
         :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`).
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
         replaces the shipped one; for every other format a retargeting applied before writing.
+    uncompressed : ``gltf`` decodes the base model's meshopt-compressed data (Blender, Maya and
+        other importers without ``EXT_meshopt_compression``) instead of keeping it compressed.
     """
     path = Path(path)
     target = FORMATS[track_format(path, fmt)]
     if pose_table is not None and not target.maps_poses:
         track = pose_table.apply(track)
-    target.writer(track, path, WriteOptions(phones, audio, base_glb, pose_table))
+    target.writer(track, path, WriteOptions(phones, audio, base_glb, pose_table, uncompressed))
 
 
 TEXT_FORMATS: tuple[str, ...] = ("livelink", "talkinghead", "oculus", "rhubarb")
