@@ -88,11 +88,16 @@ def _glb_weights(path):
 
 def test_glb_output_onto_the_shipped_head_or_another(tmp_path, take, shared_dir):
     """Without --glb the animation goes onto the shipped head, tongue morph targets and all, kept
-    meshopt-compressed (--uncompressed decodes it)."""
+    meshopt-compressed (--uncompressed decodes it); the channels a head cannot show are named in
+    one warning line."""
     from vispeech.motion.rigging.head import DEFAULT_HEAD
 
+    head_pose = "headYaw, headPitch, headRoll, leftEyeYaw, leftEyePitch, leftEyeRoll, rightEyeYaw, rightEyePitch, " \
+                "rightEyeRoll"
     result = run("convert", take, tmp_path / "head.glb")
     assert result.exit_code == 0, result.output
+    assert result.stderr.splitlines() == [f"warning: ict_head.glb has no morph target for 9 of the track's channels, "
+                                          f"which are left out: {head_pose}"]
     names, weights = _glb_weights(tmp_path / "head.glb")
     assert "tongueTipUp" in names and weights.shape == (120, len(names))
     np.testing.assert_allclose(weights[:, names.index("jawOpen")], read_track(take)["jawOpen"], atol=1e-6)
@@ -100,6 +105,8 @@ def test_glb_output_onto_the_shipped_head_or_another(tmp_path, take, shared_dir)
     assert size < DEFAULT_HEAD.stat().st_size + 4 * 120 * (1 + len(names)) + 4096
     other = run("convert", take, tmp_path / "raw.glb", "--glb", shared_dir / "assets/ict_head.glb", "--uncompressed")
     assert other.exit_code == 0, other.output
+    assert other.stderr.splitlines() == [f"warning: ict_head.glb has no morph target for 10 of the track's channels, "
+                                         f"which are left out: tongueOut, {head_pose}"]
     names, weights = _glb_weights(tmp_path / "raw.glb")
     assert "tongueTipUp" not in names
     np.testing.assert_allclose(weights[:, names.index("jawOpen")], read_track(take)["jawOpen"], atol=1e-6)

@@ -5,6 +5,7 @@ import pygltflib
 import pytest
 
 from vispeech import Track, VispeechError
+from vispeech.errors import UnshownChannelsWarning
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.formats.gltf import write_gltf_animation
 from vispeech.motion.rigging.glb import load_glb, read_primitives, target_channel
@@ -77,7 +78,9 @@ def test_ict_head_animation_keeps_the_compression(tmp_path, shared_dir):
     """The meshopt-compressed head stays compressed byte for byte; the animation is appended."""
     base = shared_dir / "assets/ict_head.glb"
     track = speech_track()
-    write_gltf_animation(track, base, tmp_path / "head.glb")
+    with pytest.warns(UnshownChannelsWarning) as caught:
+        write_gltf_animation(track, base, tmp_path / "head.glb")
+    assert len(caught) == 1 and str(caught[0].message).endswith("the track's channels, which are left out: tongueOut")
     original = load_glb(base)
     gltf = load_glb(tmp_path / "head.glb")  # the project's reader: its container checks pass
     assert gltf.extensionsUsed == original.extensionsUsed and "EXT_meshopt_compression" in gltf.extensionsRequired
@@ -100,7 +103,8 @@ def test_ict_head_animation_keeps_the_compression(tmp_path, shared_dir):
 def test_ict_head_animation_uncompressed(tmp_path, shared_dir):
     base = shared_dir / "assets/ict_head.glb"
     track = speech_track()
-    write_gltf_animation(track, base, tmp_path / "head.glb", uncompressed=True)
+    with pytest.warns(UnshownChannelsWarning, match="tongueOut"):
+        write_gltf_animation(track, base, tmp_path / "head.glb", uncompressed=True)
     original = pygltflib.GLTF2().load(str(base))
     gltf = pygltflib.GLTF2().load(str(tmp_path / "head.glb"))
     # The meshopt-compressed views are decoded into one plain buffer (importers without the
@@ -126,14 +130,15 @@ def test_ict_head_animation_uncompressed(tmp_path, shared_dir):
     check_animation(gltf, track)
 
 
-def test_the_shipped_head_shows_every_channel_of_a_spoken_track(tmp_path):
-    """The shipped head (tongue targets added) takes a spoken track's 30 channels in about its own
-    size: 1.9 MB for 2.5 s, where decoding its compression made 12.9 MB."""
+def test_the_shipped_head_shows_every_channel_of_a_spoken_track(tmp_path, recwarn):
+    """The shipped head (tongue targets added) takes a spoken track's 30 channels with no warning,
+    in about its own size: 1.9 MB for 2.5 s, where decoding its compression made 12.9 MB."""
     from vispeech.motion.rigging.head import DEFAULT_HEAD
     from vispeech.pipeline import speak
 
     track = speak("The quick brown fox jumps over it.", "en").track
     write_gltf_animation(track, DEFAULT_HEAD, tmp_path / "head.glb")
+    assert not [w for w in recwarn if w.category is UnshownChannelsWarning]
     gltf = load_glb(tmp_path / "head.glb")
     assert set(track.channels) <= set(gltf.meshes[0].extras["targetNames"])
     check_animation(gltf, track)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import click
 
 from vispeech.cli import main, scale_option
+from vispeech.errors import UnshownChannelsWarning
 from vispeech.motion.formats.registry import FORMATS, read_animation, write_track
 
 
@@ -50,8 +52,9 @@ def convert_command(
     Extensions: .csv livelink, .json json, .talkinghead.json talkinghead, .visemes.csv and
     .visemes.json oculus, .tsv and .rhubarb.json rhubarb, .glb gltf and .fbx fbx (Blender) onto the
     --glb model, by default the shipped head (ICT-FaceKit, MIT licence), whose compression a .glb
-    keeps unless --uncompressed. The track is taken as it is (--scale tracker); --scale arkit or a
-    calibration file rescales a track in the models' scale on the way.
+    keeps unless --uncompressed; channels the model has no morph target for are named in a
+    warning. The track is taken as it is (--scale tracker); --scale arkit or a calibration file
+    rescales a track in the models' scale on the way.
     """
     from vispeech.limits import check_fps
     from vispeech.motion.rigging.calibration import load_scale
@@ -68,14 +71,18 @@ def convert_command(
     if calibration is not None:
         track = calibration.apply(track)
     table = PoseTable.load(pose_table) if pose_table else None
-    write_track(
-        track,
-        output,
-        fmt,
-        phones=animation.phones,
-        audio=animation.audio,
-        base_glb=base_glb,
-        pose_table=table,
-        uncompressed=uncompressed,
-    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnshownChannelsWarning)
+        write_track(
+            track,
+            output,
+            fmt,
+            phones=animation.phones,
+            audio=animation.audio,
+            base_glb=base_glb,
+            pose_table=table,
+            uncompressed=uncompressed,
+        )
+    for warning in caught:
+        click.echo(f"warning: {warning.message}", err=True)
     click.echo(f"{output}: {track.n_frames} frames at {track.fps:g} fps, {track.duration:.2f} s")

@@ -9,11 +9,13 @@ appended uncompressed.
 from __future__ import annotations
 
 import os
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pygltflib
 
-from vispeech.errors import VispeechError
+from vispeech.errors import UnshownChannelsWarning, VispeechError
 from vispeech.files import atomic_output_file
 from vispeech.motion.rigging.glb import animated_meshes, append_accessor, decompressed, embedded_glb, glb_bytes
 from vispeech.motion.track import Track
@@ -34,7 +36,8 @@ def write_gltf_animation(
     first frame), output the weights of all the mesh's targets in target order for each frame
     (targets with no ARKit name, or a channel the track lacks, stay 0). The model's
     ``EXT_meshopt_compression`` data stays compressed unless ``uncompressed``, which decodes
-    it into one plain buffer. Written atomically.
+    it into one plain buffer. Written atomically; the track's channels that no morph target
+    shows are named in one :class:`UnshownChannelsWarning`.
     """
     gltf = embedded_glb(base_glb)
     try:
@@ -71,3 +74,12 @@ def write_gltf_animation(
     gltf.animations.append(animation)
     with atomic_output_file(out_path) as tmp:
         tmp.write_bytes(glb_bytes(gltf, blob))
+    shown = {channel for names in meshes.values() for channel in names}
+    unshown = [channel for channel in track.channels if channel not in shown]
+    if unshown:
+        warnings.warn(
+            f"{Path(base_glb).name} has no morph target for {len(unshown)} of the track's channels, "
+            f"which are left out: {', '.join(unshown)}",
+            UnshownChannelsWarning,
+            stacklevel=2,
+        )

@@ -230,7 +230,8 @@ def write_track(
         names each consonant's viseme by its features, ``rhubarb`` each phone's shape (unless
         given a ``pose_table``).
     base_glb : the model ``gltf`` and ``fbx`` add the animation to (default: the shipped head,
-        :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`).
+        :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`); the channels it has no morph
+        target for are named in an :class:`~vispeech.errors.UnshownChannelsWarning`.
     pose_table : for ``oculus`` and ``rhubarb`` the ARKit -> visemes/shapes table that
         replaces the shipped one; for every other format a retargeting applied before writing.
     uncompressed : ``gltf`` decodes the base model's meshopt-compressed data (Blender, Maya and
