@@ -1,5 +1,8 @@
 """glTF export: a weights animation appended to a GLB, checked by reading the file back."""
 
+import json
+import struct
+
 import numpy as np
 import pygltflib
 import pytest
@@ -142,6 +145,10 @@ def test_the_shipped_head_shows_every_channel_of_a_spoken_track(tmp_path, recwar
     gltf = load_glb(tmp_path / "head.glb")
     assert set(track.channels) <= set(gltf.meshes[0].extras["targetNames"])
     check_animation(gltf, track)
+    data = (tmp_path / "head.glb").read_bytes()
+    accessors = json.loads(data[20:20 + struct.unpack_from("<I", data, 12)[0]])["accessors"]
+    zeros = [a for a in accessors if "bufferView" not in a]  # the data-less targets rig prepare adds
+    assert zeros and not [a for a in zeros if "byteOffset" in a]  # glTF allows byteOffset only with a bufferView
     assert (tmp_path / "head.glb").stat().st_size < DEFAULT_HEAD.stat().st_size + 256 * track.n_frames
 
 
@@ -175,9 +182,6 @@ def test_bad_base_files(tmp_path):
 
 
 def test_meshopt_data_that_would_decode_too_large_is_refused(tmp_path, shared_dir):
-    import json
-    import struct
-
     data = (shared_dir / "assets/ict_head.glb").read_bytes()
     length = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20:20 + length])

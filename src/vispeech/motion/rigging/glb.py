@@ -378,8 +378,13 @@ def glb_bytes(gltf: pygltflib.GLTF2, blob: bytearray) -> bytes:
     bytes, and buffer 0's length set to it).
 
     Written here rather than by pygltflib's ``save_binary``, which repacks every buffer view
-    into one buffer and so breaks EXT_meshopt_compression's fallback buffers.
+    into one buffer and so breaks EXT_meshopt_compression's fallback buffers. An accessor
+    without a buffer view (all zeros) is written without the ``byteOffset`` 0 that pygltflib
+    gives every accessor: glTF allows that field only with a buffer view.
     """
+    for accessor in gltf.accessors:
+        if accessor.bufferView is None:
+            accessor.byteOffset = None
     blob.extend(b"\x00" * (-len(blob) % 4))
     if not gltf.buffers:
         gltf.buffers.append(pygltflib.Buffer(byteLength=0))
