@@ -230,6 +230,8 @@ def test_animate_a_file_sent_as_a_multipart_form(client, pcm):
     assert as_body.json()["cached"] and as_body.json()["animation"] == animation
     plain = client.post("/api/animate", files={"file": ("take.flac", data)})
     assert plain.status_code == 200 and plain.json()["animation"]["phones"] is None
+    files = client.post("/api/animate", files={"file": ("take.flac", data)}, data={"formats": ["oculus", "rhubarb"]})
+    assert files.status_code == 200 and set(files.json()["files"]) == {"oculus", "rhubarb"}, files.text
 
 
 def test_bad_multipart_uploads_get_a_clear_4xx(client, pcm):

@@ -4,7 +4,7 @@ recording), ``GET /api/audio/<id>.wav`` and ``POST /api/chat``."""
 from __future__ import annotations
 
 import re
-from typing import Annotated, Any
+from typing import Annotated, Any, get_origin
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
@@ -123,13 +123,14 @@ async def _form_upload(http: Request, query: AnimateQuery) -> tuple[bytes, Anima
     """The audio file of a multipart form (its part ``file``) and the options: the query's, with
     the form's fields in place of those it names. A field the query does not take is a 422."""
     fields = AnimateQuery.model_fields
-    async with http.form(max_files=1, max_fields=len(fields)) as form:
+    lists = {name for name, field in fields.items() if get_origin(field.annotation) is list}
+    async with http.form(max_files=1, max_fields=len(fields) + 3 * len(lists)) as form:
         upload = form.get(_FILE_PART)
         if not isinstance(upload, UploadFile):
             raise HTTPException(
                 422, f"the form has no audio file: send it as the part '{_FILE_PART}' (curl -F file=@FILE)"
             )
-        options = {name: value for name, value in form.items() if name != _FILE_PART}
+        options = {name: form.getlist(name) if name in lists else form[name] for name in form if name != _FILE_PART}
         unknown = [name for name in options if name not in fields]
         if unknown:
             raise RequestValidationError([{"type": "extra_forbidden", "loc": (name,)} for name in unknown])
