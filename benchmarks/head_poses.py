@@ -1,12 +1,13 @@
-"""The ICT head at an open vowel, /m/, /f/, /θ/, /t/, /k/ and at rest, in both output scales: a figure.
+"""The ICT head at an open vowel, /i/, /u/, /m/, /f/, /θ/, /t/, /k/ and at rest, in both output scales: a figure.
 
     python benchmarks/head_poses.py [--model grid-tdnn] [--out docs/figures/head_poses.png]
 
-Speaks "Father thinks my mom took the calm cat." through ``/api/speak`` of two servers with the
+Speaks "Father sees you think my mom took the calm cat." through ``/api/speak`` of two servers with the
 ICT head (prepared as ``vispeech serve --avatar`` serves it: tongue morph targets, painted looks;
 ``--scale tracker`` and ``--scale arkit``) in headless Chromium, holds the pose at the centre of
-its /ɑ/ of "Father", its /m/ of "my", its /f/, its /θ/, its /t/ (tongue tip up), its /k/ (tongue
-body up) and the last frame (rest after speech), and puts the screenshots in two labelled rows
+its /ɑ/ of "Father", its /i/ of "sees", its /u/ of "you", its /m/ of "my", its /f/, its /θ/, its
+/t/ (tongue tip up), its /k/ (tongue body up) and the last frame (rest after speech), and puts the
+screenshots in two labelled rows
 (nose to chin). Also writes the whole head at rest (arkit scale) beside the figure as
 ``head_rest.png``. Prints the lip aperture of each pose. Needs Chromium, Playwright and Pillow
 (the test extra).
@@ -25,9 +26,9 @@ from vispeech.motion.arkit import lip_aperture
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_MODEL
 
-TEXT = "Father thinks my mom took the calm cat."
-POSES = (("open vowel /ɑ/", "AA"), ("/m/", "M"), ("/f/", "F"), ("/θ/", "TH"), ("/t/", "T"), ("/k/", "K"),
-         ("rest", None))
+TEXT = "Father sees you think my mom took the calm cat."
+POSES = (("open vowel /ɑ/", "AA"), ("/i/", "IY"), ("/u/", "UW"), ("/m/", "M"), ("/f/", "F"), ("/θ/", "TH"),
+         ("/t/", "T"), ("/k/", "K"), ("rest", None))
 
 
 def main() -> None:
