@@ -75,7 +75,8 @@ def encoded(pcm: np.ndarray, fmt: str, rate: int = 16000) -> bytes:
 @pytest.fixture(scope="module")
 def client(tiny_audio_model, tmp_path_factory):
     config = ServeConfig(cache=tmp_path_factory.mktemp("audio") / "cache.sqlite3", rate_limit=0,
-                         audio_model=str(tiny_audio_model), max_audio_bytes=2 * 1024 * 1024,
+                         audio_model=str(tiny_audio_model), upload_model=str(tiny_audio_model),
+                         max_audio_bytes=2 * 1024 * 1024,
                          max_chunk_bytes=CHUNK_BYTES, max_stream_seconds=5.0,
                          scale="tracker")  # frames in the model's scale, compared with the library's
     with TestClient(create_app(config)) as client:
@@ -163,6 +164,23 @@ def test_animate_an_uploaded_file(client, pcm, clip, model, fmt):
     assert soundfile.info(io.BytesIO(audio.content)).frames == len(pcm)
     again = client.post("/api/animate", content=data)
     assert again.json()["cached"] and again.json()["audio_url"] == body["audio_url"]
+
+
+def test_a_server_animates_uploads_as_vispeech_animate_does(pcm, clip):
+    """With no upload model set, /api/animate takes the model `vispeech animate` takes
+    (recording_model: with the whisper extra grid-audio-whisper, blended with the transcript's
+    phones when there is one) and answers its frames."""
+    from vispeech.pipeline import listen, recording_model
+
+    config = ServeConfig(cache=":memory:", rate_limit=0, scale="tracker", audio_model=None)
+    with TestClient(create_app(config)) as client:
+        for text in (None, "bin blue at f two now"):
+            params = {} if text is None else {"text": text}
+            answer = client.post("/api/animate", params=params, content=encoded(pcm, "FLAC"))
+            assert answer.status_code == 200, answer.text
+            animation = answer.json()["animation"]
+            expected = listen(clip, text, model=recording_model(text is not None), fps=30.0).track
+            np.testing.assert_allclose(animation["frames"], expected.select(animation["channels"]).values, atol=1e-4)
 
 
 def test_animate_takes_what_curl_data_binary_sends(client, pcm):
@@ -275,12 +293,11 @@ def test_a_multipart_upload_over_the_limit_is_refused_before_it_is_parsed(client
     assert client.get("/api/config").status_code == 200
 
 
-def test_uploads_and_live_audio_need_an_audio_model(tmp_path, pcm):
+def test_live_audio_needs_an_audio_model(tmp_path, pcm):
+    """Without one /api/listen refuses a stream (uploads have theirs: the test above)."""
     config = ServeConfig(cache=":memory:", rate_limit=0, audio_model=None)
     with TestClient(create_app(config)) as bare:
         assert bare.get("/api/config").json()["audio_model"] is None
-        answer = bare.post("/api/animate", content=encoded(pcm, "FLAC"))
-        assert answer.status_code == 400 and "no audio model" in answer.json()["detail"]
         with bare.websocket_connect("/api/listen") as ws:
             ws.send_json({"type": "start", "sample_rate": 16000})
             assert "no audio model" in ws.receive_json()["message"]

@@ -55,9 +55,11 @@ class ServeConfig:
     ``":memory:"``: none kept). ``stream_model``: model name or saved folder the stream uses
     when a message names none; ``None`` picks the shipped ``grid-tdnn-lowlatency`` if it is there and
     otherwise ``default_model``. ``audio_model``: model name or saved folder of the audio model
-    that animates uploads without a transcript (``/api/animate``) and live audio (``/api/listen``)
-    when a request names none; the shipped ``grid-audio-cnn`` by default, and when that is not
-    installed (or ``None``) there is none and those requests must name one. ``rate_limit``:
+    that animates live audio (``/api/listen``) when a request names none; the shipped
+    ``grid-audio-cnn`` by default, and when that is not installed (or ``None``) there is none and
+    those requests must name one. ``upload_model``: model name or saved folder that animates
+    recordings (``/api/animate``) when a request names none; ``None``: what ``vispeech animate``
+    takes (:func:`vispeech.pipeline.recording_model`). ``rate_limit``:
     tokens a second per client IP (0 = no limit), with bursts of ``burst``; a request or stream
     message costs a token per ``chars_per_token`` characters of text (at least one), per
     ``phone_seconds_per_token`` seconds of phones it adds (at least ``min_message_cost``) or per
@@ -145,8 +147,16 @@ class ServeConfig:
         default=DEFAULT_AUDIO_STREAM_MODEL,
         metadata=_option(
             "--audio-model",
-            "Audio model name or saved folder for /api/listen and /api/animate without a transcript "
-            "(none when the default is not installed).",
+            "Audio model name or saved folder for /api/listen (none when the default is not installed).",
+        ),
+    )
+    upload_model: str | None = field(
+        default=None,
+        metadata=_option(
+            "--upload-model",
+            "Model name or saved folder for /api/animate [default: as `vispeech animate`: grid-audio-whisper "
+            "with the whisper extra, blended with grid-tdnn on an English transcript's phones; else "
+            "grid-audio-encdec, or grid-tdnn with a transcript].",
         ),
     )
     fps: float = DEFAULT_FPS

@@ -116,9 +116,10 @@ class SpeakRequest(SpeechOptions):
 class AnimateQuery(BaseModel):
     """Query parameters of ``POST /api/animate`` (the body is the audio file itself).
 
-    Without ``text`` the audio model animates the audio; with it the transcript is aligned
-    with the audio in ``language`` and ``model`` (default: the server's default model) animates the
-    phones, as :func:`vispeech.pipeline.listen` does; an English transcript that does not fit the
+    ``model`` (default: the server's upload model, else what ``vispeech animate`` takes:
+    :func:`vispeech.pipeline.recording_model`) animates the audio; with ``text`` the transcript
+    is aligned with the audio in ``language`` and its phones drive or join the model, as
+    :func:`vispeech.pipeline.listen` does; an English transcript that does not fit the
     audio is refused (400) unless ``force``. ``fps`` and ``scale`` ``null`` mean the server's
     frame rate and output scale; ``formats`` as in :class:`SpeechOptions` (repeated:
     ``formats=oculus&formats=rhubarb``).

@@ -30,7 +30,7 @@ from vispeech.motion.formats.registry import track_text
 from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
-from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, speak
+from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, recording_model, speak
 from vispeech.serve.bot import ChatBotError
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
@@ -143,6 +143,7 @@ class SpeechService:
             raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
         self.stream_model = self._choose_stream_model(config.stream_model)
         self.audio_model = self._choose_audio_model(config.audio_model)
+        self.upload_model = None if config.upload_model is None else self._offer(config.upload_model)
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue)
@@ -296,7 +297,8 @@ class SpeechService:
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator, Calibration | None]:
         """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>`` (``:forced`` added
         for a transcript taken whether it fits or not)."""
-        name, model = self.model(query.model, audio=query.text is None)
+        default = self.upload_model or recording_model(query.text is not None, query.language)
+        name, model = self.model(query.model or default)
         fps = query.fps or self.config.fps
         scale, calibration = self.scale(query.scale)
         voice = f"upload:{digest}:forced" if query.force else f"upload:{digest}"
