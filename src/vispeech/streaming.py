@@ -51,12 +51,13 @@ from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
+from vispeech.motion.easing import smoothstep
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
-from vispeech.postprocess.rest import rest_in_silence
+from vispeech.postprocess.rest import EASE, rest_in_silence
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -375,11 +376,7 @@ class LiveAudioStream:
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:
         if model.input_kind != "audio":
             raise VispeechError(f"model {model.name} animates phones, not audio: use an audio model")
-        if not (isinstance(sample_rate, int) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
-            raise VispeechError(
-                f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}.."
-                f"{MAX_SAMPLE_RATE}, got {sample_rate!r}"
-            )
+        check_sample_rate(sample_rate)
         config = PostprocessConfig.from_preset(model.postprocessing)
         config = self._config = replace(config, rest=False)  # the speech's span needs the whole audio
         if config.jaw_shift or config.overlays or config.upper_lip or config.jaw_peaks_in_vowels:
@@ -411,6 +408,7 @@ class LiveAudioStream:
         self.closed = False
         self.activity = vad.VoiceActivity() if vad.installed() and self._inner.sample_rate == vad.SAMPLE_RATE else None
         """The stream's voice activity detector (``None`` without ONNX Runtime: no rest)."""
+        self._last = np.zeros(len(self.channels))
 
     @property
     def duration(self) -> float:
@@ -421,6 +419,13 @@ class LiveAudioStream:
     def emitted(self) -> int:
         """Frames given so far."""
         return self._inner.emitted
+
+    def cancel(self) -> tuple[int, np.ndarray]:
+        """End the stream at once (the listener interrupted): the frames easing the face from the
+        last frame given to rest (:func:`rest_ease`), after it."""
+        start = self.emitted
+        self.close()
+        return start, rest_ease(self._last, self.fps)
 
     def push(self, pcm: bytes) -> tuple[int, np.ndarray]:
         """Add a chunk of PCM bytes; the frames that became ready."""
@@ -462,7 +467,27 @@ class LiveAudioStream:
         track = postprocess(Track(rows, self._inner.channels, self.fps, start / self.fps), None, self._config)
         if self.activity is not None:
             track = rest_in_silence(track, self.activity.spans)
-        return start, track.select(self.channels).values
+        values = track.select(self.channels).values
+        self._last = values[-1]
+        return start, values
+
+
+def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:
+    """The frames after a frame ``last`` (a row over a stream's channels) that take the face to
+    rest, every channel at 0, over :data:`~vispeech.postprocess.rest.EASE` seconds (smoothstep):
+    ``ceil(EASE · fps)`` rows, the last at rest."""
+    n = max(1, math.ceil(EASE * fps - 1e-9))
+    keep = 1.0 - smoothstep(np.arange(1, n + 1) / n)
+    return keep[:, None] * np.asarray(last, dtype=float)[None, :]
+
+
+def check_sample_rate(sample_rate: int) -> int:
+    """``sample_rate`` if it is a whole number of Hz that live audio may have; :class:`VispeechError` if not."""
+    if not (isinstance(sample_rate, int) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
+        raise VispeechError(
+            f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE}, got {sample_rate!r}"
+        )
+    return sample_rate
 
 
 @functools.lru_cache(maxsize=64)
