@@ -142,17 +142,18 @@ def _word_phones(text: str, language: str) -> tuple[Phone, ...]:
 def phones_over_words(words: Sequence[Word], language: str, begin: float = 0.0) -> list[Phone]:
     """The phones of ``words`` (in time order) laid over their spans (see the module docstring),
     silence between them and from ``begin`` to the first. A word starting before the one before
-    it ends (or before ``begin``) starts there; one ending there is refused."""
+    it ends (or before ``begin``) starts there; one ending there is refused; a word without a letter
+    or digit is passed over, whatever its times."""
     out: list[Phone] = []
     time = begin
     for word in words:
+        pieces = word_phones(word.text, language)
+        if not pieces:
+            continue
         if word.end <= time + TIME_TOLERANCE:
             raise VispeechError(
                 f"word {word.text!r} ends at {word.end:.3f} s, before the words before it end ({time:.3f} s)"
             )
-        pieces = word_phones(word.text, language)
-        if not pieces:
-            continue
         start = max(word.start, time)
         if start > time + TIME_TOLERANCE:
             out.append(Phone(SILENCE, time, start))

@@ -1,21 +1,40 @@
-"""``/api/listen``: live audio in (16-bit PCM chunks), frames out as soon as they are computed."""
+"""``/api/listen``: live audio in (16-bit PCM chunks), with a voice service's timings when it has
+them, frames out as soon as they are computed; barge-in cancels a stream at once."""
 
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 
 from fastapi import APIRouter, WebSocket
 from pydantic import ValidationError
 from starlette.types import Message
 
+from vispeech.alignment.phones import Word
 from vispeech.errors import VispeechError
+from vispeech.realtime import TimedSpeechStream
 from vispeech.serve.connection import Connection, send_error, send_message, serve_connection
 from vispeech.serve.dependencies import Service
 from vispeech.serve.errors import REFUSALS, describe_errors
-from vispeech.serve.schemas import AudioStartMessage, EndMessage, ListenClientMessage, StartMessage, WarningMessage
-from vispeech.serve.service import AUDIO_WORK_PER_SECOND, MIN_CHUNK_SECONDS, SpeechService
+from vispeech.serve.schemas import (
+    LISTEN_MESSAGE_TYPES,
+    AudioStartMessage,
+    AudioStopMessage,
+    CancelledMessage,
+    CancelMessage,
+    CharactersMessage,
+    EndMessage,
+    ListenClientMessage,
+    StartMessage,
+    VisemesMessage,
+    WarningMessage,
+    WordsMessage,
+)
+from vispeech.serve.service import AUDIO_WORK_PER_SECOND, MIN_CHUNK_SECONDS, PHONE_WORK_PER_SECOND, SpeechService
 from vispeech.streaming import LiveAudioStream
+
+Timings = CharactersMessage | WordsMessage | VisemesMessage
 
 FAST_GRACE_SECONDS = 1.0
 """Audio (seconds) a live client may send beyond ``max_audio_speed`` times real time before it is warned."""
@@ -30,20 +49,23 @@ async def listen_stream(websocket: WebSocket, service: Service) -> None:
 
 
 class ListenConnection(Connection):
-    """An ``/api/listen`` connection: live audio streams, one at a time.
+    """An ``/api/listen`` connection: live audio streams, one at a time, animated by an audio
+    model or, with timings, by a phone model (:class:`~vispeech.realtime.TimedSpeechStream`).
 
     The reader takes audio chunks as they come (up to ``max_audio_backlog`` seconds waiting, so
     a lag is seen, not hidden in TCP buffers); the processor pushes all the chunks waiting at
     once in one pool job, so a session that fell behind catches up in larger steps. Any refused
     chunk ends the audio stream (its frames would no longer line up with the client's audio);
-    further chunks are dropped until the next text message.
+    further chunks and timings are dropped until the next start, stop or cancel. The reader
+    counts the cancels it reads (:attr:`epoch`): the chunks, timings and stop read before a cancel
+    are dropped unanswered when their turn comes.
     """
 
     inbox_size = 512
 
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         super().__init__(websocket, service, ip)
-        self.audio: LiveAudioStream | None = None
+        self.audio: LiveAudioStream | TimedSpeechStream | None = None
         self.started = 0.0
         """``time.monotonic()`` of the stream's start message."""
         self.refusing = False
@@ -53,6 +75,8 @@ class ListenConnection(Connection):
         self.waiting_bytes = 0
         self.room = asyncio.Event()
         self.held: dict | None = None
+        self.epoch = 0
+        """Cancel messages read so far: an event read before the last of them is stale."""
 
     def _release(self) -> None:
         if self.audio is not None:
@@ -63,6 +87,9 @@ class ListenConnection(Connection):
         return max(self.config.max_chunk_bytes, round(self.config.max_audio_backlog * rate * 2))
 
     async def _enqueue(self, event: Message) -> None:
+        if _is_cancel(event.get("text")):
+            self.epoch += 1
+        event["epoch"] = self.epoch
         size = len(event.get("bytes") or event.get("text") or "")
         while self.waiting_bytes and self.waiting_bytes + size > self._backlog_bytes():
             self.room.clear()
@@ -96,21 +123,32 @@ class ListenConnection(Connection):
             for chunk in event["chunks"]:
                 if await self._oversize(chunk):
                     return False
-            await self._audio(event["chunks"])
+            fresh = [chunk for chunk in event["chunks"] if chunk["epoch"] == self.epoch]
+            if fresh:
+                await self._audio(fresh)
             return True
         if await self._oversize(event):
             return False
-        self.refusing = False
         try:
             message = ListenClientMessage.validate_json(event["text"])
         except ValidationError as exc:
-            await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message", kinds=("start", "stop")))
+            await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message", kinds=LISTEN_MESSAGE_TYPES))
             return True
+        timings = isinstance(message, (CharactersMessage, WordsMessage, VisemesMessage))
+        if (timings or isinstance(message, AudioStopMessage)) and event["epoch"] < self.epoch:
+            return True  # a cancel follows: dropped
+        if timings and self.refusing:
+            return True
+        self.refusing = self.refusing and timings
         try:
             if isinstance(message, AudioStartMessage):
                 await self._start(message)
-            else:
+            elif isinstance(message, AudioStopMessage):
                 await self._stop()
+            elif isinstance(message, CancelMessage):
+                await self._cancel()
+            else:
+                await self._timings(message)
             self._worked()
         except REFUSALS as exc:
             await send_error(self.ws, str(exc))
@@ -120,9 +158,18 @@ class ListenConnection(Connection):
         if self.audio is not None:
             raise VispeechError('an audio stream is open: end it with {"type": "stop"} first')
         self.service.pay(self.ip, self.config.min_message_cost)
-        name, model = self.service.model(message.model, audio=True)
-        stream = await self._run(LiveAudioStream, model, message.sample_rate, message.fps or self.config.fps)
+        fps = message.fps or self.config.fps
+        stream: LiveAudioStream | TimedSpeechStream
+        if message.timings is None:
+            name, model = self.service.model(message.model, audio=True)
+            stream = await self._run(LiveAudioStream, model, message.sample_rate, fps)
+        else:
+            name, model = self.service.model(message.model, stream=True)
+            stream = await self._run(
+                TimedSpeechStream, model, message.timings, message.sample_rate, message.language, fps
+            )
         self.audio, self.started, self.warned_fast, self.behind = stream, time.monotonic(), False, False
+        delay = round(stream.delay, 6) if isinstance(stream, LiveAudioStream) else None
         await send_message(
             self.ws,
             StartMessage(
@@ -131,7 +178,48 @@ class ListenConnection(Connection):
                 sample_rate=stream.sample_rate,
                 model=name,
                 lookahead=stream.lookahead,
-                delay=round(stream.delay, 6),
+                delay=delay,
+            ),
+        )
+
+    async def _timings(self, message: Timings) -> None:
+        """Frames for the next timings of a timed stream (refused whole, the stream going on)."""
+        stream = self.audio
+        if stream is None:
+            raise VispeechError('no audio stream is open: send {"type": "start", "sample_rate": ...} first')
+        if not isinstance(stream, TimedSpeechStream):
+            raise VispeechError(f'this audio stream takes no timings: start one with "timings": "{message.type}"')
+        call: tuple
+        if isinstance(message, CharactersMessage):
+            times = message.character_end_times_seconds
+            call = (stream.add_characters, message.characters, message.character_start_times_seconds, times)
+        elif isinstance(message, WordsMessage):
+            times = [word.end for word in message.words]
+            call = (stream.add_words, [Word(word.text, word.start, word.end) for word in message.words])
+        else:
+            times = [viseme.time for viseme in message.visemes]
+            call = (stream.add_visemes, [(viseme.viseme, viseme.time) for viseme in message.visemes])
+        last = max(times, default=0.0)
+        if last > self.config.max_stream_seconds + 1e-9:
+            raise VispeechError(f"an audio stream may last at most {self.config.max_stream_seconds:g} s")
+        self.service.pay(self.ip, self.config.min_message_cost)
+        weight = max(0.0, last - stream.duration) * PHONE_WORK_PER_SECOND
+        text = await self._run(self.service.step, stream, *call, weight=weight)
+        if text is not None:
+            await self.ws.send_text(text)
+
+    async def _cancel(self) -> None:
+        """End the open stream at once with the frames easing the face to rest (barge-in)."""
+        stream, self.audio = self.audio, None
+        if stream is None:
+            await send_message(self.ws, CancelledMessage(start_frame=0, frames=[], n_frames=0, duration=0.0))
+            return
+        start, rows = stream.cancel()
+        frames = self.service.scaled(rows, stream.channels, stream.fps).round(6).tolist()
+        await send_message(
+            self.ws,
+            CancelledMessage(
+                start_frame=start, frames=frames, n_frames=start + len(frames), duration=round(stream.duration, 6)
             ),
         )
 
@@ -171,13 +259,16 @@ class ListenConnection(Connection):
                 self.service.pay(self.ip, max(added, MIN_CHUNK_SECONDS) / config.audio_seconds_per_token)
                 pcm.append(data)
                 seconds += added
-            text = await self._run(
-                self.service.step,
-                stream,
-                stream.push,
-                b"".join(pcm),
-                weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND,
-            )
+            if isinstance(stream, TimedSpeechStream):  # counted, not heard: no work to queue
+                text = self.service.step(stream, stream.push, b"".join(pcm))
+            else:
+                text = await self._run(
+                    self.service.step,
+                    stream,
+                    stream.push,
+                    b"".join(pcm),
+                    weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND,
+                )
         except REFUSALS as exc:
             stream.close()
             self.audio, self.refusing = None, True
@@ -214,3 +305,14 @@ class ListenConnection(Connection):
             )
         elif lag < config.max_audio_lag / 2:
             self.behind = False
+
+
+def _is_cancel(text: str | None) -> bool:
+    """Whether a client text message is a cancel (the reader's quick look; the processor parses it)."""
+    if text is None or '"cancel"' not in text or len(text) > 200:
+        return False
+    try:
+        message = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(message, dict) and message.get("type") == "cancel"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, model_validator
 
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
@@ -25,6 +25,9 @@ MAX_PHONES_PER_MESSAGE = 500
 
 MAX_STREAM_SECONDS = 600.0
 """Latest phone end (seconds) a phone stream may reach."""
+
+MAX_TIMINGS = 1000
+"""Most characters, words or visemes one ``/api/listen`` timings message may carry."""
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
@@ -266,7 +269,11 @@ class AudioStartMessage(ClientInput):
     """Listen client message: open an audio stream; binary messages of audio follow, each a chunk
     of ``encoding`` (``pcm16``: 16-bit little-endian mono PCM) at ``sample_rate`` Hz.
 
-    ``fps`` ``null`` means the server's frame rate, ``model`` ``null`` its audio model.
+    ``timings`` ``null``: the audio model animates the audio (``model`` ``null``: the server's
+    audio model). ``characters``, ``words`` or ``visemes``: the client sends the voice service's
+    timings of that kind as they come (:class:`CharactersMessage`, :class:`WordsMessage`,
+    :class:`VisemesMessage`), and a phone model animates them (``model`` ``null``: the stream
+    model), words and characters read in ``language``. ``fps`` ``null`` means the server's frame rate.
     """
 
     type: Literal["start"]
@@ -274,6 +281,8 @@ class AudioStartMessage(ClientInput):
     encoding: Literal["pcm16"] = "pcm16"
     fps: Fps | None = None
     model: ModelName | None = None
+    timings: Literal["characters", "words", "visemes"] | None = None
+    language: Language = "en"
 
 
 class AudioStopMessage(ClientInput):
@@ -282,8 +291,107 @@ class AudioStopMessage(ClientInput):
     type: Literal["stop"]
 
 
-ListenClientMessage = TypeAdapter(Annotated[AudioStartMessage | AudioStopMessage, Field(discriminator="type")])
-"""Parses one ``/api/listen`` client text message into :class:`AudioStartMessage` or :class:`AudioStopMessage`."""
+class CancelMessage(ClientInput):
+    """Listen client message: the listener interrupted (barge-in). The audio and timings waiting
+    are dropped and the stream ends at once with a ``cancelled`` message easing the face to rest."""
+
+    type: Literal["cancel"]
+
+
+def _timed_in_order(starts: list[float], ends: list[float], what: str) -> None:
+    for k, (start, end) in enumerate(zip(starts, ends)):
+        if end < start:
+            raise ValueError(f"{what} {k} ends ({end}) before it starts ({start})")
+        if k and start < starts[k - 1]:
+            raise ValueError(f"{what} {k} starts ({start}) before the one before it ({starts[k - 1]})")
+
+
+class CharactersMessage(ClientInput):
+    """Listen client message: the next characters of a ``characters`` stream with their times,
+    seconds from the start of the stream's audio, as ElevenLabs' ``alignment`` gives them."""
+
+    type: Literal["characters"]
+    characters: Annotated[
+        list[Annotated[str, StringConstraints(min_length=1, max_length=8)]], Field(max_length=MAX_TIMINGS)
+    ]
+    character_start_times_seconds: Annotated[list[Seconds], Field(max_length=MAX_TIMINGS)]
+    character_end_times_seconds: Annotated[list[Seconds], Field(max_length=MAX_TIMINGS)]
+
+    @model_validator(mode="after")
+    def _timed(self) -> CharactersMessage:
+        starts, ends = self.character_start_times_seconds, self.character_end_times_seconds
+        if not len(self.characters) == len(starts) == len(ends):
+            raise ValueError(
+                f"characters and their times must be as many: {len(self.characters)} characters, "
+                f"{len(starts)} start times, {len(ends)} end times"
+            )
+        _timed_in_order(starts, ends, "character")
+        return self
+
+
+class TimedWord(ClientInput):
+    """One word with its start and end, seconds from the start of the stream's audio."""
+
+    text: Annotated[str, StringConstraints(min_length=1, max_length=100), AfterValidator(_printable)]
+    start: Seconds
+    end: Seconds
+
+
+class WordsMessage(ClientInput):
+    """Listen client message: the next words of a ``words`` stream with their times (Azure's word
+    boundaries, a transcript's word times)."""
+
+    type: Literal["words"]
+    words: Annotated[list[TimedWord], Field(max_length=MAX_TIMINGS)]
+
+    @model_validator(mode="after")
+    def _timed(self) -> WordsMessage:
+        _timed_in_order([w.start for w in self.words], [w.end for w in self.words], "word")
+        return self
+
+
+def _known_viseme(name: str) -> str:
+    from vispeech.errors import VispeechError
+    from vispeech.frontends.timings import viseme_phone
+
+    try:
+        viseme_phone(name)
+    except VispeechError as exc:
+        raise ValueError(str(exc)) from None
+    return name
+
+
+class TimedViseme(ClientInput):
+    """One viseme from ``time`` (seconds from the start of the stream's audio) to the next one's:
+    an Azure viseme id (0–21) or an Oculus viseme name (``sil``, ``PP``, ``FF``, ... ``ou``)."""
+
+    viseme: Annotated[int, Field(strict=True, ge=0, le=21)] | Annotated[str, AfterValidator(_known_viseme)]
+    time: Seconds
+
+
+class VisemesMessage(ClientInput):
+    """Listen client message: the next visemes of a ``visemes`` stream, in time order."""
+
+    type: Literal["visemes"]
+    visemes: Annotated[list[TimedViseme], Field(max_length=MAX_TIMINGS)]
+
+    @model_validator(mode="after")
+    def _timed(self) -> VisemesMessage:
+        times = [v.time for v in self.visemes]
+        _timed_in_order(times, times, "viseme")
+        return self
+
+
+LISTEN_MESSAGE_TYPES = ("start", "stop", "cancel", "characters", "words", "visemes")
+"""The ``type`` of every ``/api/listen`` client text message."""
+
+ListenClientMessage = TypeAdapter(
+    Annotated[
+        AudioStartMessage | AudioStopMessage | CancelMessage | CharactersMessage | WordsMessage | VisemesMessage,
+        Field(discriminator="type"),
+    ]
+)
+"""Parses one ``/api/listen`` client text message into its model (:data:`LISTEN_MESSAGE_TYPES`)."""
 
 
 class StartMessage(BaseModel):
@@ -330,6 +438,19 @@ class EndMessage(BaseModel):
     duration: float
 
 
+class CancelledMessage(BaseModel):
+    """Listen server message, last of a cancelled stream: ``frames`` from ``start_frame`` on (rows
+    over the start message's channels) ease the face from the last frame sent to rest, to be shown
+    at once, in place of any frames not yet shown; ``n_frames`` frames in all, ``duration``
+    seconds of audio received. A ``cancel`` with no stream open gets one with no frames."""
+
+    type: Literal["cancelled"] = "cancelled"
+    start_frame: int
+    frames: list[list[float]]
+    n_frames: int
+    duration: float
+
+
 class WarningMessage(BaseModel):
     """Stream and listen server message: the stream goes on, but its frames are (or may be) late.
 
@@ -358,7 +479,7 @@ class ErrorMessage(BaseModel):
 
 ServerMessage = TypeAdapter(
     Annotated[
-        StartMessage | FramesMessage | AudioMessage | EndMessage | WarningMessage | ErrorMessage,
+        StartMessage | FramesMessage | AudioMessage | EndMessage | CancelledMessage | WarningMessage | ErrorMessage,
         Field(discriminator="type"),
     ]
 )

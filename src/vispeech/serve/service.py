@@ -31,6 +31,7 @@ from vispeech.motion.life import check_layers, with_life
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, recording_model, speak
+from vispeech.realtime import TimedSpeechStream
 from vispeech.serve.bot import ChatBotError
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.config import ServeConfig
@@ -192,7 +193,9 @@ class SpeechService:
             return rows
         return self.calibration.apply(Track(rows, channels, fps)).values
 
-    def frames_message(self, stream: PhoneStream | LiveAudioStream, start: int, rows: np.ndarray) -> str | None:
+    def frames_message(
+        self, stream: PhoneStream | LiveAudioStream | TimedSpeechStream, start: int, rows: np.ndarray
+    ) -> str | None:
         """Frames of a stream from ``start``, in the server's output scale, as a ``frames`` message
         (``None`` for none)."""
         if not len(rows):
@@ -200,7 +203,7 @@ class SpeechService:
         rows = self.scaled(rows, stream.channels, stream.fps)
         return FramesMessage(start_frame=start, frames=rows.round(6).tolist()).model_dump_json()
 
-    def step(self, stream: PhoneStream | LiveAudioStream, step: Callable, *args) -> str | None:
+    def step(self, stream: PhoneStream | LiveAudioStream | TimedSpeechStream, step: Callable, *args) -> str | None:
         """Run a phone or audio stream's ``push`` / ``finish``: its frames as a :meth:`frames_message`."""
         return self.frames_message(stream, *step(*args))
 
