@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from vispeech.motion.arkit import LIP_CLOSED, lip_aperture  # noqa: E402
 from vispeech.motion.track import Track  # noqa: E402
 from vispeech.pipeline import animate, animate_audio  # noqa: E402
 from vispeech.postprocess import PostprocessConfig  # noqa: E402
+from vispeech.realtime import TimedSpeechStream  # noqa: E402
 from vispeech.serve import ServeConfig, create_app  # noqa: E402
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "realtime" / "relay.py"
@@ -141,6 +143,30 @@ def test_barge_in_rests_the_mouth_and_the_next_utterance_goes_on(client, service
         ws.send_text(json.dumps({"type": "cancel"}))
         assert ws.receive_json() == {"type": "cancelled", "start_frame": 0, "frames": [], "n_frames": 0,
                                      "duration": 0.0}
+
+
+def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypatch):
+    """While the first words are worked on (slowly here), the reader reads the rest and the cancel
+    (within the 2 s of audio it lets wait): the words and audio waiting before the cancel are
+    dropped unworked."""
+    worked = []
+    add_words = TimedSpeechStream.add_words
+
+    def slow_add_words(stream, words):
+        worked.append([w.text for w in words])
+        time.sleep(0.3)
+        return add_words(stream, words)
+
+    monkeypatch.setattr(TimedSpeechStream, "add_words", slow_add_words)
+    messages = list(relay.messages_for("azure"))
+    first = next(k for k, m in enumerate(messages) if isinstance(m, str) and '"type": "words"' in m)
+    assert [type(m) for m in messages[:first]] == [str, bytes]  # the start, 0.2 s of audio, then "Please"
+    with client.websocket_connect("/api/listen") as ws:
+        answers = answers_of(ws, [*messages[:len(messages) * 2 // 3], json.dumps({"type": "cancel"})])
+    assert worked == [["Please"]]
+    assert [a["type"] for a in answers] == ["start", "frames", "cancelled"]
+    assert answers[2]["start_frame"] == len(answers[1]["frames"])
+    assert answers[2]["duration"] == 0.2  # the audio after the first words was dropped uncounted
 
 
 def test_bad_messages_get_one_error_each_and_the_stream_goes_on(client):

@@ -139,7 +139,7 @@ class ListenConnection(Connection):
             return True  # a cancel follows: dropped
         if timings and self.refusing:
             return True
-        self.refusing = self.refusing and timings
+        self.refusing = False
         try:
             if isinstance(message, AudioStartMessage):
                 await self._start(message)
@@ -308,11 +308,10 @@ class ListenConnection(Connection):
 
 
 def _is_cancel(text: str | None) -> bool:
-    """Whether a client text message is a cancel (the reader's quick look; the processor parses it)."""
+    """Whether a client text message is a valid cancel (the reader's look, before the processor's)."""
     if text is None or '"cancel"' not in text or len(text) > 200:
         return False
     try:
-        message = json.loads(text)
+        return json.loads(text) == {"type": "cancel"}
     except ValueError:
         return False
-    return isinstance(message, dict) and message.get("type") == "cancel"
