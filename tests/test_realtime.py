@@ -191,3 +191,14 @@ def test_a_cancel_eases_the_face_to_rest_at_once(model, speech):
     with pytest.raises(VispeechError, match="has ended"):
         stream.add_words(speech.phones.words[3:4])
     assert rest_ease(np.ones(4), 60.0).shape == (6, 4)
+
+
+@pytest.mark.parametrize(("language", "word", "phone_set"), [("sv", "mamma", "sv"), ("de", "Mutter", "ipa")])
+def test_words_of_other_languages_are_read_in_their_phones(model, language, word, phone_set):
+    stream = TimedSpeechStream(model, "words", 16000, language)
+    stream.push(bytes(2 * 16000))
+    frames = run(stream, [("words", [Word(word, 0.3, 0.7)])])
+    phones = timed_word_phones([Word(word, 0.3, 0.7)], language, 1.0)
+    assert phones.language == phone_set and phones.phones[1].symbol == "m" and len(frames) == 30
+    aperture = lip_aperture(Track(frames, STREAM_CHANNELS, 30.0))
+    assert aperture[int(phones.phones[1].start * 30):int(phones.phones[1].end * 30) + 2].min() <= LIP_CLOSED

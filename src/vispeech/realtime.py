@@ -10,6 +10,13 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, Word
 from vispeech.errors import VispeechError
+from vispeech.frontends.timings import (
+    LAST_VISEME_SECONDS,
+    characters_to_words,
+    phones_over_visemes,
+    phones_over_words,
+    viseme_phone,
+)
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.phonetics.inventory import SILENCE
@@ -87,8 +94,6 @@ class TimedSpeechStream:
 
     def add_words(self, words: Sequence[Word]) -> tuple[int, np.ndarray]:
         """Add timed words; the frames that became ready."""
-        from vispeech.frontends.timings import phones_over_words
-
         self._expect("words")
         return self._push(phones_over_words(words, self.language, self._phones.end))
 
@@ -96,8 +101,6 @@ class TimedSpeechStream:
         self, characters: Sequence[str], starts: Sequence[float], ends: Sequence[float]
     ) -> tuple[int, np.ndarray]:
         """Add timed characters; the frames that the words they complete made ready."""
-        from vispeech.frontends.timings import characters_to_words, phones_over_words
-
         self._expect("characters")
         characters_to_words(characters, starts, ends)  # as many times as characters
         held = self._characters + list(zip(characters, starts, ends))
@@ -109,8 +112,6 @@ class TimedSpeechStream:
 
     def add_visemes(self, visemes: Sequence[tuple[int | str, float]]) -> tuple[int, np.ndarray]:
         """Add timed visemes; the frames that became ready."""
-        from vispeech.frontends.timings import phones_over_visemes, viseme_phone
-
         self._expect("visemes")
         held = ([self._viseme] if self._viseme is not None else []) + list(visemes)
         if not held:
@@ -127,13 +128,6 @@ class TimedSpeechStream:
 
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed, up to the audio's end (or the timings', if later)."""
-        from vispeech.frontends.timings import (
-            LAST_VISEME_SECONDS,
-            characters_to_words,
-            phones_over_visemes,
-            phones_over_words,
-        )
-
         if self.closed:
             raise VispeechError("this audio stream has ended")
         begin = self._phones.end
