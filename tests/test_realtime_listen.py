@@ -219,3 +219,39 @@ def test_bad_messages_get_one_error_each_and_the_stream_goes_on(client):
         assert ws.receive_json()["type"] == "start"
         ws.send_text(json.dumps({"type": "words", "words": [word]}))
         assert "takes no timings" in ws.receive_json()["message"]
+
+
+def test_the_example_clients_relay_to_a_real_server(client, tmp_path, monkeypatch, capsys):
+    """``examples/realtime/relay.py`` over uvicorn on a loopback port (the real WebSocket stack):
+    the frames the in-process server gives."""
+    import asyncio
+    import socket
+    import sys
+    import threading
+
+    import uvicorn
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    app = create_app(ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0, scale="tracker"))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error", ws_max_size=65536))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    url = f"ws://127.0.0.1:{port}/api/listen"
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.02)
+        for service in ("openai", "elevenlabs"):
+            answers = asyncio.run(relay.relay(url, relay.messages_for(service)))
+            assert np.allclose(relay.frames_of(answers), relayed(client, service)[1], atol=1e-6)
+        out = tmp_path / "frames.json"
+        monkeypatch.setattr(sys, "argv", ["relay.py", "azure", "--url", url, "--out", str(out)])
+        relay.main()
+        assert "azure: 68 frames at 30 fps from grid-tdnn-lowlatency, 2.25 s of audio" in capsys.readouterr().out
+        written = json.loads(out.read_text())
+        assert np.allclose(written["frames"], relayed(client, "azure")[1], atol=1e-6)
+    finally:
+        server.should_exit = True
+        thread.join(10)

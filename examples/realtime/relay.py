@@ -122,17 +122,25 @@ def frames_of(answers: list[dict]) -> np.ndarray:
 
 
 async def relay(url: str, messages: Iterable[str | bytes]) -> list[dict]:
-    """Send ``messages`` to ``/api/listen`` at ``url``; the server's answers up to ``end``."""
+    """Send ``messages`` to ``/api/listen`` at ``url`` while receiving; the server's answers up to
+    ``end`` (or ``cancelled``). Raises :class:`RuntimeError` on an ``error``."""
     import websockets
 
     answers: list[dict] = []
     async with websockets.connect(url, max_size=2**24) as ws:
-        for message in messages:
-            await ws.send(message)
-        while not answers or answers[-1]["type"] not in ("end", "cancelled"):
-            answers.append(json.loads(await ws.recv()))
-            if answers[-1]["type"] == "error":
-                raise RuntimeError(answers[-1]["message"])
+
+        async def send() -> None:
+            for message in messages:
+                await ws.send(message)
+
+        sender = asyncio.create_task(send())  # a live client forwards as the service sends
+        try:
+            while not answers or answers[-1]["type"] not in ("end", "cancelled"):
+                answers.append(json.loads(await ws.recv()))
+                if answers[-1]["type"] == "error":
+                    raise RuntimeError(answers[-1]["message"])
+        finally:
+            sender.cancel()
     return answers
 
 
