@@ -202,3 +202,12 @@ def test_words_of_other_languages_are_read_in_their_phones(model, language, word
     assert phones.language == phone_set and phones.phones[1].symbol == "m" and len(frames) == 30
     aperture = lip_aperture(Track(frames, STREAM_CHANNELS, 30.0))
     assert aperture[int(phones.phones[1].start * 30):int(phones.phones[1].end * 30) + 2].min() <= LIP_CLOSED
+
+
+def test_a_pause_longer_than_a_phone_streams_step_is_taken(model):
+    stream = TimedSpeechStream(model, "words", 16000)
+    stream.push(bytes(2 * 16000 * 30))  # 30 s of audio
+    frames = run(stream, [("words", [Word("map", 0.3, 0.6)]), ("words", [Word("by", 21.0, 21.3)])])
+    assert len(frames) == 900 and stream.duration == 30.0
+    aperture = lip_aperture(Track(frames, STREAM_CHANNELS, 30.0))
+    assert aperture[int(21.0 * 30)] <= LIP_CLOSED and np.abs(frames[10 * 30]).max() < 1e-3  # /b/ closed; rest between

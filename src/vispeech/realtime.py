@@ -137,9 +137,8 @@ class TimedSpeechStream:
         else:
             phones = phones_over_words(characters_to_words(*_columns(self._characters)), self.language, begin)
         time = phones[-1].end if phones else begin
-        while self.duration > time + TIME_TOLERANCE:  # silence to the audio's end, in steps a phone stream takes
-            phones.append(Phone(SILENCE, time, min(self.duration, time + MAX_PHONE_SECONDS)))
-            time = phones[-1].end
+        if self.duration > time + TIME_TOLERANCE:  # silence to the audio's end
+            phones.append(Phone(SILENCE, time, self.duration))
         start, rows = self._push(phones)
         rest = self._kept(*self._phones.finish())[1]
         return start, np.concatenate([rows, rest])
@@ -162,7 +161,15 @@ class TimedSpeechStream:
             raise VispeechError(f"this audio stream takes {self.timings}, not {timings}")
 
     def _push(self, phones: list[Phone]) -> tuple[int, np.ndarray]:
-        return self._kept(*self._phones.push(phones))
+        """Push ``phones``, a pause longer than a phone stream's step (:data:`MAX_PHONE_SECONDS`) in pieces."""
+        pieces = []
+        for phone in phones:
+            time = phone.start
+            while phone.is_silence and phone.end - time > MAX_PHONE_SECONDS:
+                pieces.append(Phone(SILENCE, time, time + MAX_PHONE_SECONDS / 2))
+                time = pieces[-1].end
+            pieces.append(Phone(phone.symbol, time, phone.end, phone.word, phone.stress))
+        return self._kept(*self._phones.push(pieces))
 
     def _kept(self, start: int, rows: np.ndarray) -> tuple[int, np.ndarray]:
         """``(start, rows)``, the last row kept for :meth:`cancel`."""
