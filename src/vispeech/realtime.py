@@ -83,6 +83,11 @@ class TimedSpeechStream:
     def closed(self) -> bool:
         return self._phones.closed
 
+    @property
+    def end(self) -> float:
+        """Seconds the timings animated so far reach (the last complete word's end, the last viseme's start)."""
+        return self._phones.end
+
     def push(self, pcm: bytes) -> tuple[int, np.ndarray]:
         """Add a chunk of PCM bytes (counted, not heard): no frames."""
         if self.closed:

@@ -203,7 +203,7 @@ class ListenConnection(Connection):
         if last > self.config.max_stream_seconds + 1e-9:
             raise VispeechError(f"an audio stream may last at most {self.config.max_stream_seconds:g} s")
         self.service.pay(self.ip, self.config.min_message_cost)
-        weight = max(0.0, last - stream.duration) * PHONE_WORK_PER_SECOND
+        weight = max(0.0, last - stream.end) * PHONE_WORK_PER_SECOND
         text = await self._run(self.service.step, stream, *call, weight=weight)
         if text is not None:
             await self.ws.send_text(text)
