@@ -24,7 +24,7 @@ from vispeech.motion.formats.visemes import OCULUS_VISEMES
 from vispeech.motion.track import Track
 from vispeech.pipeline import animate, padded
 from vispeech.realtime import TimedSpeechStream
-from vispeech.streaming import STREAM_CHANNELS, rest_ease
+from vispeech.streaming import STREAM_CHANNELS, SentFrames, rest_ease
 
 SENTENCE = "Please bring my map back by noon."
 BILABIALS = ("P", "B", "M")
@@ -191,6 +191,12 @@ def test_a_cancel_eases_the_face_to_rest_at_once(model, speech):
     with pytest.raises(VispeechError, match="has ended"):
         stream.add_words(speech.phones.words[3:4])
     assert rest_ease(np.ones(4), 60.0).shape == (6, 4)
+    # after the stream ended, from the frame a client shows
+    ended = TimedSpeechStream(model, "words", speech.sample_rate)
+    frames = run(ended, [("audio", to_pcm16(speech.audio).tobytes()), ("words", speech.phones.words)])
+    start, ease = ended.cancel(30)
+    assert start == 31 and np.allclose(ease[0] / ease[0, jaw], frames[30] / frames[30, jaw], atol=1e-6)
+    assert ended.cancel(10_000)[0] == len(frames)
 
 
 @pytest.mark.parametrize(("language", "word", "phone_set"), [("sv", "mamma", "sv"), ("de", "Mutter", "ipa")])
@@ -211,3 +217,16 @@ def test_a_pause_longer_than_a_phone_streams_step_is_taken(model):
     assert len(frames) == 900 and stream.duration == 30.0
     aperture = lip_aperture(Track(frames, STREAM_CHANNELS, 30.0))
     assert aperture[int(21.0 * 30)] <= LIP_CLOSED and np.abs(frames[10 * 30]).max() < 1e-3  # /b/ closed; rest between
+
+
+def test_a_stream_keeps_the_last_two_minutes_of_frames_to_ease_from():
+    sent = SentFrames(2, 30.0)
+    assert sent.ease(5)[0] == 0  # nothing given yet: the ease starts at frame 0
+    for k in range(13):  # 130 s in 10-s chunks, frame k's values (k, -k)
+        rows = np.arange(k * 300, (k + 1) * 300, dtype=float)
+        sent.add(np.stack([rows, -rows], axis=1))
+    assert sent.count == 3900
+    start, ease = sent.ease(2100)
+    assert start == 2101 and len(ease) == 3 and np.allclose(ease[0] / ease[0, 0], [1.0, -1.0]) and ease[0, 0] < 2100
+    assert sent.ease(0)[0] == 301  # older than two minutes: from the oldest frame kept
+    assert sent.ease()[0] == sent.ease(5000)[0] == 3900

@@ -139,7 +139,13 @@ def test_barge_in_rests_the_mouth_and_the_next_utterance_goes_on(client, service
         answers = answers_of(ws, messages)
         assert answers[0]["type"] == "start" and answers[1]["start_frame"] == 0
         assert np.allclose(relay.frames_of(answers), alone, atol=1e-6)
-        # a cancel with nothing open, or a stop waiting behind it, is answered with no frames
+        # the usual barge-in: the service has sent it all, the client plays frame 20 of it
+        ws.send_text(json.dumps({"type": "cancel", "frame": 20}))
+        cancelled = ws.receive_json()
+        assert cancelled["type"] == "cancelled" and cancelled["start_frame"] == 21 and cancelled["n_frames"] == 24
+        ease = np.array(cancelled["frames"])
+        assert np.allclose(ease[0] / ease[0, jaw], alone[20] / alone[20, jaw], atol=1e-5) and not ease[-1].any()
+        # nothing left to cancel: an answer without frames
         ws.send_text(json.dumps({"type": "cancel"}))
         assert ws.receive_json() == {"type": "cancelled", "start_frame": 0, "frames": [], "n_frames": 0,
                                      "duration": 0.0}

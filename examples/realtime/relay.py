@@ -19,8 +19,9 @@ turns the service's events, in the order the service sends them, into the messag
 
 :func:`relay` sends the messages over a WebSocket (the ``websockets`` package) and collects the
 frames; the tests run the same functions through the server in-process (tests/test_realtime_listen.py).
-On barge-in (the user starts talking) a client sends ``{"type": "cancel"}``, stops playing, and
-shows the ``cancelled`` message's frames at once.
+On barge-in (the user starts talking) a client stops playing, sends ``{"type": "cancel",
+"frame": k}`` (``k``: the frame it shows) and shows the ``cancelled`` message's frames at once
+in place of every frame after ``k``.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.pipeline import DEFAULT_FPS
-from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream, check_sample_rate, rest_ease
+from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream, SentFrames, check_sample_rate
 
 TIMINGS = ("characters", "words", "visemes")
 """The timings a :class:`TimedSpeechStream` takes: ElevenLabs-style characters with times, words
@@ -67,7 +67,7 @@ class TimedSpeechStream:
         """Samples received so far, at :attr:`sample_rate`."""
         self._characters: list[tuple[str, float, float]] = []  # of the word not yet complete
         self._viseme: tuple[int | str, float] | None = None  # the viseme whose end is not yet known
-        self._last = np.zeros(len(self.channels))
+        self.sent = SentFrames(len(self.channels), self.fps)
 
     @property
     def duration(self) -> float:
@@ -148,12 +148,12 @@ class TimedSpeechStream:
         rest = self._kept(*self._phones.finish())[1]
         return start, np.concatenate([rows, rest])
 
-    def cancel(self) -> tuple[int, np.ndarray]:
-        """End the stream at once (the listener interrupted): the frames easing the face from the
-        last frame given to rest (:func:`rest_ease`), after it."""
-        start = self.emitted
+    def cancel(self, frame: int | None = None) -> tuple[int, np.ndarray]:
+        """End the stream at once (the listener interrupted), or after it ended: the frames easing
+        the face to rest from frame ``frame`` (``None``: the last given), after it
+        (:meth:`~vispeech.streaming.SentFrames.ease`)."""
         self.close()
-        return start, rest_ease(self._last, self.fps)
+        return self.sent.ease(frame)
 
     def close(self) -> None:
         """Drop the stream (a client went away); safe to call more than once."""
@@ -177,9 +177,8 @@ class TimedSpeechStream:
         return self._kept(*self._phones.push(pieces))
 
     def _kept(self, start: int, rows: np.ndarray) -> tuple[int, np.ndarray]:
-        """``(start, rows)``, the last row kept for :meth:`cancel`."""
-        if len(rows):
-            self._last = rows[-1]
+        """``(start, rows)``, the rows kept for :meth:`cancel`."""
+        self.sent.add(rows)
         return start, rows
 
 

@@ -408,7 +408,7 @@ class LiveAudioStream:
         self.closed = False
         self.activity = vad.VoiceActivity() if vad.installed() and self._inner.sample_rate == vad.SAMPLE_RATE else None
         """The stream's voice activity detector (``None`` without ONNX Runtime: no rest)."""
-        self._last = np.zeros(len(self.channels))
+        self.sent = SentFrames(len(self.channels), self.fps)
 
     @property
     def duration(self) -> float:
@@ -420,12 +420,11 @@ class LiveAudioStream:
         """Frames given so far."""
         return self._inner.emitted
 
-    def cancel(self) -> tuple[int, np.ndarray]:
-        """End the stream at once (the listener interrupted): the frames easing the face from the
-        last frame given to rest (:func:`rest_ease`), after it."""
-        start = self.emitted
+    def cancel(self, frame: int | None = None) -> tuple[int, np.ndarray]:
+        """End the stream at once (the listener interrupted), or after it ended: the frames easing
+        the face to rest from frame ``frame`` (``None``: the last given), after it (:meth:`SentFrames.ease`)."""
         self.close()
-        return start, rest_ease(self._last, self.fps)
+        return self.sent.ease(frame)
 
     def push(self, pcm: bytes) -> tuple[int, np.ndarray]:
         """Add a chunk of PCM bytes; the frames that became ready."""
@@ -468,8 +467,44 @@ class LiveAudioStream:
         if self.activity is not None:
             track = rest_in_silence(track, self.activity.spans)
         values = track.select(self.channels).values
-        self._last = values[-1]
+        self.sent.add(values)
         return start, values
+
+
+CANCEL_SECONDS = 120.0
+"""How far back (seconds of frames) a cancel may name the frame a client shows."""
+
+
+class SentFrames:
+    """The latest frames a stream gave (:data:`CANCEL_SECONDS` of them), so that a cancel eases
+    the face to rest from the one a client shows when the listener interrupts."""
+
+    def __init__(self, n_channels: int, fps: float) -> None:
+        self.n_channels = n_channels
+        self.fps = fps
+        self.count = 0
+        """Frames given so far."""
+        self._chunks: list[np.ndarray] = []
+        self._first = 0  # the number of the first frame kept
+
+    def add(self, rows: np.ndarray) -> None:
+        """The next frames given."""
+        if not len(rows):
+            return
+        self._chunks.append(np.asarray(rows, dtype=np.float32))
+        self.count += len(rows)
+        while self.count - self._first - len(self._chunks[0]) >= CANCEL_SECONDS * self.fps:
+            self._first += len(self._chunks.pop(0))
+
+    def ease(self, frame: int | None = None) -> tuple[int, np.ndarray]:
+        """``(k + 1, rows)``: the frames after frame ``k`` that take the face from it to rest
+        (:func:`rest_ease`), ``k`` being ``frame`` (the last given if ``None`` or later, the
+        oldest kept if earlier), to be shown in place of the frames given after it."""
+        if not self.count:
+            return 0, rest_ease(np.zeros(self.n_channels), self.fps)
+        k = self.count - 1 if frame is None else min(max(frame, self._first), self.count - 1)
+        kept = np.concatenate(self._chunks)
+        return k + 1, rest_ease(kept[k - self._first], self.fps)
 
 
 def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:

@@ -57,8 +57,8 @@ class ListenConnection(Connection):
     once in one pool job, so a session that fell behind catches up in larger steps. Any refused
     chunk ends the audio stream (its frames would no longer line up with the client's audio);
     further chunks and timings are dropped until the next start, stop or cancel. The reader
-    counts the cancels it reads (:attr:`epoch`): the chunks, timings and stop read before a cancel
-    are dropped unanswered when their turn comes.
+    counts the cancels it reads (:attr:`epoch`): the chunks and timings read before a cancel are
+    dropped unanswered when their turn comes.
     """
 
     inbox_size = 512
@@ -77,6 +77,8 @@ class ListenConnection(Connection):
         self.held: dict | None = None
         self.epoch = 0
         """Cancel messages read so far: an event read before the last of them is stale."""
+        self.last: LiveAudioStream | TimedSpeechStream | None = None
+        """The stream that ended last (a cancel may still ease its face to rest), until the next start."""
 
     def _release(self) -> None:
         if self.audio is not None:
@@ -135,10 +137,8 @@ class ListenConnection(Connection):
             await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message", kinds=LISTEN_MESSAGE_TYPES))
             return True
         timings = isinstance(message, (CharactersMessage, WordsMessage, VisemesMessage))
-        if (timings or isinstance(message, AudioStopMessage)) and event["epoch"] < self.epoch:
-            return True  # a cancel follows: dropped
-        if timings and self.refusing:
-            return True
+        if timings and (self.refusing or event["epoch"] < self.epoch):
+            return True  # after a refused chunk, or before a cancel: dropped
         self.refusing = False
         try:
             if isinstance(message, AudioStartMessage):
@@ -146,7 +146,7 @@ class ListenConnection(Connection):
             elif isinstance(message, AudioStopMessage):
                 await self._stop()
             elif isinstance(message, CancelMessage):
-                await self._cancel()
+                await self._cancel(message.frame)
             else:
                 await self._timings(message)
             self._worked()
@@ -168,7 +168,8 @@ class ListenConnection(Connection):
             stream = await self._run(
                 TimedSpeechStream, model, message.timings, message.sample_rate, message.language, fps
             )
-        self.audio, self.started, self.warned_fast, self.behind = stream, time.monotonic(), False, False
+        self.audio, self.last, self.started = stream, None, time.monotonic()
+        self.warned_fast = self.behind = False
         delay = round(stream.delay, 6) if isinstance(stream, LiveAudioStream) else None
         await send_message(
             self.ws,
@@ -208,13 +209,14 @@ class ListenConnection(Connection):
         if text is not None:
             await self.ws.send_text(text)
 
-    async def _cancel(self) -> None:
-        """End the open stream at once with the frames easing the face to rest (barge-in)."""
-        stream, self.audio = self.audio, None
+    async def _cancel(self, frame: int | None) -> None:
+        """End the latest stream at once with the frames easing the face to rest from ``frame`` (barge-in)."""
+        stream = self.audio or self.last
+        self.audio = self.last = None
         if stream is None:
             await send_message(self.ws, CancelledMessage(start_frame=0, frames=[], n_frames=0, duration=0.0))
             return
-        start, rows = stream.cancel()
+        start, rows = stream.cancel(frame)
         frames = self.service.scaled(rows, stream.channels, stream.fps).round(6).tolist()
         await send_message(
             self.ws,
@@ -227,7 +229,7 @@ class ListenConnection(Connection):
         stream = self.audio
         if stream is None:
             raise VispeechError('no audio stream is open: send {"type": "start", "sample_rate": ...} first')
-        self.audio = None
+        self.audio, self.last = None, stream
         text = await self._run(self.service.step, stream, stream.finish)
         if text is not None:
             await self.ws.send_text(text)
@@ -271,7 +273,7 @@ class ListenConnection(Connection):
                 )
         except REFUSALS as exc:
             stream.close()
-            self.audio, self.refusing = None, True
+            self.audio, self.last, self.refusing = None, stream, True
             await send_error(self.ws, f"{exc}; the audio stream has ended (send a start message to begin another)")
             return
         self._worked()

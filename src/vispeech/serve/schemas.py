@@ -293,9 +293,12 @@ class AudioStopMessage(ClientInput):
 
 class CancelMessage(ClientInput):
     """Listen client message: the listener interrupted (barge-in). The audio and timings waiting
-    are dropped and the stream ends at once with a ``cancelled`` message easing the face to rest."""
+    are dropped and the latest stream (the open one, else the one that ended last) ends at once
+    with a ``cancelled`` message easing the face to rest from ``frame``, the frame the client
+    shows (``null``: the last frame sent)."""
 
     type: Literal["cancel"]
+    frame: Annotated[int, Field(ge=0)] | None = None
 
 
 def _timed_in_order(starts: list[float], ends: list[float], what: str) -> None:
@@ -439,10 +442,11 @@ class EndMessage(BaseModel):
 
 
 class CancelledMessage(BaseModel):
-    """Listen server message, last of a cancelled stream: ``frames`` from ``start_frame`` on (rows
-    over the start message's channels) ease the face from the last frame sent to rest, to be shown
-    at once, in place of any frames not yet shown; ``n_frames`` frames in all, ``duration``
-    seconds of audio received. A ``cancel`` with no stream open gets one with no frames."""
+    """Listen server message, the answer to a ``cancel``: ``frames`` from ``start_frame`` on (rows
+    over the start message's channels) ease the face from frame ``start_frame - 1`` (the cancel's
+    ``frame``, or the last sent) to rest, to be shown at once in place of the frames after it;
+    ``n_frames`` frames in all, ``duration`` seconds of audio received. A ``cancel`` with no
+    stream to end (none yet, or the last already cancelled) gets one with no frames."""
 
     type: Literal["cancelled"] = "cancelled"
     start_frame: int
