@@ -20,7 +20,6 @@ from starlette.testclient import WebSocketDenialResponse  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from vispeech.serve import CacheKey, ServeConfig, UtteranceCache, create_app  # noqa: E402
-from vispeech.serve.pool import Busy, Cancelled, WorkPool  # noqa: E402
 from vispeech.guards import TokenBucket  # noqa: E402
 from vispeech.streaming import PhoneStream  # noqa: E402
 
@@ -237,42 +236,7 @@ def test_idle_and_long_connections_are_closed(tmp_path):
             assert closed.value.code == 1001
 
 
-# -- the work pool ----------------------------------------------------------------------------------
-
-def test_work_pool_is_bounded_and_fair():
-    async def scenario():
-        pool = WorkPool(workers=1, max_queue=3)
-        gate = threading.Event()
-        order = []
-
-        def job(name, seconds=0.0):
-            if name == "gate":
-                gate.wait(5)
-            time.sleep(seconds)
-            order.append(name)
-            return name
-
-        assert await pool.run("heavy", job, "warm", 0.1) == "warm"  # heavy has used 0.1 s lately
-        blocker = asyncio.create_task(pool.run("other", job, "gate"))
-        await asyncio.sleep(0.05)  # the worker holds the gate job
-        heavy = [asyncio.create_task(pool.run("heavy", job, f"h{i}")) for i in range(2)]
-        await asyncio.sleep(0.01)
-        light = asyncio.create_task(pool.run("light", job, "l0"))
-        await asyncio.sleep(0.01)
-        with pytest.raises(Busy):
-            await pool.run("light", job, "refused")
-        cancelled = threading.Event()
-        cancelled.set()
-        gate.set()
-        await asyncio.gather(blocker, light, *heavy)
-        assert order == ["warm", "gate", "l0", "h0", "h1"]  # the light client went first
-        with pytest.raises(Cancelled):
-            await pool.run("gone", job, "never", cancelled=cancelled)
-        assert "never" not in order
-        pool.close()
-
-    asyncio.run(scenario())
-
+# -- the work pool (its fairness: test_serve_pool.py) ---------------------------------------------
 
 def test_a_full_queue_answers_503(tmp_path):
     gate = threading.Event()

@@ -84,7 +84,7 @@ async def post_speak(request: SpeakRequest, service: Service, ip: ClientIP) -> S
     """Speak ``text`` with the request's options: the audio's URL and the animation (served from
     the cache when repeated)."""
     service.pay(ip, service.text_cost(request.text))
-    return await _spoken(service, ip, request.text, request)
+    return await _spoken(service, ip, request.text, request, "speak")
 
 
 @router.post("/animate", responses={**_ERRORS, 415: {"model": ErrorResponse}}, openapi_extra=_AUDIO_BODY)
@@ -115,7 +115,7 @@ async def post_animate(
     if cached is not None:
         return cached
     return await service.pool.run(
-        ip, service.animate_upload, data, digest, query, weight=duration * AUDIO_WORK_PER_SECOND
+        "upload", ip, service.animate_upload, data, digest, query, weight=duration * AUDIO_WORK_PER_SECOND
     )
 
 
@@ -164,14 +164,14 @@ async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> Cha
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
-        speech = await _spoken(service, ip, reply, request.model_copy(update={"language": spoken}))
+        speech = await _spoken(service, ip, reply, request.model_copy(update={"language": spoken}), "chat")
     return ChatResponse(reply=reply, language=spoken, speech=speech)
 
 
-async def _spoken(service: SpeechService, ip: str, text: str, options: SpeechOptions) -> SpeakResponse:
+async def _spoken(service: SpeechService, ip: str, text: str, options: SpeechOptions, kind: str) -> SpeakResponse:
     """:meth:`SpeechService.speak` of ``text`` with ``options``: from the cache at once when it is
-    there, else in the work pool (a job of ``ip``'s)."""
+    there, else in the work pool (a job of ``ip``'s of ``kind``)."""
     cached = await run_in_threadpool(service.lookup, text, options)
     if cached is not None:
         return cached
-    return await service.pool.run(ip, service.speak, text, options, weight=len(text) * TEXT_WORK_PER_CHAR)
+    return await service.pool.run(kind, ip, service.speak, text, options, weight=len(text) * TEXT_WORK_PER_CHAR)

@@ -76,11 +76,13 @@ class ServeConfig:
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
     in pieces of ``piece_seconds``), the native libraries' part of it in as many worker processes
     (:mod:`vispeech.frontends.isolation`), with at most ``max_queue`` jobs waiting (503 / stream
-    error beyond). ``max_streams`` WebSocket connections at once, ``max_streams_per_ip`` of
-    them from one address and ``max_streams_per_network`` from one /24 (IPv4) or /64 (IPv6); a
-    connection that finds the server full takes the place of the one idle longest. Each closes
-    after ``idle_timeout`` s without valid work (an invalid or refused message does not count)
-    while nothing is being computed, and after ``stream_timeout`` s in all. A phones message may add
+    error beyond, but to a kind of work holding less than its share), taken fairly between kinds
+    of work and clients (:class:`~vispeech.serve.pool.WorkPool`). ``max_streams`` WebSocket
+    connections at once, ``max_streams_per_ip`` of them from one address and
+    ``max_streams_per_network`` from one /24 (IPv4) or /64 (IPv6); a connection that finds the
+    server full takes the place of the one idle longest. Each closes after ``idle_timeout`` s
+    without valid work (an invalid or refused message does not count) while nothing is being
+    computed, and after ``stream_timeout`` s in all. A phones message may add
     at most ``max_message_seconds`` s of phones, a phone or audio stream reach ``max_stream_seconds``.
     Audio: an upload's body may have ``max_audio_bytes``, a live chunk ``max_chunk_bytes``; a live
     client that sends audio faster than ``max_audio_speed`` times real time is warned

@@ -69,6 +69,8 @@ class Connection:
 
     inbox_size = 4
     """Client messages read ahead of the one being answered (then TCP slows the client)."""
+    kind: str
+    """The kind of work its jobs are in the pool (:class:`~vispeech.serve.pool.FairQueue`)."""
 
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         self.ws = websocket
@@ -137,8 +139,12 @@ class Connection:
             await send_error(self.ws, message)
             await self.ws.close(code, message.encode()[:123].decode("utf-8", "ignore"))
 
-    async def _run(self, fn, *args, weight: float = 0.0):
-        return await self.service.pool.run(self.ip, fn, *args, cancelled=self.cancelled, weight=weight)
+    async def _run(self, fn, *args, weight: float = 0.0, kind: str | None = None):
+        """``fn(*args)`` in the service's pool, a job of this client's of ``kind`` (default: the
+        connection's)."""
+        return await self.service.pool.run(
+            kind or self.kind, self.ip, fn, *args, cancelled=self.cancelled, weight=weight
+        )
 
     def _worked(self) -> None:
         """The message just answered was valid work: the connection is not idle (nothing else

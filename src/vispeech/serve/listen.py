@@ -62,6 +62,7 @@ class ListenConnection(Connection):
     """
 
     inbox_size = 512
+    kind = "listen"
 
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         super().__init__(websocket, service, ip)

@@ -1,13 +1,20 @@
-"""The bounded pool of worker threads that runs the server's CPU-heavy work, fair between clients."""
+"""The bounded pool of worker threads that runs the server's CPU-heavy work, fair between kinds of
+work and between clients."""
 
 from __future__ import annotations
 
 import asyncio
-import heapq
 import itertools
 import threading
 import time
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any, Generic, TypeVar
+
+T = TypeVar("T")
+
+MAX_CLIENTS = 10_000
+"""Clients a kind remembers the worker time of; past that the idle ones are forgotten."""
 
 
 class Busy(Exception):
@@ -23,10 +30,10 @@ class Cancelled(Exception):
 
 
 class _Job:
-    __slots__ = ("abandoned", "args", "cancelled", "fn", "future", "key", "loop")
+    __slots__ = ("abandoned", "args", "cancelled", "fn", "future", "key", "kind", "loop", "weight")
 
-    def __init__(self, fn, args, key, future, loop, cancelled) -> None:
-        self.fn, self.args, self.key = fn, args, key
+    def __init__(self, fn, args, kind, key, weight, future, loop, cancelled) -> None:
+        self.fn, self.args, self.kind, self.key, self.weight = fn, args, kind, key, weight
         self.future, self.loop, self.cancelled = future, loop, cancelled
         self.abandoned = False
 
@@ -40,40 +47,139 @@ def _settle(future: asyncio.Future, result, error: BaseException | None) -> None
         future.set_result(result)
 
 
+class _Client:
+    __slots__ = ("jobs", "running", "since", "time")
+
+    def __init__(self) -> None:
+        self.time = 0.0  # virtual time: worker seconds had, caught up to its kind's clock when it comes back
+        self.since = 0  # when it last came back (ties: the one waiting longer first)
+        self.jobs: deque = deque()  # (job, weight), in order
+        self.running = 0
+
+
+class _Kind:
+    __slots__ = ("clients", "clock", "ready", "since", "time", "waiting")
+
+    def __init__(self) -> None:
+        self.time = 0.0
+        self.since = 0
+        self.clock = 0.0  # the virtual time of the last of its clients taken
+        self.waiting = 0
+        self.clients: dict[str, _Client] = {}
+        self.ready: dict[str, _Client] = {}  # those with jobs waiting
+
+
+def _first(flows: Iterable[tuple[str, Any]]) -> tuple[str, Any]:
+    return min(flows, key=lambda flow: (flow[1].time, flow[1].since))
+
+
+class FairQueue(Generic[T]):
+    """Jobs waiting for a worker, taken fairly: kinds of work in turn, within a kind its clients in
+    turn, a client's own jobs in order.
+
+    Start-time fair queueing at both levels: each kind of work (``"text"``, ``"phones"``, ...) and
+    each client within it has a virtual time, the worker seconds it has had: a job's estimated
+    ``weight`` when :meth:`pop` takes it, the rest when :meth:`done` says what it took. :meth:`pop`
+    takes from the kind with the least, and in it from the client with the least. One that comes
+    back after having nothing waiting starts at the virtual time of the last one taken (the
+    ``clock``), so an idle time is not saved up, while one that had more than its share lately
+    waits until the others have caught up. A kind with jobs waiting is taken within as many pops
+    as there are other kinds waiting, however many jobs they hold (as long as each job taken costs
+    some time); a client likewise within its kind.
+    """
+
+    def __init__(self) -> None:
+        self._kinds: dict[str, _Kind] = {}
+        self.clock = 0.0
+        self._turns = itertools.count()
+        self._size = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def waiting(self, kind: str) -> int:
+        """How many jobs of ``kind`` wait."""
+        flow = self._kinds.get(kind)
+        return 0 if flow is None else flow.waiting
+
+    @property
+    def kinds_waiting(self) -> int:
+        """How many kinds of work have jobs waiting."""
+        return sum(1 for flow in self._kinds.values() if flow.waiting)
+
+    def push(self, kind: str, client: str, job: T, weight: float = 0.0) -> None:
+        """Queue ``job`` of ``client``'s, of ``kind``, estimated to take ``weight`` worker seconds."""
+        flow = self._kinds.setdefault(kind, _Kind())
+        if not flow.waiting:
+            flow.time, flow.since = max(flow.time, self.clock), next(self._turns)
+        who = flow.clients.setdefault(client, _Client())
+        if not who.jobs:
+            who.time, who.since = max(who.time, flow.clock), next(self._turns)
+            flow.ready[client] = who
+        who.jobs.append((job, max(0.0, weight)))
+        flow.waiting += 1
+        self._size += 1
+
+    def pop(self) -> tuple[str, str, T]:
+        """The next job to run, with its kind and client (:exc:`IndexError` when none waits); its
+        weight is charged to them until :meth:`done`."""
+        if not self._size:
+            raise IndexError("no job waits")
+        kind, flow = _first((name, f) for name, f in self._kinds.items() if f.waiting)
+        client, who = _first(flow.ready.items())
+        self.clock, flow.clock = max(self.clock, flow.time), max(flow.clock, who.time)
+        job, weight = who.jobs.popleft()
+        if not who.jobs:
+            del flow.ready[client]
+        flow.waiting -= 1
+        self._size -= 1
+        who.running += 1
+        flow.time += weight
+        who.time += weight
+        return kind, client, job
+
+    def done(self, kind: str, client: str, seconds: float) -> None:
+        """A job :meth:`pop` took for ``client`` took ``seconds`` more than its weight (negative:
+        less), charged to its kind and client."""
+        flow = self._kinds[kind]
+        who = flow.clients[client]
+        flow.time += seconds
+        who.time += seconds
+        who.running -= 1
+        if not who.jobs and not who.running and who.time <= flow.clock:
+            del flow.clients[client]  # it would come back at the clock: nothing to remember
+        elif len(flow.clients) > MAX_CLIENTS:  # forget what the idle ones had
+            flow.clients = {name: c for name, c in flow.clients.items() if c.jobs or c.running}
+
+
 class WorkPool:
     """A bounded pool of worker threads for the CPU-heavy work, with a bounded, fair queue.
 
-    ``await pool.run(key, fn, *args)`` runs ``fn(*args)`` on one of ``workers`` threads and
-    returns its result; with ``max_queue`` jobs already waiting it raises :class:`Busy` at
-    once instead of queueing. Waiting jobs are taken in order of how much worker time their
-    client (``key``, the IP address) has used lately (decaying with a ``half_life`` in
-    seconds) plus the job's own estimated ``weight`` (seconds), a client's own jobs in order:
-    a new or light client, or a short job, is served before a heavy client's next piece. A
-    job whose ``cancelled`` event is set, or whose caller stopped waiting, is dropped unrun.
+    ``await pool.run(kind, key, fn, *args)`` runs ``fn(*args)`` on one of ``workers`` threads
+    and returns its result. Waiting jobs are taken from a :class:`FairQueue`: kinds of work
+    (text streams, phone streams, uploads, chats, ...) in turn by the worker time each has had,
+    within a kind its clients (``key``, the IP address) likewise, a client's own jobs in order;
+    so no kind starves beside another's flood, and a new or light client goes before a heavy
+    one's next job. With ``max_queue`` jobs already waiting a job is refused at once
+    (:class:`Busy`) unless its kind holds fewer than its share of them (``max_queue`` over the
+    kinds waiting): a flood of one kind cannot lock the others out. A job whose ``cancelled``
+    event is set, or whose caller stopped waiting, is dropped unrun.
     """
 
-    def __init__(self, workers: int, max_queue: int, half_life: float = 10.0) -> None:
+    def __init__(self, workers: int, max_queue: int) -> None:
         if workers < 1 or max_queue < 1:
             raise ValueError("workers and max_queue must be at least 1")
         self.workers = workers
         self.max_queue = max_queue
-        self.half_life = half_life
-        self._heap: list = []
-        self._seq = itertools.count()
+        self._queue: FairQueue[_Job] = FairQueue()
         self._cond = threading.Condition()
-        self._usage: dict[str, tuple[float, float]] = {}  # key -> (seconds, time)
-        self._waiting: dict[str, tuple[int, float]] = {}  # key -> (jobs queued, highest priority)
         self._threads: list[threading.Thread] = []
         self._closed = False
         self.running = 0
 
     @property
     def queued(self) -> int:
-        return len(self._heap)
-
-    def _usage_of(self, key: str, now: float) -> float:
-        used, then = self._usage.get(key, (0.0, now))
-        return used * 0.5 ** ((now - then) / self.half_life)
+        return len(self._queue)
 
     def _start(self) -> None:
         while len(self._threads) < self.workers:
@@ -81,23 +187,35 @@ class WorkPool:
             thread.start()
             self._threads.append(thread)
 
-    async def run(self, key: str, fn: Callable, *args, cancelled: threading.Event | None = None, weight: float = 0.0):
-        """``fn(*args)`` on a worker thread; :class:`Busy` when the queue is full, :class:`Cancelled`
-        when ``cancelled`` was set before it started."""
+    def _full(self, kind: str) -> bool:
+        queue = self._queue
+        if len(queue) < self.max_queue:
+            return False
+        mine = queue.waiting(kind)
+        return mine >= self.max_queue // (queue.kinds_waiting + (0 if mine else 1))
+
+    async def run(
+        self,
+        kind: str,
+        key: str,
+        fn: Callable,
+        *args,
+        cancelled: threading.Event | None = None,
+        weight: float = 0.0,
+    ):
+        """``fn(*args)`` on a worker thread, a job of client ``key``'s of ``kind``, estimated to take
+        ``weight`` seconds; :class:`Busy` when the queue is full, :class:`Cancelled` when
+        ``cancelled`` was set before it started."""
         loop = asyncio.get_running_loop()
         future = loop.create_future()
-        job = _Job(fn, args, key, future, loop, cancelled)
+        job = _Job(fn, args, kind, key, max(0.0, weight), future, loop, cancelled)
         with self._cond:
             if self._closed:
                 raise Busy("the server is shutting down")
-            if len(self._heap) >= self.max_queue:
-                raise Busy(f"server busy: {self.max_queue} jobs waiting, try again later")
+            if self._full(kind):
+                raise Busy(f"server busy: {len(self._queue)} jobs waiting, try again later")
             self._start()
-            priority = self._usage_of(key, time.monotonic()) + max(0.0, weight)
-            waiting, last = self._waiting.get(key, (0, priority))
-            priority = max(priority, last)  # a client's own jobs stay in order
-            self._waiting[key] = (waiting + 1, priority)
-            heapq.heappush(self._heap, (priority, next(self._seq), job))
+            self._queue.push(kind, key, job, job.weight)
             self._cond.notify()
         try:
             return await future
@@ -109,10 +227,9 @@ class WorkPool:
         """Stop the workers once the jobs running now end; waiting jobs are dropped."""
         with self._cond:
             self._closed = True
-            dropped, self._heap = self._heap, []
-            self._waiting.clear()
+            dropped = [self._queue.pop()[2] for _ in range(len(self._queue))]
             self._cond.notify_all()
-        for _, _, job in dropped:
+        for job in dropped:
             self._resolve(job, None, Cancelled("the server is shutting down"))
 
     def _resolve(self, job: _Job, result, error: BaseException | None) -> None:
@@ -124,18 +241,15 @@ class WorkPool:
     def _work(self) -> None:
         while True:
             with self._cond:
-                while not self._heap and not self._closed:
+                while not self._queue and not self._closed:
                     self._cond.wait()
                 if self._closed:
                     return
-                _, _, job = heapq.heappop(self._heap)
-                waiting, last = self._waiting.pop(job.key, (1, 0.0))
-                if waiting > 1:
-                    self._waiting[job.key] = (waiting - 1, last)
-                if job.abandoned or (job.cancelled is not None and job.cancelled.is_set()):
-                    skip = True
+                job = self._queue.pop()[2]
+                skip = job.abandoned or (job.cancelled is not None and job.cancelled.is_set())
+                if skip:
+                    self._queue.done(job.kind, job.key, -job.weight)
                 else:
-                    skip = False
                     self.running += 1
             if skip:
                 self._resolve(job, None, Cancelled("the client went away"))
@@ -149,8 +263,5 @@ class WorkPool:
             spent = time.perf_counter() - started
             with self._cond:
                 self.running -= 1
-                now = time.monotonic()
-                self._usage[job.key] = (self._usage_of(job.key, now) + spent, now)
-                if len(self._usage) > 10_000:
-                    self._usage = {k: v for k, v in self._usage.items() if self._usage_of(k, now) > 1e-3}
+                self._queue.done(job.kind, job.key, spent - job.weight)
             self._resolve(job, result, error)

@@ -100,6 +100,7 @@ class PushBatcher:
     async def _run(self, batch: list) -> None:
         try:
             results = await self.service.pool.run(
+                "phones",
                 "phone streams",
                 self._frames,
                 [(s, p) for s, p, _, _ in batch],

@@ -30,6 +30,8 @@ async def stream(websocket: WebSocket, service: Service) -> None:
 class StreamConnection(Connection):
     """An ``/api/stream`` connection: texts spoken clause by clause, phone streams."""
 
+    kind = "text"
+
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         super().__init__(websocket, service, ip)
         self.phones: PhoneStream | None = None
@@ -129,7 +131,7 @@ class StreamConnection(Connection):
         self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
         if stream is None:
             name, model = self.service.model(message.model, stream=True)
-            stream = await self._run(open_phone_stream, model, message.language or "en", config.fps)
+            stream = await self._run(open_phone_stream, model, message.language or "en", config.fps, kind="phones")
             self.phones = stream
             await send_message(
                 self.ws,
@@ -142,7 +144,7 @@ class StreamConnection(Connection):
                 ),
             )
         phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
-        await self._run(stream.check, phones)  # refused whole before any piece is pushed
+        await self._run(stream.check, phones, kind="phones")  # refused whole before any piece is pushed
         begin = stream.end
         for piece in _pieces(phones, begin, config.piece_seconds):
             weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
@@ -150,7 +152,7 @@ class StreamConnection(Connection):
             if (text := await self.service.pushes.push(stream, piece, weight)) is not None:
                 await self.ws.send_text(text)
         if message.final:
-            if (text := await self._run(self.service.step, stream, stream.finish)) is not None:
+            if (text := await self._run(self.service.step, stream, stream.finish, kind="phones")) is not None:
                 await self.ws.send_text(text)
             self.phones = None
             await send_message(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))

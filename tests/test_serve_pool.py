@@ -1,0 +1,119 @@
+"""The server's work pool and its fair queue: kinds of work and clients take turns, none starves,
+a flood of one kind cannot lock the others out of the queue (no timing: jobs are gated by events)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+
+from vispeech.serve.pool import Busy, Cancelled, FairQueue, WorkPool
+
+FLOODS = ("text", "upload", "chat")
+
+
+def take(queue: FairQueue, seconds: float) -> tuple[str, str, object]:
+    """Pop the next job and say it took ``seconds`` (charged beyond its weight of 0)."""
+    kind, client, job = queue.pop()
+    queue.done(kind, client, seconds)
+    return kind, client, job
+
+
+def flooded() -> FairQueue:
+    """A queue holding 100 jobs of each of :data:`FLOODS`, from 10 clients each."""
+    queue: FairQueue = FairQueue()
+    for kind in FLOODS:
+        for k in range(100):
+            queue.push(kind, f"{kind}-{k % 10}", f"{kind} {k}")
+    return queue
+
+
+def test_a_sequential_kind_is_taken_within_a_turn_of_each_other_kind():
+    """A phone stream's pieces, each queued once the one before has run, beside three kinds of work
+    that always have 100 jobs waiting and take ten times as long: each piece is taken within one
+    job of each of those kinds."""
+    queue = flooded()
+    for _ in range(5):  # the floods have run a while
+        take(queue, 0.5)
+    for piece in range(20):
+        queue.push("phones", "phone streams", piece)
+        taken = []
+        while len(taken) <= len(FLOODS) and "phones" not in taken:
+            kind, client, job = queue.pop()
+            queue.done(kind, client, 0.05 if kind == "phones" else 0.5)
+            taken.append(kind)
+            if kind != "phones":
+                queue.push(kind, client, "more")  # the flood never ends
+        assert taken[-1] == "phones" and job == piece, taken
+
+
+def test_clients_of_a_kind_take_turns_and_keep_their_own_order():
+    queue: FairQueue = FairQueue()
+    for k in range(50):
+        queue.push("speak", "heavy", k)
+    assert take(queue, 1.0)[2] == 0
+    queue.push("speak", "light", "a")
+    queue.push("speak", "light", "b")
+    taken = [take(queue, 0.1)[1:] for _ in range(4)]
+    assert taken == [("light", "a"), ("light", "b"), ("heavy", 1), ("heavy", 2)]
+
+
+def test_a_client_that_had_more_than_its_share_waits_and_an_idle_one_saves_nothing():
+    queue: FairQueue = FairQueue()
+    queue.push("speak", "heavy", "h0")
+    take(queue, 5.0)  # heavy had 5 s, then nothing waits
+    for k in range(10):
+        queue.push("speak", "busy", f"b{k}")
+    take(queue, 1.0)
+    queue.push("speak", "heavy", "h1")
+    order = [take(queue, 1.0)[2] for _ in range(6)]
+    assert order == ["b1", "b2", "b3", "b4", "b5", "h1"]  # busy catches up with heavy's 5 s first
+    queue.push("speak", "idle", "i0")
+    queue.push("speak", "idle", "i1")
+    queue.push("speak", "idle", "i2")
+    # idle waited 7 s but starts at the clock: it alternates with busy, it does not run three in a row
+    assert [take(queue, 1.0)[1] for _ in range(4)] == ["idle", "busy", "idle", "busy"]
+
+
+def test_an_empty_queue_pops_nothing():
+    queue: FairQueue = FairQueue()
+    assert len(queue) == 0
+    with pytest.raises(IndexError):
+        queue.pop()
+
+
+def test_the_pool_takes_kinds_in_turn_and_refuses_only_a_kind_over_its_share():
+    async def scenario():
+        pool = WorkPool(workers=1, max_queue=4)
+        started, gate, order = threading.Event(), threading.Event(), []
+
+        def job(name):
+            if name == "gate":
+                started.set()
+                gate.wait(30)
+            order.append(name)
+            return name
+
+        blocker = asyncio.ensure_future(pool.run("other", "x", job, "gate"))
+        await asyncio.to_thread(started.wait, 30)  # the worker holds the gate job
+        texts = [asyncio.ensure_future(pool.run("text", f"t{k}", job, f"t{k}")) for k in range(4)]
+        await asyncio.sleep(0)  # queued: the queue is full
+        with pytest.raises(Busy):
+            await pool.run("text", "t9", job, "refused")  # text holds 4 of 4
+        # phones may hold their share of the queue, 4 over 2 kinds waiting
+        phones = [asyncio.ensure_future(pool.run("phones", "p", job, f"p{k}")) for k in range(2)]
+        await asyncio.sleep(0)
+        with pytest.raises(Busy):
+            await pool.run("phones", "p", job, "refused")
+        gate.set()
+        await asyncio.gather(blocker, *phones, *texts)
+        assert order[:3] == ["gate", "t0", "p0"] and sorted(order[3:]) == ["p1", "t1", "t2", "t3"]
+        cancelled = threading.Event()
+        cancelled.set()
+        with pytest.raises(Cancelled):
+            await pool.run("text", "gone", job, "never", cancelled=cancelled)
+        assert "never" not in order and "refused" not in order
+        pool.close()
+
+    asyncio.run(scenario())
