@@ -1,5 +1,6 @@
 """The server's work pool and its fair queue: kinds of work and clients take turns, none starves,
-a flood of one kind cannot lock the others out of the queue (no timing: jobs are gated by events)."""
+a flood of one kind cannot lock the others out of the queue; phone-stream pushes join the batch
+waiting for a worker (no timing: jobs are gated by events)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,12 @@ import asyncio
 import threading
 
 import pytest
+from conftest import require_module
 
-from vispeech.serve.pool import Busy, Cancelled, FairQueue, WorkPool
+require_module("fastapi", "fastapi (the serve extra)")
+from vispeech.alignment.phones import Phone  # noqa: E402
+from vispeech.serve import ServeConfig, SpeechService, open_phone_stream  # noqa: E402
+from vispeech.serve.pool import Busy, Cancelled, FairQueue, WorkPool  # noqa: E402
 
 FLOODS = ("text", "upload", "chat")
 
@@ -117,3 +122,36 @@ def test_the_pool_takes_kinds_in_turn_and_refuses_only_a_kind_over_its_share():
         pool.close()
 
     asyncio.run(scenario())
+
+
+def test_pushes_made_while_the_batch_waits_for_a_worker_join_it():
+    """With the only worker busy, pushes of three sessions made one after another go as one batch;
+    two pushes of one session go in two."""
+    service = SpeechService(ServeConfig(cache=":memory:", workers=1, default_model="baseline", stream_model="baseline"))
+    model = service.models["baseline"]
+    phones = [Phone("AA1", 0.1 * k, 0.1 * (k + 1)) for k in range(8)]
+    streams = [open_phone_stream(model, "en") for _ in range(3)]
+
+    async def pushed_while_busy(pushes: list[tuple]) -> list:
+        started, gate = threading.Event(), threading.Event()
+
+        def hold():
+            started.set()
+            gate.wait(30)
+
+        blocker = asyncio.ensure_future(service.pool.run("text", "someone", hold))
+        await asyncio.to_thread(started.wait, 30)
+        futures = []
+        for stream, some in pushes:
+            futures.append(asyncio.ensure_future(service.pushes.push(stream, some, 0.1)))
+            await asyncio.sleep(0)  # each in a turn of the loop of its own
+        gate.set()
+        await blocker
+        return await asyncio.gather(*futures)
+
+    first = asyncio.run(pushed_while_busy([(stream, phones[:4]) for stream in streams]))
+    assert (service.pushes.batches, service.pushes.pushes, service.pushes.largest) == (1, 3, 3)
+    second = asyncio.run(pushed_while_busy([(streams[0], phones[4:6]), (streams[0], phones[6:])]))
+    assert (service.pushes.batches, service.pushes.pushes) == (3, 5)
+    assert all(isinstance(result, str) for result in first + second)
+    service.pool.close()

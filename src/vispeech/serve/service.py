@@ -9,6 +9,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -65,69 +66,81 @@ MIN_CHUNK_SECONDS = 0.01
 """A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
 
 
+_Push = tuple[PhoneStream, list[Phone], float, asyncio.Future]
+"""A session's push waiting: its stream, phones, estimated work (seconds) and the future of its frames."""
+
+
 class PushBatcher:
-    """Phone-stream pushes of every session, batched: those made in one turn of the event loop, and
-    all that come while a batch runs, go to the pool as one job (:func:`vispeech.streaming.push_together`:
-    one network step per frame for all of the sessions of a model, instead of one each).
+    """Phone-stream pushes of every session, batched: one pool job at a time runs the pushes
+    waiting when a worker takes it, the first of each session, together
+    (:func:`vispeech.streaming.push_together`: one network step per frame for all of the sessions
+    of a model, instead of one each). Pushes made while the job waits for a worker join it; those
+    made while it runs go with the next.
 
     ``batches`` and ``pushes`` count what it ran, ``largest`` is the most pushes one batch held.
     """
 
     def __init__(self, service: SpeechService) -> None:
         self.service = service
-        self._waiting: list[tuple[PhoneStream, list[Phone], float, asyncio.Future]] = []
-        self._scheduled = self._running = False
+        self._waiting: list[_Push] = []
+        self._lock = threading.Lock()  # the waiting list is taken in a worker thread
+        self._busy = False  # a job is in the pool
         self.batches = self.pushes = self.largest = 0
 
     async def push(self, stream: PhoneStream, phones: list[Phone], weight: float) -> str | None:
         """The ``frames`` message (server scale) of ``stream.push(phones)``, or None for no frames."""
-        loop = asyncio.get_running_loop()
-        future = loop.create_future()
-        self._waiting.append((stream, phones, weight, future))
-        if not self._scheduled:
-            self._scheduled = True
-            loop.call_soon(self._flush)  # the pushes of this turn of the loop go together
+        future = asyncio.get_running_loop().create_future()
+        with self._lock:
+            self._waiting.append((stream, phones, weight, future))
+        if not self._busy:
+            self._busy = True
+            asyncio.ensure_future(self._run())
         return await future
 
-    def _flush(self) -> None:
-        self._scheduled = False
-        if self._running or not self._waiting:
-            return  # the running batch flushes what waits when it ends
-        batch, self._waiting = self._waiting, []
-        self._running = True
-        asyncio.ensure_future(self._run(batch))
+    async def _run(self) -> None:
+        while True:
+            with self._lock:
+                weight = sum(weight for _, _, weight, _ in self._waiting)
+            try:
+                batch, results = await self.service.pool.run("phones", "phone streams", self._frames, weight=weight)
+            except BaseException as exc:  # Busy, shutting down: every session waiting is told
+                with self._lock:
+                    batch, self._waiting = self._waiting, []
+                results = [exc] * len(batch)
+            self.batches += 1
+            self.pushes += len(batch)
+            self.largest = max(self.largest, len(batch))
+            for (_, _, _, future), result in zip(batch, results):
+                if future.done():
+                    continue
+                if isinstance(result, BaseException):
+                    future.set_exception(result)
+                else:
+                    future.set_result(result)
+            with self._lock:
+                if not self._waiting:
+                    self._busy = False
+                    return
 
-    async def _run(self, batch: list) -> None:
+    def _frames(self) -> tuple[list[_Push], list[str | None | Exception]]:
+        """In a worker: the pushes waiting, the first of each session, and the ``frames`` message of
+        each (``None`` for none), or its error, from :func:`~vispeech.streaming.push_together`."""
+        batch: list[_Push] = []
+        later: list[_Push] = []
+        sessions: set[int] = set()
+        with self._lock:
+            for push in self._waiting:
+                (later if id(push[0]) in sessions else batch).append(push)
+                sessions.add(id(push[0]))
+            self._waiting = later
+        pairs = [(stream, phones) for stream, phones, _, _ in batch]
         try:
-            results = await self.service.pool.run(
-                "phones",
-                "phone streams",
-                self._frames,
-                [(s, p) for s, p, _, _ in batch],
-                weight=sum(weight for _, _, weight, _ in batch),
-            )
-        except BaseException as exc:  # Busy, shutting down: every session of the batch is told
-            results = [exc] * len(batch)
-        self.batches += 1
-        self.pushes += len(batch)
-        self.largest = max(self.largest, len(batch))
-        for (_, _, _, future), result in zip(batch, results):
-            if future.done():
-                continue
-            if isinstance(result, BaseException):
-                future.set_exception(result)
-            else:
-                future.set_result(result)
-        self._running = False
-        self._flush()
-
-    def _frames(self, pushes: list[tuple[PhoneStream, list[Phone]]]) -> list[str | None | VispeechError]:
-        """:func:`~vispeech.streaming.push_together` of ``(stream, phones)`` pairs: each one's ``frames``
-        message (``None`` for none), or its error."""
-        return [
-            result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
-            for (stream, _), result in zip(pushes, push_together(pushes))
-        ]
+            return batch, [
+                result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
+                for (stream, _), result in zip(pairs, push_together(pairs))
+            ]
+        except Exception as exc:  # noqa: BLE001 (every session of the batch is told)
+            return batch, [exc] * len(batch)
 
 
 class SpeechService:
