@@ -3,7 +3,8 @@
     python benchmarks/load_phone_streams.py [--sessions 50] [--piece 0.2] [--json OUT]
 
 Starts `vispeech serve` on 127.0.0.1 (no rate limit, a temporary cache), then opens
-``--sessions`` WebSocket sessions at once on ``/api/stream``. Each sends the phones of a
+``--sessions`` WebSocket sessions at once on ``/api/stream``, each from a loopback address of its
+own (127.32.k.1: the server caps connections per address and per /24). Each sends the phones of a
 6-sentence reply (espeak-ng's, computed here once) as a TTS engine would: in pieces of
 ``--piece`` seconds of speech, each piece sent when the speech before it has played (real time).
 For every ``frames`` message, the time since the piece before it was sent is measured; a
@@ -31,12 +32,13 @@ TEXT = ("Hello, and welcome! I can answer your questions about opening hours, pr
         "What would you like to know?")
 
 
-async def session(url: str, pieces: list[list[dict]], piece_seconds: float, start_at: float) -> list[float]:
-    """Send the pieces in real time; for each ``frames`` message, the seconds since the piece before
-    it was sent (a piece may make no frame ready: its frames come with a later one)."""
+async def session(url: str, pieces: list[list[dict]], piece_seconds: float, start_at: float,
+                  ip: str = "127.0.0.1") -> list[float]:
+    """Send the pieces in real time from address ``ip``; for each ``frames`` message, the seconds since
+    the piece before it was sent (a piece may make no frame ready: its frames come with a later one)."""
     latencies: list[float] = []
     sent = [0.0]
-    async with websockets.connect(url, max_size=2**24) as ws:
+    async with websockets.connect(url, max_size=2**24, local_addr=(ip, 0)) as ws:
         await asyncio.sleep(max(0.0, start_at - time.perf_counter()))
 
         async def send() -> None:
@@ -75,8 +77,9 @@ async def run(url: str, sessions: int, piece_seconds: float) -> dict:
     pieces = phone_pieces(piece_seconds)
     await session(url, pieces[:5], piece_seconds, time.perf_counter())  # warm-up
     start_at = time.perf_counter() + 2.0
-    outcomes = await asyncio.gather(*(session(url, pieces, piece_seconds, start_at) for _ in range(sessions)),
-                                    return_exceptions=True)
+    outcomes = await asyncio.gather(
+        *(session(url, pieces, piece_seconds, start_at, f"127.32.{k}.1") for k in range(sessions)),
+        return_exceptions=True)
     latencies = [x for o in outcomes if isinstance(o, list) for x in o]
     failures = [repr(o) for o in outcomes if not isinstance(o, list)]
     values = np.array(latencies)
