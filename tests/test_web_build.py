@@ -7,8 +7,15 @@ from pathlib import Path
 import pytest
 
 PAGES = {"index.html": "chat.js", "player.html": "player.js", "viewer.html": "viewer.js"}
-# XML namespace names are identifiers, not addresses: three.js creates elements in them.
-NAMESPACES = ("http://www.w3.org/",)
+# Names, not addresses, never loaded: XML namespaces three.js creates elements in; the licence a VRM
+# 1.0 model's meta names (three-vrm compares it), three-vrm's licence notice and a citation in its
+# MToon shader's comments.
+NAMESPACES = (
+    "http://www.w3.org/",
+    "https://vrm.dev/licenses/1.0/",
+    "https://github.com/pixiv/three-vrm/blob/release/LICENSE",
+    "http://hacksoflife.blogspot.ch/",
+)
 # Swagger UI's bundle, copied as it is, names addresses (RFC links, schema ids) it never loads;
 # tests/test_serve.py checks /docs loads nothing from outside and test_browser.py renders it offline.
 VENDORED = ("swagger-ui",)
@@ -56,6 +63,7 @@ def test_bundle_imports_resolve(static):
 def test_bundle_carries_three_and_the_app(static):
     code = "\n".join(p.read_text(encoding="utf-8") for p in static.rglob("*.js"))
     assert "EXT_meshopt_compression" in code  # GLTFLoader with the meshopt decoder
+    assert "VRMC_vrm" in code and "VRMC_materials_mtoon" in code  # three-vrm's loader: VRM 1.0 and 0.x, MToon
     assert "three.js authors" in code.lower()  # three's MIT licence kept in the bundle
     for name in ("influences", "frameIndex", "audioTime", "playAnimation", "seek", "speak"):
         assert re.search(rf"\b{name}\b", code), f"window.vispeech.{name} missing from the bundle"

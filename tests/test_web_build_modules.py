@@ -204,3 +204,50 @@ def test_an_utterances_layers_take_over_the_head_and_blinks_without_a_jump():
     assert got["still"]["heads"] == []  # idle=0 and no layers: the head is never moved
     bare = np.array(got["bare"]["heads"])
     assert np.abs(bare[-1]).max() == 0 and np.abs(np.diff(bare, axis=0)).max() < 0.006
+
+
+def _vrm_expressions(poses: list[dict[str, float]]) -> dict:
+    """The lip aperture and VRM expressions (web/src/expressions.js) of ARKit ``poses`` (channel -> weight)."""
+    script = (
+        "import { MORPH_NAMES } from './arkit.js'; import { lipAperture, vrmExpressions } from './expressions.js';"
+        f"const poses = {json.dumps(poses)};"
+        "const weights = poses.map((p) => MORPH_NAMES.map((n) => p[n] || 0));"
+        "console.log(JSON.stringify({aperture: weights.map(lipAperture), expressions: weights.map(vrmExpressions)}));"
+    )
+    return run_node(script)
+
+
+def test_a_vrm_mouth_opens_as_far_as_the_lips_part_as_python_measures_them():
+    from vispeech.motion.arkit import ARKIT_NAMES, LIP_CLOSED, lip_aperture
+    from vispeech.motion.track import Track
+
+    rng = np.random.default_rng(5)
+    values = rng.uniform(0, 1, (40, len(ARKIT_NAMES))) * rng.uniform(0, 0.6, (40, 1))
+    got = _vrm_expressions([dict(zip(ARKIT_NAMES, row)) for row in values.tolist()])
+    assert got["aperture"] == pytest.approx(lip_aperture(Track(values, ARKIT_NAMES, 30.0)).tolist(), abs=1e-9)
+    aperture = np.array(got["aperture"])
+    vowels = np.array([[e[v] for v in ("aa", "ee", "oh", "ih", "ou")] for e in got["expressions"]])
+    assert (vowels >= 0).all() and (vowels.sum(axis=1) <= 1 + 1e-9).all()
+    closed = aperture <= LIP_CLOSED
+    assert closed.any() and (~closed).any()
+    assert (vowels[closed] == 0).all()  # closed lips: the mouth at rest
+    # the open vowels together open as far as the lips part past closed, in full from an aperture of 0.4
+    opening = np.clip((aperture - LIP_CLOSED) / (0.4 - LIP_CLOSED), 0, 1)
+    assert vowels[:, :3].sum(axis=1) == pytest.approx(opening, abs=1e-9)
+
+
+def test_a_vrm_shows_open_rounded_spread_and_closed_lips_by_its_presets():
+    poses = {
+        "open": {"jawOpen": 0.4},
+        "rounded": {"jawOpen": 0.4, "mouthFunnel": 0.5},
+        "spread": {"jawOpen": 0.4, "mouthStretchLeft": 0.5, "mouthStretchRight": 0.5},
+        "u": {"jawOpen": 0.08, "mouthPucker": 0.6},
+        "m": {"jawOpen": 0.2, "mouthClose": 0.2, "mouthPucker": 0.4, "mouthPressLeft": 0.3, "mouthPressRight": 0.3},
+        "glad": {"cheekSquintLeft": 0.15, "cheekSquintRight": 0.15, "eyeBlinkLeft": 1.0},
+    }
+    got = dict(zip(poses, _vrm_expressions(list(poses.values()))["expressions"]))
+    strongest = {name: max(("aa", "ih", "ou", "ee", "oh"), key=e.get) for name, e in got.items()}
+    assert strongest["open"] == "aa" and got["open"]["aa"] == pytest.approx(1.0)
+    assert (strongest["rounded"], strongest["spread"], strongest["u"]) == ("oh", "ee", "ou")
+    assert max(got["m"][v] for v in ("aa", "ih", "ou", "ee", "oh")) == 0  # lips shut: the mouth at rest
+    assert (got["glad"]["happy"], got["glad"]["blinkLeft"], got["glad"]["blinkRight"]) == pytest.approx((0.3, 1, 0))

@@ -56,7 +56,7 @@ function addOverlay(stage, performer) {
  * Start the avatar on `stage`, run the page's `setup(app)`, then mark `window.vispeech`
  * ready.
  *
- * Page URL options: `avatar=URL` (a GLB; empty for the 2D face) overrides the server's
+ * Page URL options: `avatar=URL` (a GLB or VRM; empty for the 2D face) overrides the server's
  * avatar, `idle=0` turns idle blinks and head sway off, and the non-verbal layers the page
  * asks the server for with each utterance.
  */
@@ -111,6 +111,8 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
     audioTime: () => performer.time(),
     /** Current morph influence of ARKit channel `name` on the head. */
     influences: (name) => avatar.influence(name),
+    /** Current weight of a VRM head's expression `name` (`aa`, `ih`, ..., `blinkLeft`); null for other heads. */
+    expression: (name) => avatar.expression(name),
     /** Load `animation` (object, text or Animation) with optional audio at `audioUrl` and play it. */
     async playAnimation(animation, audioUrl = null, { autoplay = true } = {}) {
       const anim = toAnimation(animation);

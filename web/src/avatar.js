@@ -1,19 +1,26 @@
-// Avatars that show ARKit weights: a three.js head loaded from a GLB whose morph targets carry
-// ARKit names, or the built-in 2D face (window.VispeechFace2D from static/face2d.js).
+// Avatars that show ARKit weights: a three.js head loaded from a GLB or VRM whose morph targets
+// carry ARKit names, a VRM without them through its expression presets, or the built-in 2D face
+// (window.VispeechFace2D from static/face2d.js).
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { MeshoptDecoder } from 'three/examples/jsm/libs/meshopt_decoder.module.js';
+import { VRMLoaderPlugin, VRMUtils } from '@pixiv/three-vrm';
 import { MORPH_NAMES, morphName } from './arkit.js';
+import { vrmExpressions } from './expressions.js';
 
 /**
- * A GLB head in a three.js scene, without a canvas: every mesh primitive whose morph targets
- * match ARKit names (or vispeech's tongue channels) is driven; `weights` are indexed like
- * MORPH_NAMES. A camera frames the face and lights light it. Avatar3D draws one on a page;
- * the stimuli page (stimuli.js) draws several side by side.
+ * A GLB or VRM head in a three.js scene, without a canvas. Every mesh primitive whose morph
+ * targets match ARKit names (or vispeech's tongue channels) is driven; a VRM whose custom
+ * expressions carry ARKit names has them driven instead ("perfect sync"), and a VRM with
+ * neither shows the weights through its expression presets (expressions.js). `weights` are
+ * indexed like MORPH_NAMES. A camera frames the face and lights light it. Avatar3D draws one
+ * on a page; the stimuli page (stimuli.js) draws several side by side.
  */
 export class HeadScene {
   constructor(gltf) {
-    this.credit = (gltf.asset && gltf.asset.copyright) || null;
+    this.vrm = gltf.userData.vrm || null;
+    if (this.vrm) VRMUtils.rotateVRM0(this.vrm); // VRM 0.x faces -Z, 1.0 and the camera's view +Z
+    this.credit = this.vrm ? vrmCredit(this.vrm.meta) : (gltf.asset && gltf.asset.copyright) || null;
     this.targets = MORPH_NAMES.map(() => []); // per channel name: [{mesh, index}]
     this.head = null; // the mesh whose influences `influence()` reports
     let best = -1;
@@ -34,23 +41,27 @@ export class HeadScene {
         this.head = obj;
       }
     });
-    if (!this.head) throw new Error(`${gltf.parser.options.path || 'GLB'}: no morph targets with ARKit names`);
     this.headIndex = new Map();
     this.targets.forEach((list, k) => {
       const own = list.find((t) => t.mesh === this.head);
       if (own) this.headIndex.set(MORPH_NAMES[k], own.index);
     });
+    this.expressions = this.head || !this.vrm ? null : vrmDrive(this.vrm.expressionManager);
+    if (!this.head && !this.expressions) {
+      throw new Error(`${gltf.parser.options.path || 'GLB'}: no morph targets with ARKit names`);
+    }
+    this.lastUpdate = null;
 
-    // Frame the face: the largest driven mesh's box, looking down -Z at its front, close enough
-    // that the mouth reads in a chat window.
-    const box = new THREE.Box3().setFromObject(this.head);
+    // Frame the face (the largest driven mesh, or a VRM's head), looking down -Z at its front,
+    // close enough that the mouth reads in a chat window.
+    const box = this.vrm ? vrmHeadBox(this.vrm) : new THREE.Box3().setFromObject(this.head);
     const size = box.getSize(new THREE.Vector3());
     const center = box.getCenter(new THREE.Vector3());
     this.target = new THREE.Vector3(center.x, center.y + 0.1 * size.y, box.min.z + 0.6 * size.z);
     this.lift = 0.05 * size.y;
     this.distance = 1.3 * size.y;
 
-    // Turn the head about a point low in the neck.
+    // Turn the head about a point low in the neck (a VRM's own neck bone turns it instead).
     const pivot = new THREE.Vector3(center.x, box.min.y + 0.25 * size.y, center.z);
     this.neck = new THREE.Group();
     this.neck.position.copy(pivot);
@@ -73,8 +84,17 @@ export class HeadScene {
     this.camera.updateProjectionMatrix();
   }
 
-  /** Set every driven morph target from `weights` (indexed like MORPH_NAMES, 0..1). */
+  /**
+   * Set every driven morph target (or a VRM's expressions) from `weights` (indexed like
+   * MORPH_NAMES, 0..1); a VRM then updates its expressions, spring bones and constraints.
+   */
   setWeights(weights) {
+    if (this.expressions) this.expressions.set(weights);
+    if (this.vrm) {
+      const now = performance.now() / 1000;
+      this.vrm.update(this.lastUpdate === null ? 0 : Math.min(now - this.lastUpdate, 0.1));
+      this.lastUpdate = now;
+    }
     for (let k = 0; k < weights.length; k++) {
       for (const { mesh, index } of this.targets[k]) mesh.morphTargetInfluences[index] = weights[k];
     }
@@ -82,7 +102,8 @@ export class HeadScene {
 
   /** Turn the head by small angles (radians) about the neck. */
   setHeadRotation(pitch, yaw, roll) {
-    this.neck.rotation.set(pitch, yaw, roll, 'YXZ');
+    const neck = this.vrm && this.vrm.humanoid.getNormalizedBoneNode('neck');
+    (neck || this.neck).rotation.set(pitch, yaw, roll, 'YXZ');
   }
 
   /** Current morph influence of ARKit channel `name` on the head mesh (0 when absent). */
@@ -90,6 +111,80 @@ export class HeadScene {
     const index = this.headIndex.get(morphName(name));
     return index === undefined ? 0 : this.head.morphTargetInfluences[index];
   }
+
+  /** Current weight of a VRM's expression `name` (`aa`, `blinkLeft`, ...); null when there is none. */
+  expression(name) {
+    return this.vrm ? this.vrm.expressionManager.getValue(name) : null;
+  }
+
+  /** How the weights are shown: 'morphs' (ARKit morph targets), 'arkit-expressions' or 'vrm-presets'. */
+  get drive() {
+    return this.expressions ? this.expressions.kind : 'morphs';
+  }
+}
+
+/**
+ * What drives a VRM that has no ARKit morph targets: its custom expressions named after ARKit
+ * shapes when it has jawOpen among them, else its presets (vrmExpressions); null without an
+ * expression manager.
+ */
+function vrmDrive(manager) {
+  if (!manager) return null;
+  const named = Object.keys(manager.customExpressionMap)
+    .map((name) => [MORPH_NAMES.indexOf(morphName(name)), name])
+    .filter(([k]) => k >= 0);
+  if (named.some(([k]) => MORPH_NAMES[k] === 'jawOpen')) {
+    return { kind: 'arkit-expressions', set: (weights) => named.forEach(([k, name]) => manager.setValue(name, weights[k])) };
+  }
+  const sided = manager.getExpression('blinkLeft') && manager.getExpression('blinkRight');
+  return {
+    kind: 'vrm-presets',
+    set(weights) {
+      const values = vrmExpressions(weights);
+      if (!sided) values.blink = Math.min(values.blinkLeft, values.blinkRight);
+      for (const [name, value] of Object.entries(values)) {
+        if (manager.getExpression(name)) manager.setValue(name, value);
+      }
+    },
+  };
+}
+
+/**
+ * The box of a VRM's face: the vertices skinned mostly to its head, eye and jaw bones (hair and
+ * body left out), in world space; else the meshes hung from its head bone, else a 25 cm box
+ * about that bone.
+ */
+function vrmHeadBox(vrm) {
+  const bones = new Set(['head', 'leftEye', 'rightEye', 'jaw'].map((name) => vrm.humanoid.getRawBoneNode(name)));
+  const box = new THREE.Box3();
+  const vertex = new THREE.Vector3();
+  vrm.scene.updateMatrixWorld(true);
+  vrm.scene.traverse((obj) => {
+    if (!obj.isSkinnedMesh) return;
+    const { skinIndex, skinWeight, position } = obj.geometry.attributes;
+    const headBones = obj.skeleton.bones.map((bone) => bones.has(bone));
+    for (let i = 0; i < position.count; i++) {
+      let weight = 0;
+      for (let j = 0; j < 4; j++) if (headBones[skinIndex.getComponent(i, j)]) weight += skinWeight.getComponent(i, j);
+      if (weight > 0.5) box.expandByPoint(obj.localToWorld(obj.getVertexPosition(i, vertex)));
+    }
+  });
+  const head = vrm.humanoid.getRawBoneNode('head');
+  if (box.isEmpty()) box.setFromObject(head); // a head of meshes hung from the bone, not skinned
+  if (box.isEmpty()) {
+    const centre = head.getWorldPosition(vertex).add(new THREE.Vector3(0, 0.08, 0));
+    box.setFromCenterAndSize(centre, new THREE.Vector3(0.25, 0.25, 0.25));
+  }
+  return box;
+}
+
+/** A credit line from a VRM's meta: its name, authors and licence. */
+function vrmCredit(meta) {
+  if (!meta) return null;
+  const [name, authors, licence] = meta.metaVersion === '0'
+    ? [meta.title, meta.author, meta.otherLicenseUrl || meta.licenseName]
+    : [meta.name, (meta.authors || []).join(', '), meta.otherLicenseUrl || meta.licenseUrl];
+  return [name, authors && `by ${authors}`, licence && `licence: ${licence}`].filter(Boolean).join(', ') || null;
 }
 
 /**
@@ -138,16 +233,20 @@ export function portraitRenderer(renderer) {
   return renderer;
 }
 
-/** Load a GLB head (meshopt-compressed or not) from `url`; resolves to three.js's glTF result. */
+/**
+ * Load a GLB or VRM head (meshopt-compressed or not) from `url`; resolves to three.js's glTF
+ * result, with a VRM's `userData.vrm`.
+ */
 export function loadHead(url) {
   const loader = new GLTFLoader();
   loader.setMeshoptDecoder(MeshoptDecoder);
+  loader.register((parser) => new VRMLoaderPlugin(parser));
   return loader.loadAsync(url);
 }
 
 /** A GLB head on a page: a HeadScene drawn on a canvas that fills `container`. */
 export class Avatar3D extends HeadScene {
-  /** Load the GLB at `url` into a canvas appended to `container`. */
+  /** Load the GLB or VRM at `url` into a canvas appended to `container`. */
   static async load(container, url) {
     return new Avatar3D(container, await loadHead(url));
   }
@@ -225,13 +324,17 @@ export class Face2DAvatar {
     return this.values[morphName(name)] || 0;
   }
 
+  expression() {
+    return null;
+  }
+
   /** Draw; `idleSeconds` drives the face's own blinks. */
   render(idleSeconds) {
     this.face.setWeights(this.values, idleSeconds);
   }
 }
 
-/** A 3D head from `avatarUrl`, or the 2D face (script at `face2dSrc`) when it is null. */
+/** A 3D head (GLB or VRM) from `avatarUrl`, or the 2D face (script at `face2dSrc`) when it is null. */
 export async function createAvatar(container, avatarUrl, face2dSrc) {
   if (avatarUrl) return Avatar3D.load(container, avatarUrl);
   return Face2DAvatar.load(container, face2dSrc);
