@@ -86,8 +86,14 @@ class Primitive(MorphMesh):
 
 def read_primitives(path: str | os.PathLike) -> list[Primitive]:
     """Every primitive of the meshes whose morph targets carry channel names, with quantized and
-    meshopt-compressed data decoded, in the order of the file."""
+    meshopt-compressed data decoded, in the order of the file. Raises :class:`VispeechError` for a VRM
+    model with none (one without "perfect sync")."""
     gltf = load_glb(path)
+    if not animated_meshes(gltf) and {"VRM", "VRMC_vrm"} & set(gltf.extensions or {}):
+        raise VispeechError(
+            f"{path}: a VRM without ARKit morph targets (no perfect sync): the player shows it through its "
+            "expressions (aa, ih, ou, ee, oh, blink, happy, sad); it has no ARKit lip and eyelid shapes to work on"
+        )
     blob = decompressed(gltf, path)
     found = []
     for index, names in animated_meshes(gltf).items():
@@ -195,15 +201,20 @@ def _read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int, path: str | o
         raise VispeechError(f"{path}: cannot read accessor {index} ({exc})") from None
 
 
+_TURNED = np.diag([-1.0, 1.0, -1.0, 1.0])
+"""Half a turn about +Y: a VRM 0.x model, which faces -Z, turned to face +Z as glTF heads do."""
+
+
 def world_matrix(gltf: pygltflib.GLTF2, node_index: int) -> np.ndarray:
-    """The 4x4 transform from node ``node_index``'s space to the scene's (its parents' included)."""
+    """The 4x4 transform from node ``node_index``'s space to the scene's (its parents' included), a
+    VRM 0.x model (the ``VRM`` extension) turned to face +Z as VRM 1.0 and glTF heads do."""
     parents = {child: k for k, node in enumerate(gltf.nodes) for child in (node.children or [])}
     matrix = np.eye(4)
     k: int | None = node_index
     while k is not None:
         matrix = _local_matrix(gltf.nodes[k]) @ matrix
         k = parents.get(k)
-    return matrix
+    return _TURNED @ matrix if "VRM" in (gltf.extensions or {}) else matrix
 
 
 def _local_matrix(node: pygltflib.Node) -> np.ndarray:

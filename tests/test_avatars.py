@@ -1,0 +1,57 @@
+"""Avatars users bring: VRM 0.x and 1.0 models (made from the shipped ICT head, tests/vrm_heads.py) in
+``rig calibrate`` and ``rig prepare``, and ``vispeech serve --avatar`` with a file or a URL. The
+player showing them is tested in Chromium (tests/test_browser.py)."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import SHARED, require
+from vrm_heads import vrm_head
+
+from vispeech.cli import main
+from vispeech.motion.arkit import TONGUE_CHANNELS
+from vispeech.motion.rigging.calibration import HeadGeometry
+from vispeech.motion.rigging.glb import read_primitives
+from vispeech.motion.rigging.head import DEFAULT_HEAD, prepare_head
+
+ICT_HEAD = SHARED / "assets" / "ict_head.glb"
+
+
+def _json(path):
+    data = path.read_bytes()
+    return json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+
+
+@pytest.mark.parametrize("version", ["1.0", "0.x"])
+def test_calibration_measures_a_perfect_sync_vrm_as_the_head_it_was_made_from(version, tmp_path):
+    """A VRM 0.x model faces -Z: it is measured turned to face +Z, as the player shows it."""
+    head = HeadGeometry.from_glb(DEFAULT_HEAD)
+    vrm = HeadGeometry.from_glb(vrm_head(tmp_path / "head.vrm", version, perfect_sync=True))
+    assert (vrm.eye_distance, vrm.gap0, vrm.width0) == pytest.approx((head.eye_distance, head.gap0, head.width0))
+    assert vrm.gap_per == pytest.approx(head.gap_per) and vrm.landmarks == head.landmarks
+
+
+def test_prepare_gives_a_perfect_sync_vrm_a_tongue_and_keeps_it_a_vrm(tmp_path):
+    require(ICT_HEAD.is_file(), f"the ICT head ({ICT_HEAD}, in the shared data folder)")
+    plain = prepare_head(ICT_HEAD, tmp_path / "plain.glb")
+    source = vrm_head(tmp_path / "head.vrm", "0.x", perfect_sync=True, head=ICT_HEAD)
+    report = prepare_head(source, tmp_path / "ready.vrm")
+    assert report.targets == list(TONGUE_CHANNELS) == plain.targets and report.reshaped == plain.reshaped
+    for got, want in zip(read_primitives(tmp_path / "ready.vrm"), read_primitives(tmp_path / "plain.glb")):
+        assert got.name == want.name and np.allclose(got.positions, want.positions, atol=1e-6)  # written back turned
+    before, after = _json(source)["extensions"]["VRM"], _json(tmp_path / "ready.vrm")["extensions"]["VRM"]
+    assert after == before
+
+
+@pytest.mark.parametrize("command", [["calibrate"], ["prepare"]])
+def test_a_vrm_without_arkit_shapes_is_refused_in_one_line(command, tmp_path):
+    head = vrm_head(tmp_path / "head.vrm", "1.0")
+    result = CliRunner().invoke(main, ["rig", *command, str(head), "-o", str(tmp_path / "out")])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert "a VRM without ARKit morph targets" in result.output and "expressions (aa, ih, ou, ee, oh" in result.output
+    assert not (tmp_path / "out").exists()
