@@ -55,3 +55,36 @@ def test_a_vrm_without_arkit_shapes_is_refused_in_one_line(command, tmp_path):
     assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
     assert "a VRM without ARKit morph targets" in result.output and "expressions (aa, ih, ou, ee, oh" in result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_serve_an_avatar_at_a_url_the_browser_loads_and_the_server_never_fetches(tmp_path):
+    """--avatar URL: /api/config hands the page the URL (the host must allow it: CORS); the server has
+    no file to serve and fetches nothing (this host does not exist). The URL survives the trip to the
+    server's other processes; a string that is not an http(s) URL is a file name."""
+    from fastapi.testclient import TestClient
+
+    from vispeech.serve import ServeConfig, create_app
+
+    url = "https://avatars.invalid/people/ada.vrm?v=2"
+    config = ServeConfig(avatar=url, avatar_credit="Ada, CC0", cache=":memory:")
+    assert ServeConfig.from_json(config.to_json()).avatar == url
+    with TestClient(create_app(config)) as client:
+        got = client.get("/api/config").json()
+        assert (got["avatar_url"], got["avatar_credit"]) == (url, "Ada, CC0")
+        assert client.get("/avatar.glb").status_code == 404
+    local = ServeConfig(avatar=str(tmp_path / "ada.vrm"))
+    assert local.avatar == tmp_path / "ada.vrm" and ServeConfig.from_json(local.to_json()).avatar == local.avatar
+    result = CliRunner().invoke(main, ["serve", "--avatar", "ftp://avatars.invalid/ada.vrm", "--cache", ":memory:"])
+    assert result.exit_code == 2 and "avatar file not found" in result.output
+
+
+def test_serve_a_vrm_file_as_it_is_when_it_has_no_arkit_shapes_to_prepare(tmp_path, caplog):
+    from fastapi.testclient import TestClient
+
+    from vispeech.serve import ServeConfig, create_app
+
+    head = vrm_head(tmp_path / "head.vrm", "0.x")
+    with TestClient(create_app(ServeConfig(avatar=head, cache=":memory:"))) as client:
+        assert client.get("/api/config").json()["avatar_url"] == "/avatar.glb"
+        assert client.get("/avatar.glb").content == head.read_bytes()
+    assert "a VRM without ARKit morph targets" in caplog.text

@@ -40,7 +40,9 @@ def _config_option(field: dataclasses.Field, hint: typing.Any) -> click.Option:
         return click.Option([option.name, field.name], is_flag=True, flag_value=False, default=True, help=option.help)
     kinds = set(typing.get_args(hint)) - {type(None)} or {hint}
     kind: click.ParamType | type = str
-    if kinds & {Path, os.PathLike}:
+    if option.url:
+        kind = str
+    elif kinds & {Path, os.PathLike}:
         kind = click.Path(path_type=Path, dir_okay=False)
     elif int in kinds:
         kind = int if option.minimum is None else click.IntRange(min=int(option.minimum))

@@ -63,7 +63,7 @@ async def get_config(service: Service) -> ConfigResponse:
     animate audio, frame rate."""
     config = service.config
     return ConfigResponse(
-        avatar_url="/avatar.glb" if config.head_file is not None else None,
+        avatar_url=config.avatar_link or ("/avatar.glb" if config.head_file is not None else None),
         avatar_credit=config.head_credit,
         languages=[v.code for v in sorted(languages(), key=lambda v: (v.phones == "ipa", v.code != "sv"))],
         language_names={v.code: v.name.strip() for v in languages()},

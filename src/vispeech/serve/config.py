@@ -7,6 +7,7 @@ import json
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from vispeech.errors import VispeechError
 from vispeech.guards import DEFAULT_ALLOWED_HOSTS
@@ -30,7 +31,7 @@ class Option:
     ``name``: the option (``--rate-limit``); ``minimum``: the least number it takes; ``unit``: it
     counts in units of this many of the field's (``--cache-mb``: MiB of ``cache_bytes``);
     ``envvar``: where it is read from when not given; ``negated``: a flag that sets a true field
-    false (``--avatar-as-is``).
+    false (``--avatar-as-is``); ``url``: a file or an http(s) URL, taken as text (``--avatar``).
     """
 
     name: str
@@ -39,6 +40,13 @@ class Option:
     unit: int = 1
     envvar: str | None = None
     negated: bool = False
+    url: bool = False
+
+
+def is_url(value: str) -> bool:
+    """Whether ``value`` is an http(s) URL with a host (anything else is a file name)."""
+    parts = urlsplit(value)
+    return parts.scheme in ("http", "https") and bool(parts.netloc)
 
 
 def _option(name: str, help: str, **more) -> dict[str, Option]:
@@ -66,12 +74,14 @@ class ServeConfig:
     ``audio_seconds_per_token`` seconds of audio (an upload at least one token, a live chunk at
     least :data:`~vispeech.serve.service.MIN_CHUNK_SECONDS`); a spoken chat reply is charged after the fact. Sizes are
     bytes. ``static_dir``: the built web app (default
-    :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar``: the GLB head the pages show (``None``: the
-    shipped :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`); ``head``: ``False`` shows the built-in
-    2D face instead. ``avatar_credit``: a line the pages show under the head (its author and licence;
-    the shipped head's by default). ``prepare_avatar``: serve ``avatar`` with the tongue morph targets and
-    painted looks it lacks (:func:`vispeech.motion.rigging.head.prepared_head`, done once when the app is
-    made); ``False`` serves the file as it is.
+    :data:`~vispeech.serve.pages.STATIC_DIR`). ``avatar``: the head the pages show, a GLB or VRM file
+    (``None``: the shipped :data:`~vispeech.motion.rigging.head.DEFAULT_HEAD`) or an http(s) URL the
+    browser loads it from (the server fetches nothing; a string that is not such a URL is a file
+    name); ``head``: ``False`` shows the built-in 2D face instead. ``avatar_credit``: a line the pages
+    show under the head (its author and licence; the shipped head's by default, a VRM's meta else).
+    ``prepare_avatar``: serve an ``avatar`` file with the tongue morph targets and painted looks it
+    lacks (:func:`vispeech.motion.rigging.head.prepared_head`, done once when the app is made);
+    ``False`` serves the file as it is.
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
     in pieces of ``piece_seconds``), the native libraries' part of it in as many worker processes
@@ -96,12 +106,14 @@ class ServeConfig:
     the GIL back quickly from a busy worker after each socket call.
     """
 
-    avatar: Path | None = field(
+    avatar: Path | str | None = field(
         default=None,
         metadata=_option(
             "--avatar",
-            "glTF binary head served as /avatar.glb, with the tongue morph targets and painted looks it "
-            "lacks (vispeech rig prepare) [default: the shipped ICT-FaceKit head].",
+            "The head: a glTF binary (.glb) or VRM file, served as /avatar.glb with the tongue morph targets "
+            "and painted looks it lacks (vispeech rig prepare), or an http(s) URL the browser loads it from "
+            "(the server downloads nothing) [default: the shipped ICT-FaceKit head].",
+            url=True,
         ),
     )
     head: bool = field(
@@ -244,10 +256,20 @@ class ServeConfig:
         ),
     )
 
+    def __post_init__(self) -> None:
+        if isinstance(self.avatar, str) and not is_url(self.avatar):
+            self.avatar = Path(self.avatar)
+
+    @property
+    def avatar_link(self) -> str | None:
+        """The URL the browser loads the head from when ``avatar`` is one, else ``None``."""
+        return self.avatar if isinstance(self.avatar, str) else None
+
     @property
     def head_file(self) -> Path | None:
-        """The GLB head the pages show: ``avatar``, else the shipped head; ``None`` for the 2D face."""
-        if not self.head:
+        """The GLB or VRM head the server serves: ``avatar``, else the shipped head; ``None`` for the 2D
+        face and for a head at a URL."""
+        if not self.head or isinstance(self.avatar, str):
             return None
         return DEFAULT_HEAD if self.avatar is None else Path(self.avatar)
 
@@ -285,8 +307,7 @@ class ServeConfig:
         """The settings :meth:`to_json` wrote."""
         data = json.loads(text)
         bot = data.pop("bot")
-        for key in ("avatar", "static_dir"):
-            data[key] = None if data[key] is None else Path(data[key])
+        data["static_dir"] = None if data["static_dir"] is None else Path(data["static_dir"])
         for key in ("allowed_hosts", "allowed_origins"):
             data[key] = None if data[key] is None else tuple(data[key])
         return cls(**data, bot=RuleBot() if bot is None else HTTPChatBot(**bot))

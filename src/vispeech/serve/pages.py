@@ -47,7 +47,8 @@ class Site:
     @classmethod
     def of(cls, config: ServeConfig) -> Site:
         """The site of ``config``, its avatar prepared once (the shipped head is shipped prepared);
-        :class:`VispeechError` when the avatar file is missing or the 2D face is asked for as well."""
+        :class:`VispeechError` when the avatar file is missing or the 2D face is asked for as well (a head
+        at a URL is the browser's to load: the site has no file)."""
         if config.avatar is not None and not config.head:
             raise VispeechError("give --avatar or --face-2d, not both")
         avatar = config.head_file
@@ -85,9 +86,9 @@ router = APIRouter(include_in_schema=False)
 
 @router.get("/avatar.glb")
 def avatar(site: SiteOf) -> Response:
-    """The head, prepared (or as it is); 404 when the pages show the 2D face."""
+    """The head, prepared (or as it is); 404 when the pages show the 2D face or load the head from a URL."""
     if site.avatar is None or not site.avatar.is_file():
-        raise HTTPException(404, "no avatar: the server shows the 2D face (--face-2d)")
+        raise HTTPException(404, "no avatar file: the pages show the 2D face or load the head from its URL")
     if site.avatar_bytes is not None:
         return Response(site.avatar_bytes, media_type="model/gltf-binary")
     return FileResponse(site.avatar, media_type="model/gltf-binary")
