@@ -53,13 +53,15 @@ export class HeadScene {
     this.lastUpdate = null;
 
     // Frame the face (the largest driven mesh, or a VRM's head), looking down -Z at its front,
-    // close enough that the mouth reads in a chat window.
-    const box = this.vrm ? vrmHeadBox(this.vrm) : new THREE.Box3().setFromObject(this.head);
+    // close enough that the mouth reads in a chat window: above the middle of a head mesh, which
+    // reaches down the neck; at the nose of a skull (chin to crown), from further away.
+    const { box, skull } = this.vrm ? vrmHeadBox(this.vrm) : { box: new THREE.Box3().setFromObject(this.head) };
     const size = box.getSize(new THREE.Vector3());
     const center = box.getCenter(new THREE.Vector3());
-    this.target = new THREE.Vector3(center.x, center.y + 0.1 * size.y, box.min.z + 0.6 * size.z);
+    const [aim, away] = skull ? [0.33, 2.2] : [0.6, 1.3];
+    this.target = new THREE.Vector3(center.x, box.min.y + aim * size.y, box.min.z + 0.6 * size.z);
     this.lift = 0.05 * size.y;
-    this.distance = 1.3 * size.y;
+    this.distance = away * size.y;
 
     // Turn the head about a point low in the neck (a VRM's own neck bone turns it instead).
     const pivot = new THREE.Vector3(center.x, box.min.y + 0.25 * size.y, center.z);
@@ -150,9 +152,10 @@ function vrmDrive(manager) {
 }
 
 /**
- * The box of a VRM's face: the vertices skinned mostly to its head, eye and jaw bones (hair and
- * body left out), in world space; else the meshes hung from its head bone, else a 25 cm box
- * about that bone.
+ * The box of a VRM's face (`box`, in world space) and whether it is a skull (`skull`, chin to
+ * crown): the vertices skinned mostly to its head, eye and jaw bones (hair and body left out);
+ * else the meshes hung from its head bone (not a skull: they may reach down the neck); else a
+ * 25 cm box about that bone.
  */
 function vrmHeadBox(vrm) {
   const bones = new Set(['head', 'leftEye', 'rightEye', 'jaw'].map((name) => vrm.humanoid.getRawBoneNode(name)));
@@ -170,12 +173,11 @@ function vrmHeadBox(vrm) {
     }
   });
   const head = vrm.humanoid.getRawBoneNode('head');
-  if (box.isEmpty()) box.setFromObject(head); // a head of meshes hung from the bone, not skinned
-  if (box.isEmpty()) {
-    const centre = head.getWorldPosition(vertex).add(new THREE.Vector3(0, 0.08, 0));
-    box.setFromCenterAndSize(centre, new THREE.Vector3(0.25, 0.25, 0.25));
-  }
-  return box;
+  if (!box.isEmpty()) return { box, skull: true };
+  box.setFromObject(head); // a head of meshes hung from the bone, not skinned
+  if (!box.isEmpty()) return { box, skull: false };
+  const centre = head.getWorldPosition(vertex).add(new THREE.Vector3(0, 0.08, 0));
+  return { box: box.setFromCenterAndSize(centre, new THREE.Vector3(0.25, 0.25, 0.25)), skull: true };
 }
 
 /** A credit line from a VRM's meta: its name, authors and licence. */
