@@ -1,10 +1,12 @@
 """Avatars users bring, in Debian's Chromium driven by Playwright (as ``test_browser.py``): VRM 1.0
 and 0.x models made from the shipped ICT head (``tests/vrm_heads.py``), one with only expression
-presets in each version and one with ARKit morph targets ("perfect sync"), say a sentence; the
-test reads their expression or morph weights on the page. An ``--avatar`` URL is loaded by the
-browser from its own host. Skipped without ``/usr/bin/chromium`` or the ``playwright`` package,
-and failed then under ``CI=true``. Set ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the
-screenshots (docs/figures/avatar_*.png are these).
+presets in each version and one with ARKit morph targets ("perfect sync"), and a whole avatar of
+another origin, the VALID library's ``shared/assets/avatars/VALID_Asian_F_1_Casual.glb`` (MIT)
+made a VRM 0.x model, say a sentence; the test reads their expression or morph weights on the
+page. An ``--avatar`` URL is loaded by the browser from its own host. Skipped without
+``/usr/bin/chromium``, the ``playwright`` package or the shared avatar, and failed then under
+``CI=true``. Set ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots
+(docs/figures/avatar_*.png are these).
 """
 
 from __future__ import annotations
@@ -17,17 +19,18 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
-from conftest import require, require_module
+from conftest import SHARED, require, require_module
 from test_browser import CHROMIUM, OPEN_APERTURE, TEXT, _aperture, _browser_page, _centres, _serving
 from test_browser import _screenshot as screenshot
-from vrm_heads import vrm_head
+from vrm_heads import vrm_from_valid, vrm_head
 
 from vispeech.motion.arkit import LIP_CLOSED
 
 pytestmark = pytest.mark.browser
 
-AVATARS = {"vrm1": ("1.0", False), "vrm0": ("0.x", False), "vrm0_perfect_sync": ("0.x", True)}
+AVATARS = {"vrm1": ("1.0", False), "vrm0": ("0.x", False), "vrm0_perfect_sync": ("0.x", True), "valid": ("0.x", False)}
 """Each test avatar: VRM version and whether it has ARKit morph targets."""
+VALID = SHARED / "assets" / "avatars" / "VALID_Asian_F_1_Casual.glb"
 VOWELS = ("aa", "ih", "ou", "ee", "oh")
 MOUTH = ("jawOpen", "mouthClose", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft",
          "mouthUpperUpRight", "mouthFunnel", "mouthRollLower", "mouthRollUpper", "mouthPressLeft", "mouthPressRight")
@@ -42,23 +45,33 @@ HOLD = """async ([t, vowels, channels]) => {
 
 
 @pytest.fixture(scope="module")
-def avatar_files(tmp_path_factory) -> dict[str, Path]:
+def avatar_file(tmp_path_factory):
+    """The test avatar of a name (:data:`AVATARS`), made once."""
     require(CHROMIUM.is_file(), f"Chromium ({CHROMIUM}: apt-get install chromium)")
     require_module("playwright.sync_api", "Playwright (the test extra)")
     folder = tmp_path_factory.mktemp("avatars")
-    return {name: vrm_head(folder / f"{name}.vrm", version, sync) for name, (version, sync) in AVATARS.items()}
+
+    @functools.cache
+    def made(name: str) -> Path:
+        if name == "valid":
+            require(VALID.is_file(), f"the VALID avatar ({VALID}, in the shared data folder)")
+            return vrm_from_valid(VALID, folder / "valid.vrm")
+        return vrm_head(folder / f"{name}.vrm", *AVATARS[name])
+
+    return made
 
 
 @pytest.mark.parametrize("name", AVATARS)
-def test_a_brought_avatar_opens_its_mouth_on_vowels_and_closes_it_on_m(name, avatar_files, tmp_path):
+def test_a_brought_avatar_opens_its_mouth_on_vowels_and_closes_it_on_m(name, avatar_file, tmp_path):
     """Without ARKit morph targets a VRM's open vowels (aa, ee, oh) open as the lips part and no vowel
     shows at /m/; with them (perfect sync) the morph targets follow the track, as on the ICT head."""
     sync = AVATARS[name][1]
-    with (_serving(tmp_path / "cache.sqlite3", avatar=avatar_files[name], avatar_credit=None) as url,
+    with (_serving(tmp_path / "cache.sqlite3", avatar=avatar_file(name), avatar_credit=None) as url,
           _browser_page(f"{url}/viewer?idle=0") as page):
         assert page.evaluate("() => window.vispeech.avatar.drive") == ("morphs" if sync else "vrm-presets")
         credit = page.evaluate("() => document.querySelector('#stage .credit').textContent")
-        assert credit == "ICT-FaceKit head, by USC ICT, licence: https://opensource.org/license/mit"  # the VRM's meta
+        author = "Tiffany D. Do et al., VALID" if name == "valid" else "USC ICT"
+        assert f"by {author}, licence: https://opensource.org/license/mit" in credit  # the VRM's meta
         speech = page.evaluate("([text, lang]) => window.vispeech.speak(text, lang)", [TEXT, "en"])
         vowels, nasals = _centres(speech, ("AA", "AE")), _centres(speech, {"M"})
         assert len(vowels) >= 3 and len(nasals) >= 5
@@ -108,10 +121,10 @@ def _avatar_host(folder: Path) -> Iterator[tuple[str, list[str]]]:
         server.server_close()
 
 
-def test_an_avatar_url_is_loaded_by_the_player_from_its_host(avatar_files, tmp_path):
+def test_an_avatar_url_is_loaded_by_the_player_from_its_host(avatar_file, tmp_path):
     """`vispeech serve --avatar URL`: the player page's browser fetches the VRM from its host, once; the
     vispeech server has no avatar file to serve."""
-    vrm = avatar_files["vrm1"]
+    vrm = avatar_file("vrm1")
     with _avatar_host(vrm.parent) as (host, asked):
         avatar = f"{host}/{vrm.name}"
         with (_serving(tmp_path / "cache.sqlite3", avatar=avatar, avatar_credit=None) as url,

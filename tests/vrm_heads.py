@@ -1,10 +1,13 @@
-"""VRM models made from the shipped ICT-FaceKit head (MIT licence) for the tests: VRM 1.0 and 0.x, with
-the head's morph targets renamed (so that only the VRM's expressions name what they do) or kept
-("perfect sync").
+"""VRM models for the tests, made as a VRM author makes them: a glTF model given a humanoid skeleton's
+bone names and expression presets bound to its morph targets.
 
-The head hangs from the head bone of a bare humanoid skeleton (every bone a VRM needs, no skin);
-a VRM 0.x model is turned to face -Z, as VRM 0.x models do. Each expression preset binds a mix of
-the head's ARKit shapes (:data:`PRESETS`).
+:func:`vrm_head`: the shipped ICT-FaceKit head (MIT licence) as VRM 1.0 and 0.x, its morph targets
+renamed (so that only the VRM's expressions name what they do) or kept ("perfect sync"); the head
+hangs from the head bone of a bare humanoid skeleton (every bone a VRM needs, no skin), each preset
+binds a mix of its ARKit shapes (:data:`PRESETS`). :func:`vrm_from_valid`: a whole skinned avatar of
+the VALID library (University of Central Florida and Google, MIT licence; Microsoft Rocketbox's
+facial shapes, no ARKit names) as VRM 0.x, each preset bound to its own viseme, eyelid and smile
+shapes (:data:`VALID_PRESETS`). A VRM 0.x model is turned to face -Z, as VRM 0.x models do.
 """
 
 from __future__ import annotations
@@ -103,5 +106,48 @@ def vrm_head(path: Path, version: str = "1.0", perfect_sync: bool = False, head:
             ]},
         }}
     gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *gltf["extensions"]]
+    _write(path, gltf, rest)
+    return path
+
+
+VALID_PRESETS = {
+    "aa": "AE_AA", "ih": "TD_I", "ou": "UW_U", "ee": "Ax_E", "oh": "AO_a",
+    "blinkLeft": "LeyeClose", "blinkRight": "ReyeClose", "happy": "LsmileClose RsmileClose",
+    "sad": "LmouthSad RmouthSad",
+}
+"""Each expression preset and the VALID (Rocketbox) shapes it binds, at full weight, on the face and,
+where they have the shape too, on the lower teeth."""
+_VALID_BONES = {
+    "hips": "Hips", "spine": "Spine", "chest": "Spine1", "upperChest": "Spine2", "neck": "Neck", "head": "Head",
+    "leftEye": "LeftEye", "rightEye": "RightEye",
+    **{f"{side}{part}": f"{side.title()}{bone}" for side in ("left", "right") for part, bone in (
+        ("Shoulder", "Shoulder"), ("UpperArm", "Arm"), ("LowerArm", "ForeArm"), ("Hand", "Hand"),
+        ("UpperLeg", "UpLeg"), ("LowerLeg", "Leg"), ("Foot", "Foot"), ("Toes", "ToeBase"))},
+}
+
+
+def vrm_from_valid(source: Path, path: Path) -> Path:
+    """Write the VALID avatar ``source`` (a GLB of c-frame/valid-avatars-glb) as a VRM 0.x model to ``path``."""
+    gltf, rest = _read(source)
+    nodes = {node.get("name"): k for k, node in enumerate(gltf["nodes"])}
+    groups = []
+    for preset, shapes in VALID_PRESETS.items():
+        binds = []
+        for m, mesh in enumerate(gltf["meshes"]):
+            names = [name.rsplit(".", 1)[-1].removeprefix("t_").removesuffix("_h")
+                     for name in (mesh.get("extras") or {}).get("targetNames", [])]
+            binds += [{"mesh": m, "index": names.index(shape), "weight": 100} for shape in shapes.split() if shape in names]
+        groups.append({"name": _VRM0_PRESETS[preset], "presetName": _VRM0_PRESETS[preset], "binds": binds})
+    turn = len(gltf["nodes"])
+    gltf["nodes"].append({"name": "facing -Z", "rotation": [0.0, 1.0, 0.0, 0.0], "children": gltf["scenes"][0]["nodes"]})
+    gltf["scenes"][0]["nodes"] = [turn]
+    gltf["extensions"] = {"VRM": {
+        "specVersion": "0.0",
+        "meta": {"title": source.stem, "version": "1", "author": "Tiffany D. Do et al., VALID",
+                 "licenseName": "Other", "otherLicenseUrl": _MIT},
+        "humanoid": {"humanBones": [{"bone": bone, "node": nodes[name]} for bone, name in _VALID_BONES.items()]},
+        "blendShapeMaster": {"blendShapeGroups": groups},
+    }}
+    gltf["extensionsUsed"] = [*gltf["extensionsUsed"], "VRM"]
     _write(path, gltf, rest)
     return path
