@@ -134,3 +134,28 @@ def test_an_avatar_url_is_loaded_by_the_player_from_its_host(avatar_file, tmp_pa
             assert page.evaluate("() => fetch('/avatar.glb').then((r) => r.status)") == 404
             assert page.errors == []
     assert asked == [f"/{vrm.name}"]
+
+
+def test_vrm_0_and_1_models_turn_their_heads_alike(avatar_file, tmp_path):
+    """The same head as VRM 0.x (bones facing -Z) and 1.0, each loaded with ?avatar=URL, nodding and
+    turning by the same angles through its neck bone, looks the same, pixel for pixel."""
+    from test_browser import _rgb
+
+    files = {version: avatar_file(name) for version, name in (("0.x", "vrm0"), ("1.0", "vrm1"))}
+    turn = """async (angles) => {
+      window.vispeech.avatar.setHeadRotation(...angles);
+      await new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)));
+    }"""
+    shots = {}
+    with (_avatar_host(files["1.0"].parent) as (host, _), _serving(tmp_path / "cache.sqlite3") as url,
+          _browser_page(f"{url}/viewer?idle=0") as page):
+        for version, file in files.items():
+            page.goto(f"{url}/viewer?idle=0&avatar={host}/{file.name}")
+            page.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+            for pose, angles in (("rest", [0, 0, 0]), ("turned", [0.2, 0.3, 0.1])):
+                page.evaluate(turn, angles)
+                page.screenshot(path=str(tmp_path / f"{version}_{pose}.png"))
+                shots[version, pose] = _rgb(tmp_path / f"{version}_{pose}.png")
+        assert page.errors == []
+    assert not (shots["1.0", "rest"] == shots["1.0", "turned"]).all()
+    assert (shots["0.x", "turned"] == shots["1.0", "turned"]).all()

@@ -102,10 +102,18 @@ export class HeadScene {
     }
   }
 
-  /** Turn the head by small angles (radians) about the neck. */
+  /**
+   * Turn the head by small angles (radians) about the neck: a VRM's neck bone (a VRM 0.x model's
+   * bones face -Z, so pitch and roll turn the other way there), else the head's pivot.
+   */
   setHeadRotation(pitch, yaw, roll) {
     const neck = this.vrm && this.vrm.humanoid.getNormalizedBoneNode('neck');
-    (neck || this.neck).rotation.set(pitch, yaw, roll, 'YXZ');
+    if (!neck) {
+      this.neck.rotation.set(pitch, yaw, roll, 'YXZ');
+      return;
+    }
+    const sign = this.vrm.meta && this.vrm.meta.metaVersion === '0' ? -1 : 1;
+    neck.rotation.set(sign * pitch, yaw, sign * roll, 'YXZ');
   }
 
   /** Current morph influence of ARKit channel `name` on the head mesh (0 when absent). */
