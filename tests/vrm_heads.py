@@ -59,9 +59,12 @@ def _write(path: Path, gltf: dict, rest: bytes) -> None:
     path.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
 
 
-def vrm_head(path: Path, version: str = "1.0", perfect_sync: bool = False, head: Path = DEFAULT_HEAD) -> Path:
+def vrm_head(path: Path, version: str = "1.0", perfect_sync: bool = False, arkit_expressions: bool = False,
+             head: Path = DEFAULT_HEAD) -> Path:
     """Write ``head`` (an ICT-FaceKit head: the shipped one by default) as a VRM ``version`` ("1.0" or
-    "0.x") model to ``path``; its morph targets keep their ARKit names only with ``perfect_sync``."""
+    "0.x") model to ``path``; its morph targets keep their ARKit names only with ``perfect_sync``.
+    ``arkit_expressions`` (VRM 0.x): custom expressions named after the ARKit shapes as well, each
+    binding its own morph target, as VRoid's perfect-sync tools make them."""
     gltf, rest = _read(head)
     (mesh,) = gltf["meshes"]
     names = mesh["extras"]["targetNames"]
@@ -103,6 +106,9 @@ def vrm_head(path: Path, version: str = "1.0", perfect_sync: bool = False, head:
                 {"name": _VRM0_PRESETS[preset], "presetName": _VRM0_PRESETS[preset],
                  "binds": [{"mesh": 0, "index": k, "weight": 100 * w} for k, w in pairs]}
                 for preset, pairs in binds.items()
+            ] + [
+                {"name": name, "presetName": "unknown", "binds": [{"mesh": 0, "index": k, "weight": 100}]}
+                for k, name in enumerate(names) if arkit_expressions
             ]},
         }}
     gltf["extensionsUsed"] = [*gltf["extensionsUsed"], *gltf["extensions"]]
