@@ -1,11 +1,10 @@
 """Avatars users bring, in Debian's Chromium driven by Playwright (as ``test_browser.py``): VRM 1.0
 and 0.x models made from the shipped ICT head (``tests/vrm_heads.py``), one with only expression
-presets in each version and one with ARKit morph targets ("perfect sync"), and a whole avatar of
-another origin, the VALID library's ``shared/assets/avatars/VALID_Asian_F_1_Casual.glb`` (MIT)
-made a VRM 0.x model, say a sentence; the test reads their expression or morph weights on the
-page. An ``--avatar`` URL is loaded by the browser from its own host. Skipped without
-``/usr/bin/chromium``, the ``playwright`` package or the shared avatar, and failed then under
-``CI=true``. Set ``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots
+presets in each version, one with ARKit morph targets ("perfect sync") and one with expressions
+named after the ARKit shapes, say a sentence; the test reads their expression or morph weights on
+the page. An ``--avatar`` URL is loaded by the browser from its own host. Skipped without
+``/usr/bin/chromium`` or the ``playwright`` package, and failed then under ``CI=true``. Set
+``VISPEECH_BROWSER_SCREENSHOTS=FOLDER`` to keep the screenshots
 (docs/figures/avatar_*.png are these).
 """
 
@@ -19,21 +18,20 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
-from conftest import SHARED, require, require_module
+from conftest import require, require_module
 from test_browser import CHROMIUM, OPEN_APERTURE, TEXT, _aperture, _browser_page, _centres, _serving
 from test_browser import _screenshot as screenshot
-from vrm_heads import vrm_from_valid, vrm_head
+from vrm_heads import vrm_head
 
 from vispeech.motion.arkit import LIP_CLOSED
 
 pytestmark = pytest.mark.browser
 
 AVATARS = {"vrm1": ("1.0", False, False), "vrm0": ("0.x", False, False), "vrm0_perfect_sync": ("0.x", True, False),
-           "vrm0_arkit_expressions": ("0.x", False, True), "valid": ("0.x", False, False)}
+           "vrm0_arkit_expressions": ("0.x", False, True)}
 """Each test avatar: VRM version, whether it has ARKit morph targets and whether ARKit-named expressions."""
 DRIVES = {"vrm0_perfect_sync": "morphs", "vrm0_arkit_expressions": "arkit-expressions"}
 """How the page drives each avatar other than through its presets."""
-VALID = SHARED / "assets" / "avatars" / "VALID_Asian_F_1_Casual.glb"
 VOWELS = ("aa", "ih", "ou", "ee", "oh")
 MOUTH = ("jawOpen", "mouthClose", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft",
          "mouthUpperUpRight", "mouthFunnel", "mouthRollLower", "mouthRollUpper", "mouthPressLeft", "mouthPressRight")
@@ -56,9 +54,6 @@ def avatar_file(tmp_path_factory):
 
     @functools.cache
     def made(name: str) -> Path:
-        if name == "valid":
-            require(VALID.is_file(), f"the VALID avatar ({VALID}, in the shared data folder)")
-            return vrm_from_valid(VALID, folder / "valid.vrm")
         return vrm_head(folder / f"{name}.vrm", *AVATARS[name])
 
     return made
@@ -74,8 +69,7 @@ def test_a_brought_avatar_opens_its_mouth_on_vowels_and_closes_it_on_m(name, ava
           _browser_page(f"{url}/viewer?idle=0") as page):
         assert page.evaluate("() => window.vispeech.avatar.drive") == drive
         credit = page.evaluate("() => document.querySelector('#stage .credit').textContent")
-        author = "Tiffany D. Do et al., VALID" if name == "valid" else "USC ICT"
-        assert f"by {author}, licence: https://opensource.org/license/mit" in credit  # the VRM's meta
+        assert "by USC ICT, licence: https://opensource.org/license/mit" in credit  # the VRM's meta
         speech = page.evaluate("([text, lang]) => window.vispeech.speak(text, lang)", [TEXT, "en"])
         vowels, nasals = _centres(speech, ("AA", "AE")), _centres(speech, {"M"})
         assert len(vowels) >= 3 and len(nasals) >= 5
