@@ -12,7 +12,8 @@ Ray instance) can be told from the steady rate:
 
 - ``lines/s``: lines over the whole run, start-up included (what ``vispeech batch`` prints);
 - ``steady lines/s``: the extra lines of the long run over its extra seconds;
-- ``CPU s/line``: CPU seconds of the long run's process tree per line (not Ray's own daemons).
+- ``CPU s/line``: CPU seconds of the long run's process tree per line, the local backend's only
+  (Ray's workers are not this process's children).
 
 Every configuration's line folders must be byte-identical to the first one's; the load average
 is printed with each figure (other work on the machine slows every one). Failed lines are
@@ -61,7 +62,7 @@ def batch(job: Path, out: Path, jobs: int, backend: str) -> tuple[float, float, 
     result = subprocess.run(command, capture_output=True, text=True)
     seconds = time.perf_counter() - started
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if result.returncode not in (0, 1):  # 1: some lines failed
+    if result.returncode not in (0, 1) or not (out / "index.jsonl").is_file():  # 1: some lines failed
         sys.exit(f"vispeech batch failed ({result.returncode}): {(result.stdout + result.stderr).strip()[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     index = [json.loads(line) for line in (out / "index.jsonl").read_text(encoding="utf-8").splitlines()]
@@ -106,13 +107,15 @@ def main() -> None:
                 short = work / "short.csv"
                 with open(work / "job.csv", encoding="utf-8") as f:
                     short.write_text("".join(f.readlines()[: 2 * jobs + 1]), encoding="utf-8")
+                shutil.rmtree(work / "short", ignore_errors=True)
                 short_seconds, _, _ = batch(short, work / "short", jobs, backend)
                 out = work / f"out-{backend}-{jobs}"
                 seconds, cpu, failures = batch(work / "job.csv", out, jobs, backend)
                 steady = (args.lines - 2 * jobs) / max(seconds - short_seconds, 1e-9)
                 load = os.getloadavg()
+                per_line = f"{cpu / args.lines:11.3f}" if backend == "local" else f"{'-':>11s}"
                 print(
-                    f"{backend:8s} {jobs:4d} {args.lines / seconds:8.2f} {steady:15.2f} {cpu / args.lines:11.3f}"
+                    f"{backend:8s} {jobs:4d} {args.lines / seconds:8.2f} {steady:15.2f} {per_line}"
                     f"  {load[0]:.2f} {load[1]:.2f}"
                 )
                 for failure in failures:
