@@ -12,8 +12,9 @@ Ray instance) can be told from the steady rate:
 
 - ``lines/s``: lines over the whole run, start-up included (what ``vispeech batch`` prints);
 - ``steady lines/s``: the extra lines of the long run over its extra seconds;
-- ``CPU s/line``: CPU seconds of the long run's process tree per line, the local backend's only
-  (Ray's workers are not this process's children).
+- ``CPU s/line``: CPU seconds of the long run's process tree per line, with one local worker
+  only (the native workers of a pool's workers, and Ray's, are not always waited for, so their
+  time is not always counted).
 
 Every configuration's line folders must be byte-identical to the first one's; the load average
 is printed with each figure (other work on the machine slows every one). Failed lines are
@@ -113,7 +114,7 @@ def main() -> None:
                 seconds, cpu, failures = batch(work / "job.csv", out, jobs, backend)
                 steady = (args.lines - 2 * jobs) / max(seconds - short_seconds, 1e-9)
                 load = os.getloadavg()
-                per_line = f"{cpu / args.lines:11.3f}" if backend == "local" else f"{'-':>11s}"
+                per_line = f"{cpu / args.lines:11.3f}" if (backend, jobs) == ("local", 1) else f"{'-':>11s}"
                 print(
                     f"{backend:8s} {jobs:4d} {args.lines / seconds:8.2f} {steady:15.2f} {per_line}"
                     f"  {load[0]:.2f} {load[1]:.2f}"
