@@ -3,8 +3,9 @@
     python benchmarks/bench_batch_audio.py [--lines 60] [--jobs 1 2] [--no-ray] [--keep DIR]
 
 Makes a manifest of ``--lines`` grid_s1 utterances (a seed-0 sample; audio + transcript, so each
-line is read, aligned by pocketsphinx with its transcript fit checked, animated by grid-tdnn and
-written with the default outputs), then runs ``vispeech batch`` on it as a real process for the
+line is read, aligned by pocketsphinx with its transcript fit checked, animated by the default
+model for a recording with its transcript, :func:`vispeech.pipeline.recording_model`, and written
+with the default outputs), then runs ``vispeech batch`` on it as a real process for the
 local backend with each ``--jobs`` and, when Ray is installed (the ``ray`` extra), for the Ray
 backend with the same numbers of workers. Each configuration runs twice: on ``--lines`` lines
 and on ``2 × jobs`` of them, so that start-up (Python, the models, the pocketsphinx decoders, a
