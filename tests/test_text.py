@@ -5,7 +5,7 @@ import pytest
 from conftest import read_sentences
 from test_cli_say import assert_clean_error, run
 from vispeech.errors import VispeechError
-from vispeech.frontends.text import speakable
+from vispeech.frontends.text import Clause, ClauseReader, speakable, split_clauses
 from vispeech.pipeline import speak
 
 
@@ -58,3 +58,18 @@ def test_detect_language_names_a_language_only_when_sure():
     assert detect_language("Guten Tag, wie geht es Ihnen heute?", ["sv", "en", "de", "fr"]) == "de"
     assert detect_language("Guten Tag, wie geht es Ihnen heute?", ["sv", "cmn"]) in (None, "sv")
     assert detect_language("妈妈买了一本书，我们一起去看看吧。", ["en", "cmn"]) == "cmn"  # langid's zh
+
+
+def test_a_streamed_text_gives_each_clause_once_a_letter_follows_it():
+    """Fed a token at a time, the reader gives the clauses split_clauses gives the whole text, each as
+    soon as a letter or digit follows its break; a fenced code block is left out."""
+    text = "Sure, 3.5 kr! Here is code:\n\n```python\nprint(1, 2)\n```\n\nDet är bra ... ? Hej då 😀"
+    reader, given = ClauseReader(), []
+    for i, ch in enumerate(text):
+        given += [(clause, text[: i + 1]) for clause in reader.feed(ch)]
+    last = reader.finish()
+    assert [c for c, _ in given] == [Clause("Sure,", False), Clause("3.5 kr!", True), Clause("Here is code:", True),
+                                     Clause("Det är bra ... ?", True)]
+    assert [seen[-1] for _, seen in given] == ["3", "H", "D", "H"]  # the first letter or digit after the break
+    assert last == [Clause("Hej då 😀", True)]  # the text's end ends its sentence
+    assert [c.text for c, _ in given] + [c.text for c in last] == split_clauses(text)  # as the whole text is split

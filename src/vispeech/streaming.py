@@ -1,15 +1,17 @@
 """Streaming animation: text spoken clause by clause, and frames for phones as they arrive.
 
-**Text.** :func:`speech_messages` splits the text into sentences and clauses (after
-``. ! ? ; : , …`` followed by white space, and at line breaks), synthesises and animates each
-in turn and gives the ``/api/stream`` protocol messages for it at once, so the first frames
-and audio leave after the first clause, not after the whole text. The first clause starts with
-the silence :func:`~vispeech.pipeline.speak` puts before speech, the last ends with the silence
-it adds after, so that the mouth opens from rest and comes back to it. The clauses follow each
-other on one timeline: frame k sits at ``k / fps`` seconds from the start of the first
-clause's audio, and a frame that falls between two clauses' frame grids is interpolated
-from its own clause's track. Audio goes in pieces of ``chunk_seconds`` (PCM16, base64), each
-preceded by the frames up to its end.
+**Text.** :func:`speech_messages` splits the text into sentences and clauses
+(:func:`~vispeech.frontends.text.split_clauses`: after ``. ! ? ; : , …`` followed by white
+space, and at line breaks), synthesises and animates each in turn (a :class:`SpeechTimeline`,
+which also speaks clauses as they come, each in its own language) and gives the ``/api/stream``
+protocol messages for it at once, so the first frames and audio leave after the first clause,
+not after the whole text. The first clause starts with the silence
+:func:`~vispeech.pipeline.speak` puts before speech, the last ends with the silence it adds
+after, so that the mouth opens from rest and comes back to it. The clauses follow each other on
+one timeline: frame k sits at ``k / fps`` seconds from the start of the first clause's audio,
+and a frame that falls between two clauses' frame grids is interpolated from its own clause's
+track. Audio goes in pieces of ``chunk_seconds`` (PCM16, base64), each preceded by the frames up
+to its end.
 
 **Phones.** :func:`open_phone_stream` takes timed phones as a recogniser or a TTS engine
 emits them and gives each frame as soon as it may be computed: the model's own
@@ -37,7 +39,6 @@ from __future__ import annotations
 import base64
 import functools
 import math
-import re
 from collections.abc import Generator, Iterable, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, cast
@@ -48,6 +49,7 @@ from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_fr
 from vispeech.errors import VispeechError
 from vispeech.frontends import vad
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
+from vispeech.frontends.text import split_clauses
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
@@ -67,33 +69,6 @@ MAX_PHONE_SECONDS = 10.0
 """Longest step (seconds) from one phone's end to the next's in a phone stream."""
 POSTPROCESS_LOOKAHEAD = 2
 """Frames a phone stream holds back beyond the model's look-ahead for post-processing."""
-
-_CLAUSE_BREAK = re.compile(r"(?<=[.!?;:,…])\s+|\s*\n\s*")
-
-
-def split_clauses(text: str) -> list[str]:
-    """Sentences and clauses of ``text``; pieces without a letter or digit join a neighbour.
-
-    ``"3.5"`` and ``"1,000"`` stay whole: a break needs white space after the punctuation.
-    """
-    clauses: list[str] = []
-    pending = ""  # leading pieces with nothing to speak
-    for piece in _CLAUSE_BREAK.split(text):
-        piece = piece.strip()
-        if not piece:
-            continue
-        if not any(ch.isalnum() for ch in piece):
-            if clauses:
-                clauses[-1] += " " + piece
-            else:
-                pending += piece + " "
-            continue
-        clauses.append(pending + piece)
-        pending = ""
-    if pending:
-        clauses.append(pending.strip())
-    return clauses
-
 
 STREAM_CHANNELS: tuple[str, ...] = (
     THESIS_CHANNELS
@@ -137,59 +112,94 @@ def speech_messages(
     :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them, in the output
     ``scale`` (``None``: the model's own), spoken with the espeak-ng ``voice``.
     """
-    from vispeech.frontends.espeak import phone_set, synthesize
-
     clauses = split_clauses(spoken_text(text))
-    channels = stream_channels(model, phone_set(language), fps)
-    samples_done = frames_done = seq = 0
-    sample_rate = None
-    last = len(clauses) - 1
+    timeline = SpeechTimeline(model, fps=fps, rate=rate, chunk_seconds=chunk_seconds, scale=scale, voice=voice)
     for k, clause in enumerate(clauses):
-        speech = synthesize(clause, language, rate, voice=voice, reproducible=False)  # latency first
-        before, after = (LEADING_SILENCE if k == 0 else 0.0), (TRAILING_SILENCE if k == last else 0.0)
-        speech = padded(speech, before, after)  # the mouth opens from rest and comes back to it, as in speak()
-        track = animate(speech.phones, model, fps).select(channels)
-        if scale is not None:
-            track = scale.apply(track)
+        yield timeline.say(clause, language, last=k == len(clauses) - 1)
+    yield timeline.end()
+
+
+class SpeechTimeline:
+    """Clauses spoken one after another on one timeline, each in its own language (a chat
+    reply's sentences in theirs): the ``/api/stream`` messages of each, as :func:`speech_messages`
+    gives them, computed when it is said.
+
+    The channels are those of the first clause's phone set; the espeak-ng ``voice`` (a variant:
+    ``f3``) speaks every language.
+    """
+
+    def __init__(
+        self,
+        model: Estimator,
+        *,
+        fps: float = DEFAULT_FPS,
+        rate: float = 1.0,
+        chunk_seconds: float = 0.1,
+        scale: Calibration | None = None,
+        voice: str | None = None,
+    ) -> None:
+        self.model, self.fps, self.rate, self.scale, self.voice = model, fps, rate, scale, voice
+        self.chunk_seconds = chunk_seconds
+        self.channels: tuple[str, ...] = ()
+        self.sample_rate: int | None = None
+        self.samples = self.frames = self.seq = 0
+
+    @property
+    def duration(self) -> float:
+        """Seconds of audio said so far."""
+        return self.samples / self.sample_rate if self.sample_rate else 0.0
+
+    def say(self, clause: str, language: str, last: bool = False) -> list[dict]:
+        """The messages of ``clause`` (spoken text) in ``language``: ``start`` first when it is the first
+        clause, which begins with the silence :func:`~vispeech.pipeline.speak` puts before speech; a
+        ``last`` clause ends with the silence it adds after."""
+        from vispeech.frontends.espeak import phone_set, synthesize
+
+        speech = synthesize(clause, language, self.rate, voice=self.voice, reproducible=False)  # latency first
+        first = self.sample_rate is None
+        speech = padded(speech, LEADING_SILENCE if first else 0.0, TRAILING_SILENCE if last else 0.0)
         messages: list[dict] = []
-        if sample_rate is None:
-            sample_rate = speech.sample_rate
-            messages.append(
-                {
-                    "type": "start",
-                    "fps": fps,
-                    "channels": list(channels),
-                    "sample_rate": sample_rate,
-                    "model": model.name,
-                }
-            )
-        pcm = to_pcm16(speech.audio)
-        clause_start = samples_done / sample_rate
-        frame_end = _frames_before((samples_done + len(pcm)) / sample_rate, fps)
-        values = _sample_rows(track.values, np.arange(frames_done, frame_end) - clause_start * fps)
-        step = max(1, round(chunk_seconds * sample_rate))
-        sent = frames_done
+        if self.sample_rate is None:
+            self.channels = stream_channels(self.model, phone_set(language), self.fps)
+            self.sample_rate = speech.sample_rate
+            start = {"fps": self.fps, "channels": list(self.channels), "sample_rate": self.sample_rate}
+            messages.append({"type": "start", **start, "model": self.model.name})
+        elif speech.sample_rate != self.sample_rate:
+            raise VispeechError(f"{language} speaks at {speech.sample_rate} Hz, this stream at {self.sample_rate} Hz")
+        track = animate(speech.phones, self.model, self.fps).select(self.channels)
+        if self.scale is not None:
+            track = self.scale.apply(track)
+        return messages + self._pieces(to_pcm16(speech.audio), track.values)
+
+    def _pieces(self, pcm: np.ndarray, values: np.ndarray) -> list[dict]:
+        """``frames`` and ``audio`` messages of a clause's audio and track (rows at ``fps`` from its
+        start), in pieces of ``chunk_seconds``, each piece's frames before its audio."""
+        rate, fps = cast(int, self.sample_rate), self.fps
+        clause_start = self.samples / rate
+        frame_end = _frames_before((self.samples + len(pcm)) / rate, fps)
+        values = _sample_rows(values, np.arange(self.frames, frame_end) - clause_start * fps)
+        step = max(1, round(self.chunk_seconds * rate))
+        messages: list[dict] = []
+        sent = self.frames
         for a in range(0, len(pcm), step):
             b = min(a + step, len(pcm))
-            upto = frame_end if b == len(pcm) else min(frame_end, _frames_before((samples_done + b) / sample_rate, fps))
+            upto = frame_end if b == len(pcm) else min(frame_end, _frames_before((self.samples + b) / rate, fps))
             if upto > sent:
-                rows = np.round(values[sent - frames_done : upto - frames_done], 6).tolist()
+                rows = np.round(values[sent - self.frames : upto - self.frames], 6).tolist()
                 messages.append({"type": "frames", "start_frame": sent, "frames": rows})
                 sent = upto
-            messages.append(
-                {
-                    "type": "audio",
-                    "seq": seq,
-                    "start": (samples_done + a) / sample_rate,
-                    "pcm16": base64.b64encode(pcm[a:b].tobytes()).decode("ascii"),
-                }
-            )
-            seq += 1
-        samples_done += len(pcm)
-        frames_done = frame_end
-        yield messages
-    assert sample_rate is not None  # spoken_text leaves something to say: there was a clause
-    yield [{"type": "end", "n_frames": frames_done, "duration": samples_done / sample_rate}]
+            pcm16 = base64.b64encode(pcm[a:b].tobytes()).decode("ascii")
+            messages.append({"type": "audio", "seq": self.seq, "start": (self.samples + a) / rate, "pcm16": pcm16})
+            self.seq += 1
+        self.samples += len(pcm)
+        self.frames = frame_end
+        return messages
+
+    def end(self) -> list[dict]:
+        """The ``end`` message (``n_frames``, ``duration``)."""
+        if self.sample_rate is None:
+            raise VispeechError("nothing was said")
+        return [{"type": "end", "n_frames": self.frames, "duration": self.duration}]
 
 
 def _frames_before(seconds: float, fps: float) -> int:

@@ -8,6 +8,10 @@ address not, inline code kept as words), leaves out code blocks, HTML and images
 skin tones and joiners included). Blocks that end without punctuation get a full stop, so a
 list is read as a list. Plain text comes back as it was, but for white space runs folded to
 one space. :func:`detect_language` tells which of some languages a text is written in.
+
+:func:`split_clauses` cuts a text into the sentences and clauses a stream speaks one at a time;
+:class:`ClauseReader` does the same for a text that arrives in pieces (a chat model's streamed
+reply), giving each clause as soon as it is known to be whole.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from functools import cache
+from typing import NamedTuple
 
 from vispeech.errors import VispeechError
 
@@ -98,3 +103,93 @@ def _identifier():
     except ImportError:
         raise VispeechError("telling a text's language needs py3langid (the serve extra)") from None
     return LanguageIdentifier.from_model_file(MODEL_FILE, norm_probs=True)
+
+
+_CLAUSE_BREAK = re.compile(r"(?<=[.!?;:,…])\s+")
+_FENCE = re.compile(r"\s*(```|~~~)")
+_SENTENCE_END = re.compile(r"[.!?…]['\"”’)\]]*$")
+
+
+class Clause(NamedTuple):
+    """A clause of a text; ``ends_sentence``: it ends with ``. ! ? …`` or its line."""
+
+    text: str
+    ends_sentence: bool
+
+
+def split_clauses(text: str) -> list[str]:
+    """Sentences and clauses of ``text`` (:class:`ClauseReader`'s, of the whole text at once)."""
+    reader = ClauseReader()
+    return [clause.text for clause in [*reader.feed(text), *reader.finish()]]
+
+
+class ClauseReader:
+    """The clauses of a text fed in pieces, each given out once it is whole.
+
+    A clause ends after ``. ! ? ; : , …`` followed by white space, and at a line break, so
+    ``"3.5"`` and ``"1,000"`` stay whole; a piece without a letter or digit joins the clause
+    before it (the one after when it leads). A clause is given out once a letter or digit
+    follows its break, so nothing is added to it afterwards and :meth:`finish` gives the last
+    one. The lines of a fenced code block (```) are left out.
+    """
+
+    def __init__(self) -> None:
+        self._line = ""  # the current line's text not given out yet
+        self._fresh = True  # whether it begins its line
+        self._code = False  # inside a fenced code block
+        self._held: Clause | None = None  # the last whole clause, given out once a letter or digit follows
+        self._lead = ""  # leading pieces with nothing to say
+
+    def feed(self, text: str) -> list[Clause]:
+        """The clauses ``text`` completes (the text fed so far, and ``text``)."""
+        out: list[Clause] = []
+        self._line += text
+        while "\n" in self._line:
+            line, self._line = self._line.split("\n", 1)
+            self._read(line, True, out)
+            self._fresh = True
+        self._line = self._read(self._line, False, out)
+        return out
+
+    def finish(self) -> list[Clause]:
+        """The clauses left once the text has ended (the reader is done)."""
+        out: list[Clause] = []
+        self._read(self._line, True, out)
+        if self._held is not None:
+            out.append(self._held)
+        elif self._lead.strip():
+            out.append(Clause(self._lead.strip(), True))
+        return out
+
+    def _read(self, line: str, ended: bool, out: list[Clause]) -> str:
+        """Add the clauses of ``line`` to ``out`` (all of them when the line has ``ended``, else
+        those a break closes); the rest of the line, to read when more of it comes."""
+        if self._fresh and (_FENCE.match(line) or (not ended and line.strip() in ("", "`", "``", "~", "~~"))):
+            if ended and line.strip():  # a fence opens or closes a code block; a line that may grow into one waits
+                self._code = not self._code
+            return "" if ended else line
+        if self._code:
+            return "" if ended else line  # a code line is left out once it has ended
+        pieces = _CLAUSE_BREAK.split(line)
+        rest = "" if ended else pieces.pop()
+        for i, piece in enumerate(pieces):
+            self._add(piece.strip(), ended and i == len(pieces) - 1, out)
+        if pieces:
+            self._fresh = False
+        if self._held is not None and any(ch.isalnum() for ch in rest):
+            out.append(self._held)  # a letter or digit follows: nothing more joins the held clause
+            self._held = None
+        return rest
+
+    def _add(self, piece: str, ends_line: bool, out: list[Clause]) -> None:
+        if not any(ch.isalnum() for ch in piece):
+            if self._held is not None:
+                text = f"{self._held.text} {piece}".strip()
+                self._held = Clause(text, self._held.ends_sentence or ends_line or bool(_SENTENCE_END.search(text)))
+            else:
+                self._lead += piece + " "
+            return
+        if self._held is not None:
+            out.append(self._held)
+        text = f"{self._lead}{piece}"
+        self._held, self._lead = Clause(text, ends_line or bool(_SENTENCE_END.search(text))), ""
