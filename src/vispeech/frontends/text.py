@@ -107,11 +107,12 @@ def _identifier():
 
 _CLAUSE_BREAK = re.compile(r"(?<=[.!?;:,…])\s+")
 _FENCE = re.compile(r"\s*(```|~~~)")
-_SENTENCE_END = re.compile(r"[.!?…]['\"”’)\]]*$")
+_SENTENCE_END = re.compile(r"[.!?…:]['\"”’)\]]*$")
 
 
 class Clause(NamedTuple):
-    """A clause of a text; ``ends_sentence``: it ends with ``. ! ? …`` or its line."""
+    """A clause of a text; ``ends_sentence``: it ends with ``. ! ? …``, a colon (what follows may
+    be in another language: a quote) or its line."""
 
     text: str
     ends_sentence: bool
