@@ -1,7 +1,10 @@
-"""Chat bots behind ``POST /api/chat``: the :class:`ChatBot` protocol, a rule bot and an HTTP adapter.
+"""Chat bots behind ``POST /api/chat`` and the stream's chat messages: the :class:`ChatBot`
+protocol (a message in, a reply out) and its rule bot, and the :class:`ChatModel` protocol (a
+conversation in, the reply in pieces as they come; :class:`~vispeech.serve.llm.OpenAIChatBot`).
 
-The server asks its bot for a text reply and speaks it; any object with a
-``reply(message, language) -> str`` method will do (a database of answers, a language model).
+The server asks its bot for a reply and speaks it; any object with a
+``reply(message, language) -> str`` method will do (a database of answers), and any with
+``stream(conversation) -> Iterator[str]`` is told the session's conversation so far.
 """
 
 from __future__ import annotations
@@ -10,9 +13,10 @@ import json
 import re
 import urllib.error
 import urllib.request
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from datetime import datetime
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 from vispeech.errors import VispeechError
 from vispeech.pipeline import GREETINGS
@@ -20,6 +24,18 @@ from vispeech.pipeline import GREETINGS
 
 class ChatBotError(RuntimeError):
     """The bot could not answer (its service failed); the server answers 502."""
+
+
+class ChatBotTimeout(ChatBotError):
+    """The bot's service took too long; the server answers 504."""
+
+
+@dataclass(frozen=True)
+class ChatTurn:
+    """One message of a conversation: the user's or the assistant's (the bot's reply)."""
+
+    role: Literal["user", "assistant"]
+    content: str
 
 
 @runtime_checkable
@@ -31,6 +47,14 @@ class ChatBot(Protocol):
     def languages(self) -> tuple[str, ...] | None: ...  # read-only: a class attribute will do
 
     def reply(self, message: str, language: str) -> str: ...
+
+
+@runtime_checkable
+class ChatModel(Protocol):
+    """A chat model that continues a conversation (its last turn the user's): the reply's text in
+    pieces as they are written. It answers in any language."""
+
+    def stream(self, conversation: Sequence[ChatTurn]) -> Iterator[str]: ...
 
 
 _RULES: dict[str, list[tuple[str, str]]] = {
