@@ -40,8 +40,8 @@ KL = {"text": "1 2 3 4 5 6 7 8 9 10 100", "language": "kl"}
 
 class _Echo(BaseHTTPRequestHandler):
     def do_POST(self) -> None:  # noqa: N802 (http.server's name)
-        body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-        answer = json.dumps({"reply": body["message"]}).encode()
+        body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))  # an OpenAI-shaped chat service
+        answer = json.dumps({"choices": [{"message": {"content": body["messages"][-1]["content"]}}]}).encode()
         self.send_response(200)
         self.send_header("Content-Type", "application/json")
         self.send_header("Content-Length", str(len(answer)))

@@ -7,9 +7,7 @@ import json
 import math
 import random
 import re
-import threading
 from datetime import datetime
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +24,7 @@ from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.pipeline import DEFAULT_MODEL, GREETINGS  # noqa: E402
 from vispeech.serve.pages import SWAGGER_UI  # noqa: E402
 from vispeech.serve import (  # noqa: E402
-    CacheKey, ChatBotError, HTTPChatBot, RuleBot, ServeConfig, UtteranceCache, create_app,
+    CacheKey, RuleBot, ServeConfig, UtteranceCache, create_app,
 )
 from vispeech.guards import TokenBucket  # noqa: E402
 
@@ -161,7 +159,7 @@ def test_chat_answers_in_swedish_and_english(client):
     assert sv["reply"] == GREETINGS["sv"] and sv["language"] == "sv"
     assert sv["speech"]["text"] == GREETINGS["sv"] and sv["speech"]["animation"]["n_frames"] > 10
     en = client.post("/api/chat", json={"message": "What is your name?", "language": "en", "speak": False}).json()
-    assert en == {"reply": "My name is Vera.", "language": "en", "speech": None}
+    assert en == {"reply": "My name is Vera.", "language": "en", "session": en["session"], "speech": None}
     other = client.post("/api/chat", json={"message": "Guten Tag!", "language": "de"})
     assert other.status_code == 400 and "chat bot speaks sv and en, not 'de'" in other.json()["detail"]
     # an English message on a Swedish page is answered in English, a Swedish one on an English page in Swedish
@@ -169,7 +167,7 @@ def test_chat_answers_in_swedish_and_english(client):
     assert asked["reply"] == "My name is Vera." and asked["language"] == "en"
     assert asked["speech"]["animation"]["phones"]["language"] == "en"
     svar = client.post("/api/chat", json={"message": "Vad heter du?", "language": "en", "speak": False}).json()
-    assert svar == {"reply": "Jag heter Vera.", "language": "sv", "speech": None}
+    assert svar == {"reply": "Jag heter Vera.", "language": "sv", "session": svar["session"], "speech": None}
     unsure = client.post("/api/chat", json={"message": "ok", "language": "sv", "speak": False}).json()
     assert unsure["language"] == "sv"  # too short to tell: the page's language
 
@@ -343,60 +341,6 @@ def test_rule_bot():
     assert "did not understand" in bot.reply("quantum chromodynamics", "en")
     with pytest.raises(VispeechError):
         bot.reply("hej", "fr")
-
-
-@pytest.fixture
-def fake_chat_service():
-    """A chat service on 127.0.0.1 that echoes the message in an OpenAI-like answer."""
-    seen = []
-
-    class Handler(BaseHTTPRequestHandler):
-        def do_POST(self):
-            payload = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            seen.append(payload)
-            if payload["q"] == "fail":
-                self.send_response(500)
-                self.end_headers()
-                return
-            body = json.dumps({"choices": [{"message": {"content": f"echo {payload['q']} ({payload['language']})"}}]})
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.end_headers()
-            self.wfile.write(body.encode())
-
-        def log_message(self, *args):
-            pass
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    yield f"http://127.0.0.1:{server.server_port}/chat", seen
-    server.shutdown()
-    server.server_close()
-
-
-def test_http_chat_bot_relays_to_a_service(fake_chat_service, tmp_path):
-    url, seen = fake_chat_service
-    bot = HTTPChatBot(url, message_field="q", language_field="language", reply_field="choices.0.message.content")
-    assert bot.reply("hello", "en") == "echo hello (en)"
-    assert seen == [{"q": "hello", "language": "en"}]
-    with pytest.raises(ChatBotError, match="HTTP 500"):
-        bot.reply("fail", "en")
-    with pytest.raises(ChatBotError, match="no text at"):
-        HTTPChatBot(url, message_field="q", language_field="language", reply_field="answer").reply("x", "sv")
-    with pytest.raises(VispeechError):
-        HTTPChatBot("file:///etc/passwd")
-    with TestClient(create_app(ServeConfig(cache=tmp_path / "c.sqlite3", bot=bot, rate_limit=0))) as app:
-        answer = app.post("/api/chat", json={"message": "hej", "language": "sv", "speak": False}).json()
-        assert answer["reply"] == "echo hej (sv)"
-        german = app.post("/api/chat", json={"message": "hallo", "language": "de"}).json()  # any language passes through
-        assert german["reply"] == "echo hallo (de)" and german["speech"]["animation"]["phones"]["language"] == "ipa"
-        french = app.post("/api/chat", json={"message": "Bonjour à tous, je voudrais un grand café au lait",
-                                             "language": "en"}).json()  # the reply is spoken in its own language
-        assert french["language"] == "fr-fr" and french["speech"]["animation"]["phones"]["language"] == "ipa"
-        assert app.get("/api/config").json()["chat_languages"] is None
-        failed = app.post("/api/chat", json={"message": "fail", "speak": False})
-        assert failed.status_code == 502 and "HTTP 500" in failed.json()["detail"]
 
 
 def test_utterance_cache_keys_and_eviction(tmp_path):

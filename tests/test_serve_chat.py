@@ -17,9 +17,11 @@ from conftest import require_module
 
 require_module("fastapi", "fastapi (the serve extra)")
 require_module("httpx", "httpx (the test extra)")
+from fastapi.testclient import TestClient  # noqa: E402
 
 from vispeech.errors import VispeechError  # noqa: E402
 from vispeech.frontends.espeak import synthesize  # noqa: E402
+from vispeech.serve import ServeConfig, create_app  # noqa: E402
 from vispeech.serve.bot import ChatTurn  # noqa: E402
 from vispeech.serve.chat import ReplyReader  # noqa: E402
 from vispeech.serve.llm import OpenAIChatBot, completions_url  # noqa: E402
@@ -116,6 +118,15 @@ def fake():
     server.close()
 
 
+@pytest.fixture(scope="module")
+def client(fake, tmp_path_factory):
+    bot = OpenAIChatBot(fake.url, "tiny-llm", key=KEY, system=SYSTEM, timeout=2.0)
+    config = ServeConfig(cache=tmp_path_factory.mktemp("chat") / "cache.sqlite3", rate_limit=0, bot=bot,
+                         default_model="baseline", stream_model="baseline", chat_history=2)
+    with TestClient(create_app(config)) as client:
+        yield client
+
+
 def tokens(text: str) -> list[str]:
     """``text`` in pieces of a word or less, as a chat model streams it."""
     return [word + " " for word in text.split(" ")[:-1]] + [text.split(" ")[-1]]
@@ -161,6 +172,82 @@ def test_each_sentence_gets_its_own_language():
     assert [(c.spoken, c.language) for c in unsure.feed("Ok. ") + unsure.finish()] == [("Ok.", "sv")]  # the page's
 
 
+def _chat(ws, message: str, session: str | None = None, gate: threading.Event | None = None) -> list[dict]:
+    """A chat message over the stream: its messages until ``end`` or ``error``; the gate is set once
+    the first audio has come."""
+    ws.send_json({"type": "chat", "message": message, "language": "en", "session": session})
+    messages = []
+    while True:
+        messages.append(ws.receive_json())
+        if gate is not None and messages[-1]["type"] == "audio":
+            gate.set()
+        if messages[-1]["type"] in ("end", "error"):
+            return messages
+
+
+def test_the_reply_is_spoken_clause_by_clause_as_it_streams_in(client, fake, monkeypatch):
+    import vispeech.frontends.espeak as espeak
+
+    voices = []  # what espeak-ng was asked to say, in which language
+
+    def spied(text, language, *args, **kwargs):
+        voices.append((text, language))
+        return synthesize(text, language, *args, **kwargs)
+
+    monkeypatch.setattr(espeak, "synthesize", spied)
+    gate = threading.Event()
+    first = "Hello there, my friend! "
+    rest = "Hej, hur mår du idag? I hope you are well."
+    fake.script = stream(tokens(first) + tokens(rest), gate=gate, after=len(tokens(first)) + 1)
+    with client.websocket_connect("/api/stream") as ws:
+        messages = _chat(ws, "Say hello in two languages.", gate=gate)
+        kinds = [m["type"] for m in messages]
+        assert kinds[0] == "start" and kinds[1] == "reply" and kinds[-1] == "end"
+        # the upstream held its reply back until the first audio came: the first clause was spoken first
+        assert kinds.index("audio") < len(kinds) and gate.is_set()
+        replies = [m for m in messages if m["type"] == "reply"]
+        session = replies[0]["session"]
+        assert [(m["text"], m["language"]) for m in replies] == [
+            ("Hello there,", "en"), ("my friend!", "en"), ("Hej, hur mår du idag?", "sv"), ("I hope you are well.", "en")]
+        assert all(m["session"] == session for m in replies)
+        # each clause in its own language's voice: the Swedish one's audio is espeak-ng's Swedish
+        assert voices == [(m["text"], m["language"]) for m in replies]
+        sv = replies[2]
+        start, end = messages.index(sv), messages.index(replies[3])
+        samples = sum(len(base64.b64decode(m["pcm16"])) // 2 for m in messages[start:end] if m["type"] == "audio")
+        assert samples == pytest.approx(len(synthesize(sv["text"], "sv").audio), rel=0.01)
+        assert messages[-1]["duration"] == pytest.approx(
+            sum(len(base64.b64decode(m["pcm16"])) // 2 for m in messages if m["type"] == "audio") / 22050)
+
+        fake.script = stream(tokens("Fine, thanks."))  # the next message goes with the history
+        assert _chat(ws, "And you?", session)[-1]["type"] == "end"
+    sent = fake.requests[-1][1]["messages"]
+    assert sent == [{"role": "system", "content": SYSTEM}, {"role": "user", "content": "Say hello in two languages."},
+                    {"role": "assistant", "content": first + rest}, {"role": "user", "content": "And you?"}]
+
+
+def test_history_is_bounded_and_kept_apart(client, fake):
+    fake.script = stream(["Reply one."])
+    first = client.post("/api/chat", json={"message": "One", "speak": False}).json()
+    session = first["session"]
+    assert first["reply"] == "Reply one." and first["language"] == "en" and first["speech"] is None
+    for n in ("two", "three"):
+        fake.script = stream([f"Reply {n}."])
+        assert client.post("/api/chat", json={"message": n, "session": session, "speak": False}).json()["session"] == session
+    fake.script = stream(["Other."])
+    other = client.post("/api/chat", json={"message": "Who?", "speak": False}).json()
+    assert other["session"] != session
+    assert [m["content"] for m in fake.requests[-1][1]["messages"]] == [SYSTEM, "Who?"]  # none of the other's
+    fake.script = stream(["Four."])
+    client.post("/api/chat", json={"message": "four", "session": session, "speak": False})
+    assert [m["content"] for m in fake.requests[-1][1]["messages"]] == [  # chat_history=2: the last two exchanges
+        SYSTEM, "two", "Reply two.", "three", "Reply three.", "four"]
+    unknown = client.post("/api/chat", json={"message": "hi", "session": "not-one-of-ours", "speak": False})
+    assert unknown.status_code == 404 and "unknown or expired chat session" in unknown.json()["detail"]
+    bad = client.post("/api/chat", json={"message": "hi", "session": "../x", "speak": False})
+    assert bad.status_code == 422
+
+
 def test_sessions_are_bounded_in_number_turns_characters_and_time():
     now = [0.0]
     sessions = ChatSessions(max_sessions=2, max_turns=3, max_chars=30, idle_seconds=10, clock=lambda: now[0])
@@ -181,3 +268,64 @@ def test_sessions_are_bounded_in_number_turns_characters_and_time():
         sessions.open(c)  # idle too long
     assert len(sessions) == 0
 
+
+@pytest.mark.parametrize(("script", "status", "words"), [
+    (None, 502, "the chat service is unreachable"),
+    (answer(401, {"error": {"message": f"Incorrect API key provided: {KEY}"}}), 502, "refused the key (HTTP 401)"),
+    (answer(500, {"error": {"message": "model crashed"}}), 502, "HTTP 500: model crashed"),
+    (answer(404, {"error": "model 'tiny-llm' not found"}), 502, "HTTP 404: model 'tiny-llm' not found"),
+    (answer(200, "data: {not json\n\n", "text/event-stream"), 502, "an event that is not JSON"),
+    (answer(200, f"data: {chunk('Hello')}\n\n", "text/event-stream"), 502, "broke off before its end"),
+    (stream(["Hello", " there."], done=False), 502, "broke off"),
+    (stream(["Slow."], pause=3.0), 504, "sent nothing for 2 s"),
+])
+def test_upstream_failures_are_one_clear_error(client, fake, caplog, script, status, words):
+    if script is None:
+        client.app.state.service.config.bot.url = "http://127.0.0.1:9/v1/chat/completions"  # nothing listens
+    else:
+        fake.script = script
+    try:
+        with caplog.at_level(logging.INFO):
+            failed = client.post("/api/chat", json={"message": "Hello", "speak": False})
+            assert failed.status_code == status and words in failed.json()["detail"]
+            with client.websocket_connect("/api/stream") as ws:
+                messages = _chat(ws, "Hello")
+                assert messages[-1]["type"] == "error" and words in messages[-1]["message"]
+                fake.script = stream(["All good."])  # the connection and the next chat go on
+                client.app.state.service.config.bot.url = completions_url(fake.url)
+                assert [m["text"] for m in _chat(ws, "Again") if m["type"] == "reply"] == ["All good."]
+    finally:
+        client.app.state.service.config.bot.url = completions_url(fake.url)
+    assert KEY not in caplog.text and KEY not in failed.text
+    assert "Traceback" not in caplog.text
+
+
+def test_the_command_takes_the_key_from_the_environment_and_never_shows_it(fake, monkeypatch, tmp_path):
+    from click.testing import CliRunner
+
+    import vispeech.serve
+    from vispeech.cli import main
+
+    made = []
+
+    def create_app(config):  # the settings the command made, and no server
+        made.append(config)
+        raise VispeechError("not starting in a test")
+
+    monkeypatch.setattr(vispeech.serve, "create_app", create_app)
+    monkeypatch.setenv("VISPEECH_CHAT_KEY", KEY)
+    prompt = tmp_path / "system.txt"
+    prompt.write_text(SYSTEM + "\n", encoding="utf-8")
+    result = CliRunner().invoke(main, ["serve", "--chat-url", fake.url, "--chat-model", "tiny-llm",
+                                       "--chat-system-file", str(prompt), "--reply-languages", "en, de"])
+    assert result.exit_code == 2 and "not starting in a test" in result.output
+    bot = made[0].bot
+    assert (bot.url, bot.model, bot.key, bot.system) == (completions_url(fake.url), "tiny-llm", KEY, SYSTEM)
+    assert made[0].reply_languages == ("en", "de")
+    back = ServeConfig.from_json(made[0].to_json())  # to the server's other processes
+    assert vars(back.bot) == vars(bot) and back.reply_languages == ("en", "de")
+    help_text = CliRunner().invoke(main, ["serve", "--help"]).output
+    assert "--chat-url" in help_text and "VISPEECH_CHAT_KEY" in help_text and KEY not in help_text + result.output
+    both = CliRunner().invoke(main, ["serve", "--chat-url", fake.url, "--chat-system", "x", "--chat-system-file",
+                                     str(prompt)])
+    assert both.exit_code == 2 and "not both" in both.output

@@ -16,7 +16,7 @@ require_module("fastapi", "fastapi (the serve extra)")
 require_module("uvicorn", "uvicorn (the serve extra)")
 
 from vispeech.errors import VispeechError  # noqa: E402
-from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig  # noqa: E402
+from vispeech.serve import OpenAIChatBot, RuleBot, ServeConfig  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from local_server import running_server  # noqa: E402  (the benchmarks' `vispeech serve` subprocess)
@@ -25,11 +25,12 @@ from local_server import running_server  # noqa: E402  (the benchmarks' `vispeec
 def test_settings_round_trip_through_json(tmp_path):
     config = ServeConfig(avatar=tmp_path / "head.glb", cache=str(tmp_path / "c.sqlite3"), rate_limit=0.5,
                          allowed_hosts=("localhost", "example.org"), allowed_origins=None, token="s3cret",
-                         bot=HTTPChatBot("http://127.0.0.1:9/chat", reply_field="choices.0.text", timeout=3.0),
+                         bot=OpenAIChatBot("http://127.0.0.1:9/v1", "llm", key="k", system="Be brief.", timeout=3.0),
+                         reply_languages=("en", "de"),
                          workers=3, max_streams=7)
     back = ServeConfig.from_json(config.to_json())
     assert {k: v for k, v in vars(back).items() if k != "bot"} == {k: v for k, v in vars(config).items() if k != "bot"}
-    assert isinstance(back.bot, HTTPChatBot) and vars(back.bot) == vars(config.bot)
+    assert isinstance(back.bot, OpenAIChatBot) and vars(back.bot) == vars(config.bot)
     assert isinstance(ServeConfig.from_json(ServeConfig().to_json()).bot, RuleBot)
 
 

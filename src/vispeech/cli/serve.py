@@ -67,13 +67,40 @@ def _config_option(field: dataclasses.Field, hint: typing.Any) -> click.Option:
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (0.0.0.0: every interface).")
 @click.option("--port", default=8000, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
 @click.option(
-    "--chat-url", help="External chat service to relay /api/chat messages to (POST JSON) instead of the rule bot."
+    "--chat-url",
+    metavar="URL",
+    help="OpenAI-compatible chat model to answer chats instead of the rule bot: its base URL, as OpenAI's "
+    "SDKs take it (http://127.0.0.1:11434/v1: Ollama; http://127.0.0.1:8080/v1: llama.cpp; "
+    "https://api.openai.com/v1), or the full .../chat/completions URL.",
+)
+@click.option("--chat-model", metavar="NAME", help="Model the chat service is asked for (llama3.2, gpt-4o-mini, ...).")
+@click.option(
+    "--chat-key",
+    metavar="KEY",
+    envvar="VISPEECH_CHAT_KEY",
+    show_envvar=True,
+    help="API key sent to the chat service as a bearer token (never shown or logged).",
+)
+@click.option("--chat-system", metavar="TEXT", help="System prompt put before each chat's conversation.")
+@click.option(
+    "--chat-system-file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="File holding the system prompt (instead of --chat-system).",
 )
 @click.option(
-    "--chat-reply-field",
-    default="reply",
+    "--chat-timeout",
+    default=60.0,
     show_default=True,
-    help="Where the chat service's JSON answer holds the reply (dotted path: choices.0.message.content).",
+    type=click.FloatRange(min=1),
+    help="Seconds to wait for the chat service to answer, and for each piece of its reply.",
+)
+@click.option(
+    "--reply-languages",
+    default="en,sv",
+    show_default=True,
+    metavar="CODES",
+    help="Languages a reply's sentences are told apart among, each spoken in its own (comma-separated "
+    "codes of `vispeech languages`; the page's language is always one).",
 )
 @allow_host_option
 @click.option(
@@ -109,7 +136,12 @@ def serve(
     host: str,
     port: int,
     chat_url: str | None,
-    chat_reply_field: str,
+    chat_model: str | None,
+    chat_key: str | None,
+    chat_system: str | None,
+    chat_system_file: Path | None,
+    chat_timeout: float,
+    reply_languages: str,
     allow_host: tuple[str, ...],
     allow_origin: tuple[str, ...],
     processes: int,
@@ -123,16 +155,26 @@ def serve(
     """
     import uvicorn
 
+    from vispeech.files import read_text
     from vispeech.guards import hosts_for
-    from vispeech.serve import HTTPChatBot, RuleBot, ServeConfig, create_app
+    from vispeech.serve import OpenAIChatBot, RuleBot, ServeConfig, create_app
     from vispeech.serve.config import CONFIG_VARIABLE
 
-    bot = HTTPChatBot(chat_url, reply_field=chat_reply_field) if chat_url else RuleBot()
+    if chat_system is not None and chat_system_file is not None:
+        raise click.UsageError("give --chat-system or --chat-system-file, not both")
+    if chat_system_file is not None:
+        chat_system = read_text(chat_system_file, "system prompt file").strip()
+    bot = (
+        OpenAIChatBot(chat_url, chat_model, key=chat_key, system=chat_system, timeout=chat_timeout)
+        if chat_url
+        else RuleBot()
+    )
     hosts = hosts_for(host, allow_host)
     settings["token"] = settings["token"] or None  # --token "" asks for none
     config = ServeConfig(
         **{name: value for name, value in settings.items() if value is not None},
         bot=bot,
+        reply_languages=tuple(code.strip() for code in reply_languages.split(",") if code.strip()),
         allowed_hosts=hosts,
         allowed_origins=tuple(dict.fromkeys((*hosts, *allow_origin))),
     )
@@ -143,6 +185,9 @@ def serve(
         f"stream model {service.stream_model}, audio model {service.audio_model or 'none'}"
         f"{f', {processes} processes' if processes > 1 else ''}{', token required' if config.token else ''})"
     )
+    if isinstance(bot, OpenAIChatBot):
+        model = bot.model or "the service's default"
+        click.echo(f"chat model: {model} at {bot.url}{', with a key' if bot.key else ''}")
     options: dict[str, typing.Any] = {
         "host": host,
         "port": port,

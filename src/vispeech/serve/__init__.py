@@ -5,21 +5,28 @@ describes the routes, the stream protocol and the limits.
 """
 
 from vispeech.serve.app import create_app
-from vispeech.serve.bot import ChatBot, ChatBotError, HTTPChatBot, RuleBot
+from vispeech.serve.bot import ChatBot, ChatBotError, ChatBotTimeout, ChatModel, ChatTurn, RuleBot
 from vispeech.serve.cache import CacheKey, UtteranceCache, default_cache_path
 from vispeech.serve.config import ServeConfig
+from vispeech.serve.llm import OpenAIChatBot
 from vispeech.serve.service import SpeechService
+from vispeech.serve.sessions import ChatSessions, UnknownSession
 from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
 
 __all__ = [
     "CacheKey",
     "ChatBot",
     "ChatBotError",
-    "HTTPChatBot",
+    "ChatBotTimeout",
+    "ChatModel",
+    "ChatSessions",
+    "ChatTurn",
+    "OpenAIChatBot",
     "PhoneStream",
     "RuleBot",
     "ServeConfig",
     "SpeechService",
+    "UnknownSession",
     "UtteranceCache",
     "create_app",
     "default_cache_path",

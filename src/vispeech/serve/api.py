@@ -4,6 +4,7 @@ recording), ``GET /api/audio/<id>.wav`` and ``POST /api/chat``."""
 from __future__ import annotations
 
 import re
+from collections import Counter
 from typing import Annotated, Any, get_origin
 
 from fastapi import APIRouter, HTTPException, Query, Request
@@ -15,6 +16,7 @@ from starlette.datastructures import UploadFile
 
 from vispeech.frontends.audio import probe_upload
 from vispeech.frontends.espeak import languages
+from vispeech.serve.bot import ChatBotError
 from vispeech.serve.dependencies import ClientIP, Service
 from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
@@ -154,18 +156,28 @@ def get_audio(audio_id: str, service: Service) -> Response:
     return Response(wav, media_type="audio/wav", headers={"Cache-Control": "public, max-age=86400"})
 
 
-@router.post("/chat", responses={**_ERRORS, 502: {"model": ErrorResponse}})
+@router.post("/chat", responses={**_ERRORS, **{code: {"model": ErrorResponse} for code in (404, 502, 504)}})
 async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> ChatResponse:
-    """The chat bot's reply to ``message``, spoken unless ``speak`` is false."""
+    """The chat bot's reply to ``message`` in ``session`` (``null``: a new one), spoken unless
+    ``speak`` is false, in the language most of it is in (the stream's chat message speaks each
+    sentence in its own)."""
     service.pay(ip, service.text_cost(request.message))
     if request.speak:
         service.model(request.model)  # an unknown model is refused before the bot is asked
-    reply, spoken = await run_in_threadpool(service.reply, request.message, request.language)  # may wait on a service
+    session = service.chats.open(request.session)
+    clauses = [clause async for clause in service.chat(request.message, request.language, session)]
+    if not clauses:
+        raise ChatBotError("the chat bot's reply has nothing to say")
+    reply = " ".join(clause.text for clause in clauses)
+    amounts: Counter[str] = Counter()
+    for clause in clauses:
+        amounts[clause.language] += len(clause.spoken)
+    spoken = amounts.most_common(1)[0][0]
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
         speech = await _spoken(service, ip, reply, request.model_copy(update={"language": spoken}), "chat")
-    return ChatResponse(reply=reply, language=spoken, speech=speech)
+    return ChatResponse(reply=reply, language=spoken, session=session, speech=speech)
 
 
 async def _spoken(service: SpeechService, ip: str, text: str, options: SpeechOptions, kind: str) -> SpeakResponse:

@@ -67,7 +67,7 @@ def create_app(config: ServeConfig | None = None) -> FastAPI:
 
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Warm the service up before the first request; at the end stop its pool and close its cache."""
+    """Warm the service up before the first request; at the end stop its pools and close its cache."""
     service: SpeechService = app.state.service
     if service.config.switch_interval:
         # the event loop releases the GIL for every socket call and must win it back from a worker in
@@ -76,6 +76,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     await run_in_threadpool(service.warm_up)
     yield
     service.pool.close()
+    service.chat_threads.shutdown(wait=False, cancel_futures=True)
     service.cache.close()
 
 

@@ -9,11 +9,8 @@ The server asks its bot for a reply and speaks it; any object with a
 
 from __future__ import annotations
 
-import json
 import re
-import urllib.error
-import urllib.request
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Literal, Protocol, runtime_checkable
@@ -122,68 +119,3 @@ class RuleBot:
             )
         rule = next((rule for rule, pattern in self._rules[language] if pattern.search(message)), "fallback")
         return _REPLIES[language][rule].format(name=self.name, time=f"{self.clock():%H:%M}")
-
-
-class HTTPChatBot:
-    """Relays messages to an external chat service over HTTP(S).
-
-    Each message is POSTed as JSON ``{message_field: message, language_field: language}`` (no
-    language when ``language_field`` is ``None``) with ``headers``; the reply is read from the
-    JSON answer at ``reply_field``, a dotted path that may index lists
-    (``"choices.0.message.content"``). Failures raise :class:`ChatBotError`.
-    """
-
-    max_reply_bytes = 1 << 20
-    languages = None  # any: the language is passed through
-
-    def __init__(
-        self,
-        url: str,
-        *,
-        message_field: str = "message",
-        language_field: str | None = "language",
-        reply_field: str = "reply",
-        headers: Mapping[str, str] | None = None,
-        timeout: float = 10.0,
-    ) -> None:
-        if not re.match(r"^https?://", url, re.IGNORECASE):
-            raise VispeechError(f"chat bot URL must start with http:// or https://, got {url!r}")
-        self.url = url
-        self.message_field = message_field
-        self.language_field = language_field
-        self.reply_field = reply_field
-        self.headers = dict(headers or {})
-        self.timeout = timeout
-
-    def __repr__(self) -> str:
-        return f"HTTPChatBot({self.url!r})"
-
-    def reply(self, message: str, language: str) -> str:
-        """POST ``message`` to the service and return the text at ``reply_field`` of its answer."""
-        payload = {self.message_field: message}
-        if self.language_field is not None:
-            payload[self.language_field] = language
-        request = urllib.request.Request(
-            self.url,
-            data=json.dumps(payload).encode(),
-            method="POST",
-            headers={"Content-Type": "application/json", "Accept": "application/json", **self.headers},
-        )
-        try:
-            with urllib.request.urlopen(request, timeout=self.timeout) as response:  # noqa: S310 (scheme checked)
-                body = response.read(self.max_reply_bytes + 1)
-        except urllib.error.HTTPError as exc:
-            raise ChatBotError(f"chat service answered HTTP {exc.code}") from None
-        except (urllib.error.URLError, OSError) as exc:
-            raise ChatBotError(f"chat service unreachable: {getattr(exc, 'reason', exc)}") from None
-        if len(body) > self.max_reply_bytes:
-            raise ChatBotError("chat service answer is too large")
-        try:
-            value = json.loads(body)
-            for part in self.reply_field.split("."):
-                value = value[int(part)] if isinstance(value, list) else value[part]
-        except (ValueError, KeyError, IndexError, TypeError):
-            raise ChatBotError(f"chat service answer has no text at {self.reply_field!r}") from None
-        if not isinstance(value, str) or not value.strip():
-            raise ChatBotError(f"chat service answer at {self.reply_field!r} is not a non-empty text")
-        return value.strip()

@@ -13,7 +13,8 @@ from vispeech.errors import VispeechError
 from vispeech.guards import DEFAULT_ALLOWED_HOSTS
 from vispeech.motion.rigging.head import DEFAULT_HEAD, HEAD_CREDIT
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, DEFAULT_FPS, DEFAULT_MODEL, DEFAULT_SCALE
-from vispeech.serve.bot import ChatBot, HTTPChatBot, RuleBot
+from vispeech.serve.bot import ChatBot, ChatModel, RuleBot
+from vispeech.serve.llm import OpenAIChatBot
 from vispeech.serve.schemas import MAX_STREAM_SECONDS
 
 _MIB = 1024 * 1024
@@ -101,7 +102,15 @@ class ServeConfig:
     ``max_audio_backlog`` s of it wait (TCP then slows the client).
     ``allowed_hosts`` / ``allowed_origins``: see :class:`~vispeech.guards.HostOriginCheck`;
     ``token``: see :class:`~vispeech.serve.safety.TokenAuth` (``None``: no token wanted).
-    ``cache_bytes`` caps the cache's size. ``switch_interval``: the GIL switch interval the
+    ``cache_bytes`` caps the cache's size.
+
+    Chat: ``bot`` answers ``/api/chat`` and the stream's chat messages (a
+    :class:`~vispeech.serve.bot.ChatBot`, or a :class:`~vispeech.serve.bot.ChatModel` such as
+    :class:`~vispeech.serve.llm.OpenAIChatBot`, told its session's last ``chat_history`` exchanges
+    within ``chat_history_chars`` characters); at most ``chat_sessions`` sessions are kept, each
+    dropped ``chat_session_seconds`` after its last use, and ``max_chats`` replies awaited at once.
+    Each sentence of a reply is spoken in the one of ``reply_languages`` (or the page's language)
+    it is written in. ``switch_interval``: the GIL switch interval the
     server sets when it starts (seconds; ``None`` leaves Python's 5 ms), so the event loop wins
     the GIL back quickly from a busy worker after each socket call.
     """
@@ -146,7 +155,23 @@ class ServeConfig:
             "--cache-mb", "Largest size of the utterance cache (MiB of audio and animation).", minimum=1, unit=_MIB
         ),
     )
-    bot: ChatBot = field(default_factory=RuleBot)
+    bot: ChatBot | ChatModel = field(default_factory=RuleBot)
+    reply_languages: tuple[str, ...] = ("en", "sv")
+    chat_history: int = field(
+        default=10,
+        metadata=_option(
+            "--chat-history", "Exchanges (a message and its reply) a chat session keeps for the chat model.", minimum=0
+        ),
+    )
+    chat_history_chars: int = 8000
+    chat_sessions: int = 1000
+    chat_session_seconds: float = 1800.0
+    max_chats: int = field(
+        default=16,
+        metadata=_option(
+            "--max-chats", "Chat replies the server waits on at once; beyond that chats get 503 (busy).", minimum=1
+        ),
+    )
     default_model: str = field(
         default=DEFAULT_MODEL, metadata=_option("--model", "Default model of /api/speak and /api/chat.")
     )
@@ -283,19 +308,12 @@ class ServeConfig:
     def to_json(self) -> str:
         """The settings as JSON, for the server's other processes (:func:`~vispeech.serve.app.app_from_environment`).
 
-        Raises :class:`VispeechError` for a chat bot other than the rule bot or the HTTP relay."""
+        Raises :class:`VispeechError` for a chat bot other than the rule bot or an OpenAI-compatible one."""
         data = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "bot"}
         data = {k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v for k, v in data.items()}
         bot = self.bot
-        if isinstance(bot, HTTPChatBot):
-            data["bot"] = {
-                "url": bot.url,
-                "message_field": bot.message_field,
-                "language_field": bot.language_field,
-                "reply_field": bot.reply_field,
-                "headers": bot.headers,
-                "timeout": bot.timeout,
-            }
+        if isinstance(bot, OpenAIChatBot):
+            data["bot"] = bot.settings()
         elif type(bot) is RuleBot:
             data["bot"] = None
         else:
@@ -308,9 +326,9 @@ class ServeConfig:
         data = json.loads(text)
         bot = data.pop("bot")
         data["static_dir"] = None if data["static_dir"] is None else Path(data["static_dir"])
-        for key in ("allowed_hosts", "allowed_origins"):
+        for key in ("allowed_hosts", "allowed_origins", "reply_languages"):
             data[key] = None if data[key] is None else tuple(data[key])
-        return cls(**data, bot=RuleBot() if bot is None else HTTPChatBot(**bot))
+        return cls(**data, bot=RuleBot() if bot is None else OpenAIChatBot(**bot))
 
 
 CONFIG_VARIABLE = "VISPEECH_SERVE_CONFIG"

@@ -13,16 +13,17 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 
 from vispeech.errors import NativeFailure, VispeechError
-from vispeech.serve.bot import ChatBotError
+from vispeech.serve.bot import ChatBotError, ChatBotTimeout
 from vispeech.serve.pool import Busy, Cancelled
 from vispeech.serve.safety import RateLimited
+from vispeech.serve.sessions import UnknownSession
 
 log = logging.getLogger("vispeech.serve")
 
 Handler = Callable[[Request, Any], Coroutine[Any, Any, Response]]
 """An exception handler, as FastAPI takes it."""
 
-REFUSALS = (VispeechError, RateLimited, Busy)
+REFUSALS = (VispeechError, RateLimited, Busy, ChatBotError, UnknownSession)
 """The errors a stream message is refused with: the client gets an ``error`` message and may go on."""
 
 
@@ -76,8 +77,10 @@ async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
 EXCEPTION_HANDLERS: dict[int | type[Exception], Handler] = {
     RequestValidationError: _invalid_request,
     VispeechError: _answer(400),
+    UnknownSession: _answer(404),
     NativeFailure: _answer(422),
     ChatBotError: _answer(502),
+    ChatBotTimeout: _answer(504),
     RateLimited: _answer(429),
     Busy: _answer(503),
     Cancelled: _answer(503),

@@ -83,6 +83,8 @@ Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 FileFormat = Literal["livelink", "talkinghead", "oculus", "rhubarb"]
 """A track format an answer can carry as a file (:data:`vispeech.motion.formats.registry.TEXT_FORMATS`)."""
 Formats = Annotated[list[FileFormat], Field(max_length=4)]
+SessionId = Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_-]{1,64}$")]
+"""A chat session's id, as the server drew it."""
 
 
 class ClientInput(BaseModel):
@@ -185,16 +187,22 @@ class SpeakResponse(BaseModel):
 
 
 class ChatRequest(SpeechOptions):
-    """A chat message; with ``speak`` the reply comes spoken (``speech``) with the options of
-    :class:`SpeechOptions` (``language``: the page's; the reply is spoken in its own)."""
+    """A chat message in ``session`` (``null``: a new one); with ``speak`` the reply comes spoken
+    (``speech``) with the options of :class:`SpeechOptions` (``language``: the page's; the reply is
+    spoken in its own)."""
 
     message: Text
+    session: SessionId | None = None
     speak: bool = True
 
 
 class ChatResponse(BaseModel):
+    """The reply (the words it says, without markup or code), the language most of it is in (and
+    spoken in), the session to send the next message in."""
+
     reply: str
     language: str
+    session: str
     speech: SpeakResponse | None = None
 
 
@@ -239,6 +247,22 @@ class TextMessage(ClientInput):
     scale: Scale | None = None
 
 
+class ChatStreamMessage(ClientInput):
+    """Stream client message: a chat message in ``session`` (``null``: a new one); the reply is
+    spoken clause by clause as the bot writes it, each sentence in its own language, with the
+    model, voice, rate, frame rate and output scale of :class:`TextMessage` (``language``: the page's)."""
+
+    type: Literal["chat"]
+    message: Text
+    session: SessionId | None = None
+    language: Language = "en"
+    model: ModelName | None = None
+    voice: Voice | None = None
+    rate: Rate = 1.0
+    fps: Fps | None = None
+    scale: Scale | None = None
+
+
 class StreamPhone(ClientInput):
     """One timed phone of a phone stream, seconds from the stream's start."""
 
@@ -261,8 +285,9 @@ class PhonesMessage(ClientInput):
     model: ModelName | None = None
 
 
-ClientMessage = TypeAdapter(Annotated[TextMessage | PhonesMessage, Field(discriminator="type")])
-"""Parses one stream client message (JSON text) into :class:`TextMessage` or :class:`PhonesMessage`."""
+ClientMessage = TypeAdapter(Annotated[TextMessage | ChatStreamMessage | PhonesMessage, Field(discriminator="type")])
+"""Parses one stream client message (JSON text) into :class:`TextMessage`, :class:`ChatStreamMessage`
+or :class:`PhonesMessage`."""
 
 
 class AudioStartMessage(ClientInput):
@@ -433,6 +458,18 @@ class AudioMessage(BaseModel):
     pcm16: str
 
 
+class ReplyMessage(BaseModel):
+    """Stream server message of a chat: the next clause of the reply, as written (``text``), spoken
+    in ``language`` from ``start`` seconds into the stream; ``session`` is the chat's session (send
+    it with the next message)."""
+
+    type: Literal["reply"] = "reply"
+    session: str
+    text: str
+    language: str
+    start: float
+
+
 class EndMessage(BaseModel):
     """Stream server message, last of a stream: frames sent and seconds covered."""
 
@@ -483,7 +520,14 @@ class ErrorMessage(BaseModel):
 
 ServerMessage = TypeAdapter(
     Annotated[
-        StartMessage | FramesMessage | AudioMessage | EndMessage | CancelledMessage | WarningMessage | ErrorMessage,
+        StartMessage
+        | FramesMessage
+        | AudioMessage
+        | ReplyMessage
+        | EndMessage
+        | CancelledMessage
+        | WarningMessage
+        | ErrorMessage,
         Field(discriminator="type"),
     ]
 )

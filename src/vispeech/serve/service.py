@@ -1,6 +1,6 @@
-"""The speech service behind the server's routes: its models, cache, rate limit, work pool and
-chat bot, and the calls into the library (no HTTP); the push batcher that runs the phone-stream
-pushes of all sessions together."""
+"""The speech service behind the server's routes: its models, cache, rate limit, work pool,
+chat bot and chat sessions, and the calls into the library (no HTTP); the push batcher that runs
+the phone-stream pushes of all sessions together."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import hashlib
 import json
 import logging
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import AsyncGenerator, Callable, Generator, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.align import TranscriptMismatch
 from vispeech.frontends.audio import read_upload
-from vispeech.frontends.espeak import check_voice, find_language, languages
+from vispeech.frontends.espeak import check_voice, find_language
 from vispeech.frontends.isolation import set_workers
 from vispeech.frontends.sentiment import sentiment
 from vispeech.frontends.text import detect_language
@@ -33,10 +34,11 @@ from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, listen, recording_model, speak
 from vispeech.realtime import TimedSpeechStream
-from vispeech.serve.bot import ChatBotError
+from vispeech.serve.bot import ChatBot, ChatBotError, ChatModel, ChatTurn
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
+from vispeech.serve.chat import ReplyReader, SpokenClause
 from vispeech.serve.config import ServeConfig
-from vispeech.serve.pool import WorkPool
+from vispeech.serve.pool import Busy, WorkPool
 from vispeech.serve.safety import RateLimited, Slots
 from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
@@ -48,6 +50,7 @@ from vispeech.serve.schemas import (
     SpeakResponse,
     SpeechOptions,
 )
+from vispeech.serve.sessions import ChatSessions
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
 from vispeech.utterance import Utterance
 
@@ -165,6 +168,12 @@ class SpeechService:
         set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
         self.pushes = PushBatcher(self)
         self.connections = Slots(config.max_streams, config.max_streams_per_ip, config.max_streams_per_network)
+        self.chats = ChatSessions(
+            config.chat_sessions, config.chat_history, config.chat_history_chars, config.chat_session_seconds
+        )
+        self.reply_languages = [find_language(code).code for code in config.reply_languages]
+        self.chat_threads = ThreadPoolExecutor(config.max_chats, "vispeech-chat")  # waiting on the chat model
+        self._chatting = 0
 
     @property
     def active_streams(self) -> int:
@@ -377,27 +386,63 @@ class SpeechService:
             audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached, files=files
         )
 
-    def reply(self, message: str, language: str) -> tuple[str, str]:
-        """The bot's reply to ``message`` (stripped, cut to :data:`MAX_TEXT_CHARS`) and the language
-        to speak it in: the message's or the page's (``language``).
-
-        A bot with a list of languages (the rule bot) answers in the one the message is written
-        in, when :func:`~vispeech.frontends.text.detect_language` can tell, else in ``language``; a
-        bot that answers in any language (an HTTP chat service) is asked in ``language`` and its
-        reply is spoken in the language the reply is written in, else in ``language``."""
+    def _reply(self, bot: ChatBot, message: str, language: str) -> tuple[str, str]:
+        """The reply of a :class:`~vispeech.serve.bot.ChatBot` to ``message`` (stripped, cut to
+        :data:`MAX_TEXT_CHARS`) and the language it was asked in: the page's (``language``), or for a
+        bot with a list of languages (the rule bot) the one the message is written in, when
+        :func:`~vispeech.frontends.text.detect_language` can tell."""
         answered = self.chat_languages
         asked = language
         if answered is not None:
             asked = detect_language(message, answered) or language
-        reply = self.config.bot.reply(message, asked)
+        reply = bot.reply(message, asked)
         if not isinstance(reply, str) or not reply.strip():
             raise ChatBotError("the chat bot gave no reply")
-        reply = reply.strip()[:MAX_TEXT_CHARS]
-        if answered is None:  # other codes first: "fr" (fr-fr) is told before fr-be and fr-ch
-            codes = [alias for v in languages() for alias in v.aliases] + [v.code for v in languages()]
-            said = detect_language(reply, codes)
-            asked = language if said is None else find_language(said).code
-        return reply, asked
+        return reply.strip()[:MAX_TEXT_CHARS], asked
+
+    async def chat(self, message: str, language: str, session: str) -> AsyncGenerator[SpokenClause, None]:
+        """The bot's reply to ``message`` (in a chat on a page in ``language``), clause by clause as it
+        is written, each with the language of its sentence (:class:`~vispeech.serve.chat.ReplyReader`
+        among ``reply_languages``); a chat model is told ``session``'s conversation, and the exchange
+        is kept in it once the reply has ended. The reply is cut to :data:`MAX_TEXT_CHARS`."""
+        bot = self.config.bot
+        if not isinstance(bot, ChatModel):
+            reply, asked = await asyncio.get_running_loop().run_in_executor(
+                self.chat_threads, self._reply, bot, message, language
+            )
+            reader = ReplyReader(self.reply_languages, asked)
+            for clause in [*reader.feed(reply), *reader.finish()]:
+                yield clause
+            self.chats.add(session, message, reply)
+            return
+        if self._chatting >= self.config.max_chats:
+            raise Busy(f"the server is answering {self._chatting} chats, the most it may: try again shortly")
+        self._chatting += 1
+        loop = asyncio.get_running_loop()
+        conversation = [*self.chats.history(session), ChatTurn("user", message)]
+        reader, reply = ReplyReader(self.reply_languages, language), ""
+        pieces: Iterator[str] = iter(())
+        try:
+            pieces = await loop.run_in_executor(self.chat_threads, bot.stream, conversation)
+            while len(reply) < MAX_TEXT_CHARS:
+                piece = await loop.run_in_executor(self.chat_threads, next, pieces, None)
+                if piece is None:
+                    break
+                piece = piece[: MAX_TEXT_CHARS - len(reply)]
+                reply += piece
+                for clause in reader.feed(piece):
+                    yield clause
+            for clause in reader.finish():
+                yield clause
+            self.chats.add(session, message, reply)
+        except ChatBotError as exc:
+            log.warning("the chat model %r failed: %s", bot, exc)
+            raise
+        finally:
+            self._chatting -= 1
+            if isinstance(pieces, Generator):
+                with contextlib.suppress(ValueError):  # still reading in its thread: dropped, closed when collected
+                    pieces.close()
 
 
 def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:

@@ -1,5 +1,6 @@
-"""``/api/stream``: texts spoken clause by clause (audio and frames as they are computed), and
-phone streams (timed phones in, frames out)."""
+"""``/api/stream``: texts spoken clause by clause (audio and frames as they are computed), chat
+replies spoken clause by clause as the bot writes them, and phone streams (timed phones in,
+frames out)."""
 
 from __future__ import annotations
 
@@ -11,12 +12,23 @@ from pydantic import ValidationError
 
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
+from vispeech.serve.bot import ChatBotError
+from vispeech.serve.chat import SpokenClause
 from vispeech.serve.connection import Connection, message_json, send_error, send_message, serve_connection
 from vispeech.serve.dependencies import Service
 from vispeech.serve.errors import REFUSALS, describe_errors
-from vispeech.serve.schemas import ClientMessage, EndMessage, PhonesMessage, StartMessage, TextMessage, WarningMessage
+from vispeech.serve.schemas import (
+    ChatStreamMessage,
+    ClientMessage,
+    EndMessage,
+    PhonesMessage,
+    ReplyMessage,
+    StartMessage,
+    TextMessage,
+    WarningMessage,
+)
 from vispeech.serve.service import PHONE_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
-from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
+from vispeech.streaming import PhoneStream, SpeechTimeline, open_phone_stream, speech_messages, split_clauses
 
 router = APIRouter()
 
@@ -50,14 +62,18 @@ class StreamConnection(Connection):
         try:
             message = ClientMessage.validate_json(raw)
         except ValidationError as exc:
-            await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message"))
+            await send_error(self.ws, describe_errors(exc.errors(), skip=1, what="message", kinds=_KINDS))
             return True
         try:
-            if isinstance(message, TextMessage):
+            if isinstance(message, TextMessage | ChatStreamMessage):
                 if self.phones is not None:
                     raise VispeechError('a phone stream is open: end it with "final": true first')
+            if isinstance(message, TextMessage):
                 self.service.pay(self.ip, self.service.text_cost(message.text))
                 await self._text(message)
+            elif isinstance(message, ChatStreamMessage):
+                self.service.pay(self.ip, self.service.text_cost(message.message))
+                await self._chat(message)
             else:
                 await self._phones(message)
             self._worked()
@@ -111,6 +127,32 @@ class StreamConnection(Connection):
             with contextlib.suppress(ValueError):  # still running in its thread
                 messages.close()
 
+    async def _chat(self, message: ChatStreamMessage) -> None:
+        """The bot's reply to ``message``, spoken clause by clause as it is written: each clause's
+        ``reply`` message, then its frames and audio (after the stream's ``start``); then ``end``."""
+        _, model = self.service.model(message.model, stream=True)
+        session = self.service.chats.open(message.session)
+        timeline = SpeechTimeline(
+            model,
+            fps=message.fps or self.config.fps,
+            rate=message.rate,
+            scale=self.service.scale(message.scale)[1],
+            voice=message.voice or self.config.voice,
+        )
+        async with contextlib.aclosing(self.service.chat(message.message, message.language, session)) as clauses:
+            async for clause in clauses:
+                self.service.bucket.charge(self.ip, self.service.text_cost(clause.spoken))
+                first = timeline.sample_rate is None
+                start = timeline.duration
+                reply = ReplyMessage(session=session, text=clause.text, language=clause.language, start=start)
+                texts = await self._run(_said, timeline, clause, weight=len(clause.spoken) * TEXT_WORK_PER_CHAR)
+                texts.insert(1 if first else 0, reply.model_dump_json())  # after the stream's start
+                for text in texts:
+                    await self.ws.send_text(text)
+        if timeline.sample_rate is None:
+            raise ChatBotError("the chat bot's reply has nothing to say")
+        await send_message(self.ws, timeline.end()[0])
+
     async def _phones(self, message: PhonesMessage) -> None:
         """Frames for ``message``'s phones, pushed in pieces; with ``final`` the rest and ``end``."""
         config, stream = self.config, self.phones
@@ -156,6 +198,15 @@ class StreamConnection(Connection):
                 await self.ws.send_text(text)
             self.phones = None
             await send_message(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
+
+
+_KINDS = ("text", "chat", "phones")
+"""The types of stream client message."""
+
+
+def _said(timeline: SpeechTimeline, clause: SpokenClause) -> list[str]:
+    """The stream messages (JSON) of saying ``clause`` on ``timeline``."""
+    return [message_json(item) for item in timeline.say(clause.spoken, clause.language, clause.last)]
 
 
 def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phone]]:
