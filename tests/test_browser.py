@@ -25,6 +25,7 @@ lips' and its whitish pixels counted as teeth.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import socket
@@ -360,6 +361,48 @@ def test_chat_page_offers_every_language_and_says_german(page, server_url):
         assert chat.errors == []
     finally:
         chat.close()
+
+
+def test_the_chat_page_speaks_a_chat_models_reply_as_it_streams(page, tmp_path):
+    """With a chat model (a fake OpenAI-compatible server that streams), the chat page streams by
+    default: the reply shows clause by clause, each sentence in its language, the avatar speaks it,
+    and the next message goes on in the same session (the model hears the first exchange)."""
+    from test_serve_chat import FakeChatModel, stream, tokens
+
+    from vispeech.serve import OpenAIChatBot
+
+    fake = FakeChatModel()
+    try:
+        fake.script = stream(tokens("Hello there! Hej, hur mår du?"))
+        with _serving(tmp_path / "chat.sqlite3", bot=OpenAIChatBot(fake.url, "tiny-llm")) as url:
+            chat = page.context.browser.new_page(viewport={"width": 480, "height": 480})  # one Playwright
+            chat.errors = []
+            chat.on("pageerror", lambda error: chat.errors.append(str(error)))
+            try:
+                chat.goto(f"{url}/?idle=0")
+                chat.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+                assert chat.is_checked("#stream") and not chat.is_disabled("#send")
+                replies = []
+                chat.on("websocket", lambda ws: ws.on("framereceived", lambda frame: replies.append(frame)
+                                                      if '"type":"reply"' in str(frame) else None))
+                chat.fill("#text", "Say hello.")
+                chat.press("#text", "Enter")
+                chat.wait_for_function("document.querySelector('#log .bot')?.textContent === "
+                                       "'Hello there! Hej, hur mår du?'", timeout=30_000)
+                chat.wait_for_function("!document.querySelector('#send').disabled", timeout=30_000)
+                assert [json.loads(r)["language"] for r in replies] == ["en", "sv"]
+                fake.script = stream(tokens("Fine."))
+                chat.fill("#text", "And you?")
+                chat.press("#text", "Enter")
+                chat.wait_for_function("document.querySelectorAll('#log .bot').length === 2 && "
+                                       "!document.querySelector('#send').disabled", timeout=30_000)
+                assert [m["content"] for m in fake.requests[-1][1]["messages"]] == [
+                    "Say hello.", "Hello there! Hej, hur mår du?", "And you?"]
+                assert chat.evaluate("document.querySelector('#status').hidden") and chat.errors == []
+            finally:
+                chat.close()
+    finally:
+        fake.close()
 
 
 def test_the_rendered_lip_gap_is_the_calibrated_heads(page):

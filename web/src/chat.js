@@ -1,8 +1,9 @@
-// Chat page: messages go to api/chat and the avatar speaks the reply, either from a whole
-// utterance (api/chat's speech) or streamed over the api/stream WebSocket; the Talk button
-// animates the microphone live over the api/listen WebSocket.
+// Chat page: messages go to the chat bot and the avatar speaks the reply, either whole
+// (api/chat's speech) or, with Streaming, clause by clause as the bot writes it over the
+// api/stream WebSocket; one chat session carries the conversation on. The Talk button animates
+// the microphone live over the api/listen WebSocket.
 import { startApp } from './app.js';
-import { requestChat, streamSpeech } from './server.js';
+import { requestChat, sessionGone, streamChat, streamSpeech } from './server.js';
 
 const $ = (id) => document.getElementById(id);
 const LANGUAGE_NAMES = { sv: 'Svenska', en: 'English' }; // the rest: the names the server sends
@@ -45,6 +46,9 @@ async function setup(app) {
   fillSelect($('model'), config.models, config.default_model);
   $('model').disabled = !config.models.length;
   if (config.max_text) $('text').maxLength = config.max_text;
+  // a chat model (it answers in any language) writes as it goes: speak it as it comes
+  if (config.chat_languages === null) $('stream').checked = true;
+  let session = null; // the chat session: the server's id of this conversation
   if (config.offline) show('No vispeech server answered; start one with `vispeech serve`.');
 
   const settings = () => ({ language: $('language').value, model: $('model').value || null, stream: $('stream').checked });
@@ -90,6 +94,25 @@ async function setup(app) {
     }
   };
 
+  const chatWith = async (message, options) => {
+    if (options.stream) {
+      const item = addMessage('bot', '');
+      await streamChat(app.performer, { message, language: options.language, session, model: options.model }, (reply) => {
+        session = reply.session;
+        item.textContent = item.textContent ? `${item.textContent} ${reply.text}` : reply.text;
+        item.scrollIntoView({ block: 'end' });
+      }).catch((err) => {
+        if (!item.textContent) item.remove();
+        throw err;
+      });
+      return;
+    }
+    const answer = await requestChat({ message, language: options.language, session, ...app.lifeOptions() });
+    session = answer.session;
+    addMessage('bot', answer.reply);
+    await app.playSpeech(answer.speech);
+  };
+
   const submit = async (chat) => {
     const text = $('text').value.trim();
     if (!text) return;
@@ -106,13 +129,11 @@ async function setup(app) {
       }
       addMessage('user', text);
       $('text').value = '';
-      const answer = await requestChat({
-        message: text, language: options.language, speak: !options.stream, ...app.lifeOptions(),
+      await chatWith(text, options).catch((err) => {
+        if (!sessionGone(err)) throw err;
+        session = null; // the server no longer holds the conversation: start a new one
+        return chatWith(text, options);
       });
-      addMessage('bot', answer.reply);
-      const language = answer.language || options.language;
-      if (options.stream || !answer.speech) await say(answer.reply, { ...options, language });
-      else await app.playSpeech(answer.speech);
     } catch (err) {
       show(err.message);
     } finally {

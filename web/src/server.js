@@ -17,7 +17,11 @@ async function postJson(path, body) {
     body: JSON.stringify(body),
   });
   const data = await response.json().catch(() => ({}));
-  if (!response.ok) throw new Error(data.detail || data.message || `${path}: HTTP ${response.status}`);
+  if (!response.ok) {
+    const err = new Error(data.detail || data.message || `${path}: HTTP ${response.status}`);
+    err.status = response.status;
+    throw err;
+  }
   return data;
 }
 
@@ -40,29 +44,50 @@ export function requestSpeech({ text, language, model = null, rate = 1.0, life =
   return postJson('api/speak', { text, language, model, rate, life, seed });
 }
 
-/** POST api/chat: `{reply, language, speech}`; `speak: false` asks for the reply text only. */
-export function requestChat({ message, language, speak = true, life = [], seed = 0 }) {
-  return postJson('api/chat', { message, language, speak, life, seed });
+/**
+ * POST api/chat: `{reply, language, session, speech}`; `session` (null: a new one) carries the
+ * conversation on; `speak: false` asks for the reply text only.
+ */
+export function requestChat({ message, language, session = null, speak = true, life = [], seed = 0 }) {
+  return postJson('api/chat', { message, language, session, speak, life, seed });
 }
+
+/** Whether `err` says the chat session is gone (the server restarted or dropped it). */
+export const sessionGone = (err) => /unknown or expired chat session/.test(err.message);
 
 /**
  * Speak `text` through the api/stream WebSocket, feeding frames and audio chunks to
  * `performer` as they arrive. Resolves when the server sends `end`.
  */
 export function streamSpeech(performer, { text, language, model = null }) {
+  return streamMessage(performer, { type: 'text', text, language, model });
+}
+
+/**
+ * Send a chat message through the api/stream WebSocket: the reply is spoken clause by clause as
+ * the chat bot writes it; `onreply({text, language, session, start})` hears each clause as its
+ * audio begins to arrive. Resolves when the server sends `end`.
+ */
+export function streamChat(performer, { message, language, session = null, model = null }, onreply) {
+  return streamMessage(performer, { type: 'chat', message, language, session, model }, onreply);
+}
+
+function streamMessage(performer, first, onreply = () => {}) {
   const url = socketUrl('api/stream');
   return new Promise((resolve, reject) => {
     const socket = new WebSocket(url);
     let sampleRate = 22050;
+    let started = false;
     let done = false;
     const finish = (err) => {
       if (done) return;
       done = true;
       socket.close();
+      if (err && started) performer.endStream(); // what came is played to its end
       if (err) reject(err);
       else resolve();
     };
-    socket.onopen = () => socket.send(JSON.stringify({ type: 'text', text, language, model }));
+    socket.onopen = () => socket.send(JSON.stringify(first));
     socket.onerror = () => finish(new Error('stream connection failed'));
     socket.onclose = () => finish(new Error('stream closed before its end'));
     socket.onmessage = (event) => {
@@ -72,11 +97,15 @@ export function streamSpeech(performer, { text, language, model = null }) {
         if (msg.type === 'start') {
           sampleRate = msg.sample_rate || sampleRate;
           performer.beginStream({ fps: msg.fps, channels: msg.channels });
+          started = true;
         } else if (msg.type === 'audio') {
           performer.streamAudio(msg.start, decodePcm16(msg.pcm16), sampleRate);
         } else if (msg.type === 'frames') {
           performer.streamFrames(msg.start_frame, msg.frames);
+        } else if (msg.type === 'reply') {
+          onreply(msg);
         } else if (msg.type === 'end') {
+          started = false;
           performer.endStream();
           finish();
         } else if (msg.type === 'error') {
