@@ -57,7 +57,7 @@ class OpenAIChatBot:
         *,
         key: str | None = None,
         system: str | None = None,
-        timeout: float = 30.0,
+        timeout: float = 60.0,
         max_seconds: float = 120.0,
     ) -> None:
         self.url = completions_url(url)
