@@ -465,3 +465,21 @@ def test_a_text_message_sets_its_voice_frame_rate_and_scale(client):
         ws.send_json({"type": "text", "text": "Hello there.", "vioce": "f3"})
         error = ws.receive_json()
     assert error["type"] == "error" and "vioce" in error["message"]
+
+
+def test_a_chat_message_speaks_the_rule_bots_reply_in_its_language(client):
+    """A stream chat message with the rule bot: the reply in the message's language, a reply
+    message before its audio, and a session to go on in (an unknown one refused, the stream open)."""
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "chat", "message": "Vad heter du?", "language": "en"})
+        messages = receive_until_end(ws)
+        kinds = [m["type"] for m in messages]
+        assert kinds[:2] == ["start", "reply"] and kinds[-1] == "end" and "audio" in kinds
+        reply = messages[1]
+        assert (reply["text"], reply["language"], reply["start"]) == ("Jag heter Vera.", "sv", 0.0)
+        ws.send_json({"type": "chat", "message": "Thanks!", "language": "en", "session": reply["session"]})
+        assert [m["text"] for m in receive_until_end(ws) if m["type"] == "reply"] == ["You're welcome!"]
+        ws.send_json({"type": "chat", "message": "Hi", "session": "gone"})
+        assert "unknown or expired chat session" in receive_until_end(ws)[-1]["message"]
+        ws.send_json({"type": "talk", "message": "Hi"})
+        assert '"text" or "chat" or "phones"' in ws.receive_json()["message"]
