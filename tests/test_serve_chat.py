@@ -72,7 +72,8 @@ class FakeChatModel:
 
 def stream(pieces: list[str], gate: threading.Event | None = None, after: int = 0, done: bool = True, pause=0.0):
     """A script streaming ``pieces`` as SSE chunks (chunked encoding); with ``gate``, it waits for the
-    gate after the first ``after`` pieces; ``done``: ends with a finish chunk and ``[DONE]``."""
+    gate after the first ``after`` pieces (and breaks off when it stays shut); ``done``: ends with a
+    finish chunk and ``[DONE]``."""
 
     def script(handler: BaseHTTPRequestHandler, body: dict) -> None:
         handler.send_response(200)
@@ -87,8 +88,8 @@ def stream(pieces: list[str], gate: threading.Event | None = None, after: int = 
 
         send(f"data: {json.dumps({'choices': [{'index': 0, 'delta': {'role': 'assistant'}}]})}\n\n")
         for i, piece in enumerate(pieces):
-            if gate is not None and i == after:
-                gate.wait(30)
+            if gate is not None and i == after and not gate.wait(20):
+                return  # never opened: the reply breaks off here
             time.sleep(pause)
             send(f"data: {chunk(piece)}\n\n")
         if done:
@@ -202,9 +203,8 @@ def test_the_reply_is_spoken_clause_by_clause_as_it_streams_in(client, fake, mon
     with client.websocket_connect("/api/stream") as ws:
         messages = _chat(ws, "Say hello in two languages.", gate=gate)
         kinds = [m["type"] for m in messages]
+        # the model held the rest of its reply back until the first audio came (else it broke off)
         assert kinds[0] == "start" and kinds[1] == "reply" and kinds[-1] == "end"
-        # the upstream held its reply back until the first audio came: the first clause was spoken first
-        assert kinds.index("audio") < len(kinds) and gate.is_set()
         replies = [m for m in messages if m["type"] == "reply"]
         session = replies[0]["session"]
         assert [(m["text"], m["language"]) for m in replies] == [

@@ -197,7 +197,7 @@ class ChatRequest(SpeechOptions):
 
 
 class ChatResponse(BaseModel):
-    """The reply (the words it says, without markup or code), the language most of it is in (and
+    """The reply (its clauses as written, code blocks left out), the language most of it is in (and
     spoken in), the session to send the next message in."""
 
     reply: str
