@@ -261,11 +261,13 @@ class SpeechService:
         return name
 
     def warm_up(self) -> None:
-        """Load espeak-ng's voices and run the default, stream and audio models once, so a first request is
+        """Load espeak-ng's voices, the language identifier (a chat reply's sentences are told apart
+        on the event loop) and run the default, stream and audio models once, so a first request is
         no slower."""
         for language, text in GREETINGS.items():
             utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
             assert utterance.phones is not None  # speak gives the phones it spoke
+            detect_language(text, self.reply_languages)
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
         if self.audio_model is not None:
