@@ -274,6 +274,8 @@ def test_sessions_are_bounded_in_number_turns_characters_and_time():
     (answer(401, {"error": {"message": f"Incorrect API key provided: {KEY}"}}), 502, "refused the key (HTTP 401)"),
     (answer(500, {"error": {"message": "model crashed"}}), 502, "HTTP 500: model crashed"),
     (answer(404, {"error": "model 'tiny-llm' not found"}), 502, "HTTP 404: model 'tiny-llm' not found"),
+    (answer(404, "<h1>Not Found</h1>", "text/html"), 502, "HTTP 404 (is the chat URL the API's base"),
+    (answer(200, "<html>Open WebUI</html>", "text/html"), 502, "a web page, not chat completions"),
     (answer(200, "data: {not json\n\n", "text/event-stream"), 502, "an event that is not JSON"),
     (answer(200, f"data: {chunk('Hello')}\n\n", "text/event-stream"), 502, "broke off before its end"),
     (stream(["Hello", " there."], done=False), 502, "broke off"),

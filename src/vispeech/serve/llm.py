@@ -25,6 +25,7 @@ from vispeech.serve.bot import ChatBotError, ChatBotTimeout, ChatTurn
 
 COMPLETIONS_PATH = "/chat/completions"
 """What :func:`completions_url` adds to a base URL."""
+_URL_HINT = " (is the chat URL the API's base, as http://HOST:PORT/v1?)"
 
 
 def completions_url(url: str) -> str:
@@ -100,9 +101,12 @@ class OpenAIChatBot:
         except (urllib.error.URLError, OSError) as exc:
             raise ChatBotError(f"the chat service is unreachable ({getattr(exc, 'reason', exc)})") from None
         with response:
-            if response.headers.get_content_type() == "application/json":  # it did not stream
+            kind = response.headers.get_content_type()
+            if kind == "application/json":  # it did not stream
                 yield _whole_reply(response.read(self.max_reply_bytes + 1), self.max_reply_bytes)
                 return
+            if kind == "text/html":
+                raise ChatBotError(f"the chat service answered a web page, not chat completions{_URL_HINT}")
             yield from _deltas(_events(self._lines(response)))
 
     def _lines(self, response: IO[bytes]) -> Iterator[bytes]:
@@ -190,7 +194,8 @@ def _status_error(status: int, body: bytes) -> ChatBotError:
     except ValueError:
         said = ""
     kind = ChatBotTimeout if status in (408, 504) else ChatBotError
-    return kind(f"the chat service answered HTTP {status}{f': {said}' if said else ''}")
+    hint = _URL_HINT if status in (404, 405) and not said else ""
+    return kind(f"the chat service answered HTTP {status}{f': {said}' if said else ''}{hint}")
 
 
 def _message(answer: Any) -> str:
