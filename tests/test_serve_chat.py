@@ -331,3 +331,28 @@ def test_the_command_takes_the_key_from_the_environment_and_never_shows_it(fake,
     both = CliRunner().invoke(main, ["serve", "--chat-url", fake.url, "--chat-system", "x", "--chat-system-file",
                                      str(prompt)])
     assert both.exit_code == 2 and "not both" in both.output
+
+
+def test_a_slow_or_abandoned_chat_holds_up_no_other(client, fake):
+    """While one chat waits on a slow model, another is answered; a client that leaves mid-reply
+    frees its place (the server waits on no chat afterwards)."""
+    gate = threading.Event()
+    slow, quick = stream(tokens("Let me think. About that."), gate=gate, after=4), stream(["Quick."])
+    fake.script = lambda handler, body: (slow if body["messages"][-1]["content"] == "slow" else quick)(handler, body)
+    service = client.app.state.service
+    with client.websocket_connect("/api/stream") as waiting, client.websocket_connect("/api/stream") as other:
+        waiting.send_json({"type": "chat", "message": "slow"})
+        assert waiting.receive_json()["type"] == "start"  # its first clause is spoken; the rest waits on the model
+        assert [m["text"] for m in _chat(other, "quick") if m["type"] == "reply"] == ["Quick."]
+        gate.set()
+        while waiting.receive_json()["type"] != "end":
+            pass
+    gate.clear()
+    with client.websocket_connect("/api/stream") as leaving:
+        leaving.send_json({"type": "chat", "message": "slow"})
+        assert leaving.receive_json()["type"] == "start"
+    gate.set()  # the model goes on writing to a chat nobody reads
+    deadline = time.monotonic() + 10
+    while service.chatting and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert service.chatting == 0

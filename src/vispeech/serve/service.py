@@ -173,7 +173,8 @@ class SpeechService:
         )
         self.reply_languages = [find_language(code).code for code in config.reply_languages]
         self.chat_threads = ThreadPoolExecutor(config.max_chats, "vispeech-chat")  # waiting on the chat model
-        self._chatting = 0
+        self.chatting = 0
+        """Chat replies the server waits on now (at most ``max_chats``)."""
 
     @property
     def active_streams(self) -> int:
@@ -417,9 +418,9 @@ class SpeechService:
                 yield clause
             self.chats.add(session, message, reply)
             return
-        if self._chatting >= self.config.max_chats:
-            raise Busy(f"the server is answering {self._chatting} chats, the most it may: try again shortly")
-        self._chatting += 1
+        if self.chatting >= self.config.max_chats:
+            raise Busy(f"the server is answering {self.chatting} chats, the most it may: try again shortly")
+        self.chatting += 1
         loop = asyncio.get_running_loop()
         conversation = [*self.chats.history(session), ChatTurn("user", message)]
         reader, reply = ReplyReader(self.reply_languages, language), ""
@@ -441,7 +442,7 @@ class SpeechService:
             log.warning("the chat model %r failed: %s", bot, exc)
             raise
         finally:
-            self._chatting -= 1
+            self.chatting -= 1
             if isinstance(pieces, Generator):
                 with contextlib.suppress(ValueError):  # still reading in its thread: dropped, closed when collected
                     pieces.close()
