@@ -8,12 +8,14 @@ server's input limits (text length, phones per message, stream length, frame and
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, model_validator
 
+from vispeech.errors import VispeechError
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
-from vispeech.frontends.espeak import MAX_RATE, MIN_RATE
+from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_voice
 from vispeech.limits import MAX_FPS, MIN_FPS
 from vispeech.motion.formats.animation_json import ANIMATION_FORMAT
 
@@ -38,15 +40,18 @@ def _printable(text: str) -> str:
     return text
 
 
-def _known_voice(voice: str) -> str:
-    from vispeech.errors import VispeechError
-    from vispeech.frontends.espeak import check_voice
-
+def _taken(check: Callable[[str], object], value: str) -> str:
+    """``value`` when ``check`` takes it; the :class:`VispeechError` it raises as the ``ValueError``
+    pydantic reports (a 422 naming the field)."""
     try:
-        check_voice(voice)
+        check(value)
     except VispeechError as exc:
         raise ValueError(str(exc)) from None
-    return voice
+    return value
+
+
+def _known_voice(voice: str) -> str:
+    return _taken(check_voice, voice)
 
 
 def _spoken_language(code: str) -> str:
@@ -94,12 +99,10 @@ class ClientInput(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class SpeechOptions(ClientInput):
-    """How a text is spoken and animated; ``null`` means the server's setting (its default model,
-    voice, frame rate and output scale). ``voice`` is an espeak-ng voice, ``scale`` an output
-    scale; ``life`` names the non-verbal layers to add to the animation
-    (:mod:`vispeech.motion.life`), drawn with ``seed``; ``formats`` the track formats the answer
-    carries as files besides the animation (:attr:`SpeakResponse.files`)."""
+class Speaking(ClientInput):
+    """How a text is spoken and animated, in a request or a stream message; ``null`` means the
+    server's setting (its default model, voice, frame rate and output scale). ``voice`` is an
+    espeak-ng voice, ``scale`` an output scale."""
 
     language: Language = "en"
     model: ModelName | None = None
@@ -107,6 +110,13 @@ class SpeechOptions(ClientInput):
     rate: Rate = 1.0
     fps: Fps | None = None
     scale: Scale | None = None
+
+
+class SpeechOptions(Speaking):
+    """The options of :class:`Speaking`, and what an answer carries: ``life`` names the non-verbal
+    layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``; ``formats``
+    the track formats the answer carries as files besides the animation (:attr:`SpeakResponse.files`)."""
+
     life: Layers = []
     seed: Seed = 0
     formats: Formats = []
@@ -233,34 +243,21 @@ class ErrorResponse(BaseModel):
     detail: str
 
 
-class TextMessage(ClientInput):
-    """Stream client message: speak ``text`` clause by clause; ``null`` means the server's
-    model, voice, frame rate and output scale (as in :class:`SpeechOptions`)."""
+class TextMessage(Speaking):
+    """Stream client message: speak ``text`` clause by clause, as :class:`Speaking` says."""
 
     type: Literal["text"]
     text: Text
-    language: Language = "en"
-    model: ModelName | None = None
-    voice: Voice | None = None
-    rate: Rate = 1.0
-    fps: Fps | None = None
-    scale: Scale | None = None
 
 
-class ChatStreamMessage(ClientInput):
+class ChatStreamMessage(Speaking):
     """Stream client message: a chat message in ``session`` (``null``: a new one); the reply is
     spoken clause by clause as the bot writes it, each sentence in its own language, with the
-    model, voice, rate, frame rate and output scale of :class:`TextMessage` (``language``: the page's)."""
+    model, voice, rate, frame rate and output scale of :class:`Speaking` (``language``: the page's)."""
 
     type: Literal["chat"]
     message: Text
     session: SessionId | None = None
-    language: Language = "en"
-    model: ModelName | None = None
-    voice: Voice | None = None
-    rate: Rate = 1.0
-    fps: Fps | None = None
-    scale: Scale | None = None
 
 
 class StreamPhone(ClientInput):
@@ -379,14 +376,9 @@ class WordsMessage(ClientInput):
 
 
 def _known_viseme(name: str) -> str:
-    from vispeech.errors import VispeechError
     from vispeech.frontends.timings import viseme_phone
 
-    try:
-        viseme_phone(name)
-    except VispeechError as exc:
-        raise ValueError(str(exc)) from None
-    return name
+    return _taken(viseme_phone, name)
 
 
 class TimedViseme(ClientInput):
