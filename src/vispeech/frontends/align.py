@@ -19,12 +19,9 @@ pronunciation the word pass chose. pocketsphinx aligns in a worker process
 
 How well a transcript fits the audio (:func:`transcript_fit`) is the mean log-likelihood ratio
 per frame, over the words' span, of the transcript's state alignment against that of the phones
-a free phone loop (pocketsphinx's allphone search) hears in that span and
-:data:`FIT_CONTEXT_FRAMES` around it (the loop scores every phone in every frame, so it is most
-of the fit's cost; the padding and silence around the words are outside the mean anyway): near
-0 or above when the audio says the transcript, far below when it says something else.
-:func:`align` refuses a transcript whose fit is below ``min_fit`` (:data:`MIN_FIT` where
-:func:`vispeech.pipeline.listen` asks); it shares the transcript's alignment with the fit.
+a free phone loop (pocketsphinx's allphone search) hears: near 0 or above when the audio says
+the transcript, far below when it says something else. :func:`align` refuses a transcript
+whose fit is below ``min_fit`` (:data:`MIN_FIT` where :func:`vispeech.pipeline.listen` asks).
 """
 
 from __future__ import annotations
@@ -59,13 +56,9 @@ WIDE_BEAM = 1e-300
 
 MIN_FIT = -8.0
 """The least :func:`transcript_fit` of a transcript that fits its audio. On 100 grid_s1 utterances
-(``benchmarks/bench_transcript_fit.py --choose``) the true transcripts fit from -7.9 up but one
-(sbwu5s, -12.5: its "with u" sounds unlike the dictionary's), those of other utterances 94 of
-100 below -8 (the rest differ from the true ones in a few similar-sounding words); on 20 others
-(``--pairs 20``) every true transcript fits from -5.6 up and 19 of 20 others are below -8."""
-
-FIT_CONTEXT_FRAMES = 10
-"""Frames before and after the words' span that the phone loop of :func:`transcript_fit` hears too."""
+(``benchmarks/bench_transcript_fit.py --choose``) the true transcripts fit from -6.0 up (the next
+lowest -2.9), those of other utterances 80 of 100 below -8 (the rest differ from the true ones in
+a few similar-sounding words); the margin below the lowest true fit keeps true transcripts taken."""
 
 MIN_PHONE_FRAMES = 3
 """Frames each phone needs at least: the acoustic model's phones have three states."""
@@ -82,8 +75,6 @@ EDGE_PUNCTUATION = "\"'.,;:!?()[]{}«»“”‘’—–-"
 _ALTERNATE = re.compile(r"\(\d+\)$")
 _LOOP_WORD = "vispeech-phone-"
 """Prefix of the one-phone words the phone loop's phones are aligned as."""
-_FRAME_BYTES = 2 * SAMPLE_RATE // FRAMES_PER_SECOND
-"""Bytes of 16-bit PCM per pocketsphinx frame."""
 _DECODER_LOCK = threading.Lock()  # one shared decoder per process
 
 _Segments = list[tuple[str, list[tuple[str, int, int]]]]
@@ -201,19 +192,17 @@ def _fit(decoder, raw: bytes) -> float:
     phones cannot be aligned); the decoder is left set up for another alignment."""
     words = [w for w in decoder.get_alignment() if not w.name.startswith(("<", "["))]
     first, end = words[0].start, words[-1].start + words[-1].duration
-    forced = _frame_scores(decoder, end)[first:end]
-    start = max(first - FIT_CONTEXT_FRAMES, 0)  # the loop hears the words' span and a little around it
-    span = raw[start * _FRAME_BYTES : (end + FIT_CONTEXT_FRAMES) * _FRAME_BYTES]
+    forced = _frame_scores(decoder, end)
     loop = _phone_loop()
-    decode_utterance(loop, span)
+    decode_utterance(loop, raw)
     heard = [s.word.lower() for s in loop.seg() if s.word != "SIL" and not s.word.startswith(("+", "("))]
-    if not heard or _word_pass(decoder, span, [_LOOP_WORD + phone for phone in heard]) is None:
+    if not heard or _word_pass(decoder, raw, [_LOOP_WORD + phone for phone in heard]) is None:
         return float("nan")
     try:
-        _phone_pass(decoder, span)
+        _phone_pass(decoder, raw)
     except RuntimeError:
         return float("nan")
-    return float(np.mean(forced - _frame_scores(decoder, end - start)[first - start :]))
+    return float(np.mean(forced[first:end] - _frame_scores(decoder, end)[first:end]))
 
 
 def _frame_scores(decoder, n_frames: int) -> np.ndarray:
