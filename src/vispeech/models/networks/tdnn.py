@@ -160,6 +160,7 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
         super().__init__(model, language, fps)
         self.lookahead = stream_lookahead(model.lookahead, model.fps_, self.fps)
         self._kernel = model.kernel
+        self._back, self._ahead = model.get_params()["look_back"], model.lookahead  # the input window
         self._state = self._kernel.initial_state()
         self._due = 0  # model frames the phones so far make computable
         self._rows: list[np.ndarray] = []  # encoded input frames so far
@@ -218,22 +219,26 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
             group.sort(key=lambda s: s._due - s._frames.computed, reverse=True)
             kernel, model = group[0]._kernel, group[0].model
             states = [np.stack(parts) for parts in zip(*(s._state for s in group))]
-            for _ in range(group[0]._due - group[0]._frames.computed):
-                active = sum(1 for s in group if s._due - s._frames.computed > 0)
-                windows = np.stack([s._window() for s in group[:active]])
+            steps = [s._due - s._frames.computed for s in group]  # frames each stream computes
+            outputs = []
+            for k in range(steps[0]):
+                active = sum(1 for n in steps if n > k)
+                windows = np.stack([s._window(s._frames.computed + k) for s in group[:active]])
                 out, stepped = kernel.step(windows, [state[:active] for state in states])
                 for state, new in zip(states, stepped):
                     state[:active] = new
-                for stream, row in zip(group[:active], model._denormalise(out)):
-                    stream._frames.add(row)
+                outputs.append(out)
+            rows = iter(model._denormalise(np.concatenate(outputs)))  # frame by frame, streams in order
+            for k in range(steps[0]):
+                for stream in group[: len(outputs[k])]:
+                    stream._frames.add(next(rows))
             for b, stream in enumerate(group):
                 stream._state = [state[b] for state in states]
 
-    def _window(self) -> np.ndarray:
-        """The input window (window × inputs) of the next model frame to compute."""
-        back, ahead = self.model.get_params()["look_back"], self.model.lookahead
-        t, n = self._frames.computed, len(self._rows)
-        return np.stack([self._rows[i] for i in np.clip(np.arange(t - back, t + ahead + 1), 0, n - 1)])
+    def _window(self, t: int) -> np.ndarray:
+        """The input window (window × inputs) of model frame ``t``."""
+        n = len(self._rows)
+        return np.stack([self._rows[i] for i in np.clip(np.arange(t - self._back, t + self._ahead + 1), 0, n - 1)])
 
     def _give(self, upto: int) -> tuple[int, np.ndarray]:
         """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.streams.ResampledFrames`)."""
