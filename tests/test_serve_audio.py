@@ -492,3 +492,29 @@ def test_stream_command_replays_audio_to_a_real_server(tiny_audio_model, pcm, tm
     finally:
         server.should_exit = True
         thread.join(10)
+
+
+def test_a_listen_stream_sets_its_output_scale(client, pcm, clip, model):
+    """A start with "scale" gets its frames, and a cancel's, in that scale instead of the server's
+    (tracker here)."""
+    from vispeech.motion.rigging.calibration import load_scale
+    from vispeech.motion.track import Track
+    from vispeech.streaming import rest_ease
+
+    arkit = load_scale("arkit")
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_json({"type": "start", "sample_rate": 16000, "scale": "arkit"})
+        start = ws.receive_json()
+        for chunk in random_chunks(pcm.tobytes(), np.random.default_rng(3)):
+            ws.send_bytes(chunk)
+        ws.send_json({"type": "stop"})
+        frames = frames_of(receive_until_end(ws))
+        ws.send_json({"type": "cancel"})
+        cancelled = ws.receive_json()
+    channels = tuple(start["channels"])
+    raw = live_offline(clip, model, 30.0).select(channels)
+    np.testing.assert_allclose(frames, arkit.apply(raw).values, atol=1e-4)
+    jaw = channels.index("jawOpen")
+    assert frames[:, jaw].max() > raw.values[:, jaw].max() + 0.05  # not the server's scale
+    eased = arkit.apply(Track(rest_ease(raw.values[-1], 30.0), channels, 30.0)).values
+    np.testing.assert_allclose(cancelled["frames"], eased, atol=1e-4)

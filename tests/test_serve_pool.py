@@ -143,7 +143,7 @@ def test_pushes_made_while_the_batch_waits_for_a_worker_join_it():
         await asyncio.to_thread(started.wait, 30)
         futures = []
         for stream, some in pushes:
-            futures.append(asyncio.ensure_future(service.pushes.push(stream, some, 0.1)))
+            futures.append(asyncio.ensure_future(service.pushes.push(stream, some, service.calibration, 0.1)))
             await asyncio.sleep(0)  # each in a turn of the loop of its own
         gate.set()
         await blocker

@@ -417,36 +417,40 @@ def test_streams_pushed_together_give_what_each_gives_alone(model_name):
 
 def test_the_server_pushes_the_sessions_of_one_tick_together():
     """Phone-stream pushes made at once by several sessions run as one pool job (one network step
-    per frame for all of them), each session getting the frames message it gets alone; while that
-    job runs, newer pushes wait for the next one."""
+    per frame for all of them), each session getting the frames message it gets alone, in its own
+    output scale; while that job runs, newer pushes wait for the next one."""
     import asyncio
     import json
 
-    from vispeech.serve.service import SpeechService
+    from vispeech.serve.service import SpeechService, scaled
 
     service = SpeechService(ServeConfig(cache=":memory:", workers=1))
     model = service.models["grid-tdnn-lowlatency"]
     phones = [list(speak(t, "en", model=model).phones) for t in ("My mom made a map.", "Bin blue at F two now.",
                                                                  "Hello there.")]
+    scales = [service.scale(name)[1] for name in ("arkit", "tracker", "arkit")]
+    assert scales[0] is not None and scales[1] is None
 
     async def run():
         streams = [open_phone_stream(model, "en") for _ in phones]
-        first = await asyncio.gather(*(service.pushes.push(s, p[:6], 1.0) for s, p in zip(streams, phones)))
+        first = await asyncio.gather(*(service.pushes.push(s, p[:6], c, 1.0)
+                                       for s, p, c in zip(streams, phones, scales)))
         assert (service.pushes.batches, service.pushes.pushes, service.pushes.largest) == (1, 3, 3)
-        second = [asyncio.ensure_future(service.pushes.push(s, p[6:9], 1.0)) for s, p in zip(streams, phones)]
+        second = [asyncio.ensure_future(service.pushes.push(s, p[6:9], c, 1.0))
+                  for s, p, c in zip(streams, phones, scales)]
         await asyncio.sleep(0)  # the second batch is under way...
-        late = asyncio.ensure_future(service.pushes.push(streams[0], phones[0][9:10], 1.0))  # ...this waits for it
+        late = asyncio.ensure_future(service.pushes.push(streams[0], phones[0][9:10], scales[0], 1.0))  # ...waits
         await asyncio.gather(*second, late)
         assert service.pushes.batches == 3 and service.pushes.largest == 3
         return first
 
     first = asyncio.run(run())
-    for rows, p in zip(first, phones):
+    for rows, p, scale in zip(first, phones, scales):
         alone = open_phone_stream(model, "en")
         start, expected = alone.push(p[:6])
         got = json.loads(rows)
         assert got["start_frame"] == start
-        np.testing.assert_allclose(got["frames"], service.scaled(expected, alone.channels, alone.fps).round(6), atol=2e-6)
+        np.testing.assert_allclose(got["frames"], scaled(expected, alone, scale).round(6), atol=2e-6)
     service.pool.close()
 
 
@@ -483,3 +487,41 @@ def test_a_chat_message_speaks_the_rule_bots_reply_in_its_language(client):
         assert "unknown or expired chat session" in receive_until_end(ws)[-1]["message"]
         ws.send_json({"type": "talk", "message": "Hi"})
         assert '"text" or "chat" or "phones"' in ws.receive_json()["message"]
+
+
+def test_a_phones_stream_sets_its_frame_rate_and_scale(client):
+    """A phone stream's first message sets its frame rate (frames 1/fps s apart) and output scale
+    (the server's: arkit); a later message may repeat them, not change them."""
+    from vispeech.motion.rigging.calibration import load_scale
+    from vispeech.motion.track import Track
+
+    def streamed(**options) -> tuple[dict, dict, np.ndarray]:
+        with client.websocket_connect("/api/stream") as ws:
+            ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[:5]), **options})
+            start = ws.receive_json()
+            ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[5:]), "final": True, **options})
+            messages = receive_until_end(ws)
+        return start, messages[-1], np.array([row for m in messages if m["type"] == "frames" for row in m["frames"]])
+
+    start, end, plain = streamed()
+    fast_start, fast_end, fast = streamed(fps=60)
+    assert (start["fps"], end["n_frames"], len(plain)) == (30.0, 30, 30)
+    assert (fast_start["fps"], fast_end["n_frames"], len(fast)) == (60.0, 60, 60)
+    reference = animate(offline(HELLO), "baseline", 60.0).select(fast_start["channels"]).values
+    assert np.abs(fast - load_scale("arkit").apply(Track(reference, fast_start["channels"], 60.0)).values).mean() < 0.02
+    _, _, tracker = streamed(scale="tracker")
+    channels = tuple(start["channels"])
+    np.testing.assert_allclose(plain, load_scale("arkit").apply(Track(tracker, channels, 30.0)).values, atol=2e-6)
+    jaw = channels.index("jawOpen")
+    assert plain[:, jaw].max() > tracker[:, jaw].max() + 0.05  # not the server's scale
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[:5]), "fps": 60})
+        assert ws.receive_json()["fps"] == 60.0
+        ws.receive_json()  # its frames
+        for change, words in (({"fps": 30}, "fps"), ({"scale": "tracker"}, "scale"), ({"language": "sv"}, "language"),
+                              ({"model": "grid-cohen-massaro"}, "model")):
+            ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[5:6]), **change})
+            error = ws.receive_json()
+            assert error["type"] == "error" and f"stream's {words} was set by its first message" in error["message"]
+        ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[5:]), "fps": 60, "scale": "arkit", "final": True})
+        assert receive_until_end(ws)[-1] == {"type": "end", "n_frames": 60, "duration": 1.0}

@@ -13,6 +13,7 @@ from starlette.types import Message
 
 from vispeech.alignment.phones import Word
 from vispeech.errors import VispeechError
+from vispeech.motion.rigging.calibration import Calibration
 from vispeech.realtime import TimedSpeechStream
 from vispeech.serve.connection import Connection, send_error, send_message, serve_connection
 from vispeech.serve.dependencies import Service
@@ -31,7 +32,13 @@ from vispeech.serve.schemas import (
     WarningMessage,
     WordsMessage,
 )
-from vispeech.serve.service import AUDIO_WORK_PER_SECOND, MIN_CHUNK_SECONDS, PHONE_WORK_PER_SECOND, SpeechService
+from vispeech.serve.service import (
+    AUDIO_WORK_PER_SECOND,
+    MIN_CHUNK_SECONDS,
+    PHONE_WORK_PER_SECOND,
+    SpeechService,
+    scaled,
+)
 from vispeech.streaming import LiveAudioStream
 
 Timings = CharactersMessage | WordsMessage | VisemesMessage
@@ -80,6 +87,8 @@ class ListenConnection(Connection):
         """Cancel messages read so far: an event read before the last of them is stale."""
         self.last: LiveAudioStream | TimedSpeechStream | None = None
         """The stream that ended last (a cancel may still ease its face to rest), until the next start."""
+        self.scale: Calibration | None = None
+        """The output scale of the open stream (and of the last)."""
 
     def _release(self) -> None:
         if self.audio is not None:
@@ -170,6 +179,7 @@ class ListenConnection(Connection):
                 TimedSpeechStream, model, message.timings, message.sample_rate, message.language, fps
             )
         self.audio, self.last, self.started = stream, None, time.monotonic()
+        self.scale = self.service.scale(message.scale)[1]
         self.warned_fast = self.behind = False
         delay = round(stream.delay, 6) if isinstance(stream, LiveAudioStream) else None
         await send_message(
@@ -206,7 +216,7 @@ class ListenConnection(Connection):
             raise VispeechError(f"an audio stream may last at most {self.config.max_stream_seconds:g} s")
         self.service.pay(self.ip, self.config.min_message_cost)
         weight = max(0.0, last - stream.end) * PHONE_WORK_PER_SECOND
-        text = await self._run(self.service.step, stream, *call, weight=weight)
+        text = await self._run(self.service.step, stream, self.scale, *call, weight=weight)
         if text is not None:
             await self.ws.send_text(text)
 
@@ -218,7 +228,7 @@ class ListenConnection(Connection):
             await send_message(self.ws, CancelledMessage(start_frame=0, frames=[], n_frames=0, duration=0.0))
             return
         start, rows = stream.cancel(frame)
-        frames = self.service.scaled(rows, stream.channels, stream.fps).round(6).tolist()
+        frames = scaled(rows, stream, self.scale).round(6).tolist()
         await send_message(
             self.ws,
             CancelledMessage(
@@ -231,7 +241,7 @@ class ListenConnection(Connection):
         if stream is None:
             raise VispeechError('no audio stream is open: send {"type": "start", "sample_rate": ...} first')
         self.audio, self.last = None, stream
-        text = await self._run(self.service.step, stream, stream.finish)
+        text = await self._run(self.service.step, stream, self.scale, stream.finish)
         if text is not None:
             await self.ws.send_text(text)
         await send_message(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.duration))
@@ -263,11 +273,12 @@ class ListenConnection(Connection):
                 pcm.append(data)
                 seconds += added
             if isinstance(stream, TimedSpeechStream):  # counted, not heard: no work to queue
-                text = self.service.step(stream, stream.push, b"".join(pcm))
+                text = self.service.step(stream, self.scale, stream.push, b"".join(pcm))
             else:
                 text = await self._run(
                     self.service.step,
                     stream,
+                    self.scale,
                     stream.push,
                     b"".join(pcm),
                     weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND,

@@ -272,7 +272,9 @@ class StreamPhone(ClientInput):
 class PhonesMessage(ClientInput):
     """Stream client message: the next phones of a phone stream; ``final`` ends it.
 
-    ``language`` (default ``"en"``) and ``model`` count in a stream's first message.
+    ``language`` (default ``"en"``), ``model`` (the stream model), ``fps`` (the server's frame
+    rate) and ``scale`` (the server's output scale) are set by a stream's first message; a later
+    one may repeat them, not change them.
     """
 
     type: Literal["phones"]
@@ -280,6 +282,8 @@ class PhonesMessage(ClientInput):
     language: PhoneSet | None = None
     final: bool = False
     model: ModelName | None = None
+    fps: Fps | None = None
+    scale: Scale | None = None
 
 
 ClientMessage = TypeAdapter(Annotated[TextMessage | ChatStreamMessage | PhonesMessage, Field(discriminator="type")])
@@ -295,13 +299,15 @@ class AudioStartMessage(ClientInput):
     audio model). ``characters``, ``words`` or ``visemes``: the client sends the voice service's
     timings of that kind as they come (:class:`CharactersMessage`, :class:`WordsMessage`,
     :class:`VisemesMessage`), and a phone model animates them (``model`` ``null``: the stream
-    model), words and characters read in ``language``. ``fps`` ``null`` means the server's frame rate.
+    model), words and characters read in ``language``. ``fps`` and ``scale`` ``null`` mean the
+    server's frame rate and output scale.
     """
 
     type: Literal["start"]
     sample_rate: SampleRate
     encoding: Literal["pcm16"] = "pcm16"
     fps: Fps | None = None
+    scale: Scale | None = None
     model: ModelName | None = None
     timings: Literal["characters", "words", "visemes"] | None = None
     language: Language = "en"

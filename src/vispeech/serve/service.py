@@ -56,6 +56,9 @@ from vispeech.utterance import Utterance
 
 log = logging.getLogger("vispeech.serve")
 
+AnyStream = PhoneStream | LiveAudioStream | TimedSpeechStream
+"""A stream whose frames the server sends: phones, live audio, or live audio with timings."""
+
 LOW_LATENCY_MODEL = "grid-tdnn-lowlatency"
 """The shipped low-latency network (2 frames of look-ahead): what the stream uses unless told otherwise."""
 
@@ -69,8 +72,9 @@ MIN_CHUNK_SECONDS = 0.01
 """A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
 
 
-_Push = tuple[PhoneStream, list[Phone], float, asyncio.Future]
-"""A session's push waiting: its stream, phones, estimated work (seconds) and the future of its frames."""
+_Push = tuple[PhoneStream, list[Phone], Calibration | None, float, asyncio.Future]
+"""A session's push waiting: its stream, phones, output scale, estimated work (seconds) and the
+future of its frames."""
 
 
 class PushBatcher:
@@ -90,11 +94,14 @@ class PushBatcher:
         self._busy = False  # a job is in the pool
         self.batches = self.pushes = self.largest = 0
 
-    async def push(self, stream: PhoneStream, phones: list[Phone], weight: float) -> str | None:
-        """The ``frames`` message (server scale) of ``stream.push(phones)``, or None for no frames."""
+    async def push(
+        self, stream: PhoneStream, phones: list[Phone], scale: Calibration | None, weight: float
+    ) -> str | None:
+        """The ``frames`` message (in the output scale ``scale``) of ``stream.push(phones)``, or None
+        for no frames."""
         future = asyncio.get_running_loop().create_future()
         with self._lock:
-            self._waiting.append((stream, phones, weight, future))
+            self._waiting.append((stream, phones, scale, weight, future))
         if not self._busy:
             self._busy = True
             asyncio.ensure_future(self._run())
@@ -103,7 +110,7 @@ class PushBatcher:
     async def _run(self) -> None:
         while True:
             with self._lock:
-                weight = sum(weight for _, _, weight, _ in self._waiting)
+                weight = sum(push[3] for push in self._waiting)
             try:
                 batch, results = await self.service.pool.run("phones", "phone streams", self._frames, weight=weight)
             except BaseException as exc:  # Busy, shutting down: every session waiting is told
@@ -113,7 +120,7 @@ class PushBatcher:
             self.batches += 1
             self.pushes += len(batch)
             self.largest = max(self.largest, len(batch))
-            for (_, _, _, future), result in zip(batch, results):
+            for (*_, future), result in zip(batch, results):
                 if future.done():
                     continue
                 if isinstance(result, BaseException):
@@ -136,11 +143,11 @@ class PushBatcher:
                 (later if id(push[0]) in sessions else batch).append(push)
                 sessions.add(id(push[0]))
             self._waiting = later
-        pairs = [(stream, phones) for stream, phones, _, _ in batch]
+        pairs = [(stream, phones) for stream, phones, *_ in batch]
         try:
             return batch, [
-                result if isinstance(result, VispeechError) else self.service.frames_message(stream, *result)
-                for (stream, _), result in zip(pairs, push_together(pairs))
+                result if isinstance(result, VispeechError) else self.service.frames_message(stream, scale, *result)
+                for (stream, _, scale, *_), result in zip(batch, push_together(pairs))
             ]
         except Exception as exc:  # noqa: BLE001 (every session of the batch is told)
             return batch, [exc] * len(batch)
@@ -211,25 +218,17 @@ class SpeechService:
         gains = {} if calibration is None else calibration.gains
         return hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest()[:8], calibration
 
-    def scaled(self, rows: np.ndarray, channels: tuple[str, ...], fps: float) -> np.ndarray:
-        """Frames of a stream (rows over ``channels``) in the server's output scale."""
-        if self.calibration is None or not len(rows):
-            return rows
-        return self.calibration.apply(Track(rows, channels, fps)).values
-
-    def frames_message(
-        self, stream: PhoneStream | LiveAudioStream | TimedSpeechStream, start: int, rows: np.ndarray
-    ) -> str | None:
-        """Frames of a stream from ``start``, in the server's output scale, as a ``frames`` message
-        (``None`` for none)."""
+    def frames_message(self, stream: AnyStream, scale: Calibration | None, start: int, rows: np.ndarray) -> str | None:
+        """Frames of a stream from ``start``, in the output scale ``scale`` (a calibration of
+        :meth:`scale`), as a ``frames`` message (``None`` for none)."""
         if not len(rows):
             return None
-        rows = self.scaled(rows, stream.channels, stream.fps)
+        rows = scaled(rows, stream, scale)
         return FramesMessage(start_frame=start, frames=rows.round(6).tolist()).model_dump_json()
 
-    def step(self, stream: PhoneStream | LiveAudioStream | TimedSpeechStream, step: Callable, *args) -> str | None:
+    def step(self, stream: AnyStream, scale: Calibration | None, step: Callable, *args) -> str | None:
         """Run a phone or audio stream's ``push`` / ``finish``: its frames as a :meth:`frames_message`."""
-        return self.frames_message(stream, *step(*args))
+        return self.frames_message(stream, scale, *step(*args))
 
     def _choose_stream_model(self, spec: str | None) -> str:
         if spec is None:
@@ -449,6 +448,14 @@ class SpeechService:
             if isinstance(pieces, Generator):
                 with contextlib.suppress(ValueError):  # still reading in its thread: dropped, closed when collected
                     pieces.close()
+
+
+def scaled(rows: np.ndarray, stream: AnyStream, scale: Calibration | None) -> np.ndarray:
+    """Frames of ``stream`` (rows over its channels) in the output scale ``scale`` (``None``: the
+    models' own)."""
+    if scale is None or not len(rows):
+        return rows
+    return scale.apply(Track(rows, stream.channels, stream.fps)).values
 
 
 def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:

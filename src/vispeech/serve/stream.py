@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import contextlib
 import time
+from typing import NamedTuple
 
 from fastapi import APIRouter, WebSocket
 from pydantic import ValidationError
 
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
+from vispeech.motion.rigging.calibration import Calibration
 from vispeech.serve.bot import ChatBotError
 from vispeech.serve.chat import SpokenClause
 from vispeech.serve.connection import Connection, message_json, send_error, send_message, serve_connection
@@ -47,6 +49,10 @@ class StreamConnection(Connection):
     def __init__(self, websocket: WebSocket, service: SpeechService, ip: str) -> None:
         super().__init__(websocket, service, ip)
         self.phones: PhoneStream | None = None
+        self.settings: PhoneSettings | None = None
+        """What the open phone stream's first message set."""
+        self.scale: Calibration | None = None
+        """The open phone stream's output scale."""
 
     def _release(self) -> None:
         if self.phones is not None:
@@ -153,11 +159,43 @@ class StreamConnection(Connection):
             raise ChatBotError("the chat bot's reply has nothing to say")
         await send_message(self.ws, timeline.end()[0])
 
+    def _settings(self, message: PhonesMessage) -> PhoneSettings:
+        """What ``message`` sets of a phone stream, as the stream takes it."""
+        return PhoneSettings(
+            message.language or "en",
+            self.service.model(message.model, stream=True)[0],
+            message.fps or self.config.fps,
+            self.service.scale(message.scale)[0],
+        )
+
+    def _check_settings(self, message: PhonesMessage, settings: PhoneSettings) -> None:
+        """Refuse a later message of a phone stream that would change what its first one set."""
+        named = sorted(message.model_fields_set & set(PhoneSettings._fields))
+        asked = self._settings(message) if named else settings
+        for name in named:
+            if getattr(asked, name) != getattr(settings, name):
+                raise VispeechError(
+                    f"this phone stream's {name} was set by its first message: {getattr(message, name)!r} "
+                    'cannot change it (end the stream with "final": true first)'
+                )
+
+    async def _open_phones(self, message: PhonesMessage) -> PhoneStream:
+        """A phone stream as ``message`` (its first) sets it, its ``start`` message sent."""
+        name, model = self.service.model(message.model, stream=True)
+        settings = self._settings(message)
+        stream = await self._run(open_phone_stream, model, settings.language, settings.fps, kind="phones")
+        self.phones, self.settings, self.scale = stream, settings, self.service.scale(message.scale)[1]
+        start = StartMessage(
+            fps=stream.fps, channels=list(stream.channels), sample_rate=None, model=name, lookahead=stream.lookahead
+        )
+        await send_message(self.ws, start)
+        return stream
+
     async def _phones(self, message: PhonesMessage) -> None:
         """Frames for ``message``'s phones, pushed in pieces; with ``final`` the rest and ``end``."""
         config, stream = self.config, self.phones
-        if stream is not None and message.language is not None and message.language != stream.language:
-            raise VispeechError(f"this phone stream is in {stream.language}, not {message.language}")
+        if stream is not None and self.settings is not None:
+            self._check_settings(message, self.settings)
         begin = stream.end if stream is not None else 0.0
         last = max((p.end for p in message.phones), default=begin)
         added = max(0.0, last - begin)
@@ -172,32 +210,31 @@ class StreamConnection(Connection):
             )
         self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
         if stream is None:
-            name, model = self.service.model(message.model, stream=True)
-            stream = await self._run(open_phone_stream, model, message.language or "en", config.fps, kind="phones")
-            self.phones = stream
-            await send_message(
-                self.ws,
-                StartMessage(
-                    fps=stream.fps,
-                    channels=list(stream.channels),
-                    sample_rate=None,
-                    model=name,
-                    lookahead=stream.lookahead,
-                ),
-            )
+            stream = await self._open_phones(message)
         phones = [Phone(p.symbol, p.start, p.end, None, p.stress) for p in message.phones]
         await self._run(stream.check, phones, kind="phones")  # refused whole before any piece is pushed
         begin = stream.end
         for piece in _pieces(phones, begin, config.piece_seconds):
             weight = (piece[-1].end - begin) * PHONE_WORK_PER_SECOND if piece else 0.0
             begin = piece[-1].end if piece else begin
-            if (text := await self.service.pushes.push(stream, piece, weight)) is not None:
+            if (text := await self.service.pushes.push(stream, piece, self.scale, weight)) is not None:
                 await self.ws.send_text(text)
         if message.final:
-            if (text := await self._run(self.service.step, stream, stream.finish, kind="phones")) is not None:
-                await self.ws.send_text(text)
+            finished = await self._run(self.service.step, stream, self.scale, stream.finish, kind="phones")
+            if finished is not None:
+                await self.ws.send_text(finished)
             self.phones = None
             await send_message(self.ws, EndMessage(n_frames=stream.emitted, duration=stream.end))
+
+
+class PhoneSettings(NamedTuple):
+    """What a phone stream's first message sets: the phone set, the model's name, the frame rate
+    and the output scale (a digest of its gains, :meth:`SpeechService.scale`)."""
+
+    language: str
+    model: str
+    fps: float
+    scale: str
 
 
 _KINDS = ("text", "chat", "phones")
