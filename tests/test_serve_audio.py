@@ -211,6 +211,24 @@ def test_a_transcript_that_does_not_fit_is_a_400_unless_forced(client, pcm):
     assert client.post("/api/animate", params=wrong, content=data).status_code == 400  # not the forced answer
 
 
+def test_animate_adds_the_non_verbal_layers_asked_for(client, pcm):
+    """life and seed, in the query or the form, add their layers to the cached speech's frames."""
+    data, text = encoded(pcm, "FLAC"), "bin blue at f two now"
+    plain = client.post("/api/animate", params={"text": text}, content=data).json()
+    lively = client.post("/api/animate", params={"text": text, "life": ["blink", "head"], "seed": 3}, content=data)
+    assert lively.status_code == 200, lively.text
+    lively = lively.json()
+    assert lively["cached"] and lively["audio_url"] == plain["audio_url"]
+    animation, speech = lively["animation"], plain["animation"]
+    assert animation["channels"][-5:] == ["eyeBlinkLeft", "eyeBlinkRight", "headYaw", "headPitch", "headRoll"]
+    frames = np.array(animation["frames"])
+    np.testing.assert_array_equal(frames[:, :len(speech["channels"])], speech["frames"])
+    assert np.abs(frames[:, animation["channels"].index("headYaw")]).max() > 0
+    form = client.post("/api/animate", files={"file": ("take.flac", data)},
+                       data={"text": text, "life": ["blink", "head"], "seed": "3"})
+    assert form.status_code == 200 and form.json()["animation"] == animation, form.text
+
+
 def test_bad_uploads_get_a_clear_4xx(client, pcm):
     good = encoded(pcm, "FLAC")
     long_silence = encoded(np.zeros(601 * 8000, dtype=np.int16), "FLAC", rate=8000)
@@ -225,6 +243,8 @@ def test_bad_uploads_get_a_clear_4xx(client, pcm):
         ({"model": "grid-tdnn"}, good, {}, 400, "transcript"),
         ({"text": "bin blue zqxjv"}, good, {}, 400, "not in the pronouncing dictionary"),
         ({"text": ""}, good, {}, 422, "text"),
+        ({"vioce": "f3"}, good, {}, 422, "unknown field 'vioce'"),  # never silently ignored
+        ({"life": "wink"}, good, {}, 422, "life"),
         ({}, good, {"Content-Type": "application/json"}, 415, "not JSON"),
         ({}, good, {"Content-Type": "multipart/form-data; boundary=x"}, 400, "multipart"),
         ({}, bytes(2 * 1024 * 1024 + 2), {}, 413, "too large"),

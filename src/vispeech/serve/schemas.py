@@ -112,14 +112,18 @@ class Speaking(ClientInput):
     scale: Scale | None = None
 
 
-class SpeechOptions(Speaking):
-    """The options of :class:`Speaking`, and what an answer carries: ``life`` names the non-verbal
-    layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``; ``formats``
-    the track formats the answer carries as files besides the animation (:attr:`SpeakResponse.files`)."""
+class AnswerOptions(ClientInput):
+    """What an answer (:class:`SpeakResponse`) carries besides the speech: ``life`` names the
+    non-verbal layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``;
+    ``formats`` the track formats the answer carries as files (:attr:`SpeakResponse.files`)."""
 
     life: Layers = []
     seed: Seed = 0
     formats: Formats = []
+
+
+class SpeechOptions(AnswerOptions, Speaking):
+    """The options of :class:`Speaking` and of :class:`AnswerOptions`."""
 
 
 class SpeakRequest(SpeechOptions):
@@ -128,7 +132,7 @@ class SpeakRequest(SpeechOptions):
     text: Text
 
 
-class AnimateQuery(BaseModel):
+class AnimateQuery(AnswerOptions):
     """Query parameters of ``POST /api/animate`` (the body is the audio file itself).
 
     ``model`` (default: the server's upload model, else what ``vispeech animate`` takes:
@@ -136,8 +140,8 @@ class AnimateQuery(BaseModel):
     is aligned with the audio in ``language`` and its phones drive or join the model, as
     :func:`vispeech.pipeline.listen` does; an English transcript that does not fit the
     audio is refused (400) unless ``force``. ``fps`` and ``scale`` ``null`` mean the server's
-    frame rate and output scale; ``formats`` as in :class:`SpeechOptions` (repeated:
-    ``formats=oculus&formats=rhubarb``).
+    frame rate and output scale; ``life``, ``seed`` and ``formats`` as in :class:`AnswerOptions`
+    (a list repeated: ``formats=oculus&formats=rhubarb``). A parameter it does not take is a 422.
     """
 
     text: Text | None = None

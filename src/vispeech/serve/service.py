@@ -10,7 +10,7 @@ import hashlib
 import json
 import logging
 import threading
-from collections.abc import AsyncGenerator, Callable, Generator, Iterator, Sequence
+from collections.abc import AsyncGenerator, Callable, Generator, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -44,7 +44,6 @@ from vispeech.serve.schemas import (
     MAX_TEXT_CHARS,
     AnimateQuery,
     AnimationJSON,
-    FileFormat,
     FramesMessage,
     Scale,
     SpeakResponse,
@@ -340,9 +339,7 @@ class SpeechService:
         """The cached answer for this upload, or ``None`` (nothing computed)."""
         key, _, calibration = self._upload_key(digest, query)
         entry = self.cache.get(key)
-        return (
-            None if entry is None else self._answer(entry, query.text or "", True, calibration, formats=query.formats)
-        )
+        return None if entry is None else self._answer(entry, query.text or "", True, calibration, query)
 
     def animate_upload(self, data: bytes, digest: str, query: AnimateQuery) -> SpeakResponse:
         """The answer for an uploaded recording (``data``, the file's bytes):
@@ -360,7 +357,7 @@ class SpeechService:
             wav = utterance.wav_bytes()
             assert wav is not None  # listen keeps the audio it animated
             entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
-        return self._answer(entry, query.text or "", cached, calibration, formats=query.formats)
+        return self._answer(entry, query.text or "", cached, calibration, query)
 
     def _answer(
         self,
@@ -368,25 +365,23 @@ class SpeechService:
         text: str,
         cached: bool,
         calibration: Calibration | None,
-        options: SpeechOptions | None = None,
-        formats: Sequence[FileFormat] = (),
+        options: SpeechOptions | AnimateQuery,
     ) -> SpeakResponse:
-        """A cache entry as the answer to ``text``, with the non-verbal layers of ``options`` added
-        (timed by its phones, the expression showing ``text``'s mood, in the output scale
-        ``calibration``) and the files of ``formats`` (default: those ``options`` asks for)."""
+        """A cache entry as the answer to ``text`` (in ``options.language``), with the non-verbal
+        layers of ``options`` added (timed by its phones, the expression showing ``text``'s mood,
+        in the output scale ``calibration``) and the files of the formats it asks for."""
         animation = AnimationJSON.model_validate_json(entry.animation)
-        formats = options.formats if options is not None and not formats else formats
-        if not (options is not None and options.life) and not formats:
+        if not options.life and not options.formats:
             return SpeakResponse(audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached)
         data = animation.model_dump()
         phones = PhoneSequence.from_dict(data["phones"]) if data["phones"] else None
         track = Track.from_dict(data)
-        if options is not None and options.life:
+        if options.life:
             layers = check_layers(options.life)
             mood = sentiment(text, options.language)
             track = with_life(track, phones, layers, options.seed, scale=calibration, mood=mood)
             animation = AnimationJSON.model_validate({**data, **track.to_dict()})
-        files = {fmt: track_text(track, fmt, phones=phones) for fmt in dict.fromkeys(formats)}
+        files = {fmt: track_text(track, fmt, phones=phones) for fmt in dict.fromkeys(options.formats)}
         return SpeakResponse(
             audio_url=f"/api/audio/{entry.id}.wav", animation=animation, text=text, cached=cached, files=files
         )
