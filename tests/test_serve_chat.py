@@ -226,6 +226,58 @@ def test_the_reply_is_spoken_clause_by_clause_as_it_streams_in(client, fake, mon
                     {"role": "assistant", "content": first + rest}, {"role": "user", "content": "And you?"}]
 
 
+def test_a_posted_chat_speaks_each_sentence_in_its_language(client, fake, monkeypatch):
+    """POST /api/chat speaks a reply in two languages as the stream does: clause by clause, the
+    Swedish sentence in the Swedish voice, on the stream's channels and timeline (cached like
+    any answer); a reply in one language is spoken whole, with its phones."""
+    import io
+    import math
+
+    import numpy as np
+    from scipy.io import wavfile
+
+    import vispeech.frontends.espeak as espeak
+
+    voices = []
+
+    def spied(text, language, *args, **kwargs):
+        voices.append((text, language))
+        return synthesize(text, language, *args, **kwargs)
+
+    monkeypatch.setattr(espeak, "synthesize", spied)
+    reply = "Hello there, my friend! Hej, hur mår du idag? I hope you are well."
+    fake.script = stream(tokens(reply))
+    answer = client.post("/api/chat", json={"message": "Say hello in two languages.", "life": ["blink"]})
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    assert (body["reply"], body["language"]) == (reply, "en")
+    assert voices == [("Hello there,", "en"), ("my friend!", "en"), ("Hej, hur mår du idag?", "sv"),
+                      ("I hope you are well.", "en")]
+    speech = body["speech"]
+    animation = speech["animation"]
+    rate, samples = wavfile.read(io.BytesIO(client.get(speech["audio_url"]).content))
+    assert animation["n_frames"] == len(animation["frames"]) == math.ceil(len(samples) / rate * 30.0 - 1e-6)
+    assert animation["phones"] is None and speech["text"] == reply and not speech["cached"]
+    sv = synthesize("Hej, hur mår du idag?", "sv").audio
+    assert len(samples) > len(sv) + 3 * 22050 // 2  # the English clauses too
+    with client.websocket_connect("/api/stream") as ws:
+        fake.script = stream(tokens(reply))
+        streamed = _chat(ws, "Again, please.")
+    assert streamed[0]["channels"] + ["eyeBlinkLeft", "eyeBlinkRight"] == animation["channels"]
+    frames = np.array([row for m in streamed if m["type"] == "frames" for row in m["frames"]])
+    jaw = animation["channels"].index("jawOpen")
+    assert len(frames) == pytest.approx(animation["n_frames"], abs=3)  # espeak-ng's timing varies a little
+    n = min(len(frames), animation["n_frames"])
+    assert np.abs(frames[:n, jaw] - np.array(animation["frames"])[:n, jaw]).mean() < 0.02
+    fake.script = stream(tokens(reply))
+    again = client.post("/api/chat", json={"message": "Once more.", "life": ["blink"]}).json()["speech"]
+    assert again["cached"] and again["audio_url"] == speech["audio_url"]
+    voices.clear()
+    fake.script = stream(tokens("One language, one voice."))
+    whole = client.post("/api/chat", json={"message": "Just English."}).json()["speech"]
+    assert voices == [("One language, one voice.", "en")] and whole["animation"]["phones"] is not None
+
+
 def test_history_is_bounded_and_kept_apart(client, fake):
     fake.script = stream(["Reply one."])
     first = client.post("/api/chat", json={"message": "One", "speak": False}).json()

@@ -188,13 +188,15 @@ def to_pcm16(samples: np.ndarray) -> np.ndarray:
 
 
 def wav_bytes(samples: np.ndarray, sample_rate: int) -> bytes:
-    """A mono 16-bit PCM WAV file of ``samples`` (floats in [-1, 1]) in memory."""
+    """A mono 16-bit PCM WAV file of ``samples`` (floats in [-1, 1], or 16-bit PCM as it is) in memory."""
     import wave
 
+    samples = np.asarray(samples)
+    pcm = samples.astype("<i2") if samples.dtype == np.int16 else to_pcm16(samples)
     buffer = io.BytesIO()
     with wave.open(buffer, "wb") as out:
         out.setnchannels(1)
         out.setsampwidth(2)
         out.setframerate(int(sample_rate))
-        out.writeframes(to_pcm16(samples).tobytes())
+        out.writeframes(pcm.tobytes())
     return buffer.getvalue()

@@ -29,7 +29,7 @@ from vispeech.serve.schemas import (
     SpeakResponse,
     SpeechOptions,
 )
-from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
+from vispeech.serve.service import AUDIO_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, Said, SpeechService
 
 AUDIO_TYPES = ("audio/wav", "audio/flac", "audio/mpeg", "audio/ogg", "application/octet-stream")
 """Content types ``POST /api/animate`` documents (the body's own header tells its format)."""
@@ -159,8 +159,8 @@ def get_audio(audio_id: str, service: Service) -> Response:
 @router.post("/chat", responses={**_ERRORS, **{code: {"model": ErrorResponse} for code in (404, 502, 504)}})
 async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> ChatResponse:
     """The chat bot's reply to ``message`` in ``session`` (``null``: a new one), spoken unless
-    ``speak`` is false, in the language most of it is in (the stream's chat message speaks each
-    sentence in its own)."""
+    ``speak`` is false: each sentence in its own language, as the stream's chat message speaks it
+    (a reply in one language is spoken whole)."""
     service.pay(ip, service.text_cost(request.message))
     if request.speak:
         service.model(request.model)  # an unknown model is refused before the bot is asked
@@ -176,14 +176,16 @@ async def post_chat(request: ChatRequest, service: Service, ip: ClientIP) -> Cha
     speech = None
     if request.speak:
         service.bucket.charge(ip, service.text_cost(reply))
-        speech = await _spoken(service, ip, reply, request.model_copy(update={"language": spoken}), "chat")
+        said: Said = reply if len(amounts) == 1 else clauses
+        speech = await _spoken(service, ip, said, request.model_copy(update={"language": spoken}), "chat")
     return ChatResponse(reply=reply, language=spoken, session=session, speech=speech)
 
 
-async def _spoken(service: SpeechService, ip: str, text: str, options: SpeechOptions, kind: str) -> SpeakResponse:
-    """:meth:`SpeechService.speak` of ``text`` with ``options``: from the cache at once when it is
+async def _spoken(service: SpeechService, ip: str, said: Said, options: SpeechOptions, kind: str) -> SpeakResponse:
+    """:meth:`SpeechService.speak` of ``said`` with ``options``: from the cache at once when it is
     there, else in the work pool (a job of ``ip``'s of ``kind``)."""
-    cached = await run_in_threadpool(service.lookup, text, options)
+    cached = await run_in_threadpool(service.lookup, said, options)
     if cached is not None:
         return cached
-    return await service.pool.run(kind, ip, service.speak, text, options, weight=len(text) * TEXT_WORK_PER_CHAR)
+    chars = len(said) if isinstance(said, str) else sum(len(clause.spoken) for clause in said)
+    return await service.pool.run(kind, ip, service.speak, said, options, weight=chars * TEXT_WORK_PER_CHAR)

@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+import base64
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import numpy as np
+
+from vispeech.frontends.audio import wav_bytes
 from vispeech.frontends.text import Clause, ClauseReader, detect_language, speakable
+from vispeech.models.contract import Estimator
+from vispeech.motion.rigging.calibration import Calibration
+from vispeech.motion.track import Track
+from vispeech.streaming import SpeechTimeline
+
+WHOLE_CLAUSE = 3600.0
+"""Seconds of audio in a piece of :func:`speak_reply`'s timeline: more than any clause has."""
 
 
 class SpokenClause(NamedTuple):
@@ -63,3 +74,30 @@ class ReplyReader:
             self.language = self._sentence or self.language
             self._sentence = None
         return out
+
+
+def speak_reply(
+    clauses: Sequence[SpokenClause],
+    model: Estimator,
+    *,
+    fps: float,
+    rate: float = 1.0,
+    scale: Calibration | None = None,
+    voice: str | None = None,
+) -> tuple[bytes, Track]:
+    """A reply's clauses spoken as the stream speaks them (:class:`~vispeech.streaming.SpeechTimeline`:
+    each in its language, one after another on one timeline): the WAV file of the audio and the
+    track (over the stream's channels, in the output scale ``scale``)."""
+    timeline = SpeechTimeline(model, fps=fps, rate=rate, chunk_seconds=WHOLE_CLAUSE, scale=scale, voice=voice)
+    rows: list[list[float]] = []
+    pcm: list[bytes] = []
+    for clause in clauses:
+        for message in timeline.say(clause.spoken, clause.language, clause.last):
+            if message["type"] == "frames":
+                rows += message["frames"]
+            elif message["type"] == "audio":
+                pcm.append(base64.b64decode(message["pcm16"]))
+    assert timeline.sample_rate is not None, "a reply has a clause to say"
+    samples = np.frombuffer(b"".join(pcm), "<i2")
+    track = Track(np.array(rows).reshape(len(rows), len(timeline.channels)), timeline.channels, fps)
+    return wav_bytes(samples, timeline.sample_rate), track

@@ -202,8 +202,8 @@ class SpeakResponse(BaseModel):
 
 class ChatRequest(SpeechOptions):
     """A chat message in ``session`` (``null``: a new one); with ``speak`` the reply comes spoken
-    (``speech``) with the options of :class:`SpeechOptions` (``language``: the page's; the reply is
-    spoken in its own)."""
+    (``speech``) with the options of :class:`SpeechOptions` (``language``: the page's; each
+    sentence of the reply is spoken in its own)."""
 
     message: Text
     session: SessionId | None = None
@@ -211,8 +211,10 @@ class ChatRequest(SpeechOptions):
 
 
 class ChatResponse(BaseModel):
-    """The reply (its clauses as written, code blocks left out), the language most of it is in (and
-    spoken in), the session to send the next message in."""
+    """The reply (its clauses as written, code blocks left out), the language most of it is in, the
+    session to send the next message in. A reply in one language is spoken whole; one in several
+    is spoken as the stream speaks it, each sentence in its language, clause by clause, and its
+    ``speech`` has the stream's channels and no phones."""
 
     reply: str
     language: str

@@ -10,7 +10,7 @@ import hashlib
 import json
 import logging
 import threading
-from collections.abc import AsyncGenerator, Callable, Generator, Iterator
+from collections.abc import AsyncGenerator, Callable, Generator, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -36,7 +36,7 @@ from vispeech.pipeline import DEFAULT_AUDIO_STREAM_MODEL, GREETINGS, animate, li
 from vispeech.realtime import TimedSpeechStream
 from vispeech.serve.bot import ChatBot, ChatBotError, ChatModel, ChatTurn
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
-from vispeech.serve.chat import ReplyReader, SpokenClause
+from vispeech.serve.chat import ReplyReader, SpokenClause, speak_reply
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import Busy, WorkPool
 from vispeech.serve.safety import RateLimited, Slots
@@ -51,9 +51,13 @@ from vispeech.serve.schemas import (
 )
 from vispeech.serve.sessions import ChatSessions
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
-from vispeech.utterance import Utterance
 
 log = logging.getLogger("vispeech.serve")
+
+Said = str | Sequence[SpokenClause]
+"""What an answer speaks: a text (in the request's language), or a chat reply's clauses (each in its own)."""
+REPLY_LANGUAGE = "reply"
+"""The language of the cache key of a reply's clauses (:data:`Said`), each spoken in its own."""
 
 AnyStream = PhoneStream | LiveAudioStream | TimedSpeechStream
 """A stream whose frames the server sends: phones, live audio, or live audio with timings."""
@@ -292,37 +296,50 @@ class SpeechService:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
         return name, self.models[name]
 
-    def _key(self, text: str, options: SpeechOptions) -> tuple[CacheKey, Estimator, Calibration | None]:
+    def _key(self, said: Said, options: SpeechOptions) -> tuple[CacheKey, Estimator, Calibration | None]:
         name, model = self.model(options.model)
-        spoken = find_language(options.language)
         voice = options.voice or self.config.voice
-        selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
+        if isinstance(said, str):
+            spoken = find_language(options.language)
+            text, language = said, spoken.code
+            selector = spoken.selector if voice is None else f"{spoken.selector}+{voice}"
+        else:  # a reply's clauses, each in its language: apart from any text's entry
+            text = "\n".join(f"{clause.language}\t{clause.spoken}" for clause in said)
+            language, selector = REPLY_LANGUAGE, voice or ""
         fps = options.fps or self.config.fps
         scale, calibration = self.scale(options.scale)
-        key = CacheKey(text, spoken.code, selector, float(options.rate), name, self.versions[name], fps, scale)
+        key = CacheKey(text, language, selector, float(options.rate), name, self.versions[name], fps, scale)
         return key, model, calibration
 
-    def lookup(self, text: str, options: SpeechOptions) -> SpeakResponse | None:
-        """The cached answer to speaking ``text`` so, or ``None`` (nothing computed)."""
-        key, _, calibration = self._key(text, options)
+    def lookup(self, said: Said, options: SpeechOptions) -> SpeakResponse | None:
+        """The cached answer to speaking ``said`` so, or ``None`` (nothing computed)."""
+        key, _, calibration = self._key(said, options)
         entry = self.cache.get(key)
-        return None if entry is None else self._answer(entry, text, True, calibration, options)
+        return None if entry is None else self._answer(entry, _written(said), True, calibration, options)
 
-    def speak(self, text: str, options: SpeechOptions) -> SpeakResponse:
-        """The answer to speaking ``text`` so, from the cache when the same request was answered before.
+    def speak(self, said: Said, options: SpeechOptions) -> SpeakResponse:
+        """The answer to speaking ``said`` so, from the cache when the same request was answered before.
 
-        The cache holds the speech alone; the non-verbal layers ``options.life`` are added to each
-        answer, so every seed shares the speech's entry and its audio."""
-        key, model, calibration = self._key(text, options)
+        A text is spoken whole in ``options.language``; a reply's clauses each in its own, as
+        the stream speaks them (:func:`~vispeech.serve.chat.speak_reply`: no phones in the answer,
+        since they are of several phone sets). The cache holds the speech alone; the non-verbal
+        layers ``options.life`` are added to each answer, so every seed shares the speech's entry
+        and its audio."""
+        key, model, calibration = self._key(said, options)
         entry = self.cache.get(key)
         cached = entry is not None
         if entry is None:
             voice = options.voice or self.config.voice
-            utterance = speak(text, options.language, model=model, rate=options.rate, fps=key.fps, voice=voice)
-            wav = utterance.wav_bytes()
-            assert wav is not None  # speak gives the audio it synthesised
-            entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
-        return self._answer(entry, text, cached, calibration, options)
+            if isinstance(said, str):
+                utterance = speak(said, options.language, model=model, rate=options.rate, fps=key.fps, voice=voice)
+                wav = utterance.wav_bytes()
+                assert wav is not None and utterance.track is not None  # speak gives the audio and track
+                animation = _animation_json(utterance.track, utterance.phones, calibration)
+            else:
+                wav, track = speak_reply(said, model, fps=key.fps, rate=options.rate, scale=calibration, voice=voice)
+                animation = _animation_json(track, None)  # in the scale already
+            entry = self.cache.put(key, wav, animation)
+        return self._answer(entry, _written(said), cached, calibration, options)
 
     def _upload_key(self, digest: str, query: AnimateQuery) -> tuple[CacheKey, Estimator, Calibration | None]:
         """An upload's cache key: its voice is ``upload:<the SHA-256 of the file>`` (``:forced`` added
@@ -355,8 +372,8 @@ class SpeechService:
             except TranscriptMismatch as exc:
                 raise VispeechError(f"{exc} (force=true: animate it all the same)") from None
             wav = utterance.wav_bytes()
-            assert wav is not None  # listen keeps the audio it animated
-            entry = self.cache.put(key, wav, _animation_json(utterance, calibration))
+            assert wav is not None and utterance.track is not None  # listen keeps the audio it animated
+            entry = self.cache.put(key, wav, _animation_json(utterance.track, utterance.phones, calibration))
         return self._answer(entry, query.text or "", cached, calibration, query)
 
     def _answer(
@@ -453,11 +470,19 @@ def scaled(rows: np.ndarray, stream: AnyStream, scale: Calibration | None) -> np
     return scale.apply(Track(rows, stream.channels, stream.fps)).values
 
 
-def _animation_json(utterance: Utterance, calibration: Calibration | None = None) -> str:
-    """An utterance's track (in ``calibration``'s scale) and phones (when it has them) as compact
-    vispeech animation JSON."""
-    phones = None if utterance.phones is None else utterance.phones.to_dict()
-    assert utterance.track is not None  # an animated utterance
-    track = utterance.track if calibration is None else calibration.apply(utterance.track)
-    animation = {"format": ANIMATION_FORMAT, "version": 1, **track.to_dict(), "phones": phones}
+def _animation_json(track: Track, phones: PhoneSequence | None, calibration: Calibration | None = None) -> str:
+    """A track (in ``calibration``'s scale) and its phones (when there are) as compact vispeech
+    animation JSON."""
+    track = track if calibration is None else calibration.apply(track)
+    animation = {
+        "format": ANIMATION_FORMAT,
+        "version": 1,
+        **track.to_dict(),
+        "phones": None if phones is None else phones.to_dict(),
+    }
     return json.dumps(animation, separators=(",", ":"))
+
+
+def _written(said: Said) -> str:
+    """What an answer says it spoke: the text, or the reply's clauses as written."""
+    return said if isinstance(said, str) else " ".join(clause.text for clause in said)
