@@ -126,7 +126,7 @@ export async function startApp({ stage, setup = async () => {}, onstate = () => 
       return app.playAnimation(speech.animation, speech.audio_url);
     },
     /** Ask the server to speak `text` in `language`, play it, and return its answer. */
-    async speak(text, language = config.languages[0], model = config.default_model) {
+    async speak(text, language = 'en', model = config.default_model) {
       const speech = await requestSpeech({ text, language, model, ...app.lifeOptions() });
       await app.playSpeech(speech);
       return speech;
