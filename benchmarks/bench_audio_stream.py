@@ -15,7 +15,7 @@ the frame arrived: the model's look-ahead, the features, inference and transport
    alone, pushed the 16 kHz chunks in real time (delay = look-ahead + features + inference),
    and the compute time of a push.
 2. ``vispeech serve`` in a subprocess on a free loopback port (no rate limit, the per-address
-   stream cap lifted): one session, then ``--sessions`` at once, all clients in this process.
+   and per-network stream caps lifted): one session, then ``--sessions`` at once, all clients in this process.
 
 p50 and p95 are over all frames of all sessions. ``--model`` is an audio model name or saved
 folder (default: the shipped ``grid-audio-cnn``); ``--tiny`` trains the stand-in the tests use
@@ -149,7 +149,8 @@ def main() -> int:
                   "in_process": in_process(model, samples, args.fps, chunk)}
         sent = samples if args.rate == 16000 else AudioClip.from_array(samples, 16000).resampled(args.rate).samples
         pcm = to_pcm16(sent)
-        options = ["--rate-limit", "0", "--max-streams-per-ip", "200", "--audio-model", folder]
+        options = ["--rate-limit", "0", "--max-streams-per-ip", "200", "--max-streams-per-network", "200",
+                   "--audio-model", folder]
         if args.workers:
             options += ["--workers", str(args.workers)]
         with running_server(*options) as server:

@@ -3,7 +3,7 @@
     python benchmarks/load_stream.py [--sessions 50] [--runs 5] [--lang en] [--text TEXT] [--json OUT] [--processes N]
 
 Starts `vispeech serve` on 127.0.0.1 on a free port in a subprocess (no rate limit, no
-per-address stream cap since every session comes from 127.0.0.1, a temporary cache), then:
+per-address or per-network stream cap since every session comes from 127.0.0.1, a temporary cache), then:
 
 1. one session at a time, ``--runs`` times (after one warm-up): time from sending the text
    to the first animation frame, to the first audio chunk, and to the end;
@@ -132,8 +132,9 @@ def main() -> int:
         async with asyncio.timeout(args.deadline):
             return await run(server, text, args.lang, sessions, runs)
 
-    # every session comes from 127.0.0.1: lift the per-address cap, as distinct clients would not meet it
-    with running_server("--rate-limit", "0", "--max-streams-per-ip", "200", "--processes", str(args.processes)) as server:
+    # every session comes from 127.0.0.1: lift the per-address and per-/24 caps, as distinct clients would not meet them
+    with running_server("--rate-limit", "0", "--max-streams-per-ip", "200", "--max-streams-per-network", "200",
+                        "--processes", str(args.processes)) as server:
         report = asyncio.run(bounded(server))
     print_report(report)
     if args.json:
