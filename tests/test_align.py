@@ -108,3 +108,20 @@ def test_a_transcript_that_does_not_fit_the_audio_is_refused(grid_s1):
         assert transcript_fit(clip, texts[other]) < MIN_FIT <= transcript_fit(clip, texts[name])
     forced = align(clip.samples, clip.sample_rate, texts[other])
     assert [w.text for w in forced.words] == texts[other].split()
+
+
+@pytest.mark.parametrize("name,wrong", [("bgauzp", "lay green at z seven soon"),
+                                        ("pgbk7s", "place green with e eight please")])
+def test_a_transcript_wrong_in_some_words_is_refused(grid_s1, name, wrong):
+    """GRID's commands share their structure, so another command's transcript fits the audio in
+    part: these two (held-out pairs of benchmarks/bench_transcript_fit.py) fit about -6.5 against
+    a phone loop that weighs its language model as for words, and were taken."""
+    from vispeech.frontends.align import MIN_FIT, TranscriptMismatch
+    from vispeech.frontends.audio import AudioClip
+
+    texts = dict(line.split("\t") for line in (grid_s1 / "sentences.tsv").read_text().splitlines()[1:])
+    clip = AudioClip.read(grid_s1 / "utterances" / f"{name}.flac")
+    phones = align(clip.samples, clip.sample_rate, texts[name], min_fit=MIN_FIT)
+    assert [w.text for w in phones.words] == texts[name].split()
+    with pytest.raises(TranscriptMismatch, match="does not fit the audio"):
+        align(clip.samples, clip.sample_rate, wrong, min_fit=MIN_FIT)
