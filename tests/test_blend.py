@@ -11,8 +11,10 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.models.registry import load_model
 from vispeech.motion.track import Track
 from vispeech.pipeline import (
+    DEFAULT_AUDIO_MODEL,
     DEFAULT_MODEL,
     WHISPER_AUDIO_MODEL,
+    WHISPER_SWEDISH_MODEL,
     animate_audio,
     blend_with_phones,
     default_audio_model,
@@ -44,10 +46,13 @@ def test_the_default_for_a_recording_follows_the_transcript_its_language_and_whi
     monkeypatch.setattr(whisper, "installed", lambda: True)
     assert recording_model(False) == default_audio_model() == WHISPER_AUDIO_MODEL
     assert recording_model(True, "en") == WHISPER_AUDIO_MODEL
-    assert recording_model(True, "sv") == DEFAULT_MODEL
+    assert recording_model(True, "sv") == DEFAULT_MODEL  # Swedish transcripts: the phone model on their phones
+    # Swedish audio alone: the model on Whisper base, which heard Swedish; tiny.en for any other language
+    assert recording_model(False, "sv") == default_audio_model("sv") == WHISPER_SWEDISH_MODEL
+    assert recording_model(False, "de") == recording_model(False, "en") == WHISPER_AUDIO_MODEL
     monkeypatch.setattr(whisper, "installed", lambda: False)
     assert recording_model(True, "en") == DEFAULT_MODEL
-    assert recording_model(False) == default_audio_model() != WHISPER_AUDIO_MODEL
+    assert recording_model(False) == default_audio_model() == recording_model(False, "sv") == DEFAULT_AUDIO_MODEL
 
 
 def test_an_audio_model_with_the_transcript_animates_the_blend_closed_on_its_bilabials():

@@ -169,18 +169,24 @@ def test_animate_an_uploaded_file(client, pcm, clip, model, fmt):
 def test_a_server_animates_uploads_as_vispeech_animate_does(pcm, clip):
     """With no upload model set, /api/animate takes the model `vispeech animate` takes
     (recording_model: with the whisper extra grid-audio-whisper, blended with the transcript's
-    phones when there is one) and answers its frames."""
-    from vispeech.pipeline import listen, recording_model
+    phones when there is one, and grid-audio-whisper-base for Swedish audio alone) and answers
+    its frames."""
+    from vispeech.frontends.whisper import installed
+    from vispeech.pipeline import listen
 
     config = ServeConfig(cache=":memory:", rate_limit=0, scale="tracker", audio_model=None)
+    frames = {}
     with TestClient(create_app(config)) as client:
-        for text in (None, "bin blue at f two now"):
-            params = {} if text is None else {"text": text}
+        for text, language in ((None, "en"), ("bin blue at f two now", "en"), (None, "sv")):
+            params = {"language": language} | ({} if text is None else {"text": text})
             answer = client.post("/api/animate", params=params, content=encoded(pcm, "FLAC"))
             assert answer.status_code == 200, answer.text
             animation = answer.json()["animation"]
-            expected = listen(clip, text, model=recording_model(text is not None), fps=30.0).track
+            expected = listen(clip, text, language, fps=30.0).track
+            frames[text, language] = animation["frames"]
             np.testing.assert_allclose(animation["frames"], expected.select(animation["channels"]).values, atol=1e-4)
+    # the language reaches the choice: Swedish audio alone takes the other Whisper model
+    assert installed() != np.allclose(frames[None, "en"], frames[None, "sv"])
 
 
 def test_animate_takes_what_curl_data_binary_sends(client, pcm):

@@ -150,6 +150,29 @@ def test_animate_takes_the_whisper_model_by_default_where_whisper_is_installed(m
     assert default_audio_model() == WHISPER_AUDIO_MODEL  # unless a folder is given
 
 
+def test_swedish_audio_alone_is_animated_by_the_model_on_whisper_base():
+    """A Swedish recording without its transcript (espeak-ng's voice): grid-audio-whisper-base, on
+    the multilingual Whisper base, moves the jaw with the phone model on espeak's own timings and
+    shuts the lips on more of the /p b m/ with the closures its phone head hears than without."""
+    from vispeech.frontends.espeak import synthesize
+    from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
+    from vispeech.pipeline import DEFAULT_MODEL, WHISPER_SWEDISH_MODEL, animate, animate_audio, listen
+
+    speech = synthesize("Mamma och pappa bor på Möllevången i Malmö.", "sv")
+    clip = AudioClip.from_array(speech.audio, speech.sample_rate)
+    model = load_model(WHISPER_SWEDISH_MODEL)
+    assert model.name == WHISPER_SWEDISH_MODEL and model.encoding_.encoder == "whisper-base"
+    track = listen(clip, language="sv").track
+    assert track is not None
+    np.testing.assert_array_equal(track.values, animate_audio(clip, model, 30.0).values)  # the Swedish default
+    jaw, said = track["jawOpen"], animate(speech.phones, DEFAULT_MODEL, 30.0)["jawOpen"][: track.n_frames]
+    assert jaw.max() - jaw.min() > 0.15 and np.corrcoef(jaw, said)[0, 1] > 0.3
+    middles = [round((p.start + p.end) / 2 * 30.0) for p in speech.phones if p.symbol in ("p", "b", "m")]
+    deaf = animate_audio(clip, load_model(WHISPER_SWEDISH_MODEL).set_params(closure_threshold=0.0), 30.0)
+    closed, closed_deaf = (int(np.sum(lip_aperture(t)[middles] <= LIP_CLOSED)) for t in (track, deaf))
+    assert closed > closed_deaf
+
+
 @pytest.fixture(scope="module")
 def live() -> AudioCNNNetwork:
     rng = np.random.default_rng(1)

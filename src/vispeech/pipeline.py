@@ -46,19 +46,26 @@ WHISPER_AUDIO_MODEL = "grid-audio-whisper"
 """The audio network on Whisper's encoder (the ``whisper`` extra): on other people's voices and
 faces jawOpen r 0.78 against 0.65 (another GRID speaker) and 0.30 against 0.20 (TV and web
 speech), docs/audio.md."""
+WHISPER_SWEDISH_MODEL = "grid-audio-whisper-base"
+"""The same recipe on Whisper base's multilingual encoder, for Swedish recordings: tiny.en never
+heard Swedish, and on espeak-ng's Swedish voices this one agrees better with the phone model
+(mean pooled r 0.417 against 0.370), docs/audio.md."""
 
 
-def default_audio_model() -> str:
-    """The audio model that animates recorded audio by default: :data:`WHISPER_AUDIO_MODEL` where
-    Whisper is installed (:func:`vispeech.frontends.whisper.installed`), else
+def default_audio_model(language: str = "en") -> str:
+    """The audio model that animates a recording in ``language`` by default: where Whisper is
+    installed (:func:`vispeech.frontends.whisper.installed`) :data:`WHISPER_SWEDISH_MODEL` for
+    Swedish (``sv``) and :data:`WHISPER_AUDIO_MODEL` for every other language, else
     :data:`DEFAULT_AUDIO_MODEL`."""
     from vispeech.frontends.whisper import installed
 
-    return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
+    if not installed():
+        return DEFAULT_AUDIO_MODEL
+    return WHISPER_SWEDISH_MODEL if language == "sv" else WHISPER_AUDIO_MODEL
 
 
 def recording_model(transcript: bool, language: str = "en") -> str:
-    """The model that animates a recording by default: without its ``transcript``,
+    """The model that animates a recording in ``language`` by default: without its ``transcript``,
     :func:`default_audio_model`; with an English one, :data:`WHISPER_AUDIO_MODEL` where Whisper is
     installed (its frames blended with the phones', :func:`blend_with_phones`: the best on every
     English corpus measured, docs/audio.md), else :data:`DEFAULT_MODEL` on the phones. Whisper
@@ -66,7 +73,7 @@ def recording_model(transcript: bool, language: str = "en") -> str:
     from vispeech.frontends.whisper import installed
 
     if not transcript:
-        return default_audio_model()
+        return default_audio_model(language)
     return WHISPER_AUDIO_MODEL if language == "en" and installed() else DEFAULT_MODEL
 
 

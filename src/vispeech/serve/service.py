@@ -265,17 +265,18 @@ class SpeechService:
 
     def warm_up(self) -> None:
         """Load espeak-ng's voices, the language identifier (a chat reply's sentences are told apart
-        on the event loop) and run the default, stream, upload and audio models once, so a first
-        request is no slower."""
+        on the event loop) and run the default, stream, upload (English and Swedish) and audio models
+        once, so a first request is no slower."""
         for language, text in GREETINGS.items():
             utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
             assert utterance.phones is not None  # speak gives the phones it spoke
             detect_language(text, self.reply_languages)
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
-        upload = self.models[self.upload_model or recording_model(False)]
-        if upload.input_kind == "audio":  # Whisper's encoder loads on its first clip
-            upload.predict(AudioClip.from_array(np.zeros(16_000, np.float32), 16_000), self.config.fps)
+        for name in dict.fromkeys(self.upload_model or recording_model(False, language) for language in GREETINGS):
+            upload = self.models[name]
+            if upload.input_kind == "audio":  # Whisper's encoder loads on its first clip
+                upload.predict(AudioClip.from_array(np.zeros(16_000, np.float32), 16_000), self.config.fps)
         if self.audio_model is not None:
             stream = LiveAudioStream(self.models[self.audio_model], 48_000, self.config.fps)
             stream.push(bytes(48_000))
