@@ -9,10 +9,11 @@ Times, as the median (and minimum) wall time of N runs of a fresh process each:
   sentence, tests/golden/phones.json, written as a TextGrid by
   :func:`vispeech.alignment.formats.write_alignment`);
 - ``vispeech say "SENTENCE" -o DIR``: the same sentence spoken by espeak-ng;
-- ``vispeech animate SPEECH.wav -o DIR``: 10 s of espeak-ng speech (the golden sentences
-  spoken one after another, cut to 10 s) animated from the audio alone by the default audio
-  model (:func:`vispeech.pipeline.default_audio_model`: ``grid-audio-whisper`` where the
-  whisper extra is installed);
+- ``vispeech animate SPEECH.wav --language en|sv -o DIR``: 10 s of espeak-ng speech (the
+  golden sentences, or the Swedish acceptance sentences, spoken one after another, cut to 10 s)
+  animated from the audio alone by the language's default audio model
+  (:func:`vispeech.pipeline.default_audio_model`: ``grid-audio-whisper``, and
+  ``grid-audio-whisper-base`` for Swedish, where the whisper extra is installed);
 - espeak-ng's own synthesis of that sentence in-process
   (:func:`vispeech.frontends.espeak.synthesize`): the first call in a process and later
   calls (every call loads the library and the voice afresh, so that a text always sounds
@@ -42,6 +43,7 @@ from pathlib import Path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN_PHONES = ROOT / "tests" / "golden" / "phones.json"
+SWEDISH_SENTENCES = ROOT / "tests" / "data" / "sentences_sv.txt"
 TARGET = 0.6
 """Seconds: the whole-process target of animate-phones, and of say beyond espeak-ng's own time."""
 ANIMATE_TARGET = 1.5
@@ -103,21 +105,26 @@ def make_take(folder: Path) -> tuple[Path, str, float]:
     return path, entry["text"], phones.duration
 
 
-def make_speech(folder: Path) -> Path:
-    """:data:`ANIMATE_SECONDS` of espeak-ng speech as a WAV file: the golden sentences one after another."""
+def make_speech(folder: Path, language: str = "en") -> Path:
+    """:data:`ANIMATE_SECONDS` of espeak-ng speech as a WAV file: the golden sentences (``en``) or the
+    Swedish acceptance sentences (``sv``) one after another."""
     import numpy as np
     import soundfile
 
     from vispeech.pipeline import utter
 
+    if language == "en":
+        texts = [entry["text"] for entry in json.loads(GOLDEN_PHONES.read_text(encoding="utf-8"))]
+    else:
+        texts = [line.strip() for line in SWEDISH_SENTENCES.read_text(encoding="utf-8").splitlines() if line.strip()]
     parts, rate = [], None
-    for entry in json.loads(GOLDEN_PHONES.read_text(encoding="utf-8")):
-        utterance = utter(entry["text"], "en")
+    for text in texts:
+        utterance = utter(text, language)
         parts.append(utterance.audio)
         rate = utterance.sample_rate
         if sum(len(p) for p in parts) >= ANIMATE_SECONDS * rate:
             break
-    path = folder / "speech.wav"
+    path = folder / f"speech_{language}.wav"
     soundfile.write(path, np.tile(np.concatenate(parts), 2)[:round(ANIMATE_SECONDS * rate)], rate)
     return path
 
@@ -145,15 +152,15 @@ def main() -> None:
         first, *warm = json.loads(espeak.stdout)
         rows.append(("espeak-ng synthesize, first call in a process", [first], None))
         rows.append(("espeak-ng synthesize, later calls", warm, None))
-        rows.append((f'vispeech say "{text}"',
-                     wall_times([*vispeech, "say", text, "-o", str(tmp / "say"), *model], args.runs, tmp),
-                     TARGET + first))
+        say = wall_times([*vispeech, "say", text, "-o", str(tmp / "say"), *model], args.runs, tmp)
+        rows.append((f'vispeech say "{text}"', say, TARGET + first))
         from vispeech.pipeline import default_audio_model
 
-        speech = make_speech(tmp)
-        rows.append((f"vispeech animate ({ANIMATE_SECONDS:g}-s WAV, {default_audio_model()})",
-                     wall_times([*vispeech, "animate", str(speech), "-o", str(tmp / "animate")], args.runs, tmp),
-                     ANIMATE_TARGET))
+        for language, name in (("en", "English"), ("sv", "Swedish")):
+            speech = make_speech(tmp, language)
+            command = [*vispeech, "animate", str(speech), "--language", language, "-o", str(tmp / "animate")]
+            rows.append((f"vispeech animate ({ANIMATE_SECONDS:g}-s {name} WAV, {default_audio_model(language)})",
+                         wall_times(command, args.runs, tmp), ANIMATE_TARGET))
 
     print(f"one core (CPU {CPU}), {args.runs} runs each, model {args.model or 'default'}; seconds")
     print(f"{'':<66} {'median':>7} {'min':>7} {'target':>7}")
@@ -161,8 +168,7 @@ def main() -> None:
         median = statistics.median(times)
         mark = "" if target is None else f"{target:7.3f} {'ok' if median <= target else 'OVER'}"
         print(f"{name[:66]:<66} {median:7.3f} {min(times):7.3f} {mark}")
-    say = statistics.median(rows[-2][1])
-    print(f"say minus espeak-ng's first call: {say - first:.3f} s (target {TARGET} s)")
+    print(f"say minus espeak-ng's first call: {statistics.median(say) - first:.3f} s (target {TARGET} s)")
 
 
 if __name__ == "__main__":
