@@ -55,13 +55,13 @@ heard Swedish, and on espeak-ng's Swedish voices this one agrees better with the
 def default_audio_model(language: str = "en") -> str:
     """The audio model that animates a recording in ``language`` by default: where Whisper is
     installed (:func:`vispeech.frontends.whisper.installed`) :data:`WHISPER_SWEDISH_MODEL` for
-    Swedish (``sv``) and :data:`WHISPER_AUDIO_MODEL` for every other language, else
-    :data:`DEFAULT_AUDIO_MODEL`."""
+    Swedish (``sv``, where Whisper base is) and :data:`WHISPER_AUDIO_MODEL` for every other
+    language, else :data:`DEFAULT_AUDIO_MODEL`."""
     from vispeech.frontends.whisper import installed
 
-    if not installed():
-        return DEFAULT_AUDIO_MODEL
-    return WHISPER_SWEDISH_MODEL if language == "sv" else WHISPER_AUDIO_MODEL
+    if language == "sv" and installed("whisper-base"):
+        return WHISPER_SWEDISH_MODEL
+    return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
 
 
 def recording_model(transcript: bool, language: str = "en") -> str:

