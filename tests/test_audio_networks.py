@@ -174,6 +174,46 @@ def test_cnn_stream_equals_offline_prediction(fixture, fps, request, held_out):
     np.testing.assert_allclose(np.concatenate(parts), offline, atol=1e-5)
 
 
+def test_streams_advanced_together_give_what_each_gives_alone(cnn, recurrent_cnn, encdec, held_out, monkeypatch):
+    """AudioStream.advance_together (what a server runs for the audio its sessions sent in one
+    tick) gives every stream the frames it gets pushed alone, whatever the chunks, lengths and
+    starts: the streams of one convolution network take each layer at once."""
+    from vispeech.models.networks import kernels
+    from vispeech.models.networks.audio_stream import AudioStream
+
+    gather = kernels._window_starts
+    products = []  # the layers run: each gathers its windows once
+    monkeypatch.setattr(kernels, "_window_starts", lambda *args: products.append(1) or gather(*args))
+    sessions = [(cnn, 0, 0), (cnn, 1, 4), (recurrent_cnn, 2, 2), (cnn, 2, 9), (encdec, 0, 1), (recurrent_cnn, 1, 0)]
+    rng = np.random.default_rng(3)
+    plans = []  # each session's chunk sizes
+    for _, u, _ in sessions:
+        sizes = list(rng.integers(1, 1500, size=len(held_out[u].audio) // 100))
+        plans.append(sizes[:int(np.searchsorted(np.cumsum(sizes), len(held_out[u].audio))) + 1])
+    alone = []
+    for (model, u, _), sizes in zip(sessions, plans):
+        stream, audio, parts = model.stream(None, 30), held_out[u].audio, []
+        for a, b in zip(np.cumsum([0, *sizes[:-1]]), np.cumsum(sizes)):
+            parts.append(stream.push(audio[a:b])[1])
+        alone.append(np.concatenate([*parts, stream.finish()[1]]))
+    streams = [model.stream(None, 30) for model, _, _ in sessions]
+    together = [[] for _ in sessions]
+    for tick in range(max(start + len(sizes) for (_, _, start), sizes in zip(sessions, plans))):
+        due = [k for k, ((_, _, start), sizes) in enumerate(zip(sessions, plans)) if start <= tick < start + len(sizes)]
+        for k in due:
+            _, u, start = sessions[k]
+            a = sum(plans[k][: tick - start])
+            streams[k].feed(held_out[u].audio[a:a + plans[k][tick - start]])
+        products.clear()
+        AudioStream.advance_together([streams[k] for k in due])
+        assert len(products) <= 6  # three layers for each convolution network, whatever the streams
+        for k in due:
+            together[k].append(streams[k].collect()[1])
+    for k, stream in enumerate(streams):
+        frames = np.concatenate([*together[k], stream.finish()[1]])
+        np.testing.assert_allclose(frames, alone[k], atol=1e-6)
+
+
 def test_cnn_delay_is_its_look_ahead_plus_framing(cnn):
     assert cnn.lookahead == 8 and cnn.delay == pytest.approx(8 / 50 + 0.010 + 0.016)
     short = AudioCNNNetwork(look_ahead=3)

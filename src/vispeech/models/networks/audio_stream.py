@@ -9,6 +9,7 @@ live stream has them, which networks trained with ``encoder_streamed`` also read
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,6 +18,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import SAMPLE_RATE, SpectrumStream
+from vispeech.models.networks.kernels import AudioCNNStream
 from vispeech.models.streams import ModelStream, ResampledFrames
 
 if TYPE_CHECKING:
@@ -59,7 +61,9 @@ class AudioStream(ModelStream[np.ndarray]):
         self._frames = ResampledFrames(model.fps_, self.fps)
         kernel = model.kernel
         # a convolution network runs incrementally, each frame once; others re-run a recent window
-        self._incremental = kernel.stream(model.encoding_.size) if hasattr(kernel, "stream") else None
+        self._incremental: AudioCNNStream | None = (
+            kernel.stream(model.encoding_.size) if hasattr(kernel, "stream") else None
+        )
 
     @property
     def sample_rate(self) -> int:
@@ -67,6 +71,12 @@ class AudioStream(ModelStream[np.ndarray]):
         return SAMPLE_RATE
 
     def push(self, samples: np.ndarray) -> tuple[int, np.ndarray]:
+        self.feed(samples)
+        return self.collect()
+
+    def feed(self, samples: np.ndarray) -> None:
+        """Add samples (their features and network inputs); the network frames they make
+        computable are left to :meth:`advance_together` (or :meth:`collect`)."""
         if self.closed:
             raise VispeechError("this audio stream has ended")
         chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
@@ -79,9 +89,25 @@ class AudioStream(ModelStream[np.ndarray]):
             self._add_features(self._spectra.push(chunk))
         else:
             self._add_hidden(chunk, final=False)
-        self._advance(self._first_input + len(self._inputs) - self.model.kernel_ahead, final=False)
+
+    def collect(self) -> tuple[int, np.ndarray]:
+        self.advance_together([self])
         n_total = math.ceil(self.end * self.fps - 1e-9)
         return self._give(min(self._frames.ready(), n_total))
+
+    @classmethod
+    def advance_together(cls, streams: Sequence[AudioStream]) -> None:
+        """Compute the network frames the audio fed to ``streams`` made computable: the
+        incremental streams of one network together (each layer one matrix product for the new
+        frames of all of them), the others one by one."""
+        groups: dict[int, list[AudioStream]] = {}
+        for stream in streams:
+            if stream._incremental is None:
+                stream._advance(stream._first_input + len(stream._inputs) - stream.model.kernel_ahead, final=False)
+            elif stream._inputs:
+                groups.setdefault(id(stream._incremental.kernel), []).append(stream)
+        for group in groups.values():
+            _advance_incremental(group, final=False)
 
     def finish(self) -> tuple[int, np.ndarray]:
         if self.closed:
@@ -128,13 +154,7 @@ class AudioStream(ModelStream[np.ndarray]):
         """Compute network frames up to (not including) ``upto`` (an incremental network: all it can)."""
         model = self.model
         if self._incremental is not None:
-            pending = self._inputs[: self._n_model_frames() - self._first_input] if final else self._inputs
-            width = model.encoding_.size
-            out = self._incremental.push(np.stack(pending) if pending else np.zeros((0, width), np.float32), final)
-            for row in model._denormalise(out):
-                self._frames.add(row)
-            self._first_input += len(self._inputs)
-            self._inputs = []
+            _advance_incremental([self], final)
             return
         if not final:
             upto = min(upto, self._n_model_frames())
@@ -157,6 +177,22 @@ class AudioStream(ModelStream[np.ndarray]):
             return self._empty()
         start, self.emitted = self.emitted, upto
         return start, self._frames.give(start, upto)
+
+
+def _advance_incremental(streams: Sequence[AudioStream], final: bool) -> None:
+    """Run the inputs waiting in ``streams`` (incremental, of one network) through the network
+    together; with ``final``, each stream's last frames as if its input ended there."""
+    model = streams[0].model
+    pending = [s._inputs[: s._n_model_frames() - s._first_input] if final else s._inputs for s in streams]
+    width = model.encoding_.size
+    rows = [np.stack(p) if p else np.zeros((0, width), np.float32) for p in pending]
+    outs = AudioCNNStream.push_together([s._incremental for s in streams if s._incremental is not None], rows, final)
+    denormalised = iter(model._denormalise(np.concatenate(outs)))
+    for stream, out in zip(streams, outs):
+        for _ in range(len(out)):
+            stream._frames.add(next(denormalised))
+        stream._first_input += len(stream._inputs)
+        stream._inputs = []
 
 
 class EncoderStream:

@@ -309,24 +309,51 @@ class ConvStackStream:
     def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
         """The output frames that ``rows`` (the next input frames) make computable; with
         ``final``, the rest, as if the input ended after ``rows``."""
-        h = np.asarray(rows, dtype=np.float32)
-        for i, layer in enumerate(self.kernel.layers):
+        return self.push_together([self], [rows], final)[0]
+
+    @staticmethod
+    def push_together(
+        streams: Sequence[ConvStackStream], rows: Sequence[np.ndarray], final: bool = False
+    ) -> list[np.ndarray]:
+        """:meth:`push` of ``rows[i]`` to ``streams[i]`` (all of one kernel), each layer's
+        products taken once for the new frames of all of them (their windows' rows gathered):
+        their outputs, in order."""
+        hs = [np.asarray(r, dtype=np.float32) for r in rows]
+        for i, layer in enumerate(streams[0].kernel.layers):
             behind, ahead = layer["pad"]
-            buffer = np.concatenate(
-                [self._buffers[i], h] + ([np.zeros((ahead, h.shape[1]), np.float32)] if final else [])
-            )
-            n = len(buffer) - behind - ahead
-            h = _conv_layer(layer, buffer) if n > 0 else np.zeros((0, len(layer["bias"])), np.float32)
-            self._buffers[i] = buffer[max(0, n) :] if not final else buffer[:0]
-        return h
+            size = behind + ahead + 1
+            buffers = []
+            for stream, h in zip(streams, hs):
+                tail = [np.zeros((ahead, h.shape[1]), np.float32)] if final else []
+                buffers.append(np.concatenate([stream._buffers[i], h, *tail]))
+            counts = [max(0, len(buffer) - size + 1) for buffer in buffers]
+            if not sum(counts):
+                hs = [np.zeros((0, len(layer["bias"])), np.float32) for _ in buffers]
+            elif len(buffers) == 1:  # its windows are every whole one
+                hs = [_conv_layer(layer, buffers[0])]
+            else:
+                hs = np.split(_conv_layer(layer, *_window_starts(buffers, counts)), np.cumsum(counts)[:-1])
+            for stream, buffer, n in zip(streams, buffers, counts):
+                stream._buffers[i] = buffer[n:] if not final else buffer[:0]
+        return hs
 
 
-def _conv_layer(layer: _ConvLayer, padded: np.ndarray) -> np.ndarray:
-    """One convolution, ReLU and per-frame layer norm over already padded input rows."""
-    n = len(padded) - len(layer["weight"]) + 1
+def _window_starts(buffers: Sequence[np.ndarray], counts: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of ``buffers`` stacked, and where the first ``counts[i]`` windows of each
+    ``buffers[i]`` begin in them, buffer after buffer."""
+    lengths = np.array([len(buffer) for buffer in buffers])
+    offsets = np.cumsum(lengths) - lengths  # where each buffer begins in the rows stacked
+    before = np.cumsum(counts) - counts  # windows of the buffers before
+    return np.concatenate(buffers), np.arange(sum(counts)) + np.repeat(offsets - before, counts)
+
+
+def _conv_layer(layer: _ConvLayer, rows: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
+    """One convolution, ReLU and per-frame layer norm over the windows of already padded input
+    ``rows`` that begin at ``starts`` (default: every whole window)."""
+    n = len(rows) - len(layer["weight"]) + 1 if starts is None else len(starts)
     out = np.broadcast_to(layer["bias"], (n, len(layer["bias"]))).copy()
     for k, weight in enumerate(layer["weight"]):
-        out += padded[k : k + n] @ weight
+        out += (rows[k : k + n] if starts is None else rows[starts + k]) @ weight
     np.maximum(out, 0.0, out=out)
     mean = out.mean(axis=1, keepdims=True)
     var = out.var(axis=1, keepdims=True)
@@ -414,18 +441,36 @@ class AudioCNNStream:
         self._state = None if kernel.gru is None else np.zeros(len(kernel.gru[3]) // 3, dtype=np.float32)
 
     def push(self, rows: np.ndarray, final: bool = False) -> np.ndarray:
-        if not len(rows):
-            h = np.zeros((0, self.width), dtype=np.float32)
-        else:
-            h = rows if self.kernel.fusion is None else self.kernel.fusion.forward(rows)
-        h = self.convs.push(h, final)
-        if self._state is not None and len(h):
-            assert self.kernel.gru is not None  # a state is kept only for a GRU
-            h = _gru(h, *self.kernel.gru, state=self._state)
-            self._state = h[-1]
-        elif self._state is not None:
-            h = np.zeros((0, len(self._state)), dtype=np.float32)
-        return self.kernel._output(h)
+        return self.push_together([self], [rows], final)[0]
+
+    @staticmethod
+    def push_together(
+        streams: Sequence[AudioCNNStream], rows: Sequence[np.ndarray], final: bool = False
+    ) -> list[np.ndarray]:
+        """:meth:`push` of ``rows[i]`` to ``streams[i]`` (all of one kernel), the convolutions
+        and the output layer one matrix product for the new frames of all of them (the GRU, when
+        there is one, stream by stream): their outputs, in order."""
+        kernel = streams[0].kernel
+        hs = []
+        for stream, r in zip(streams, rows):
+            if not len(r):
+                r = np.zeros((0, stream.width), dtype=np.float32)
+            elif kernel.fusion is not None:
+                r = kernel.fusion.forward(r)
+            hs.append(r)
+        hs = ConvStackStream.push_together([stream.convs for stream in streams], hs, final)
+        if kernel.gru is not None:
+            hs = [stream._recur(h) for stream, h in zip(streams, hs)]
+        return np.split(kernel._output(np.concatenate(hs)), np.cumsum([len(h) for h in hs])[:-1])
+
+    def _recur(self, h: np.ndarray) -> np.ndarray:
+        """The GRU over the next convolution outputs ``h``, from the state the last push left."""
+        assert self.kernel.gru is not None and self._state is not None  # a state is kept only for a GRU
+        if not len(h):
+            return np.zeros((0, len(self._state)), dtype=np.float32)
+        h = _gru(h, *self.kernel.gru, state=self._state)
+        self._state = h[-1]
+        return h
 
 
 class EncoderDecoderKernel:
