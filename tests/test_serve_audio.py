@@ -146,6 +146,38 @@ def test_live_audio_stream_refuses_what_it_cannot_take(model):
         LiveAudioStream(model, 16000).push(b"\x00\x00\x00")
 
 
+def test_live_audio_streams_pushed_together_give_what_each_gives_alone(model, pcm):
+    """push_audio_together (what the server runs for the listen sessions of one tick) gives every
+    stream the frames it gets pushed alone, whatever its chunks, frame rate and start; a stream
+    whose chunk is refused gets its error and is left as it was, the others go on."""
+    from vispeech.streaming import push_audio_together
+
+    rng = np.random.default_rng(5)
+    audio = [pcm.tobytes(), pcm[: len(pcm) // 2].tobytes(), pcm[::-1].tobytes()]
+    plans = [random_chunks(data, rng, 3000) for data in audio]
+    starts, rates = [0, 7, 3], [30.0, 60.0, 30.0]
+    alone = []
+    for chunks, fps in zip(plans, rates):
+        stream = LiveAudioStream(model, 16000, fps)
+        alone.append(np.concatenate([*(stream.push(chunk)[1] for chunk in chunks), stream.finish()[1]]))
+    streams = [LiveAudioStream(model, 16000, fps) for fps in rates]
+    together = [[] for _ in streams]
+    for tick in range(max(start + len(chunks) for start, chunks in zip(starts, plans))):
+        due = [k for k, (start, chunks) in enumerate(zip(starts, plans)) if start <= tick < start + len(chunks)]
+        pushes = [(streams[k], plans[k][tick - starts[k]]) for k in due]
+        if tick == 10:
+            pushes.append((streams[0], b"\x00\x00\x00"))  # cut short: refused
+        results = push_audio_together(pushes)
+        if tick == 10:
+            assert isinstance(results[-1], VispeechError) and "cut short" in str(results[-1])
+            results = results[:-1]
+        for k, (start, rows) in zip(due, results):
+            assert start == sum(len(r) for r in together[k])
+            together[k].append(rows)
+    for k, stream in enumerate(streams):
+        np.testing.assert_allclose(np.concatenate([*together[k], stream.finish()[1]]), alone[k], atol=1e-6)
+
+
 # -- POST /api/animate --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("fmt", ["WAV", "FLAC", "OGG", "MP3"])

@@ -39,9 +39,9 @@ from __future__ import annotations
 import base64
 import functools
 import math
-from collections.abc import Generator, Iterable, Sequence
+from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, TypeVar, cast
 
 import numpy as np
 
@@ -69,6 +69,9 @@ MAX_PHONE_SECONDS = 10.0
 """Longest step (seconds) from one phone's end to the next's in a phone stream."""
 POSTPROCESS_LOOKAHEAD = 2
 """Frames a phone stream holds back beyond the model's look-ahead for post-processing."""
+
+_FedT = TypeVar("_FedT", "PhoneStream", "LiveAudioStream")
+_ChunkT = TypeVar("_ChunkT")
 
 STREAM_CHANNELS: tuple[str, ...] = (
     THESIS_CHANNELS
@@ -339,20 +342,39 @@ def push_together(
     step per frame for every stream of the same network), then each stream's frames are
     post-processed. In the place of a stream whose phones are refused is its :class:`VispeechError`
     (that stream is left as it was); the others go on."""
-    fed: list[PhoneStream | VispeechError] = []
-    for stream, phones in pushes:
-        try:
-            stream.feed(phones)
-            fed.append(stream)
-        except VispeechError as exc:
-            fed.append(exc)
+    return _together([_fed(stream, stream.feed, phones) for stream, phones in pushes])
+
+
+def push_audio_together(
+    pushes: Sequence[tuple[LiveAudioStream, bytes]],
+) -> list[tuple[int, np.ndarray] | VispeechError]:
+    """:meth:`LiveAudioStream.push` of several streams at once, as :func:`push_together` does for
+    phone streams: the convolution network of every stream of one audio network takes the new
+    frames of all of them in one matrix product a layer
+    (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`)."""
+    return _together([_fed(stream, stream.feed, pcm) for stream, pcm in pushes])
+
+
+def _fed(stream: _FedT, feed: Callable[[_ChunkT], None], chunk: _ChunkT) -> _FedT | VispeechError:
+    """``stream`` fed ``chunk`` (by ``feed``), or the :class:`VispeechError` it was refused with."""
+    try:
+        feed(chunk)
+    except VispeechError as exc:
+        return exc
+    return stream
+
+
+def _together(
+    fed: Sequence[PhoneStream | LiveAudioStream | VispeechError],
+) -> list[tuple[int, np.ndarray] | VispeechError]:
+    """The model work the fed streams wait on, done together, then each one's frames (or its error)."""
     groups: dict[type[ModelStream], list[ModelStream]] = {}
     for entry in fed:
-        if isinstance(entry, PhoneStream):
+        if not isinstance(entry, VispeechError):
             groups.setdefault(type(entry._inner), []).append(entry._inner)
     for kind, inner in groups.items():
         kind.advance_together(inner)
-    return [stream.collect() if isinstance(stream, PhoneStream) else stream for stream in fed]
+    return [entry if isinstance(entry, VispeechError) else entry.collect() for entry in fed]
 
 
 def open_phone_stream(model: Estimator, language: str, fps: float = DEFAULT_FPS) -> PhoneStream:
@@ -438,6 +460,12 @@ class LiveAudioStream:
 
     def push(self, pcm: bytes) -> tuple[int, np.ndarray]:
         """Add a chunk of PCM bytes; the frames that became ready."""
+        self.feed(pcm)
+        return self.collect()
+
+    def feed(self, pcm: bytes) -> None:
+        """:meth:`push`'s first half: check and add the chunk, leaving the model's work to
+        :func:`push_audio_together` or :meth:`collect`."""
         if self.closed:
             raise VispeechError("this audio stream has ended")
         if len(pcm) % 2:
@@ -448,7 +476,11 @@ class LiveAudioStream:
             samples = self._resampler.resample_chunk(samples)
         if self.activity is not None:
             self.activity.push(samples)
-        return self._postprocessed(*self._inner.push(samples))
+        self._inner.feed(samples)
+
+    def collect(self) -> tuple[int, np.ndarray]:
+        """:meth:`push`'s second half: the frames that became ready since :meth:`feed`."""
+        return self._postprocessed(*self._inner.collect())
 
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed."""
