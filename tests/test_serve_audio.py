@@ -178,6 +178,46 @@ def test_live_audio_streams_pushed_together_give_what_each_gives_alone(model, pc
         np.testing.assert_allclose(np.concatenate([*together[k], stream.finish()[1]]), alone[k], atol=1e-6)
 
 
+def test_the_server_pushes_the_listen_sessions_of_one_tick_together(tiny_audio_model, model, pcm):
+    """Live audio pushes made at once by several sessions run as one pool job of the kind
+    "listen", each session getting the frames message it gets alone, in its own output scale;
+    while that job runs, newer pushes wait for the next one; a refused chunk is its session's error."""
+    import asyncio
+
+    from vispeech.serve.service import SpeechService, scaled
+
+    service = SpeechService(ServeConfig(cache=":memory:", workers=1, audio_model=str(tiny_audio_model)))
+    scales = [service.scale(name)[1] for name in ("arkit", "tracker", "arkit")]
+    data = pcm.tobytes()
+    kinds = []
+    run = service.pool.run
+    service.pool.run = lambda kind, *args, **kwargs: kinds.append(kind) or run(kind, *args, **kwargs)
+
+    async def pushed():
+        streams = [LiveAudioStream(model, 16000, 30.0) for _ in scales]
+        first = await asyncio.gather(*(service.listens.push(s, data[: 9600 * (k + 1)], c, 0.1)
+                                       for k, (s, c) in enumerate(zip(streams, scales))))
+        assert (service.listens.batches, service.listens.pushes, service.listens.largest) == (1, 3, 3)
+        second = [asyncio.ensure_future(service.listens.push(s, data[28800:32000], c, 0.1))
+                  for s, c in zip(streams, scales)]
+        await asyncio.sleep(0)  # the second batch is under way...
+        late = asyncio.ensure_future(service.listens.push(streams[0], b"\x00" * 3, scales[0], 0.1))  # ...waits
+        results = await asyncio.gather(*second, late, return_exceptions=True)
+        assert service.listens.batches == 3 and service.listens.largest == 3
+        assert isinstance(results[-1], VispeechError) and "cut short" in str(results[-1])
+        return first
+
+    first = asyncio.run(pushed())
+    assert set(kinds) == {"listen"}
+    for k, (text, scale) in enumerate(zip(first, scales)):
+        alone = LiveAudioStream(model, 16000, 30.0)
+        start, expected = alone.push(data[: 9600 * (k + 1)])
+        got = json.loads(text)
+        assert got["start_frame"] == start and len(expected)
+        np.testing.assert_allclose(got["frames"], scaled(expected, alone, scale).round(6), atol=2e-6)
+    service.pool.close()
+
+
 # -- POST /api/animate --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("fmt", ["WAV", "FLAC", "OGG", "MP3"])

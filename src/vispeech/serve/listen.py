@@ -61,7 +61,9 @@ class ListenConnection(Connection):
 
     The reader takes audio chunks as they come (up to ``max_audio_backlog`` seconds waiting, so
     a lag is seen, not hidden in TCP buffers); the processor pushes all the chunks waiting at
-    once in one pool job, so a session that fell behind catches up in larger steps. Any refused
+    once, so a session that fell behind catches up in larger steps, and the pushes of all the
+    sessions waiting run together in one pool job (the service's ``listens``
+    :class:`~vispeech.serve.service.PushBatcher`). Any refused
     chunk ends the audio stream (its frames would no longer line up with the client's audio);
     further chunks and timings are dropped until the next start, stop or cancel. The reader
     counts the cancels it reads (:attr:`epoch`): the chunks and timings read before a cancel are
@@ -275,14 +277,8 @@ class ListenConnection(Connection):
             if isinstance(stream, TimedSpeechStream):  # counted, not heard: no work to queue
                 text = self.service.step(stream, self.scale, stream.push, b"".join(pcm))
             else:
-                text = await self._run(
-                    self.service.step,
-                    stream,
-                    self.scale,
-                    stream.push,
-                    b"".join(pcm),
-                    weight=(seconds - stream.duration) * AUDIO_WORK_PER_SECOND,
-                )
+                weight = (seconds - stream.duration) * AUDIO_WORK_PER_SECOND
+                text = await self.service.listens.push(stream, b"".join(pcm), self.scale, weight)
         except REFUSALS as exc:
             stream.close()
             self.audio, self.last, self.refusing = None, stream, True

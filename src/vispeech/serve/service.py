@@ -1,6 +1,6 @@
 """The speech service behind the server's routes: its models, cache, rate limit, work pool,
-chat bot and chat sessions, and the calls into the library (no HTTP); the push batcher that runs
-the phone-stream pushes of all sessions together."""
+chat bot and chat sessions, and the calls into the library (no HTTP); the push batchers that run
+the phone-stream and the live-audio pushes of all sessions together."""
 
 from __future__ import annotations
 
@@ -13,10 +13,11 @@ import threading
 from collections.abc import AsyncGenerator, Callable, Generator, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Generic, NamedTuple, TypeVar
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.align import TranscriptMismatch
 from vispeech.frontends.audio import AudioClip, read_upload
@@ -50,7 +51,7 @@ from vispeech.serve.schemas import (
     SpeechOptions,
 )
 from vispeech.serve.sessions import ChatSessions
-from vispeech.streaming import LiveAudioStream, PhoneStream, push_together
+from vispeech.streaming import LiveAudioStream, PhoneStream, push_audio_together, push_together
 
 log = logging.getLogger("vispeech.serve")
 
@@ -75,36 +76,50 @@ MIN_CHUNK_SECONDS = 0.01
 """A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
 
 
-_Push = tuple[PhoneStream, list[Phone], Calibration | None, float, asyncio.Future]
-"""A session's push waiting: its stream, phones, output scale, estimated work (seconds) and the
-future of its frames."""
+StreamT = TypeVar("StreamT", PhoneStream, LiveAudioStream)
+ChunkT = TypeVar("ChunkT")
+Together = Callable[[Sequence[tuple[StreamT, ChunkT]]], list[tuple[int, np.ndarray] | VispeechError]]
+"""What pushes several streams at once: :func:`~vispeech.streaming.push_together` or
+:func:`~vispeech.streaming.push_audio_together`."""
 
 
-class PushBatcher:
-    """Phone-stream pushes of every session, batched: one pool job at a time runs the pushes
-    waiting when a worker takes it, the first of each session, together
-    (:func:`vispeech.streaming.push_together`: one network step per frame for all of the sessions
-    of a model, instead of one each). Pushes made while the job waits for a worker join it; those
-    made while it runs go with the next.
+class _Push(NamedTuple, Generic[StreamT, ChunkT]):
+    """A session's push waiting: its stream, chunk, output scale, estimated work (seconds) and
+    the future of its frames."""
+
+    stream: StreamT
+    chunk: ChunkT
+    scale: Calibration | None
+    weight: float
+    future: asyncio.Future
+
+
+class PushBatcher(Generic[StreamT, ChunkT]):
+    """Stream pushes of every session, batched: one pool job (of ``kind``, on behalf of ``key``)
+    at a time runs the pushes waiting when a worker takes it, the first of each session, together
+    (``together``: :func:`vispeech.streaming.push_together` takes one network step per frame for
+    all the phone streams of a model, :func:`~vispeech.streaming.push_audio_together` one matrix
+    product a layer for the new audio frames of all the audio streams of a network, instead of
+    one each). Pushes made while the job waits for a worker join it; those made while it runs go
+    with the next.
 
     ``batches`` and ``pushes`` count what it ran, ``largest`` is the most pushes one batch held.
     """
 
-    def __init__(self, service: SpeechService) -> None:
-        self.service = service
-        self._waiting: list[_Push] = []
+    def __init__(self, service: SpeechService, kind: str, key: str, together: Together[StreamT, ChunkT]) -> None:
+        self.service, self.kind, self.key = service, kind, key
+        self.together: Together[StreamT, ChunkT] = together
+        self._waiting: list[_Push[StreamT, ChunkT]] = []
         self._lock = threading.Lock()  # the waiting list is taken in a worker thread
         self._busy = False  # a job is in the pool
         self.batches = self.pushes = self.largest = 0
 
-    async def push(
-        self, stream: PhoneStream, phones: list[Phone], scale: Calibration | None, weight: float
-    ) -> str | None:
-        """The ``frames`` message (in the output scale ``scale``) of ``stream.push(phones)``, or None
+    async def push(self, stream: StreamT, chunk: ChunkT, scale: Calibration | None, weight: float) -> str | None:
+        """The ``frames`` message (in the output scale ``scale``) of ``stream.push(chunk)``, or None
         for no frames."""
         future = asyncio.get_running_loop().create_future()
         with self._lock:
-            self._waiting.append((stream, phones, scale, weight, future))
+            self._waiting.append(_Push(stream, chunk, scale, weight, future))
         if not self._busy:
             self._busy = True
             asyncio.ensure_future(self._run())
@@ -113,9 +128,9 @@ class PushBatcher:
     async def _run(self) -> None:
         while True:
             with self._lock:
-                weight = sum(push[3] for push in self._waiting)
+                weight = sum(push.weight for push in self._waiting)
             try:
-                batch, results = await self.service.pool.run("phones", "phone streams", self._frames, weight=weight)
+                batch, results = await self.service.pool.run(self.kind, self.key, self._frames, weight=weight)
             except BaseException as exc:  # Busy, shutting down: every session waiting is told
                 with self._lock:
                     batch, self._waiting = self._waiting, []
@@ -123,34 +138,35 @@ class PushBatcher:
             self.batches += 1
             self.pushes += len(batch)
             self.largest = max(self.largest, len(batch))
-            for (*_, future), result in zip(batch, results):
-                if future.done():
+            for push, result in zip(batch, results):
+                if push.future.done():
                     continue
                 if isinstance(result, BaseException):
-                    future.set_exception(result)
+                    push.future.set_exception(result)
                 else:
-                    future.set_result(result)
+                    push.future.set_result(result)
             with self._lock:
                 if not self._waiting:
                     self._busy = False
                     return
 
-    def _frames(self) -> tuple[list[_Push], list[str | None | Exception]]:
+    def _frames(self) -> tuple[list[_Push[StreamT, ChunkT]], list[str | None | Exception]]:
         """In a worker: the pushes waiting, the first of each session, and the ``frames`` message of
-        each (``None`` for none), or its error, from :func:`~vispeech.streaming.push_together`."""
-        batch: list[_Push] = []
-        later: list[_Push] = []
+        each (``None`` for none), or its error, from ``together``."""
+        batch: list[_Push[StreamT, ChunkT]] = []
+        later: list[_Push[StreamT, ChunkT]] = []
         sessions: set[int] = set()
         with self._lock:
             for push in self._waiting:
-                (later if id(push[0]) in sessions else batch).append(push)
-                sessions.add(id(push[0]))
+                (later if id(push.stream) in sessions else batch).append(push)
+                sessions.add(id(push.stream))
             self._waiting = later
-        pairs = [(stream, phones) for stream, phones, *_ in batch]
         try:
             return batch, [
-                result if isinstance(result, VispeechError) else self.service.frames_message(stream, scale, *result)
-                for (stream, _, scale, *_), result in zip(batch, push_together(pairs))
+                result
+                if isinstance(result, VispeechError)
+                else self.service.frames_message(push.stream, push.scale, *result)
+                for push, result in zip(batch, self.together([(push.stream, push.chunk) for push in batch]))
             ]
         except Exception as exc:  # noqa: BLE001 (every session of the batch is told)
             return batch, [exc] * len(batch)
@@ -176,7 +192,10 @@ class SpeechService:
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue)
         set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
-        self.pushes = PushBatcher(self)
+        self.pushes = PushBatcher(self, "phones", "phone streams", push_together)
+        """The phone streams' pushes (``/api/stream``)."""
+        self.listens = PushBatcher(self, "listen", "listen streams", push_audio_together)
+        """The live audio streams' pushes (``/api/listen`` without timings)."""
         self.connections = Slots(config.max_streams, config.max_streams_per_ip, config.max_streams_per_network)
         self.chats = ChatSessions(
             config.chat_sessions, config.chat_history, config.chat_history_chars, config.chat_session_seconds
