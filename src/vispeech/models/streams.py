@@ -171,10 +171,13 @@ class ResampledFrames:
     def give(self, emitted: int, upto: int) -> np.ndarray:
         """Stream frames ``emitted .. upto - 1`` (frames past the last model frame hold its values);
         needs at least one model frame."""
-        times = np.arange(emitted, upto) / self.fps
-        source = (self.first + np.arange(len(self._frames))) / self.model_fps
         values = np.stack(self._frames)
-        rows = np.column_stack([np.interp(times, source, values[:, j]) for j in range(values.shape[1])])
+        position = np.clip(np.arange(emitted, upto) * (self.model_fps / self.fps) - self.first, 0.0, len(values) - 1)
+        if len(values) == 1:
+            rows = np.repeat(values, len(position), axis=0)
+        else:  # as Track.resample interpolates, all channels at once
+            lo = np.minimum(position.astype(np.intp), len(values) - 2)
+            rows = values[lo] + (position - lo)[:, None] * (values[lo + 1] - values[lo])
         drop = min(max(0, int(np.floor(upto * self.model_fps / self.fps)) - 1 - self.first), len(self._frames) - 1)
         del self._frames[:drop]
         self.first += drop
