@@ -2,7 +2,7 @@
 concurrent sessions.
 
     python benchmarks/bench_audio_stream.py [--model NAME|FOLDER | --tiny] [--look-ahead 8]
-        [--sessions 10] [--clips 3] [--chunk-ms 20] [--rate 16000] [--workers N]
+        [--sessions 10] [--clips 3] [--chunk-ms 20] [--rate 16000] [--workers N] [--processes N]
         [--grid ../shared/data/grid_s1] [--json OUT]
 
 The audio is ``--clips`` GRID speaker-1 utterances back to back (3 s each), sent in chunks of
@@ -15,7 +15,8 @@ the frame arrived: the model's look-ahead, the features, inference and transport
    alone, pushed the 16 kHz chunks in real time (delay = look-ahead + features + inference),
    and the compute time of a push.
 2. ``vispeech serve`` in a subprocess on a free loopback port (no rate limit, the per-address
-   and per-network stream caps lifted): one session, then ``--sessions`` at once, all clients in this process.
+   and per-network stream caps lifted; ``--processes`` server processes): one session, then
+   ``--sessions`` at once, all clients in this process.
 
 p50 and p95 are over all frames of all sessions. ``--model`` is an audio model name or saved
 folder (default: the shipped ``grid-audio-cnn``); ``--tiny`` trains the stand-in the tests use
@@ -136,6 +137,7 @@ def main() -> int:
     parser.add_argument("--rate", type=int, default=16000, help="sample rate the client sends (Hz)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of the in-process stream")
     parser.add_argument("--workers", type=int, help="the server's worker threads [default: its own]")
+    parser.add_argument("--processes", type=int, default=1, help="server processes (vispeech serve --processes)")
     parser.add_argument("--grid", type=Path, default=GRID, help="GRID speaker-1 folder")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args()
@@ -153,6 +155,8 @@ def main() -> int:
                    "--audio-model", folder]
         if args.workers:
             options += ["--workers", str(args.workers)]
+        if args.processes > 1:
+            options += ["--processes", str(args.processes)]
         with running_server(*options) as server:
             url = server.url.replace("http://", "ws://") + "/api/listen"
             report.update(asyncio.run(served(url, server, pcm, args.rate, sessions, chunk)))
