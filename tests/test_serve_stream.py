@@ -525,3 +525,44 @@ def test_a_phones_stream_sets_its_frame_rate_and_scale(client):
             assert error["type"] == "error" and f"stream's {words} was set by its first message" in error["message"]
         ws.send_json({"type": "phones", "phones": phone_dicts(HELLO[5:]), "fps": 60, "scale": "arkit", "final": True})
         assert receive_until_end(ws)[-1] == {"type": "end", "n_frames": 60, "duration": 1.0}
+
+
+def stream_track(messages: list[dict]) -> tuple[list[str], np.ndarray]:
+    """The channels and frames (rows) of a stream's messages."""
+    rows = [row for m in messages if m["type"] == "frames" for row in m["frames"]]
+    return messages[0]["channels"], np.array(rows)
+
+
+def test_a_text_stream_adds_the_life_layers_asked_for_across_its_clauses(client):
+    """Blinks and gaze go on across clauses as over one track (what nonverbal draws over the whole
+    timeline, the same for the same seed), and the breath, which a later clause replans, without a
+    jump; the speech channels come first, as without the layers. (A stream's espeak-ng runs in its
+    fast mode, which may time two runs of a text a little apart: only the phone-free layers are
+    compared between runs.)"""
+    from vispeech.motion.life import LifePlan, nonverbal
+
+    text = "Hello there, my friend. How are you today? I hope that you are well."
+
+    def spoken(**options) -> tuple[list[str], np.ndarray]:
+        with client.websocket_connect("/api/stream") as ws:
+            ws.send_json({"type": "text", "text": text, **options})
+            return stream_track(receive_until_end(ws))
+
+    plain_channels, _ = spoken()
+    channels, rows = spoken(life=["blink", "gaze", "breath"], seed=3)
+    life = LifePlan(("blink", "gaze", "breath"), 30.0).channels
+    assert channels == plain_channels + list(life) and channels[: len(STREAM_CHANNELS)] == list(STREAM_CHANNELS)
+    assert rows[:, channels.index("jawOpen")].max() > 0.1  # the speech is there
+    whole = nonverbal(len(rows), 30.0, layers=("blink", "gaze"), seed=3)
+    columns = [channels.index(name) for name in whole.channels]
+    np.testing.assert_allclose(rows[:, columns], whole.values, atol=1e-6)
+    assert rows[:, channels.index("eyeBlinkLeft")].max() > 0.9  # it blinked (about 17 times a minute)
+    breath = rows[:, channels.index("breath")]
+    assert breath.max() > 0.4 and np.abs(np.diff(breath)).max() < 0.1  # a breath for speech, no jump
+    _, other = spoken(life=["blink", "gaze"], seed=4)
+    n = min(len(other), len(rows))
+    assert not np.allclose(other[:n, -len(columns) :], rows[:n, columns])  # another seed, other blinks
+    with client.websocket_connect("/api/stream") as ws:
+        ws.send_json({"type": "text", "text": text, "life": ["wink"]})
+        error = ws.receive_json()
+    assert error["type"] == "error" and error["message"].startswith("life.0:")  # the layers it takes follow

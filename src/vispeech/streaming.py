@@ -49,11 +49,13 @@ from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_fr
 from vispeech.errors import VispeechError
 from vispeech.frontends import vad
 from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
+from vispeech.frontends.sentiment import sentiment
 from vispeech.frontends.text import split_clauses
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
 from vispeech.motion.easing import smoothstep
+from vispeech.motion.life import LifePlan
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
@@ -105,6 +107,8 @@ def speech_messages(
     chunk_seconds: float = 0.1,
     scale: Calibration | None = None,
     voice: str | None = None,
+    life: Iterable[str] = (),
+    seed: int = 0,
 ) -> Generator[list[dict], None, None]:
     """The ``/api/stream`` messages for ``text``, one list per clause, computed as they are asked for.
 
@@ -113,10 +117,13 @@ def speech_messages(
     seconds, ``pcm16`` base64 little-endian mono) in time order; the last list is ``[end]``
     (``n_frames``, ``duration`` in seconds). The frames cover the audio as
     :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them, in the output
-    ``scale`` (``None``: the model's own), spoken with the espeak-ng ``voice``.
+    ``scale`` (``None``: the model's own), spoken with the espeak-ng ``voice``, with the
+    non-verbal layers ``life`` drawn with ``seed`` (:class:`~vispeech.motion.life.LifePlan`).
     """
     clauses = split_clauses(spoken_text(text))
-    timeline = SpeechTimeline(model, fps=fps, rate=rate, chunk_seconds=chunk_seconds, scale=scale, voice=voice)
+    timeline = SpeechTimeline(
+        model, fps=fps, rate=rate, chunk_seconds=chunk_seconds, scale=scale, voice=voice, life=life, seed=seed
+    )
     for k, clause in enumerate(clauses):
         yield timeline.say(clause, language, last=k == len(clauses) - 1)
     yield timeline.end()
@@ -127,8 +134,8 @@ class SpeechTimeline:
     reply's sentences in theirs): the ``/api/stream`` messages of each, as :func:`speech_messages`
     gives them, computed when it is said.
 
-    The channels are those of the first clause's phone set; the espeak-ng ``voice`` (a variant:
-    ``f3``) speaks every language.
+    The channels are those of the first clause's phone set, then those of the ``life`` layers; the
+    espeak-ng ``voice`` (a variant: ``f3``) speaks every language.
     """
 
     def __init__(
@@ -140,10 +147,15 @@ class SpeechTimeline:
         chunk_seconds: float = 0.1,
         scale: Calibration | None = None,
         voice: str | None = None,
+        life: Iterable[str] = (),
+        seed: int = 0,
     ) -> None:
         self.model, self.fps, self.rate, self.scale, self.voice = model, fps, rate, scale, voice
         self.chunk_seconds = chunk_seconds
+        self.life = LifePlan(life, fps, seed, scale) if life else None  # the non-verbal layers, if any
+        self.said = ""  # every clause so far: the expression's mood
         self.channels: tuple[str, ...] = ()
+        self.speech_channels: tuple[str, ...] = ()  # the model's, before the life layers' channels
         self.sample_rate: int | None = None
         self.samples = self.frames = self.seq = 0
 
@@ -159,28 +171,34 @@ class SpeechTimeline:
         from vispeech.frontends.espeak import phone_set, synthesize
 
         speech = synthesize(clause, language, self.rate, voice=self.voice, reproducible=False)  # latency first
-        first = self.sample_rate is None
-        speech = padded(speech, LEADING_SILENCE if first else 0.0, TRAILING_SILENCE if last else 0.0)
+        speech = padded(speech, LEADING_SILENCE if self.sample_rate is None else 0.0, TRAILING_SILENCE if last else 0.0)
         messages: list[dict] = []
         if self.sample_rate is None:
-            self.channels = stream_channels(self.model, phone_set(language), self.fps)
+            self.speech_channels = self.channels = stream_channels(self.model, phone_set(language), self.fps)
             self.sample_rate = speech.sample_rate
+            self.channels = self.life.joined_channels(self.channels) if self.life else self.channels
             start = {"fps": self.fps, "channels": list(self.channels), "sample_rate": self.sample_rate}
             messages.append({"type": "start", **start, "model": self.model.name})
         elif speech.sample_rate != self.sample_rate:
             raise VispeechError(f"{language} speaks at {speech.sample_rate} Hz, this stream at {self.sample_rate} Hz")
-        track = animate(speech.phones, self.model, self.fps).select(self.channels)
+        track = animate(speech.phones, self.model, self.fps).select(self.speech_channels)
         if self.scale is not None:
             track = self.scale.apply(track)
-        return messages + self._pieces(to_pcm16(speech.audio), track.values)
+        self.said += f" {clause}"
+        return messages + self._pieces(to_pcm16(speech.audio), track.values, speech.phones)
 
-    def _pieces(self, pcm: np.ndarray, values: np.ndarray) -> list[dict]:
-        """``frames`` and ``audio`` messages of a clause's audio and track (rows at ``fps`` from its
-        start), in pieces of ``chunk_seconds``, each piece's frames before its audio."""
+    def _pieces(self, pcm: np.ndarray, values: np.ndarray, phones: PhoneSequence) -> list[dict]:
+        """``frames`` and ``audio`` messages of a clause's audio, track (rows at ``fps`` from its
+        start) and phones, in pieces of ``chunk_seconds``, each piece's frames before its audio."""
         rate, fps = cast(int, self.sample_rate), self.fps
         clause_start = self.samples / rate
         frame_end = _frames_before((self.samples + len(pcm)) / rate, fps)
         values = _sample_rows(values, np.arange(self.frames, frame_end) - clause_start * fps)
+        if self.life is not None:
+            mood = sentiment(self.said, phones.language) if "expression" in self.life.layers else 0.0
+            timed = [replace(p, start=p.start + clause_start, end=p.end + clause_start) for p in phones]
+            track = Track(values, self.speech_channels, fps, self.frames / fps)
+            values = self.life.join(track, timed, phones.language, mood).values
         step = max(1, round(self.chunk_seconds * rate))
         messages: list[dict] = []
         sent = self.frames

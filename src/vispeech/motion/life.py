@@ -34,6 +34,9 @@ Live Link Face CSV carries the blinks, the gaze and the head rotation.
   strength is drawn within ±15 %. Its channels are *added* to the track's (the speech's smile
   at /i/ stays, the expression smiles on top; the sum clipped to 1), where every other layer
   replaces its own channels.
+
+:func:`with_life` adds layers to a whole track; :class:`LifePlan` to a stream's frames piece by
+piece (a text stream's clauses), drawn over the whole timeline so far.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.motion.easing import smoothstep
 from vispeech.motion.rigging.calibration import Calibration
@@ -99,6 +102,8 @@ SORRY = (0.0, 0.0, 0.0, 0.0, 0.2, 0.2, 0.3, 0.1, 0.1)  # and at mood -1
 EXPRESSION_IN, EXPRESSION_LEAD, EXPRESSION_OUT = 0.6, 0.3, 1.0  # seconds
 ADDED = ("expression",)
 """The layers whose channels are added to the track's rather than put in their place."""
+REPLAN_EASE = 0.2
+"""Seconds over which a :class:`LifePlan` eases a later piece's change to what was drawn before."""
 
 
 def check_layers(layers: str | Iterable[str]) -> tuple[str, ...]:
@@ -169,8 +174,11 @@ def with_life(
     life = nonverbal(
         track.n_frames, track.fps, phones, layers=layers, seed=seed, start_time=track.start_time, mood=mood
     )
-    if scale is not None:
-        life = scale.apply(life)
+    return joined(track, life if scale is None else scale.apply(life))
+
+
+def joined(track: Track, life: Track) -> Track:
+    """``track`` with ``life``'s channels (of the same frames) added as :func:`with_life` adds them."""
     if not life.channels:
         return track
     added = {c for layer in ADDED for c in CHANNELS[layer]}
@@ -182,6 +190,49 @@ def with_life(
     return Track(
         np.column_stack([track.select(keep).values, values]), (*keep, *life.channels), track.fps, track.start_time
     )
+
+
+class LifePlan:
+    """The non-verbal ``layers`` of a timeline that grows piece by piece (a stream's clauses).
+
+    :meth:`join` adds the layers to the next piece's frames, drawn over the whole timeline so far
+    with every phone so far, so that blinks, gaze and sway go on across pieces as over one track.
+    Where a later piece changes what was drawn before (a longer stretch of speech deepens its
+    breath, the expression holds on instead of easing out), the change eases in over
+    :data:`REPLAN_EASE` seconds from what the earlier piece would have shown next.
+    """
+
+    def __init__(self, layers: Iterable[str], fps: float, seed: int = 0, scale: Calibration | None = None) -> None:
+        self.layers, self.fps, self.seed, self.scale = check_layers(layers), fps, seed, scale
+        if seed < 0:
+            raise VispeechError(f"the seed of the non-verbal layers must be 0 or more, got {seed}")
+        self.channels = tuple(dict.fromkeys(c for layer in self.layers for c in CHANNELS[layer]))
+        """The layers' channels, in the order :func:`nonverbal` gives them."""
+        self.frames = 0
+        """Frames given so far."""
+        self._phones: list[Phone] = []
+        self._next: np.ndarray | None = None  # the last draw's row for frame ``frames``
+
+    def joined_channels(self, channels: Iterable[str]) -> tuple[str, ...]:
+        """The channels of a track over ``channels`` after :meth:`join`."""
+        return (*(c for c in channels if c not in self.channels), *self.channels)
+
+    def join(self, track: Track, phones: Iterable[Phone], language: str, mood: float = 0.0) -> Track:
+        """``track``, the timeline's next frames (from :attr:`frames` on), with the layers' channels
+        joined as :func:`with_life` joins them; ``phones`` are the piece's, on the timeline, and
+        ``mood`` that of everything said so far."""
+        self._phones += phones
+        end = self.frames + track.n_frames
+        said = PhoneSequence(self._phones, language) if self._phones else None
+        life = nonverbal(end + 1, self.fps, said, layers=self.layers, seed=self.seed, mood=mood)
+        if self.scale is not None:
+            life = self.scale.apply(life)
+        values = life.values[self.frames :].copy()
+        if self._next is not None:
+            ease = 1.0 - smoothstep(np.arange(len(values)) / max(1.0, REPLAN_EASE * self.fps))
+            values += ease[:, None] * (self._next - values[0])
+        start, self.frames, self._next = self.frames, end, values[-1]
+        return joined(track, Track(values[:-1], life.channels, self.fps, start / self.fps))
 
 
 def _blinks(times: np.ndarray, rng: np.random.Generator, phones) -> np.ndarray:

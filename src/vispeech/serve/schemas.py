@@ -112,13 +112,19 @@ class Speaking(ClientInput):
     scale: Scale | None = None
 
 
-class AnswerOptions(ClientInput):
-    """What an answer (:class:`SpeakResponse`) carries besides the speech: ``life`` names the
-    non-verbal layers to add to the animation (:mod:`vispeech.motion.life`), drawn with ``seed``;
-    ``formats`` the track formats the answer carries as files (:attr:`SpeakResponse.files`)."""
+class LifeOptions(ClientInput):
+    """``life`` names the non-verbal layers to add to the animation (:mod:`vispeech.motion.life`),
+    drawn with ``seed``."""
 
     life: Layers = []
     seed: Seed = 0
+
+
+class AnswerOptions(LifeOptions):
+    """What an answer (:class:`SpeakResponse`) carries besides the speech: the layers of
+    :class:`LifeOptions`; ``formats`` the track formats the answer carries as files
+    (:attr:`SpeakResponse.files`)."""
+
     formats: Formats = []
 
 
@@ -249,17 +255,19 @@ class ErrorResponse(BaseModel):
     detail: str
 
 
-class TextMessage(Speaking):
-    """Stream client message: speak ``text`` clause by clause, as :class:`Speaking` says."""
+class TextMessage(Speaking, LifeOptions):
+    """Stream client message: speak ``text`` clause by clause, as :class:`Speaking` says, with the
+    non-verbal layers of :class:`LifeOptions` (their channels after the speech's)."""
 
     type: Literal["text"]
     text: Text
 
 
-class ChatStreamMessage(Speaking):
+class ChatStreamMessage(Speaking, LifeOptions):
     """Stream client message: a chat message in ``session`` (``null``: a new one); the reply is
     spoken clause by clause as the bot writes it, each sentence in its own language, with the
-    model, voice, rate, frame rate and output scale of :class:`Speaking` (``language``: the page's)."""
+    model, voice, rate, frame rate and output scale of :class:`Speaking` (``language``: the page's)
+    and the non-verbal layers of :class:`LifeOptions`."""
 
     type: Literal["chat"]
     message: Text

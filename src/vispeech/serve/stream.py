@@ -99,6 +99,8 @@ class StreamConnection(Connection):
             rate=message.rate,
             scale=self.service.scale(message.scale)[1],
             voice=message.voice or self.config.voice,
+            life=message.life,
+            seed=message.seed,
         )
 
         def next_clause() -> tuple[list[str], float | None] | None:
@@ -144,6 +146,8 @@ class StreamConnection(Connection):
             rate=message.rate,
             scale=self.service.scale(message.scale)[1],
             voice=message.voice or self.config.voice,
+            life=message.life,
+            seed=message.seed,
         )
         async with contextlib.aclosing(self.service.chat(message.message, message.language, session)) as clauses:
             async for clause in clauses:
