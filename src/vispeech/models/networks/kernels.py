@@ -89,13 +89,14 @@ class RecurrentKernel:
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
         """Outputs (frames × outputs, float64) for one utterance's input rows (frames × inputs)."""
-        drive = self._window_terms(np.asarray(inputs))
+        drive = self.window_terms(np.asarray(inputs))
         hidden = self._recur(drive)
         outputs = [h.astype(np.float64) @ net["out_weight"] + net["out_bias"] for net, h in zip(self.nets, hidden)]
         return np.concatenate(outputs, axis=1)[:, self.order]
 
-    def _window_terms(self, x: np.ndarray) -> np.ndarray:
-        """``conv_t`` of every frame (frames × all hidden units), float32."""
+    def window_terms(self, x: np.ndarray) -> np.ndarray:
+        """``conv_t`` (the input window's drive, bias included) of every frame of the input rows
+        ``x`` (frames × all hidden units, float32), the first and last row repeated beyond the ends."""
         n, k = len(x), self.window
         change = np.flatnonzero((x[1:] != x[:-1]).any(axis=1)) + 1
         rows = x[np.concatenate(([0], change))]
@@ -199,10 +200,17 @@ class RecurrentKernel:
         streams × delays × hidden; :meth:`initial_state` is one stream's). Several streams cost one
         product per layer instead of one each: the window weights are read once."""
         flat = np.asarray(windows, dtype=np.float64).reshape(len(windows), -1)
-        outputs, new_states = [], []
+        drive = np.concatenate([flat @ net["conv"] + net["bias"] for net in self.nets], axis=1).astype(np.float32)
+        return self.advance(drive, states)
+
+    def advance(self, drive: np.ndarray, states: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """:meth:`step` from the frame's drive (streams × all hidden units: :meth:`window_terms`'
+        rows) instead of its input windows."""
+        outputs, new_states, start = [], [], 0
         for net, past in zip(self.nets, states):
-            drive = (flat @ net["conv"] + net["bias"]).astype(np.float32)
-            h = np.tanh(past.reshape(len(past), -1) @ net["recurrent"].T + drive)
+            hidden = net["hidden"]
+            h = np.tanh(past.reshape(len(past), -1) @ net["recurrent"].T + drive[:, start : start + hidden])
+            start += hidden
             new_states.append(np.concatenate([past[:, 1:], h[:, None]], axis=1))
             outputs.append(h.astype(np.float64) @ net["out_weight"] + net["out_bias"])
         return np.concatenate(outputs, axis=1)[:, self.order], new_states

@@ -220,12 +220,11 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
             kernel, model = group[0]._kernel, group[0].model
             states = [np.stack(parts) for parts in zip(*(s._state for s in group))]
             steps = [s._due - s._frames.computed for s in group]  # frames each stream computes
-            windows_of = [s._windows(n) for s, n in zip(group, steps)]
+            drives = [s._drives(n) for s, n in zip(group, steps)]
             outputs = []
             for k in range(steps[0]):
                 active = sum(1 for n in steps if n > k)
-                windows = np.stack([w[k] for w in windows_of[:active]])
-                out, stepped = kernel.step(windows, [state[:active] for state in states])
+                out, stepped = kernel.advance(np.stack([d[k] for d in drives[:active]]), [s[:active] for s in states])
                 for state, new in zip(states, stepped):
                     state[:active] = new
                 outputs.append(out)
@@ -236,13 +235,12 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
             for b, stream in enumerate(group):
                 stream._state = [state[b] for state in states]
 
-    def _windows(self, steps: int) -> np.ndarray:
-        """The input windows (steps × window × inputs, views of one block) of the next ``steps``
-        model frames, the first and last input rows repeated beyond the ends as offline."""
-        t, width = self._frames.computed, self._back + self._ahead + 1
+    def _drives(self, steps: int) -> np.ndarray:
+        """The drives (steps × hidden units, :meth:`RecurrentKernel.window_terms`) of the next
+        ``steps`` model frames, the first and last input rows repeated beyond the ends as offline."""
+        t = self._frames.computed
         rows = np.clip(np.arange(t - self._back, t + steps + self._ahead), 0, len(self._rows) - 1)
-        block = np.stack([self._rows[i] for i in rows])
-        return np.lib.stride_tricks.sliding_window_view(block, width, axis=0).transpose(0, 2, 1)
+        return self._kernel.window_terms(np.stack([self._rows[i] for i in rows]))[self._back : self._back + steps]
 
     def _give(self, upto: int) -> tuple[int, np.ndarray]:
         """Stream frames ``emitted .. upto - 1`` (:class:`~vispeech.models.streams.ResampledFrames`)."""
