@@ -200,6 +200,21 @@ def test_streaming_equals_offline_and_waits_only_for_the_look_ahead(lowlatency_m
     np.testing.assert_allclose(frames, offline.values, atol=1e-6)
 
 
+def test_streaming_in_pieces_of_any_size_equals_offline(lowlatency_model, held_out):
+    """Phones pushed in pieces of 1 to 11 (each piece's frames encoded at once) give what the
+    whole sequence gives offline."""
+    phones = list(held_out[1].phones)
+    rng = np.random.default_rng(7)
+    stream, chunks, i = lowlatency_model.stream("en", FPS), [], 0
+    while i < len(phones):
+        size = int(rng.integers(1, 12))
+        chunks.append(stream.push(phones[i : i + size])[1])
+        i += size
+    chunks.append(stream.finish()[1])
+    offline = lowlatency_model.predict(held_out[1].phones, FPS)
+    np.testing.assert_allclose(np.concatenate(chunks), offline.values, atol=1e-6)
+
+
 def test_streaming_emits_each_frame_as_soon_as_its_look_ahead_is_known(lowlatency_model):
     phones = [Phone("sil", 0.0, 0.2), Phone("M", 0.2, 0.3), Phone("AA", 0.3, 0.6)]
     pushed, frames = push_one_by_one(lowlatency_model.stream("en", FPS), phones)

@@ -182,16 +182,14 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
                 raise VispeechError(f"phone {phone.symbol} at {phone.start:.3f} s starts before the previous one ends")
             self._recent.append(phone)
             self.end = phone.end
-            sequence = PhoneSequence(self._recent, self.language)
-            known = sequence.n_frames(model.fps_)
-            if known > len(self._rows):
-                self._rows.extend(
-                    model.encoding_.encode(sequence, model.fps_, n_frames=known, start_frame=len(self._rows))
-                )
-                # Keep the phone before the first one covering the frame before the next to
-                # encode, so a silence gap after it starts where it ends (as offline).
-                keep = int(np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right"))
-                self._recent = self._recent[max(keep - 1, 0) :]
+        sequence = PhoneSequence(self._recent, self.language)
+        known = sequence.n_frames(model.fps_) if self._recent else 0
+        if known > len(self._rows):  # a frame's inputs depend on the phones up to it only: encoded once a push
+            self._rows.extend(model.encoding_.encode(sequence, model.fps_, n_frames=known, start_frame=len(self._rows)))
+            # Keep the phone before the first one covering the frame before the next to
+            # encode, so a silence gap after it starts where it ends (as offline).
+            keep = int(np.searchsorted(sequence.ends, (len(self._rows) - 1) / model.fps_, side="right"))
+            self._recent = self._recent[max(keep - 1, 0) :]
         self._due = len(self._rows) - model.lookahead
 
     def collect(self) -> tuple[int, np.ndarray]:
