@@ -190,12 +190,14 @@ def test_phones_per_message_and_per_stream_are_bounded(tmp_path):
 def test_long_phone_messages_are_pushed_in_pieces(tmp_path):
     with TestClient(create_app(config(tmp_path, piece_seconds=1.0))) as client:
         with client.websocket_connect("/api/stream") as ws:
-            ws.send_json({"type": "phones", "phones": steady_phones(0.0, 4.0), "final": True})
+            ws.send_json({"type": "phones", "phones": steady_phones(0.0, 16.0), "final": True})
             messages = receive_until(ws)
     frames = [m for m in messages if m["type"] == "frames"]
-    assert len(frames) >= 4  # a frames message a piece
+    assert len(frames) >= 5  # a frames message a piece: 1, 2, 4, 4, 4 and the last 1 s
+    assert frames[0]["start_frame"] == 0 and len(frames[0]["frames"]) <= 30  # the first piece: 1 s at most
+    assert len(frames) <= 7  # pieces grow: not 16 of 1 s
     assert [m["start_frame"] for m in frames] == [sum(len(f["frames"]) for f in frames[:i]) for i in range(len(frames))]
-    assert sum(len(m["frames"]) for m in frames) == messages[-1]["n_frames"] == 120
+    assert sum(len(m["frames"]) for m in frames) == messages[-1]["n_frames"] == 480
 
 
 def test_streams_per_ip_are_capped(tmp_path):

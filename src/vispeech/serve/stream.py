@@ -250,13 +250,22 @@ def _said(timeline: SpeechTimeline, clause: SpokenClause) -> list[str]:
     return [message_json(item) for item in timeline.say(clause.spoken, clause.language, clause.last)]
 
 
+PIECE_GROWTH, MAX_PIECE = 2.0, 4.0
+"""A message's pieces of phones: the first covers ``piece_seconds``, each next ``PIECE_GROWTH``
+times the one before, up to ``MAX_PIECE`` times ``piece_seconds``. Each piece waits for its turn
+in the work pool, so a long message under load pays per piece; the first frames still come
+after one short piece."""
+
+
 def _pieces(phones: list[Phone], begin: float, seconds: float) -> list[list[Phone]]:
-    """``phones`` in consecutive groups covering at most ``seconds`` each (a longer phone alone);
-    one empty group for no phones."""
+    """``phones`` in consecutive groups, the first covering at most ``seconds`` and each next
+    growing as :data:`PIECE_GROWTH` says (a longer phone alone); one empty group for no phones."""
     pieces: list[list[Phone]] = [[]]
+    span, longest = seconds, MAX_PIECE * seconds
     for phone in phones:
-        if pieces[-1] and phone.end - begin > seconds:
+        if pieces[-1] and phone.end - begin > span:
             begin = pieces[-1][-1].end
+            span = min(span * PIECE_GROWTH, longest)
             pieces.append([])
         pieces[-1].append(phone)
     return pieces
