@@ -1,6 +1,6 @@
 """Latency of the /api/stream WebSocket, alone and under 50 concurrent sessions.
 
-    python benchmarks/load_stream.py [--sessions 50] [--runs 5] [--lang en] [--text TEXT] [--json OUT] [--processes N]
+    python benchmarks/load_stream.py [--sessions 50] [--runs 5] [--language en] [--text TEXT] [--json OUT] [--processes N]
 
 Starts `vispeech serve` on 127.0.0.1 on a free port in a subprocess (no rate limit, no
 per-address or per-network stream cap since every session comes from 127.0.0.1, a temporary cache), then:
@@ -124,13 +124,13 @@ def main() -> int:
                         help="seconds to wait, with several processes, for every one to be ready")
     args = parser.parse_args()
     sessions, runs = min(max(args.sessions, 1), 100), min(max(args.runs, 1), 50)
-    text = args.text or TEXTS[args.lang]
+    text = args.text or TEXTS[args.language]
 
     async def bounded(server: LocalServer) -> dict:
         if args.processes > 1:  # the first process to answer may not be the last to have loaded its models
             await asyncio.sleep(args.settle)
         async with asyncio.timeout(args.deadline):
-            return await run(server, text, args.lang, sessions, runs)
+            return await run(server, text, args.language, sessions, runs)
 
     # every session comes from 127.0.0.1: lift the per-address and per-/24 caps, as distinct clients would not meet them
     with running_server("--rate-limit", "0", "--max-streams-per-ip", "200", "--max-streams-per-network", "200",
