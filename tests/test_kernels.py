@@ -43,7 +43,8 @@ def test_numpy_kernel_equals_torch(name):
 
 @pytest.mark.parametrize("name", NETWORKS)
 def test_frame_by_frame_step_equals_torch(name):
-    """The kernel's one-frame step (what streams run) gives the same frames as torch offline."""
+    """The kernel's one-frame step (what streams run: the drive from the frame's input window
+    alone, then the recurrence) gives the same frames as torch offline."""
     model = load_model(name)
     phones = PhoneSequence.from_dict(GOLDEN_PHONES[3])
     inputs = model.encoding_.encode(phones, model.fps_)
@@ -51,7 +52,8 @@ def test_frame_by_frame_step_equals_torch(name):
     kernel, state, frames = model.kernel, model.kernel.initial_state(), []
     for t in range(len(inputs)):
         index = np.clip(np.arange(t - p["look_back"], t + p["look_ahead"] + 1), 0, len(inputs) - 1)
-        out, state = kernel.step(inputs[index][None], [s[None] for s in state])
+        drive = kernel.window_terms(inputs[index])[p["look_back"]]
+        out, state = kernel.advance(drive[None], [s[None] for s in state])
         frames.append(out[0])
         state = [s[0] for s in state]
     reference = torch_outputs(model, inputs)
@@ -60,27 +62,27 @@ def test_frame_by_frame_step_equals_torch(name):
 
 @pytest.mark.parametrize("name", NETWORKS)
 def test_several_streams_step_together_as_each_alone(name):
-    """One kernel step for several streams (what the server does for concurrent sessions) gives
-    each stream the frames it gets alone."""
+    """One recurrence step for several streams (what the server does for concurrent sessions),
+    from the window terms' drives, gives each stream the frames it gets alone and what the whole
+    sequence gives offline."""
     model = load_model(name)
-    kernel, p = model.kernel, model.get_params()
+    kernel = model.kernel
     inputs = [model.encoding_.encode(PhoneSequence.from_dict(entry), model.fps_) for entry in GOLDEN_PHONES[:4]]
     n = min(len(x) for x in inputs)
-
-    def window(x, t):
-        return x[np.clip(np.arange(t - p["look_back"], t + p["look_ahead"] + 1), 0, len(x) - 1)]
+    drives = [kernel.window_terms(x) for x in inputs]
 
     states = [np.stack(parts) for parts in zip(*(kernel.initial_state() for _ in inputs))]
     together = []
     for t in range(n):
-        out, states = kernel.step(np.stack([window(x, t) for x in inputs]), states)
+        out, states = kernel.advance(np.stack([d[t] for d in drives]), states)
         together.append(out)
     for b, x in enumerate(inputs):
         state, alone = [s[None] for s in kernel.initial_state()], []
         for t in range(n):
-            out, state = kernel.step(window(x, t)[None], state)
+            out, state = kernel.advance(drives[b][t][None], state)
             alone.append(out[0])
         np.testing.assert_allclose(np.array(together)[:, b], np.array(alone), atol=1e-6)
+        np.testing.assert_allclose(np.array(alone), kernel.forward(x)[:n], atol=1e-5)
 
 
 @pytest.mark.parametrize("family", ["sliding-window-thesis", "sliding-window-taylor"])

@@ -194,18 +194,11 @@ class RecurrentKernel:
         """Hidden states before the first frame, one (delays × hidden) buffer per network, oldest first."""
         return [np.zeros((net["delays"], net["hidden"]), dtype=np.float32) for net in self.nets]
 
-    def step(self, windows: np.ndarray, states: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
-        """The outputs (streams × outputs) of one frame of each of several streams, from their input
-        windows (streams × window × inputs) and their states before it, stacked (per network:
-        streams × delays × hidden; :meth:`initial_state` is one stream's). Several streams cost one
-        product per layer instead of one each: the window weights are read once."""
-        flat = np.asarray(windows, dtype=np.float64).reshape(len(windows), -1)
-        drive = np.concatenate([flat @ net["conv"] + net["bias"] for net in self.nets], axis=1).astype(np.float32)
-        return self.advance(drive, states)
-
     def advance(self, drive: np.ndarray, states: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
-        """:meth:`step` from the frame's drive (streams × all hidden units: :meth:`window_terms`'
-        rows) instead of its input windows."""
+        """The outputs (streams × outputs) of one frame of each of several streams, from the frame's
+        drive (streams × all hidden units: a row of :meth:`window_terms` each) and their states
+        before it, stacked (per network: streams × delays × hidden; :meth:`initial_state` is one
+        stream's). Several streams cost one product per network instead of one each."""
         outputs, new_states, start = [], [], 0
         for net, past in zip(self.nets, states):
             hidden = net["hidden"]

@@ -207,8 +207,9 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
 
     @classmethod
     def advance_together(cls, streams: Sequence[RecurrentStream]) -> None:
-        """Compute the model frames due in ``streams``: those sharing a network take one kernel
-        step (:meth:`RecurrentKernel.step`) for all of them per frame."""
+        """Compute the model frames due in ``streams``: each stream's drives from its input rows'
+        cached window terms, then one recurrence step (:meth:`RecurrentKernel.advance`) per frame
+        for all the streams sharing a network."""
         groups: dict[int, list[RecurrentStream]] = {}
         for stream in streams:
             if stream._frames.computed < stream._due:
