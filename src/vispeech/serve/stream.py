@@ -89,19 +89,20 @@ class StreamConnection(Connection):
             await send_error(self.ws, str(exc))
         return True
 
+    def _timeline_settings(self, message: TextMessage | ChatStreamMessage) -> dict:
+        """The :class:`SpeechTimeline` settings ``message`` asks for (the server's where it says null)."""
+        return {
+            "fps": message.fps or self.config.fps,
+            "rate": message.rate,
+            "scale": self.service.scale(message.scale)[1],
+            "voice": message.voice or self.config.voice,
+            "life": message.life,
+            "seed": message.seed,
+        }
+
     async def _text(self, message: TextMessage) -> None:
         _, model = self.service.model(message.model, stream=True)
-        messages = speech_messages(
-            message.text,
-            message.language,
-            model,
-            fps=message.fps or self.config.fps,
-            rate=message.rate,
-            scale=self.service.scale(message.scale)[1],
-            voice=message.voice or self.config.voice,
-            life=message.life,
-            seed=message.seed,
-        )
+        messages = speech_messages(message.text, message.language, model, **self._timeline_settings(message))
 
         def next_clause() -> tuple[list[str], float | None] | None:
             batch = next(messages, None)
@@ -140,15 +141,7 @@ class StreamConnection(Connection):
         ``reply`` message, then its frames and audio (after the stream's ``start``); then ``end``."""
         _, model = self.service.model(message.model, stream=True)
         session = self.service.chats.open(message.session)
-        timeline = SpeechTimeline(
-            model,
-            fps=message.fps or self.config.fps,
-            rate=message.rate,
-            scale=self.service.scale(message.scale)[1],
-            voice=message.voice or self.config.voice,
-            life=message.life,
-            seed=message.seed,
-        )
+        timeline = SpeechTimeline(model, **self._timeline_settings(message))
         async with contextlib.aclosing(self.service.chat(message.message, message.language, session)) as clauses:
             async for clause in clauses:
                 self.service.bucket.charge(self.ip, self.service.text_cost(clause.spoken))
