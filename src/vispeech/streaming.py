@@ -57,7 +57,7 @@ from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
 from vispeech.motion.easing import smoothstep
 from vispeech.motion.life import LifePlan
 from vispeech.motion.rigging.calibration import Calibration
-from vispeech.motion.track import Track
+from vispeech.motion.track import Track, interpolate_rows
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
@@ -193,7 +193,7 @@ class SpeechTimeline:
         rate, fps = cast(int, self.sample_rate), self.fps
         clause_start = self.samples / rate
         frame_end = _frames_before((self.samples + len(pcm)) / rate, fps)
-        values = _sample_rows(values, np.arange(self.frames, frame_end) - clause_start * fps)
+        values = interpolate_rows(values, np.arange(self.frames, frame_end) - clause_start * fps)
         if self.life is not None:
             mood = sentiment(self.said, phones.language) if "expression" in self.life.layers else 0.0
             timed = [replace(p, start=p.start + clause_start, end=p.end + clause_start) for p in phones]
@@ -226,15 +226,6 @@ class SpeechTimeline:
 def _frames_before(seconds: float, fps: float) -> int:
     """Frames whose time ``k / fps`` lies before ``seconds`` (none at 0)."""
     return n_frames_for(seconds, fps) if seconds > 0 else 0
-
-
-def _sample_rows(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Rows of ``values`` at fractional row ``positions`` (linear, clamped to the ends)."""
-    positions = np.clip(positions, 0.0, len(values) - 1)
-    lo = np.floor(positions).astype(int)
-    hi = np.minimum(lo + 1, len(values) - 1)
-    weight = (positions - lo)[:, None]
-    return values[lo] * (1.0 - weight) + values[hi] * weight
 
 
 class PhoneStream:

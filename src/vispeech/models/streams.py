@@ -18,6 +18,7 @@ import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence, first_frame
 from vispeech.errors import VispeechError
+from vispeech.motion.track import interpolate_rows
 
 if TYPE_CHECKING:
     from fractions import Fraction
@@ -171,13 +172,8 @@ class ResampledFrames:
     def give(self, emitted: int, upto: int) -> np.ndarray:
         """Stream frames ``emitted .. upto - 1`` (frames past the last model frame hold its values);
         needs at least one model frame."""
-        values = np.stack(self._frames)
-        position = np.clip(np.arange(emitted, upto) * (self.model_fps / self.fps) - self.first, 0.0, len(values) - 1)
-        if len(values) == 1:
-            rows = np.repeat(values, len(position), axis=0)
-        else:  # as Track.resample interpolates, all channels at once
-            lo = np.minimum(position.astype(np.intp), len(values) - 2)
-            rows = values[lo] + (position - lo)[:, None] * (values[lo + 1] - values[lo])
+        positions = np.arange(emitted, upto) * (self.model_fps / self.fps) - self.first
+        rows = interpolate_rows(np.stack(self._frames), positions)  # as Track.resample interpolates
         drop = min(max(0, int(np.floor(upto * self.model_fps / self.fps)) - 1 - self.first), len(self._frames) - 1)
         del self._frames[:drop]
         self.first += drop

@@ -96,13 +96,9 @@ class Track:
         if fps <= 0:
             raise VispeechError(f"fps must be positive, got {fps}")
         n = n_frames if n_frames is not None else max(1, int(round(self.duration * fps)))
-        if self.n_frames == 1:
-            return Track(np.repeat(self.values, n, axis=0), self.channels, fps, self.start_time)
-        position = np.clip(np.arange(n) * (self.fps / fps), 0.0, self.n_frames - 1)
-        lo = np.minimum(position.astype(np.intp), self.n_frames - 2)
-        weight = (position - lo)[:, None]
-        out = self.values[lo] + weight * (self.values[lo + 1] - self.values[lo])
-        return Track(out, self.channels, fps, self.start_time)
+        return Track(
+            interpolate_rows(self.values, np.arange(n) * (self.fps / fps)), self.channels, fps, self.start_time
+        )
 
     def slice(self, start: float, end: float) -> Track:
         """Frames whose time lies in ``[start, end)`` seconds."""
@@ -132,3 +128,13 @@ class Track:
             return cls(frames, channels, float(data["fps"]), float(data.get("start_time", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise VispeechError(f"malformed track: {exc}") from None
+
+
+def interpolate_rows(values: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Rows (len(positions) × columns) of ``values`` (rows × columns, at least one row) at
+    fractional row ``positions``: linear between neighbours, clamped to the first and last row."""
+    position = np.clip(positions, 0.0, len(values) - 1)
+    if len(values) == 1:
+        return np.repeat(values, len(position), axis=0)
+    lo = np.minimum(position.astype(np.intp), len(values) - 2)
+    return values[lo] + (position - lo)[:, None] * (values[lo + 1] - values[lo])
