@@ -173,6 +173,23 @@ def test_swedish_audio_alone_is_animated_by_the_model_on_whisper_base():
     assert closed > closed_deaf
 
 
+def test_a_language_code_in_upper_case_picks_the_same_model(grid_s1, tmp_path):
+    """``vispeech animate --language SV`` is Swedish: Whisper base animates it, as ``sv`` does,
+    not tiny.en as for English."""
+    from test_cli_say import run
+
+    from vispeech.motion.formats.registry import read_track
+
+    clip = grid_s1 / "utterances" / "bbaf2n.flac"
+    jaws = {}
+    for code in ("SV", "sv", "en"):
+        result = run("animate", str(clip), "-o", str(tmp_path / code), "--language", code)
+        assert result.exit_code == 0, result.output
+        jaws[code] = read_track(tmp_path / code / "animation.json")["jawOpen"]
+    np.testing.assert_array_equal(jaws["SV"], jaws["sv"])
+    assert np.abs(jaws["sv"] - jaws["en"]).max() > 0.01
+
+
 @pytest.fixture(scope="module")
 def live() -> AudioCNNNetwork:
     rng = np.random.default_rng(1)

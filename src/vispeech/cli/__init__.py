@@ -58,8 +58,15 @@ def _command_names() -> set[str]:
 
 
 def language_option(help: str, default: str | None = DEFAULT_LANGUAGE):
-    """The ``--language/-l`` option, the same in every command."""
-    return click.option("--language", "-l", default=default, show_default=default is not None, help=help)
+    """The ``--language/-l`` option, the same in every command: a code in any case, passed on in
+    lower case as espeak-ng and the model choices spell them (``SV`` is ``sv``)."""
+    return click.option(
+        "--language", "-l", default=default, show_default=default is not None, help=help, callback=_lower_case
+    )
+
+
+def _lower_case(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    return None if value is None else value.strip().lower()
 
 
 def postprocessing_option(help: str = "How tracks are post-processed"):
