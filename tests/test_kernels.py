@@ -85,6 +85,21 @@ def test_several_streams_step_together_as_each_alone(name):
         np.testing.assert_allclose(np.array(alone), kernel.forward(x)[:n], atol=1e-5)
 
 
+@pytest.mark.parametrize("name", NETWORKS)
+def test_utterances_run_together_get_the_bits_they_get_alone(name):
+    """forward_many (one window-terms pass over all the utterances, the recurrence stepping them
+    together) gives each utterance exactly its forward alone, whatever ran before: the window
+    terms' cache empty or filled by other utterances, utterances of different lengths."""
+    model = load_model(name)
+    inputs = [model.encoding_.encode(PhoneSequence.from_dict(e), model.fps_) for e in GOLDEN_PHONES]
+    together = model.kernel.forward_many(inputs[::-1])[::-1]
+    kernel = load_model(name).kernel
+    assert len({len(x) for x in inputs}) > 3
+    for x, out in zip(inputs, together, strict=True):
+        np.testing.assert_array_equal(out, kernel.forward(x))
+    assert kernel.forward_many([]) == []
+
+
 @pytest.mark.parametrize("family", ["sliding-window-thesis", "sliding-window-taylor"])
 def test_window_kernel_equals_torch(family):
     """The sliding-window networks' NumPy forward pass equals their torch module's (overlap-averaged)."""

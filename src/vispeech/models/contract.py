@@ -34,7 +34,7 @@ from __future__ import annotations
 import copy
 import os
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
@@ -175,6 +175,11 @@ class Estimator(ABC, Generic[InputT]):
     @abstractmethod
     def predict(self, inputs: InputT, fps: float) -> Track:
         """A track of ``inputs.n_frames(fps)`` frames from time 0 over :attr:`channels`."""
+
+    def predict_many(self, inputs: Sequence[InputT], fps: float) -> list[Track]:
+        """:meth:`predict` of each of ``inputs``, the same tracks; a family that can runs them
+        together (a recurrent network steps all the utterances at once)."""
+        return [self.predict(x, fps) for x in inputs]
 
     def predict_with_closures(self, inputs: InputT, fps: float) -> tuple[Track, PhoneSequence | None]:
         """:meth:`predict`'s track and the bilabials the model hears in audio, as phones that

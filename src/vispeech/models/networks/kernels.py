@@ -13,7 +13,8 @@ NumPy arrays; each kernel computes what its module computes in float64 (to 1e-7 
   cached (phone rows recur across utterances);
 - the recurrence ``h_t = tanh(conv_t + Σ_d R_d h_{t-d})``, one small matrix-vector product
   per frame and network, in float32 (the weights' own precision) on a state buffer laid out
-  oldest first, so the delayed states are one contiguous slice.
+  oldest first, so the delayed states are one contiguous slice; several utterances step
+  together (:meth:`RecurrentKernel.forward_many`), each with the bits it gets alone.
 
 :class:`WindowKernel` (the sliding-window networks) is a plain MLP over the flattened windows
 with the outputs' overlap average.
@@ -89,10 +90,22 @@ class RecurrentKernel:
 
     def forward(self, inputs: np.ndarray) -> np.ndarray:
         """Outputs (frames × outputs, float64) for one utterance's input rows (frames × inputs)."""
-        drive = self.window_terms(np.asarray(inputs))
-        hidden = self._recur(drive)
-        outputs = [h.astype(np.float64) @ net["out_weight"] + net["out_bias"] for net, h in zip(self.nets, hidden)]
-        return np.concatenate(outputs, axis=1)[:, self.order]
+        return self.forward_many([inputs])[0]
+
+    def forward_many(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """:meth:`forward` of several utterances' input rows, bit for bit: one :meth:`window_terms`
+        over all of them (each padded with copies of its end rows: no window reaches another),
+        then the recurrence stepping them all together."""
+        x = [np.asarray(rows) for rows in inputs]
+        ahead = self.window - 1 - self.back
+        padded = [np.concatenate([r[:1].repeat(self.back, 0), r, r[-1:].repeat(ahead, 0)]) for r in x]
+        starts = np.cumsum([0] + [len(p) for p in padded])[:-1] + self.back
+        drive = self.window_terms(np.concatenate(padded)) if x else np.zeros((0, self.hidden), np.float32)
+        outputs = []
+        for states in self._recur([drive[start : start + len(r)] for start, r in zip(starts, x)]):
+            parts = [h.astype(np.float64) @ net["out_weight"] + net["out_bias"] for net, h in zip(self.nets, states)]
+            outputs.append(np.concatenate(parts, axis=1)[:, self.order])
+        return outputs
 
     def window_terms(self, x: np.ndarray) -> np.ndarray:
         """``conv_t`` (the input window's drive, bias included) of every frame of the input rows
@@ -116,11 +129,7 @@ class RecurrentKernel:
         out = heads[np.searchsorted(ends, np.arange(k - 1, n + k - 1), side="right")]
         add, subtract = np.add, np.subtract
         for r, b in enumerate(ends.tolist()):  # boundary b between runs r and r+1 is felt by frames b-k+1 .. b-1
-            lo, hi = b - k + 1, b - 1
-            if lo < 0:
-                lo = 0
-            if hi > n - 1:
-                hi = n - 1
+            lo, hi = max(b - k + 1, 0), min(b - 1, n - 1)
             if lo > hi:
                 continue
             rows_at = slice(k - b + lo, k - b + hi + 1)  # (G_r − G_{r+1})[b − t] for t = lo .. hi
@@ -154,37 +163,39 @@ class RecurrentKernel:
         if missing:
             if len(cache) + len(missing) > _CACHE_ROWS:
                 cache.clear()
-            fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1)
-            computed = (fresh.astype(np.float64) @ self._cumulative).reshape(len(missing), self.window + 1, -1)
+            fresh = np.frombuffer(b"".join(missing), dtype=rows.dtype).reshape(len(missing), -1).astype(np.float64)
+            # row by row over its set columns: a row's terms never depend on the rows computed with it
+            computed = np.stack([row[row != 0] @ self._cumulative[row != 0] for row in fresh])
+            computed = computed.reshape(len(missing), self.window + 1, -1)
             cache.update(zip(missing, np.ascontiguousarray(computed[:, ::-1], dtype=np.float32)))
         return [cache[key] for key in keys]
 
-    def _recur(self, drive: np.ndarray) -> list[np.ndarray]:
-        """Hidden states (frames × hidden, float32) of every network for their window terms.
-
-        Row ``delays + t`` of a network's state buffer holds ``conv_t`` until ``h_t`` replaces
-        it, so the delayed states and ``conv_t`` are one contiguous slice and one product with
-        ``[R | I]`` gives ``conv_t + Σ_d R_d h_{t-d}``: a product and a tanh per frame, on views
-        made before the time loop.
-        """
-        n = len(drive)
-        states, start = [], 0
-        tanh = np.tanh
+    def _recur(self, drives: Sequence[np.ndarray]) -> list[list[np.ndarray]]:
+        """Per utterance, the hidden states (frames × hidden, float32) of every network for its
+        window terms. Row ``delays + t`` of an utterance's state buffer holds ``conv_t`` until
+        ``h_t`` replaces it, so one product with ``[R | I]`` gives ``conv_t + Σ_d R_d h_{t-d}``: a
+        step is one stacked matrix-vector product over the utterances still running, longest
+        first (for each the BLAS call it gets alone: the same bits), and a tanh."""
+        order = sorted(range(len(drives)), key=lambda i: -len(drives[i]))
+        lengths, n = [len(drives[i]) for i in order], max(map(len, drives), default=0)
+        running = np.searchsorted(-np.array(lengths), -np.arange(n), side="left").tolist()  # utterances past t
+        states: list[list[np.ndarray]] = [[] for _ in drives]
+        start = 0
         for net in self.nets:
-            hidden, delays = net["hidden"], net["delays"]
-            dot = net["recurrent_and_drive"].dot  # the method: no dispatch through np.dot's wrapper
-            buffer = np.zeros((n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
-            buffer[delays:] = drive[:, start : start + hidden]
-            flat = buffer.reshape(-1)
-            size = (delays + 1) * hidden
-            step = np.empty(hidden, dtype=np.float32)
+            hidden, delays, matrix = net["hidden"], net["delays"], net["recurrent_and_drive"]
+            buffer = np.zeros((len(order), n + delays, hidden), dtype=np.float32)  # oldest first: row delays + t is h_t
+            for b, i in enumerate(order):
+                buffer[b, delays : delays + lengths[b]] = drives[i][:, start : start + hidden]
+            item = buffer.itemsize  # each utterance's window of states at step t: (delays + 1) rows from row t
             windows = np.lib.stride_tricks.as_strided(
-                flat, shape=(n, size), strides=(flat.strides[0] * hidden, flat.strides[0])
+                buffer, (n, len(order), (delays + 1) * hidden, 1), (hidden * item, buffer.strides[0], item, item)
             )
-            for window, out in zip(windows, buffer[delays:]):
-                dot(window, step)
-                tanh(step, out)
-            states.append(buffer[delays:])
+            step = np.empty((len(order), hidden, 1), dtype=np.float32)
+            for t, active in enumerate(running):
+                np.matmul(matrix, windows[t, :active], out=step[:active])
+                np.tanh(step[:active, :, 0], out=buffer[:active, delays + t])
+            for b, i in enumerate(order):
+                states[i].append(buffer[b, delays : delays + lengths[b]])
             start += hidden
         return states
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import copy
 import json
 from abc import abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, Self, TypeVar
 
@@ -494,15 +494,28 @@ class PhoneNetwork(Network[PhoneSequence, InputEncoding]):
     def predict(self, inputs: PhoneSequence, fps: float) -> Track:
         """Tracks of ``inputs.n_frames(fps)`` frames for phones: predicted at the model's rate,
         resampled to ``fps``."""
-        kernel = self.kernel
-        inputs.validate()
-        self.encoding_.check(inputs)
-        encoded = self.encoding_.encode(inputs, self.fps_)
-        track = Track(self._denormalise(kernel.forward(encoded)), self.channels, self.fps_)
-        n = inputs.n_frames(fps)
-        if fps != self.fps_ or track.n_frames != n:
-            track = track.resample(fps, n_frames=n)
-        return track
+        return self.predict_many([inputs], fps)[0]
+
+    def predict_many(self, inputs: Sequence[PhoneSequence], fps: float) -> list[Track]:
+        """:meth:`predict` of each phone sequence, the kernel run on all of them together
+        (:meth:`_forward_many`)."""
+        self.check_fitted()
+        encoded = []
+        for phones in inputs:
+            phones.validate()
+            self.encoding_.check(phones)
+            encoded.append(self.encoding_.encode(phones, self.fps_))
+        tracks = []
+        for phones, outputs in zip(inputs, self._forward_many(encoded)):
+            track = Track(self._denormalise(outputs), self.channels, self.fps_)
+            n = phones.n_frames(fps)
+            tracks.append(track if fps == self.fps_ and track.n_frames == n else track.resample(fps, n_frames=n))
+        return tracks
+
+    def _forward_many(self, inputs: list[np.ndarray]) -> list[np.ndarray]:
+        """The kernel's outputs for each utterance's input rows; a family whose kernel runs
+        utterances together overrides it."""
+        return [self.kernel.forward(x) for x in inputs]
 
 
 def _comparable(params: dict) -> dict:

@@ -113,6 +113,10 @@ class TimeDelayNetwork(PhoneNetwork):
             self.weights_, self._group_columns(), self._params["look_back"], self._params["look_ahead"], events
         )
 
+    def _forward_many(self, inputs: list[np.ndarray]) -> list[np.ndarray]:
+        """The kernel over all the utterances at once (:meth:`RecurrentKernel.forward_many`)."""
+        return self.kernel.forward_many(inputs)
+
     def _pad(self, inputs: np.ndarray) -> np.ndarray:
         return np.pad(inputs, ((self._params["look_back"], self._params["look_ahead"]), (0, 0)), mode="edge")
 
