@@ -104,10 +104,13 @@ def _kill_at(n: int) -> None:
     import builtins
     builtins.open = io.open
     files._exchange = wrap(files._exchange)
+    syncfs = files._syncfs_function()
+    if syncfs is not None:
+        files._syncfs_function = lambda: wrap(syncfs)
 
 
-def _run_killed(n: int, utterance: Utterance, out: Path, exchange: bool) -> bool:
-    """Run write_outputs in a child killed at its n-th call; True if it was killed."""
+def _run_killed(n: int, write, exchange: bool) -> bool:
+    """Run ``write()`` in a child killed at its n-th call; True if it was killed."""
     pid = os.fork()
     if pid == 0:  # the child
         code = 1
@@ -115,7 +118,7 @@ def _run_killed(n: int, utterance: Utterance, out: Path, exchange: bool) -> bool
             if not exchange:
                 files._swap_function = False
             _kill_at(n)
-            write_outputs(utterance, out)
+            write()
             code = 0
         finally:
             os._exit(code)
@@ -157,7 +160,7 @@ def test_a_kill_at_any_point_leaves_the_old_or_the_new_folder(tmp_path, exchange
         if start == "old":
             files.shutil.copytree(reference / "old", out)  # as `say` left it
         parent.mkdir(exist_ok=True)
-        killed = _run_killed(n, new_utt, out, exchange)
+        killed = _run_killed(n, lambda: write_outputs(new_utt, out), exchange)
         state = _snapshot(out)
         if exchange and start == "old":
             assert state in (old, new), f"killed at call {n}: {sorted(state or ())}"
@@ -315,3 +318,21 @@ def test_concurrent_runs_into_one_folder_leave_one_complete_folder(tmp_path):
         list(pool.map(lambda k: write_outputs(utterances[k % 2], out), range(16)))
     assert _snapshot(out) in reference
     assert os.listdir(out.parent) == ["out"]
+
+
+def test_a_batch_that_fails_otherwise_leaves_every_folder_untouched(tmp_path):
+    old = _utterance(tmp_path, "P", audio=True)
+    outs = [tmp_path / "work" / name for name in "ab"]
+    for out in outs:
+        write_outputs(old, out)
+    before = [_snapshot(out) for out in outs]
+
+    def write(i: int, folder: Path) -> None:
+        (folder / "animation.csv").write_text("half")
+        if i == 1:
+            raise RuntimeError("a bug")
+
+    with pytest.raises(RuntimeError, match="a bug"):
+        files.write_output_dirs(outs, write)
+    assert [_snapshot(out) for out in outs] == before
+    assert sorted(os.listdir(tmp_path / "work")) == ["a", "b"]

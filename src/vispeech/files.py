@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import errno
+import functools
 import json
 import os
 import shutil
 import stat
 import sys
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -355,51 +357,167 @@ def atomic_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) 
     not a folder, is read-only, is a mount point, is the current folder or one above it, or
     its parent cannot be written (the new folder is made there).
     """
-    target = _checked_target(path)
+    staged = _begin(path, set())
+    try:
+        yield staged.staging
+        _fsync_tree(staged.staging, folders=False)  # whole on disk before anything points to it (_swap)
+        _finish(staged, replaces)
+    finally:
+        _release(staged)
+
+
+def write_output_dirs(
+    paths: Sequence[str | os.PathLike], write: Callable[[int, Path], None], *, replaces: Iterable[str] = ()
+) -> list[VispeechError | None]:
+    """:func:`atomic_output_dir` for many folders at once: ``write(i, folder)`` fills a fresh
+    folder that then replaces ``paths[i]``, with the same promise for each (old or new, whole,
+    after a kill or a power cut). The new files are made durable together before any swap: one
+    ``syncfs`` of each file system they are on where Linux has it, else an fsync of each file.
+
+    Returns, per path, ``None`` or the :class:`VispeechError` that stopped it (from ``write`` or
+    refusing the folder): that folder is left as it was, the others are written all the same.
+    """
+    names, n = tuple(replaces), len(paths)
+    chunks = [range(first, min(first + _FOLDERS_AT_ONCE, n)) for first in range(0, n, _FOLDERS_AT_ONCE)]
+    return [error for chunk in chunks for error in _write_dirs(paths, chunk, write, names)]
+
+
+_FOLDERS_AT_ONCE = 256
+"""Folders :func:`write_output_dirs` has open at a time (each holds its lock file open)."""
+
+
+def _write_dirs(
+    paths: Sequence[str | os.PathLike], indices: range, write: Callable[[int, Path], None], replaces: tuple[str, ...]
+) -> list[VispeechError | None]:
+    """:func:`write_output_dirs` of ``paths[i]`` for ``i`` in ``indices``, made durable together."""
+    errors: list[VispeechError | None] = [None] * len(indices)
+    staged: list[_Staged | None] = [None] * len(indices)
+    cleaned: set[Path] = set()
+    try:
+        for j, i in enumerate(indices):
+            try:
+                begun = staged[j] = _begin(paths[i], cleaned)
+                write(i, begun.staging)
+            except VispeechError as exc:
+                errors[j] = exc
+        written = [(j, s) for j, s in enumerate(staged) if s is not None and errors[j] is None]
+        _make_durable([s.staging for _, s in written])
+        for j, s in written:
+            try:
+                _finish(s, replaces)
+            except VispeechError as exc:
+                errors[j] = exc
+    finally:
+        for left in staged:
+            if left is not None:
+                _release(left)
+    return errors
+
+
+@dataclass(frozen=True)
+class _Staged:
+    """A folder being written beside its target: ``<key>.tmp``, then ``<key>.new`` once complete,
+    the replaced folder at ``<key>.old`` where no exchange exists; the lock file names the target."""
+
+    target: Path
+    shown: Path
+    key: str
+    lock_fd: int
+
+    @property
+    def staging(self) -> Path:
+        return Path(f"{self.key}.tmp")
+
+
+def _begin(path: str | os.PathLike, cleaned: set[Path]) -> _Staged:
+    """Check ``path``, clean what killed runs left beside it (unless its parent is in ``cleaned``,
+    where it is added) and make the locked staging folder for it."""
+    target, shown = _checked_target(path), Path(path)
     parent = target.parent
-    shown = Path(path)
     lock_fd = None
     try:
         parent.mkdir(parents=True, exist_ok=True)
         with _parent_lock(parent) as locked:
-            if locked:
+            if locked and parent not in cleaned:
                 _clean_stale(parent)
+                cleaned.add(parent)
             lock_fd, lock_name = tempfile.mkstemp(prefix=_PREFIX, suffix=".lock", dir=parent)
             _try_lock(lock_fd)
             os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))  # restored by this name
-            key = lock_name[: -len(".lock")]
-            staging, complete = Path(f"{key}.tmp"), Path(f"{key}.new")
-            os.mkdir(staging)
-            _staging.add(str(staging))
+            staged = _Staged(target, shown, lock_name[: -len(".lock")], lock_fd)
+            os.mkdir(staged.staging)
+            _staging.add(str(staged.staging))
     except OSError as exc:
         if lock_fd is not None:
             os.close(lock_fd)
             _remove(Path(lock_name))
         raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
-    old: Path | None = None
+    return staged
+
+
+def _finish(staged: _Staged, replaces: Iterable[str]) -> None:
+    """Swap the staging folder, its files durable already, in at the target; remove the old one."""
+    complete, aside = Path(f"{staged.key}.new"), Path(f"{staged.key}.old")
     try:
-        yield staging
+        os.rename(staged.staging, complete)
+        old = _swap(complete, staged.target, aside, replaces, staged.shown, staged.lock_fd)
+    except OSError as exc:
+        raise VispeechError(f"cannot write to output folder {staged.shown}: {exc.strerror or exc}") from None
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _release(staged: _Staged) -> None:
+    """Remove what is left of a staging folder (the old folder put back where the swap failed) and its lock."""
+    _staging.discard(str(staged.staging))
+    target, complete, aside = staged.target, Path(f"{staged.key}.new"), Path(f"{staged.key}.old")
+    if aside.is_dir() and not os.path.lexists(target):
         try:
-            _fsync_tree(staging, folders=False)  # whole on disk before anything points to it (_swap)
-            os.rename(staging, complete)
-            old = _swap(complete, target, Path(f"{key}.old"), replaces, shown, lock_fd)
-        except OSError as exc:
-            raise VispeechError(f"cannot write to output folder {shown}: {exc.strerror or exc}") from None
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        _staging.discard(str(staging))
-        aside = Path(f"{key}.old")
-        if aside.is_dir() and not os.path.lexists(target):
-            try:
-                os.rename(aside, target)  # never lose the old folder
-            except OSError:
-                pass
-        for leftover in (staging, complete, aside):
-            if leftover.exists() and leftover != target and (leftover != aside or os.path.lexists(target)):
-                shutil.rmtree(leftover, ignore_errors=True)
-        _remove(Path(lock_name))
-        os.close(lock_fd)
+            os.rename(aside, target)  # never lose the old folder
+        except OSError:
+            pass
+    for leftover in (staged.staging, complete, aside):
+        if leftover.exists() and leftover != target and (leftover != aside or os.path.lexists(target)):
+            shutil.rmtree(leftover, ignore_errors=True)
+    _remove(Path(f"{staged.key}.lock"))
+    os.close(staged.lock_fd)
+
+
+def _make_durable(folders: Sequence[Path]) -> None:
+    """Every file in ``folders`` on disk: for several folders one ``syncfs`` per file system where
+    Linux has it, else an fsync of each file."""
+    syncfs = _syncfs_function() if len(folders) > 1 else None
+    by_device: dict[int, list[Path]] = {}
+    for folder in folders:
+        by_device.setdefault(os.stat(folder).st_dev, []).append(folder)
+    for group in by_device.values():
+        if syncfs is None or not syncfs(group[0]):
+            for folder in group:
+                _fsync_tree(folder, folders=False)
+
+
+@functools.cache
+def _syncfs_function() -> Callable[[Path], bool] | None:
+    """Linux's ``syncfs`` (every file of one file system to disk in one call) as a function of a
+    folder on it that says whether it worked, or ``None`` where there is none."""
+    try:
+        import ctypes
+
+        func = ctypes.CDLL(None, use_errno=True).syncfs
+    except (OSError, AttributeError, TypeError):
+        return None
+    func.argtypes = [ctypes.c_int]
+
+    def syncfs(folder: Path) -> bool:
+        try:
+            fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        except OSError:
+            return False
+        worked = func(fd) == 0
+        os.close(fd)
+        return bool(worked)
+
+    return syncfs
 
 
 def _swap(complete: Path, target: Path, aside: Path, replaces: Iterable[str], shown: Path, lock_fd: int) -> Path | None:
