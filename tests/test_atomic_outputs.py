@@ -24,7 +24,8 @@ from click.testing import CliRunner
 from vispeech import files
 from vispeech.alignment.formats import read_alignment
 from vispeech.cli import main
-from vispeech.pipeline import animate, write_outputs
+from vispeech.motion.track import Track
+from vispeech.pipeline import animate, write_outputs, write_outputs_many
 from vispeech.utterance import Utterance
 
 TEXTGRID = """File type = "ooTextFile"
@@ -318,6 +319,58 @@ def test_concurrent_runs_into_one_folder_leave_one_complete_folder(tmp_path):
         list(pool.map(lambda k: write_outputs(utterances[k % 2], out), range(16)))
     assert _snapshot(out) in reference
     assert os.listdir(out.parent) == ["out"]
+
+
+def test_a_kill_at_any_point_of_a_batch_leaves_each_folder_old_or_new(tmp_path):
+    """write_outputs_many over two `say` folders and a new one, killed before each of its
+    file-system calls (the one syncfs included): each folder is its old or new complete self."""
+    if not files._exchange_function():
+        pytest.skip("no renameat2 here")
+    old_utt, new_utt = _utterance(tmp_path, "P", audio=True), _utterance(tmp_path, "M", audio=False)
+    write_outputs(new_utt, tmp_path / "reference" / "new")
+    write_outputs(old_utt, tmp_path / "reference" / "old")
+    new, old = _snapshot(tmp_path / "reference" / "new"), _snapshot(tmp_path / "reference" / "old")
+    parent = tmp_path / "work"
+    outs = [parent / "a", parent / "b", parent / "c"]
+    seen = set()
+    for n in range(1, 600):
+        files.shutil.rmtree(parent, ignore_errors=True)
+        for out in outs[:2]:
+            files.shutil.copytree(tmp_path / "reference" / "old", out)
+        killed = _run_killed(n, lambda: write_outputs_many([new_utt] * 3, outs), exchange=True)
+        for recovered in (False, True):
+            states = [_snapshot(out) for out in outs]
+            assert states[0] in (old, new) and states[1] in (old, new), f"killed at call {n}, {recovered=}"
+            assert states[2] in (new, None), f"killed at call {n}, {recovered=}"
+            _recover(parent)
+        assert sorted(os.listdir(parent)) == [o.name for o, state in zip(outs, states) if state], f"junk after {n}"
+        seen.add(tuple(state == new for state in states))
+        if not killed:
+            break
+    else:
+        pytest.fail("write_outputs_many never finished")
+    assert n > 30 and {(False, False, False), (True, True, True)} <= seen
+    assert all(_snapshot(out) == new for out in outs)
+
+
+def test_a_batch_writes_every_folder_it_can_and_reports_the_others(tmp_path):
+    """A folder of the user's and a track with nothing to write are reported in their places and
+    left as they were; the other folders get the bytes write_outputs gives each alone."""
+    utterances = [_utterance(tmp_path, first, audio=False) for first in ("M", "P", "F")]
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    nothing = Utterance(phones=utterances[0].phones, track=Track(np.zeros((30, 1)), ("headNod",), 30.0))
+    outs = [tmp_path / "a", mine, tmp_path / "c", tmp_path / "d"]
+    results = write_outputs_many([utterances[0], utterances[1], nothing, utterances[2]], outs)
+    assert results[0] == [tmp_path / "a" / "animation.csv", tmp_path / "a" / "animation.json"]
+    assert isinstance(results[1], files.VispeechError) and "notes.txt" in str(results[1])
+    assert isinstance(results[2], files.VispeechError) and "Live Link" in str(results[2])
+    assert _snapshot(mine) == {"notes.txt": b"keep me"}
+    assert sorted(os.listdir(tmp_path)) == ["F.TextGrid", "M.TextGrid", "P.TextGrid", "a", "d", "mine"]
+    for utterance, out in ((utterances[0], "a"), (utterances[2], "d")):
+        write_outputs(utterance, tmp_path / "alone" / out)
+        assert _snapshot(tmp_path / out) == _snapshot(tmp_path / "alone" / out)
 
 
 def test_a_batch_that_fails_otherwise_leaves_every_folder_untouched(tmp_path):

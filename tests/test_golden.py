@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from vispeech.alignment.phones import PhoneSequence
-from vispeech.pipeline import animate
+from vispeech.errors import VispeechError
+from vispeech.pipeline import animate, animate_many
 
 GOLDEN = Path(__file__).parent / "golden"
 _TRACKS = np.load(GOLDEN / "tracks.npz")
@@ -25,6 +26,21 @@ def test_model_reproduces_its_golden_tracks(model: str) -> None:
         assert track.channels == channels, (model, entry["text"])
         np.testing.assert_allclose(track.values, _TRACKS[f"{model}/{i}"], atol=1e-5, rtol=0,
                                    err_msg=f"{model}: {entry['text']}")
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_animating_many_at_once_gives_each_track_bit_for_bit(model: str) -> None:
+    """animate_many (grid-tdnn: every utterance through the kernels and the recurrence together,
+    a fresh model with nothing cached) gives what animate gives each alone; a sequence it must
+    refuse is reported in its place and the others are animated all the same."""
+    sequences = [PhoneSequence.from_dict(entry) for entry in _PHONES]
+    together = animate_many([*sequences[:2], PhoneSequence([], "en"), *sequences[2:]], model, 30.0)
+    assert isinstance(together[2], VispeechError) and "empty" in str(together[2])
+    del together[2]
+    for entry, sequence, track in zip(_PHONES, sequences, together, strict=True):
+        alone = animate(sequence, model, 30.0)
+        assert isinstance(track, type(alone)) and track.channels == alone.channels
+        np.testing.assert_array_equal(track.values, alone.values, err_msg=f"{model}: {entry['text']}")
 
 
 _SPEECH = json.loads((GOLDEN / "speech.json").read_text(encoding="utf-8"))

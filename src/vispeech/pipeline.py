@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,13 +17,13 @@ import numpy as np
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_dir, check_output_dir
+from vispeech.files import atomic_output_dir, check_output_dir, write_output_dirs
 from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
 from vispeech.motion.formats.registry import ALIASES, write_track
-from vispeech.motion.rigging.calibration import load_scale
+from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.postprocess import AUTO, NONE, Postprocessing, postprocess, postprocessing_config
@@ -119,6 +119,57 @@ def _animate(
     check_utterance(phones.duration, len(phones))
     estimator = model if isinstance(model, Estimator) else load_model(model)
     return _postprocessed(estimator.predict(phones, fps), phones, postprocessing, estimator.postprocessing, speech)
+
+
+def animate_many(
+    phones: Sequence[PhoneSequence],
+    model: str | Estimator = DEFAULT_MODEL,
+    fps: float = DEFAULT_FPS,
+    postprocessing: Postprocessing = AUTO,
+) -> list[Track | VispeechError]:
+    """:func:`animate` of each phone sequence, the same tracks, the model run on all of them at
+    once (:meth:`~vispeech.models.contract.Estimator.predict_many`: ``grid-tdnn``'s kernels and
+    recurrence step every utterance together) and the post-processing's settings made once.
+
+    Returns, per sequence, its track or the :class:`VispeechError` that refused it (phones out of
+    order, over a limit, in a language the model does not take); the others are animated all the
+    same. Made for many short utterances: a game's lines, a corpus (README, "Python").
+    """
+    check_fps(fps)
+    estimator = model if isinstance(model, Estimator) else load_model(model)
+    config = postprocessing_config(postprocessing, estimator.postprocessing)
+    results: dict[int, Track | VispeechError] = {}
+    checked = []
+    for i, sequence in enumerate(phones):
+        try:
+            sequence.validate()
+            check_utterance(sequence.duration, len(sequence))
+            checked.append(i)
+        except VispeechError as exc:
+            results[i] = exc
+    for i, track in zip(checked, _predicted(estimator, [phones[i] for i in checked], fps)):
+        if config is not None and isinstance(track, Track):
+            try:
+                track = postprocess(track, phones[i], config)
+            except VispeechError as exc:
+                track = exc
+        results[i] = track
+    return [results[i] for i in range(len(phones))]
+
+
+def _predicted(estimator: Estimator, phones: list[PhoneSequence], fps: float) -> list[Track | VispeechError]:
+    """The model's tracks of ``phones``, all at once; where it refuses one, each alone, so that
+    the error is that sequence's."""
+    try:
+        return list(estimator.predict_many(phones, fps))
+    except VispeechError:
+        results: list[Track | VispeechError] = []
+        for sequence in phones:
+            try:
+                results.append(estimator.predict(sequence, fps))
+            except VispeechError as exc:
+                results.append(exc)
+        return results
 
 
 def animate_audio(
@@ -421,37 +472,78 @@ def write_outputs(
     any other file in it (a folder of the user's) stops the run with :class:`VispeechError`,
     and so does a path that is not a folder.
     """
-    from vispeech.preview import render_preview
-
     formats = check_formats(formats)
-    calibration = load_scale(scale)
-    if calibration is not None and utterance.track is not None:
-        utterance = replace(utterance, track=calibration.apply(utterance.track))
-    out_dir = Path(out_dir)
-    names: list[str] = []
+    utterance = _scaled(utterance, load_scale(scale))
     extra = dict(extra or {})
     with atomic_output_dir(out_dir, replaces=(*OUTPUT_FILES.values(), *extra)) as staging:
-        wav = utterance.wav_bytes()
-        for fmt in OUTPUT_FILES:
-            name = OUTPUT_FILES[fmt]
-            if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
+        names = _write_files(utterance, staging, formats, title, extra)
+    return [Path(out_dir) / n for n in names]
+
+
+def write_outputs_many(
+    utterances: Sequence[Utterance],
+    out_dirs: Sequence[str | Path],
+    *,
+    formats: Iterable[str] = DEFAULT_OUTPUTS,
+    scale: str | os.PathLike | None = DEFAULT_SCALE,
+) -> list[list[Path] | VispeechError]:
+    """:func:`write_outputs` of ``utterances[i]`` into ``out_dirs[i]`` for every i: the same files
+    and the same promise for each folder (old or new, whole), the files of all the folders made
+    durable together before any is swapped in (:func:`vispeech.files.write_output_dirs`: one
+    sync of their file system where the system has one, instead of an fsync a file).
+
+    Returns, per utterance, its files' paths or the :class:`VispeechError` that stopped it (a
+    folder of the user's, a track out of range): that folder is left as it was, the others are
+    written all the same.
+    """
+    if len(utterances) != len(out_dirs):
+        raise ValueError(f"{len(utterances)} utterances for {len(out_dirs)} folders")
+    formats = check_formats(formats)
+    calibration = load_scale(scale)
+    names: list[list[str]] = [[] for _ in utterances]
+
+    def write(i: int, staging: Path) -> None:
+        names[i] = _write_files(_scaled(utterances[i], calibration), staging, formats, None, {})
+
+    errors = write_output_dirs(out_dirs, write, replaces=OUTPUT_FILES.values())
+    return [error or [Path(out) / n for n in written] for error, out, written in zip(errors, out_dirs, names)]
+
+
+def _scaled(utterance: Utterance, calibration: Calibration | None) -> Utterance:
+    """``utterance`` with its track in the output scale of ``calibration`` (``None``: as it is)."""
+    if calibration is None or utterance.track is None:
+        return utterance
+    return replace(utterance, track=calibration.apply(utterance.track))
+
+
+def _write_files(
+    utterance: Utterance, staging: Path, formats: tuple[str, ...], title: str | None, extra: Mapping[str, str]
+) -> list[str]:
+    """Write the files of :func:`write_outputs` into the folder ``staging``; their names."""
+    from vispeech.preview import render_preview
+
+    names: list[str] = []
+    wav = utterance.wav_bytes()
+    for fmt in OUTPUT_FILES:
+        name = OUTPUT_FILES[fmt]
+        if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
+            continue
+        if fmt == "wav":
+            assert wav is not None  # skipped above when None
+            (staging / name).write_bytes(wav)
+        elif fmt == "textgrid":
+            if wav is None or utterance.phones is None:
                 continue
-            if fmt == "wav":
-                assert wav is not None  # skipped above when None
-                (staging / name).write_bytes(wav)
-            elif fmt == "textgrid":
-                if wav is None or utterance.phones is None:
-                    continue
-                write_textgrid(utterance.phones, staging / name)
-            elif fmt == "preview":
-                assert utterance.track is not None  # the track formats need the track
-                html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
-                (staging / name).write_text(html, encoding="utf-8")
-            else:
-                assert utterance.track is not None
-                write_track(utterance.track, staging / name, fmt, phones=utterance.phones)
-            names.append(name)
-        for name, text in extra.items():
-            (staging / name).write_text(text, encoding="utf-8")
-            names.append(name)
-    return [out_dir / n for n in names]
+            write_textgrid(utterance.phones, staging / name)
+        elif fmt == "preview":
+            assert utterance.track is not None  # the track formats need the track
+            html = render_preview(utterance.track, utterance.phones, wav, title or utterance.text or "vispeech")
+            (staging / name).write_text(html, encoding="utf-8")
+        else:
+            assert utterance.track is not None
+            write_track(utterance.track, staging / name, fmt, phones=utterance.phones)
+        names.append(name)
+    for name, text in extra.items():
+        (staging / name).write_text(text, encoding="utf-8")
+        names.append(name)
+    return names
