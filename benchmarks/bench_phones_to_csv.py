@@ -6,25 +6,30 @@
 The TextGrids: N held-out grid_s1 utterances (the test split's 83, then the validation
 split's), their phones from the corpus's forced alignment (:func:`vispeech.corpus.align_corpus`,
 cached) written by :func:`vispeech.alignment.formats.write_alignment` into a temporary folder.
-Both tools then do the same work on each file, in this process, one core:
+Both tools then do the same work on all the files, in this process, one core:
 
-- vispeech: read the TextGrid (:func:`~vispeech.alignment.formats.read_alignment`), animate it
-  with ``grid-tdnn`` and the post-processing it recommends (:func:`vispeech.pipeline.animate`),
-  and write ``animation.csv`` (Live Link Face, ARKit scale) as an output folder that is old or
-  new and whole after a kill (:func:`vispeech.pipeline.write_outputs` with ``formats=("livelink",)``);
-- OpenFaceFX (``pip install openfacefx``, imported only here): ``load_mfa_textgrid``,
-  ``generate_from_alignment``, ``retarget`` onto its ``arkit`` preset and
-  ``write_livelink_csv``, at the same frame rate.
+- vispeech, all the files at once, as a game pipeline would: read each TextGrid
+  (:func:`~vispeech.alignment.formats.read_alignment`), animate them all with ``grid-tdnn`` and
+  the post-processing it recommends (:func:`vispeech.pipeline.animate_many`), and write each
+  ``animation.csv`` (Live Link Face, ARKit scale) as an output folder that is old or new and
+  whole after a kill (:func:`vispeech.pipeline.write_outputs_many` with
+  ``formats=("livelink",)``); its one-by-one path (``animate``, ``write_outputs`` a file) is
+  timed too, for reference;
+- OpenFaceFX (``pip install openfacefx``, imported only here), one file at a time as its API
+  goes: ``load_mfa_textgrid``, ``generate_from_alignment``, ``retarget`` onto its ``arkit``
+  preset and ``write_livelink_csv``, at the same frame rate.
 
-Prints milliseconds per utterance for each stage (read, model, post-processing, write) and
-for the whole path, wall and CPU time, each the best of ``--passes`` passes with the garbage
-collector paused (as :mod:`timeit` does); then the two whole paths run side by side, one
-after the other on each utterance, so that a busy machine slows both alike, and the ratio of
-their times (the median of the passes'). Target (issue 25): vispeech ≥ 10× OpenFaceFX. On an
-idle core the wall time is the CPU time plus the waits for the disk (vispeech's fsyncs). ``--keep DIR`` keeps vispeech's CSV folders and its tracks (``tracks.npz``,
-before the output scale) to compare two versions of the code; ``--profile`` prints the
-vispeech path's cProfile (functions by own time). Output folders go under ``--out`` (default:
-a temporary folder), a disk folder so that the fsyncs cost what they cost.
+Prints milliseconds per utterance (the time over all the files, divided by their number) for
+each stage (read, model, post-processing, write) and for the whole path, wall and CPU time,
+each the best of ``--passes`` passes with the garbage collector paused (as :mod:`timeit`
+does); then the two whole paths run side by side, one after the other in each pass, so that a
+busy machine slows both alike, and the ratio of their times (the median of the passes').
+Target (issue 25): vispeech ≥ 10× OpenFaceFX. On an idle core the wall time is the CPU time
+plus the waits for the disk (vispeech's sync). ``--keep DIR`` keeps vispeech's CSV folders
+(batched, in ``DIR/many``, and one by one, in ``DIR/one``, said to be identical or not) and its
+tracks (``tracks.npz``, before the output scale) to compare two versions of the code;
+``--profile`` prints the batched path's cProfile (functions by own time). Output folders go
+under ``--out`` (default: a temporary folder), a disk folder so that the syncs cost what they cost.
 """
 
 from __future__ import annotations
@@ -47,8 +52,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vispeech.alignment.formats import read_alignment, write_alignment  # noqa: E402
+from vispeech.models.contract import Estimator  # noqa: E402
 from vispeech.models.registry import load_model  # noqa: E402
-from vispeech.pipeline import animate, write_outputs  # noqa: E402
+from vispeech.motion.track import Track  # noqa: E402
+from vispeech.pipeline import animate, animate_many, write_outputs, write_outputs_many  # noqa: E402
 from vispeech.postprocess import PostprocessConfig, postprocess  # noqa: E402
 from vispeech.utterance import Utterance  # noqa: E402
 
@@ -79,21 +86,20 @@ def held_out_textgrids(folder: Path, n: int) -> list[Path]:
     return paths
 
 
-Stages = dict[str, Callable[[int], object]]
-"""A tool's path, stage by stage and whole (``"whole"``): each runs on utterance ``i``."""
+Stages = dict[str, Callable[[], object]]
+"""A tool's path, stage by stage and whole (``"whole"``): each runs over every utterance."""
 
 
-def best_pass(run: Callable[[int], object], n: int, passes: int) -> tuple[float, float]:
-    """Wall and CPU seconds per utterance of the fastest of ``passes`` runs of ``run(i)`` for every
-    ``i < n`` (each the least of its kind), the collector paused."""
+def best_pass(run: Callable[[], object], n: int, passes: int) -> tuple[float, float]:
+    """Wall and CPU seconds per utterance (of ``n``) of the fastest of ``passes`` runs of ``run()``
+    (each the least of its kind), the collector paused."""
     walls, cpus = [], []
     for _ in range(passes):
         gc.collect()
         gc.disable()
         try:
             wall, cpu = time.perf_counter(), time.process_time()
-            for i in range(n):
-                run(i)
+            run()
             walls.append(time.perf_counter() - wall)
             cpus.append(time.process_time() - cpu)
         finally:
@@ -101,54 +107,69 @@ def best_pass(run: Callable[[int], object], n: int, passes: int) -> tuple[float,
     return min(walls) / n, min(cpus) / n
 
 
-def side_by_side(ours: Callable[[int], object], theirs: Callable[[int], object], n: int, passes: int) -> np.ndarray:
+def side_by_side(ours: Callable[[], object], theirs: Callable[[], object], n: int, passes: int) -> np.ndarray:
     """Per pass, the wall and CPU seconds per utterance of ``ours`` and ``theirs`` run one after the
-    other on each utterance (passes × [our wall, our CPU, their wall, their CPU]): a busy machine
-    slows both alike."""
+    other (passes × [our wall, our CPU, their wall, their CPU]): a busy machine slows both alike."""
     totals = np.zeros((passes, 4))
     for k in range(passes):
-        gc.collect()
-        gc.disable()
-        try:
-            for i in range(n):
-                for j, run in ((0, ours), (2, theirs)):
-                    wall, cpu = time.perf_counter(), time.process_time()
-                    run(i)
-                    totals[k, j] += time.perf_counter() - wall
-                    totals[k, j + 1] += time.process_time() - cpu
-        finally:
-            gc.enable()
+        for j, run in ((0, ours), (2, theirs)):
+            gc.collect()
+            gc.disable()
+            try:
+                wall, cpu = time.perf_counter(), time.process_time()
+                run()
+                totals[k, j] += time.perf_counter() - wall
+                totals[k, j + 1] += time.process_time() - cpu
+            finally:
+                gc.enable()
     return totals / n
 
 
+def batched(paths: list[Path], folders: list[Path], fps: float, model: Estimator) -> list[Track | Exception]:
+    """vispeech's batched path: every TextGrid read, animated together and written together."""
+    phones = [read_alignment(p) for p in paths]
+    tracks = animate_many(phones, model, fps)
+    utterances = [Utterance(phones=p, track=t) for p, t in zip(phones, tracks) if isinstance(t, Track)]
+    if len(utterances) < len(paths):
+        raise SystemExit(f"vispeech refused a TextGrid: {next(t for t in tracks if not isinstance(t, Track))}")
+    written = write_outputs_many(utterances, folders, formats=("livelink",))
+    failed = next((w for w in written if isinstance(w, Exception)), None)
+    if failed is not None:
+        raise SystemExit(f"vispeech could not write a folder: {failed}")
+    return tracks
+
+
+def one_by_one(paths: list[Path], folders: list[Path], fps: float, model: Estimator) -> None:
+    """vispeech's path one file at a time: read, animate, write."""
+    for path, folder in zip(paths, folders):
+        sequence = read_alignment(path)
+        write_outputs(Utterance(phones=sequence, track=animate(sequence, model, fps)), folder, formats=("livelink",))
+
+
 def vispeech_path(paths: list[Path], out: Path, fps: float) -> Stages:
-    """vispeech's path over ``paths``, writing under ``out``, warmed up."""
+    """vispeech's batched path over ``paths`` stage by stage and whole, and its one-by-one path
+    (``"one by one"``), writing under ``out``, warmed up."""
     model = load_model(MODEL)
     config = PostprocessConfig.from_preset(model.postprocessing)
     phones = [read_alignment(p) for p in paths]
-    raw = [model.predict(p, fps) for p in phones]
+    raw = model.predict_many(phones, fps)
     tracks = [postprocess(t, p, config) for t, p in zip(raw, phones)]
+    utterances = [Utterance(phones=p, track=t) for p, t in zip(phones, tracks)]
     folders = [out / p.stem for p in paths]
-
-    def whole(i: int) -> None:
-        sequence = read_alignment(paths[i])
-        track = animate(sequence, model, fps)
-        write_outputs(Utterance(phones=sequence, track=track), folders[i], formats=("livelink",))
-
-    for i in range(len(paths)):  # untimed: the first calls of a process run slower (page faults, caches)
-        whole(i)
+    batched(paths, folders, fps, model)  # untimed: the first calls of a process run slower (page faults, caches)
     return {
-        "read": lambda i: read_alignment(paths[i]),
-        "model": lambda i: model.predict(phones[i], fps),
-        "post-processing": lambda i: postprocess(raw[i], phones[i], config),
-        "write": lambda i: write_outputs(Utterance(phones=phones[i], track=tracks[i]), folders[i],
-                                         formats=("livelink",)),
-        "whole": whole,
+        "read": lambda: [read_alignment(p) for p in paths],
+        "model": lambda: model.predict_many(phones, fps),
+        "post-processing": lambda: [postprocess(t, p, config) for t, p in zip(raw, phones)],
+        "write": lambda: write_outputs_many(utterances, folders, formats=("livelink",)),
+        "whole": lambda: batched(paths, folders, fps, model),
+        "one by one": lambda: one_by_one(paths, folders, fps, model),
     }
 
 
 def openfacefx_path(paths: list[Path], out: Path, fps: float) -> Stages | None:
-    """OpenFaceFX's path over ``paths``, writing under ``out``, warmed up; ``None`` without it."""
+    """OpenFaceFX's path over ``paths``, one file at a time, writing under ``out``, warmed up;
+    ``None`` without it."""
     try:
         from openfacefx import generate_from_alignment, load_mfa_textgrid, retarget, write_livelink_csv
         from openfacefx.retarget import PRESETS
@@ -160,16 +181,16 @@ def openfacefx_path(paths: list[Path], out: Path, fps: float) -> Stages | None:
     segments = [load_mfa_textgrid(p) for p in names]
     tracks = [retarget(generate_from_alignment(s, fps=fps), arkit) for s in segments]
 
-    def whole(i: int) -> None:
-        track = retarget(generate_from_alignment(load_mfa_textgrid(names[i]), fps=fps), arkit)
-        write_livelink_csv(track, files[i], fps=fps)
+    def whole() -> None:
+        for name, file in zip(names, files):
+            track = retarget(generate_from_alignment(load_mfa_textgrid(name), fps=fps), arkit)
+            write_livelink_csv(track, file, fps=fps)
 
-    for i in range(len(paths)):
-        whole(i)
+    whole()
     return {
-        "read": lambda i: load_mfa_textgrid(names[i]),
-        "model": lambda i: retarget(generate_from_alignment(segments[i], fps=fps), arkit),
-        "write": lambda i: write_livelink_csv(tracks[i], files[i], fps=fps),
+        "read": lambda: [load_mfa_textgrid(p) for p in names],
+        "model": lambda: [retarget(generate_from_alignment(s, fps=fps), arkit) for s in segments],
+        "write": lambda: [write_livelink_csv(t, f, fps=fps) for t, f in zip(tracks, files)],
         "whole": whole,
     }
 
@@ -183,10 +204,11 @@ def report(ours: Stages, theirs: Stages | None, n: int, passes: int) -> None:
     """Print each stage's times, then the whole paths' side by side and their ratios."""
     print(f"{'ms per utterance':<18} {'vispeech':>17} {'OpenFaceFX':>17}")
     print(f"{'':<18} {'wall':>8} {'CPU':>8} {'wall':>8} {'CPU':>8}")
-    for stage in ("read", "model", "post-processing", "write", "whole"):
+    for stage in ("read", "model", "post-processing", "write", "whole", "one by one"):
         other = "" if theirs is None or stage not in theirs else ms(best_pass(theirs[stage], n, passes))
         print(f"{stage:<18} {ms(best_pass(ours[stage], n, passes))} {other}")
-    print("(OpenFaceFX's model row is its curves and retargeting; vispeech's read row includes its checks)")
+    print("(vispeech all the files at once but 'one by one'; OpenFaceFX a file at a time, its model row its "
+          "curves and retargeting; vispeech's read row includes its checks)")
     if theirs is None:
         print("OpenFaceFX is not installed (pip install openfacefx): no ratio")
         return
@@ -198,39 +220,37 @@ def report(ours: Stages, theirs: Stages | None, n: int, passes: int) -> None:
         verdict = "met" if np.median(ratios) >= TARGET else "NOT met"
         print(f"OpenFaceFX / vispeech, {kind} time: {np.median(ratios):.1f}x (passes {ratios.min():.1f}x to "
               f"{ratios.max():.1f}x; target {TARGET:g}x: {verdict})")
-    print("(CPU time leaves out waits: vispeech's fsyncs, and other processes on a busy machine)")
+    print("(CPU time leaves out waits: vispeech's sync, and other processes on a busy machine)")
 
 
 def keep(paths: list[Path], folder: Path, fps: float) -> None:
-    """vispeech's CSV folders and its tracks (``tracks.npz``) for ``paths``, written into ``folder``."""
+    """vispeech's CSV folders, batched (``many``) and one by one (``one``), and its tracks
+    (``tracks.npz``) for ``paths``, written into ``folder``; says whether the two are identical."""
     model = load_model(MODEL)
     folder.mkdir(parents=True, exist_ok=True)
-    tracks = {}
-    for path in paths:
-        phones = read_alignment(path)
-        track = animate(phones, model, fps)
-        write_outputs(Utterance(phones=phones, track=track), folder / path.stem, formats=("livelink",))
-        tracks[path.stem] = track.values
-        tracks[f"{path.stem}/channels"] = np.array(track.channels)
-    np.savez(folder / "tracks.npz", **tracks)
+    tracks = batched(paths, [folder / "many" / p.stem for p in paths], fps, model)
+    one_by_one(paths, [folder / "one" / p.stem for p in paths], fps, model)
+    arrays = {}
+    for path, track in zip(paths, tracks):
+        assert isinstance(track, Track)  # batched() stops on a refused file
+        arrays[path.stem] = track.values
+        arrays[f"{path.stem}/channels"] = np.array(track.channels)
+    np.savez(folder / "tracks.npz", **arrays)
+    csv = [(folder / "one" / p.stem / "animation.csv", folder / "many" / p.stem / "animation.csv") for p in paths]
+    same = all(one.read_bytes() == many.read_bytes() for one, many in csv)
+    print(f"batched CSVs {'identical to' if same else 'DIFFERENT from'} the one-by-one path's ({len(paths)} files)")
 
 
 def profile(paths: list[Path], out: Path, fps: float) -> None:
-    """cProfile of vispeech's whole path over ``paths``: the 30 functions of most own time."""
+    """cProfile of vispeech's batched path over ``paths``: the 30 functions of most own time."""
     import cProfile
     import pstats
 
     model = load_model(MODEL)
-
-    def run() -> None:
-        for path in paths:
-            phones = read_alignment(path)
-            track = animate(phones, model, fps)
-            write_outputs(Utterance(phones=phones, track=track), out / path.stem, formats=("livelink",))
-
-    run()
+    folders = [out / p.stem for p in paths]
+    batched(paths, folders, fps, model)
     profiler = cProfile.Profile()
-    profiler.runcall(run)
+    profiler.runcall(batched, paths, folders, fps, model)
     pstats.Stats(profiler).sort_stats("tottime").print_stats(30)
 
 
