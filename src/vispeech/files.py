@@ -416,8 +416,7 @@ def _write_dirs(
 
 @dataclass(frozen=True)
 class _Staged:
-    """A folder being written beside its target: ``<key>.tmp``, then ``<key>.new`` once complete,
-    the replaced folder at ``<key>.old`` where no exchange exists; the lock file names the target."""
+    """A folder being written beside its target as ``<key>.tmp``, locked by ``<key>.lock``."""
 
     target: Path
     shown: Path
@@ -430,17 +429,18 @@ class _Staged:
 
 
 def _begin(path: str | os.PathLike, cleaned: set[Path]) -> _Staged:
-    """Check ``path``, clean what killed runs left beside it (unless its parent is in ``cleaned``,
-    where it is added) and make the locked staging folder for it."""
+    """Check ``path``, make its parent and clean what killed runs left there (unless the parent is
+    in ``cleaned``, where it is added) and make the locked staging folder for it."""
     target, shown = _checked_target(path), Path(path)
     parent = target.parent
     lock_fd = None
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        if parent not in cleaned:
+            parent.mkdir(parents=True, exist_ok=True)
         with _parent_lock(parent) as locked:
             if locked and parent not in cleaned:
                 _clean_stale(parent)
-                cleaned.add(parent)
+            cleaned.add(parent)
             lock_fd, lock_name = tempfile.mkstemp(prefix=_PREFIX, suffix=".lock", dir=parent)
             _try_lock(lock_fd)
             os.write(lock_fd, json.dumps({"target": target.name}).encode("utf-8"))  # restored by this name
