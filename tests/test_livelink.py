@@ -5,7 +5,13 @@ import pytest
 
 from vispeech import Track, VispeechError
 from vispeech.motion.arkit import ARKIT_NAMES
-from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, LIVELINK_COLUMNS, read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.livelink import (
+    LIVELINK_CHANNELS,
+    LIVELINK_COLUMNS,
+    livelink_csv_texts,
+    read_livelink_csv,
+    write_livelink_csv,
+)
 
 IPHONE_HEADER = (
     "Timecode,BlendshapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
@@ -171,3 +177,22 @@ def test_bad_start_timecode_keeps_old_file(tmp_path):
 
 def test_columns_constant_matches_header():
     assert ",".join(("Timecode", "BlendshapeCount") + LIVELINK_COLUMNS) == IPHONE_HEADER
+
+
+def test_tracks_formatted_together_get_the_bytes_each_gets_alone(tmp_path):
+    """Frames of several tracks in one pass (rates 24, 30 and 60, a take 35 hours in, degrees of
+    head turn wider than the other values, signs in some tracks only, one and many frames): each
+    file is the one write_livelink_csv writes; a track out of range is refused in its place."""
+    tracks = [random_track(75, 60.0), random_track(1, 30.0, seed=1), random_track(40, 24.0, 2.5, seed=2),
+              random_track(9, 30.0, 35 * 3600.0 + 0.5, seed=3), Track(np.full((4, 1), 0.25), ("jawOpen",), 30.0),
+              random_track(33, 30.0, seed=4)]
+    tracks[5].values[:] = np.abs(tracks[5].values)  # no minus sign in the whole file
+    tracks[3].values[:, LIVELINK_CHANNELS.index("headYaw")] = [-123.25, 45.5, 0, 7, 180, -0.5, 99.999, 1, 2]
+    wild = Track(np.full((3, 1), 1e300), ("jawOpen",), 30.0)
+    texts = livelink_csv_texts([*tracks[:2], wild, *tracks[2:]])
+    assert isinstance(texts[2], VispeechError) and "cannot write" in str(texts[2])
+    del texts[2]
+    for k, (track, text) in enumerate(zip(tracks, texts, strict=True)):
+        write_livelink_csv(track, tmp_path / f"{k}.csv")
+        assert text == (tmp_path / f"{k}.csv").read_bytes(), k
+    assert livelink_csv_texts([]) == []

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Sequence
 from functools import cache
 from pathlib import Path
 
@@ -76,19 +77,59 @@ def write_livelink_csv(track: Track, path: str | os.PathLike, start_timecode: st
     Values and start time out of the range :func:`read_livelink_csv` reads
     (:func:`~vispeech.limits.check_track_range`) are refused.
     """
-    check_track_range(track.values, track.start_time, f"cannot write {path}")
+    text = _texts([_frames(track, start_timecode, f"cannot write {path}")])[0]
+    with atomic_output_file(path) as tmp:
+        tmp.write_bytes(text)
+
+
+def livelink_csv_texts(tracks: Sequence[Track], start_timecode: str = "00:00:00:00") -> list[bytes | VispeechError]:
+    """What :func:`write_livelink_csv` writes for each of ``tracks``, byte for byte, formatted
+    together (the frames of all of them in one pass): the file's bytes, or for a track it refuses
+    (values or start out of range) the :class:`VispeechError`."""
+    results: list[bytes | VispeechError] = []
+    frames = []
+    for track in tracks:
+        try:
+            frames.append(_frames(track, start_timecode, "cannot write a Live Link CSV"))
+            results.append(b"")
+        except VispeechError as exc:
+            results.append(exc)
+    texts = iter(_texts(frames))
+    return [next(texts) if isinstance(result, bytes) else result for result in results]
+
+
+_Frames = tuple[np.ndarray, int, np.ndarray]
+"""A track's rows to write: each frame's timecode in thousandths of a timecode frame, the
+timecode rate, and the values in the columns of :data:`LIVELINK_CHANNELS`."""
+
+
+def _frames(track: Track, start_timecode: str, what: str) -> _Frames:
+    """``track``'s :data:`_Frames`, refused (``what`` leading the message) out of range."""
+    check_track_range(track.values, track.start_time, what)
     rate = math.ceil(track.fps - 1e-9)
     origin = parse_timecode(start_timecode, rate, "start timecode")
     if not 0 <= origin + track.start_time <= MAX_START_TIME_S - _ROUNDING:
         raise VispeechError(
-            f"cannot write {path}: the first frame's timecode would be {origin + track.start_time:g} s;"
+            f"{what}: the first frame's timecode would be {origin + track.start_time:g} s;"
             f" it must be 0 ... {MAX_START_TIME_S - _ROUNDING:g} s"
         )
     seconds = origin + track.start_time + np.arange(track.n_frames) / track.fps
-    header = ",".join(_HEADER + LIVELINK_COLUMNS) + "\n"
-    rows = _rows(np.rint(seconds * rate * 1000).astype(np.int64), rate, _columns(track))
-    with atomic_output_file(path) as tmp:
-        tmp.write_bytes(header.encode("ascii") + rows)
+    return np.rint(seconds * rate * 1000).astype(np.int64), rate, _columns(track)
+
+
+def _texts(frames: list[_Frames]) -> list[bytes]:
+    """The CSV files of ``frames``, those of one timecode rate formatted together."""
+    header = (",".join(_HEADER + LIVELINK_COLUMNS) + "\n").encode("ascii")
+    texts = [header] * len(frames)
+    for rate in sorted({f[1] for f in frames}):
+        group = [k for k, f in enumerate(frames) if f[1] == rate]
+        milliframes, columns = (np.concatenate([frames[k][part] for k in group]) for part in (0, 2))
+        chars, lengths = _rows(milliframes, rate, columns)
+        rows = np.cumsum([0] + [len(frames[k][0]) for k in group])  # each track's first row, and the end
+        bounds = np.concatenate(([0], np.cumsum(lengths)))[rows].tolist()  # the same in bytes
+        for k, start, end in zip(group, bounds, bounds[1:]):
+            texts[k] = header + chars[start:end]
+    return texts
 
 
 def _columns(track: Track) -> np.ndarray:
@@ -110,11 +151,13 @@ _PLACES = 10
 """Decimals of the values, as the app writes them."""
 
 
-def _rows(milliframes: np.ndarray, rate: int, values: np.ndarray) -> bytes:
-    """Every frame's line, ``HH:MM:SS:FF.mmm,61,`` and the values with :data:`_PLACES` decimals.
+def _rows(milliframes: np.ndarray, rate: int, values: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """Every frame's line, ``HH:MM:SS:FF.mmm,61,`` and the values with :data:`_PLACES` decimals,
+    and each line's length in bytes.
 
     Made for all frames at once: each field takes a column of bytes as wide as its widest
-    value, and the zero-padding no value asked for is left out (``%02d`` hours past 99)."""
+    value, and the zero-padding no value asked for is left out (``%02d`` hours past 99), so a
+    line's text is its own whatever the other lines."""
     n = len(values)
     frames, milli = np.divmod(milliframes, 1000)
     seconds, frame = np.divmod(frames, rate)
@@ -124,7 +167,9 @@ def _rows(milliframes: np.ndarray, rate: int, values: np.ndarray) -> bytes:
     timecode = [_digits(hours, 2), colon, _digits(minutes, 2), colon, _digits(seconds, 2), colon, _digits(frame, 2)]
     timecode += [_literal(".", n), _digits(milli, 3)]
     chars, keep = _join([*timecode, _literal(f",{len(LIVELINK_COLUMNS)}", n), _fixed_point(values), _literal("\n", n)])
-    return (chars if keep is None else chars[keep]).tobytes()
+    if keep is None:
+        return chars.tobytes(), np.full(n, chars.shape[1])
+    return chars[keep].tobytes(), keep.sum(axis=1)
 
 
 def _fixed_point(values: np.ndarray) -> _Text:
