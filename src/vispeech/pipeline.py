@@ -22,7 +22,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.limits import check_fps, check_text, check_utterance
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import load_model
-from vispeech.motion.formats.registry import ALIASES, write_track
+from vispeech.motion.formats.registry import ALIASES, livelink_texts, write_track
 from vispeech.motion.rigging.calibration import Calibration, load_scale
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE
@@ -500,10 +500,17 @@ def write_outputs_many(
         raise ValueError(f"{len(utterances)} utterances for {len(out_dirs)} folders")
     formats = check_formats(formats)
     calibration = load_scale(scale)
+    scaled = [_scaled(utterance, calibration) for utterance in utterances]
+    tracks = [u.track for u in scaled if u.track is not None] if "livelink" in formats else []
+    texts = iter(livelink_texts(tracks))  # every CSV formatted at once
+    csv = [next(texts) if "livelink" in formats and u.track is not None else None for u in scaled]
     names: list[list[str]] = [[] for _ in utterances]
 
     def write(i: int, staging: Path) -> None:
-        names[i] = _write_files(_scaled(utterances[i], calibration), staging, formats, None, {})
+        text = csv[i]
+        if isinstance(text, VispeechError):
+            raise text
+        names[i] = _write_files(scaled[i], staging, formats, None, {}, {} if text is None else {"livelink": text})
 
     errors = write_output_dirs(out_dirs, write, replaces=OUTPUT_FILES.values())
     return [error or [Path(out) / n for n in written] for error, out, written in zip(errors, out_dirs, names)]
@@ -517,9 +524,15 @@ def _scaled(utterance: Utterance, calibration: Calibration | None) -> Utterance:
 
 
 def _write_files(
-    utterance: Utterance, staging: Path, formats: tuple[str, ...], title: str | None, extra: Mapping[str, str]
+    utterance: Utterance,
+    staging: Path,
+    formats: tuple[str, ...],
+    title: str | None,
+    extra: Mapping[str, str],
+    made: Mapping[str, bytes] | None = None,
 ) -> list[str]:
-    """Write the files of :func:`write_outputs` into the folder ``staging``; their names."""
+    """Write the files of :func:`write_outputs` into the folder ``staging``, those of ``made``
+    (format name → bytes) as they are; their names."""
     from vispeech.preview import render_preview
 
     names: list[str] = []
@@ -528,7 +541,9 @@ def _write_files(
         name = OUTPUT_FILES[fmt]
         if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
             continue
-        if fmt == "wav":
+        if made and fmt in made:
+            (staging / name).write_bytes(made[fmt])
+        elif fmt == "wav":
             assert wav is not None  # skipped above when None
             (staging / name).write_bytes(wav)
         elif fmt == "textgrid":

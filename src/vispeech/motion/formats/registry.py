@@ -20,7 +20,7 @@ accepted for ``livelink`` (:data:`ALIASES`).
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +35,12 @@ from vispeech.motion.formats.animation_json import (
     write_animation_json,
     write_talkinghead_json,
 )
-from vispeech.motion.formats.livelink import LIVELINK_CHANNELS, read_livelink_csv, write_livelink_csv
+from vispeech.motion.formats.livelink import (
+    LIVELINK_CHANNELS,
+    livelink_csv_texts,
+    read_livelink_csv,
+    write_livelink_csv,
+)
 from vispeech.motion.rigging.retarget import PoseTable
 from vispeech.motion.track import Track
 
@@ -69,10 +74,22 @@ class TrackFormat:
         return self.reader is not None
 
 
+_NO_LIVELINK = "the track has no Live Link Face channel (ARKit names, headYaw, ...) to write"
+
+
 def _write_livelink(track: Track, path: Path, options: WriteOptions) -> None:
     if not set(track.channels) & set(LIVELINK_CHANNELS):
-        raise VispeechError("the track has no Live Link Face channel (ARKit names, headYaw, ...) to write")
+        raise VispeechError(_NO_LIVELINK)
     write_livelink_csv(track, path)
+
+
+def livelink_texts(tracks: Sequence[Track]) -> list[bytes | VispeechError]:
+    """What :func:`write_track` writes as ``livelink`` for each track, byte for byte, formatted
+    together (:func:`~vispeech.motion.formats.livelink.livelink_csv_texts`): the file's bytes, or
+    the :class:`VispeechError` that refuses the track."""
+    usable = [bool(set(track.channels) & set(LIVELINK_CHANNELS)) for track in tracks]
+    texts = iter(livelink_csv_texts([track for track, ok in zip(tracks, usable) if ok]))
+    return [next(texts) if ok else VispeechError(_NO_LIVELINK) for ok in usable]
 
 
 def _write_json(track: Track, path: Path, options: WriteOptions) -> None:
