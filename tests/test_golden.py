@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vispeech.alignment.phones import PhoneSequence
+from vispeech.alignment.phones import Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.pipeline import animate, animate_many
 
@@ -34,9 +34,11 @@ def test_animating_many_at_once_gives_each_track_bit_for_bit(model: str) -> None
     a fresh model with nothing cached) gives what animate gives each alone; a sequence it must
     refuse is reported in its place and the others are animated all the same."""
     sequences = [PhoneSequence.from_dict(entry) for entry in _PHONES]
-    together = animate_many([*sequences[:2], PhoneSequence([], "en"), *sequences[2:]], model, 30.0)
+    unknown = PhoneSequence([Phone("zzz", 0.0, 0.5)], "en")  # refused by the model, not before it
+    together = animate_many([*sequences[:2], PhoneSequence([], "en"), *sequences[2:], unknown], model, 30.0)
     assert isinstance(together[2], VispeechError) and "empty" in str(together[2])
-    del together[2]
+    assert isinstance(together[-1], VispeechError) and "zzz" in str(together[-1])
+    del together[2], together[-1]
     for entry, sequence, track in zip(_PHONES, sequences, together, strict=True):
         alone = animate(sequence, model, 30.0)
         assert isinstance(track, type(alone)) and track.channels == alone.channels
