@@ -13,11 +13,12 @@ key and every file it names is left alone; so a rerun redoes exactly the lines t
 never finished. ``OUT/index.jsonl`` lists every line of the last run (written at its end).
 
 Lines run on a pool of processes (pebble's), one per core by default; each process loads a
-model once (forked, the workers share the models the parent loaded). A line that fails is
-reported with its message and never stops the others, not even when its worker process dies:
-a new worker takes the next line. Native code (espeak-ng, pocketsphinx, libsndfile) runs in
-worker processes of its own (:mod:`vispeech.frontends.isolation`) in any case, so a line it
-crashes on fails with that one line with ``--jobs 1`` too.
+model once (forked, the workers share the models and pocketsphinx's decoders the parent
+loaded). A line that fails is reported with its message and never stops the others, not even
+when its worker process dies: a new worker takes the next line. Native code (espeak-ng,
+pocketsphinx, libsndfile) runs in worker processes of its own
+(:mod:`vispeech.frontends.isolation`) in any case, so a line it crashes on fails with that one
+line with ``--jobs 1`` too.
 """
 
 from __future__ import annotations
@@ -220,6 +221,10 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
         yield from execute_on_ray(todo, out, workers, address)
         return
     workers = min(workers, len(todo))
+    if any(line.kind == "audio" and line.text is not None and (line.language or "en") == "en" for line, _, _ in todo):
+        from vispeech.frontends.align import load_decoders
+
+        load_decoders()  # once, before the workers and their native workers are forked
     if workers == 1:
         for line, key, record in todo:
             yield run_line(line, out, key, record)

@@ -278,6 +278,14 @@ def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments
     return segments
 
 
+def load_decoders() -> None:
+    """Load pocketsphinx's decoders, the aligner's and the phone loop's (about 0.3 s), in this
+    process now: the processes forked from it afterwards (a batch's workers and their native
+    workers, :mod:`vispeech.frontends.isolation`) share them instead of each loading its own."""
+    _decoder()
+    _phone_loop()
+
+
 @functools.cache
 def _decoder():
     from pocketsphinx import Decoder
