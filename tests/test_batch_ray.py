@@ -1,6 +1,7 @@
 """``vispeech batch --backend ray``: on a local Ray instance, the same files as the process pool."""
 
 import json
+import threading
 
 from conftest import require_module
 from test_batch import RECORD, SAY_FILES, _assert_same_files, _jsonl
@@ -37,3 +38,20 @@ def test_ray_writes_what_the_process_pool_writes(tmp_path):
 
     again = run_batch(job, tmp_path / "ray", workers=2, backend="ray")  # resumable on Ray too
     assert again.count("unchanged") == 199
+
+
+def test_ray_starts_no_more_actors_than_the_cluster_has_cpus(tmp_path):
+    """On a running cluster with fewer CPUs than workers asked for, every line is written: an actor
+    waiting for a CPU that never frees would hold the lines given to it forever."""
+    job = _jsonl(tmp_path / "job.jsonl", [{"id": f"l{i}", "text": ENGLISH[i % 5]} for i in range(6)])
+    reports = []
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        run = threading.Thread(target=lambda: reports.append(run_batch(job, tmp_path / "out", workers=3, backend="ray")))
+        run.daemon = True
+        run.start()
+        run.join(90)
+    finally:
+        ray.shutdown()
+    assert reports, "the batch did not end within 90 s"
+    assert reports[0].count("written") == 6
