@@ -13,7 +13,8 @@ file system).
 ``address`` joins a running cluster (``ray start --head`` on one machine, ``ray start
 --address HEAD:6379`` on the others; or ``"auto"``), whose CPUs cap the number of actors;
 without it a local Ray instance of ``workers`` CPUs is started for the run and stopped after
-it. Needs the ``ray`` extra.
+it, its workers at the priority of the local pool's (Ray's own default, nice 15, gives way to
+any other work on the machine). Needs the ``ray`` extra.
 """
 
 from __future__ import annotations
@@ -40,7 +41,13 @@ def execute_on_ray(
     started_here = not ray.is_initialized()
     if started_here:
         if address is None:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+            ray.init(
+                num_cpus=workers,
+                include_dashboard=False,
+                log_to_driver=False,
+                logging_level=logging.ERROR,
+                _system_config={"worker_niceness": 0},  # Ray's default, 15, yields to any other work
+            )
         else:
             ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
     try:
