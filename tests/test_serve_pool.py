@@ -81,6 +81,25 @@ def test_a_client_that_had_more_than_its_share_waits_and_an_idle_one_saves_nothi
     assert [take(queue, 1.0)[1] for _ in range(4)] == ["idle", "busy", "idle", "busy"]
 
 
+def test_a_new_session_goes_before_the_next_jobs_of_its_clients_older_ones():
+    """Streams of one address (one client): each session's jobs in order, and the first job of a
+    session that comes later goes before the next jobs of those that have had one."""
+    queue: FairQueue = FairQueue()
+    for k in range(3):
+        queue.push("text", "10.0.0.1", f"s{k} first", 0.01, session=f"s{k}")
+    kind, client, job = queue.pop()
+    assert job == "s0 first"
+    queue.done(kind, client, 0.0, session="s0")
+    queue.push("text", "10.0.0.1", "s0 second", 0.01, session="s0")
+    queue.push("text", "10.0.0.1", "s3 first", 0.01, session="s3")  # a session that comes later
+    order = []
+    while len(queue):
+        job = queue.pop()[2]
+        queue.done("text", "10.0.0.1", 0.0, session=job.split()[0])
+        order.append(job)
+    assert order == ["s1 first", "s2 first", "s3 first", "s0 second"]
+
+
 def test_an_empty_queue_pops_nothing():
     queue: FairQueue = FairQueue()
     assert len(queue) == 0

@@ -78,6 +78,8 @@ class Connection:
         self.config = service.config
         self.ip = ip
         self.cancelled = threading.Event()
+        self.session = f"{id(self):x}"
+        """What tells its jobs from those of its client's other connections in the pool."""
         self.evicted = False
         """Whether the connection gave its slot to a new one (it was idle longest)."""
         self._reader: asyncio.Task | None = None
@@ -140,10 +142,10 @@ class Connection:
             await self.ws.close(code, message.encode()[:123].decode("utf-8", "ignore"))
 
     async def _run(self, fn, *args, weight: float = 0.0, kind: str | None = None):
-        """``fn(*args)`` in the service's pool, a job of this client's of ``kind`` (default: the
-        connection's)."""
+        """``fn(*args)`` in the service's pool, a job of this connection's (a session of its
+        client's) of ``kind`` (default: the connection's)."""
         return await self.service.pool.run(
-            kind or self.kind, self.ip, fn, *args, cancelled=self.cancelled, weight=weight
+            kind or self.kind, self.ip, fn, *args, cancelled=self.cancelled, weight=weight, session=self.session
         )
 
     def _worked(self) -> None:

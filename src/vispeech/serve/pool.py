@@ -9,7 +9,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from typing import Any, Generic, TypeVar
+from typing import Generic, TypeVar
 
 T = TypeVar("T")
 
@@ -30,10 +30,10 @@ class Cancelled(Exception):
 
 
 class _Job:
-    __slots__ = ("abandoned", "args", "cancelled", "fn", "future", "key", "kind", "loop", "weight")
+    __slots__ = ("abandoned", "args", "cancelled", "fn", "future", "key", "kind", "loop", "session", "weight")
 
-    def __init__(self, fn, args, kind, key, weight, future, loop, cancelled) -> None:
-        self.fn, self.args, self.kind, self.key, self.weight = fn, args, kind, key, weight
+    def __init__(self, fn, args, kind, key, session, weight, future, loop, cancelled) -> None:
+        self.fn, self.args, self.kind, self.key, self.session, self.weight = fn, args, kind, key, session, weight
         self.future, self.loop, self.cancelled = future, loop, cancelled
         self.abandoned = False
 
@@ -47,109 +47,115 @@ def _settle(future: asyncio.Future, result, error: BaseException | None) -> None
         future.set_result(result)
 
 
-class _Client:
-    __slots__ = ("jobs", "running", "since", "time")
+class _Flow:
+    """A node of the queue's tree: the root, a kind of work, a client of a kind, or a session of a
+    client (whose ``jobs`` wait in order)."""
+
+    __slots__ = ("children", "clock", "jobs", "ready", "running", "since", "time", "waiting")
 
     def __init__(self) -> None:
-        self.time = 0.0  # virtual time: worker seconds had, caught up to its kind's clock when it comes back
+        self.time = 0.0  # virtual time: worker seconds had, caught up to its parent's clock when it comes back
         self.since = 0  # when it last came back (ties: the one waiting longer first)
-        self.jobs: deque = deque()  # (job, weight), in order
-        self.running = 0
+        self.clock = 0.0  # the virtual time of the last of its children taken
+        self.waiting = 0  # jobs waiting in it
+        self.running = 0  # jobs taken from it, not done
+        self.children: dict[str, _Flow] = {}
+        self.ready: dict[str, _Flow] = {}  # the children with jobs waiting
+        self.jobs: deque = deque()  # a session's (job, weight), in order
 
 
-class _Kind:
-    __slots__ = ("clients", "clock", "ready", "since", "time", "waiting")
-
-    def __init__(self) -> None:
-        self.time = 0.0
-        self.since = 0
-        self.clock = 0.0  # the virtual time of the last of its clients taken
-        self.waiting = 0
-        self.clients: dict[str, _Client] = {}
-        self.ready: dict[str, _Client] = {}  # those with jobs waiting
-
-
-def _first(flows: Iterable[tuple[str, Any]]) -> tuple[str, Any]:
+def _first(flows: Iterable[tuple[str, _Flow]]) -> tuple[str, _Flow]:
     return min(flows, key=lambda flow: (flow[1].time, flow[1].since))
 
 
 class FairQueue(Generic[T]):
     """Jobs waiting for a worker, taken fairly: kinds of work in turn, within a kind its clients in
-    turn, a client's own jobs in order.
+    turn, within a client its sessions in turn, a session's own jobs in order.
 
-    Start-time fair queueing at both levels: each kind of work (``"text"``, ``"phones"``, ...) and
-    each client within it has a virtual time, the worker seconds it has had: a job's estimated
-    ``weight`` when :meth:`pop` takes it, the rest when :meth:`done` says what it took. :meth:`pop`
-    takes from the kind with the least, and in it from the client with the least. One that comes
-    back after having nothing waiting starts at the virtual time of the last one taken (the
+    Start-time fair queueing at each level: each kind of work (``"text"``, ``"phones"``, ...), each
+    client within it and each session within that has a virtual time, the worker seconds it has
+    had: a job's estimated ``weight`` when :meth:`pop` takes it, the rest when :meth:`done` says
+    what it took. :meth:`pop` takes from the kind with the least, in it from the client with the
+    least, and from that client's session with the least. One that comes back after having
+    nothing waiting starts at the virtual time of the last one taken beside it (its parent's
     ``clock``), so an idle time is not saved up, while one that had more than its share lately
-    waits until the others have caught up. A kind with jobs waiting is taken within as many pops
-    as there are other kinds waiting, however many jobs they hold (as long as each job taken costs
-    some time); a client likewise within its kind.
+    waits until the others have caught up: a new session's first job goes before the next jobs of
+    its client's older sessions. A kind with jobs waiting is taken within as many pops as there
+    are other kinds waiting, however many jobs they hold (as long as each job taken costs some
+    time); a client likewise within its kind, a session within its client.
     """
 
     def __init__(self) -> None:
-        self._kinds: dict[str, _Kind] = {}
-        self.clock = 0.0
+        self._root = _Flow()
         self._turns = itertools.count()
-        self._size = 0
 
     def __len__(self) -> int:
-        return self._size
+        return self._root.waiting
 
     def waiting(self, kind: str) -> int:
         """How many jobs of ``kind`` wait."""
-        flow = self._kinds.get(kind)
+        flow = self._root.children.get(kind)
         return 0 if flow is None else flow.waiting
 
     @property
     def kinds_waiting(self) -> int:
         """How many kinds of work have jobs waiting."""
-        return sum(1 for flow in self._kinds.values() if flow.waiting)
+        return len(self._root.ready)
 
-    def push(self, kind: str, client: str, job: T, weight: float = 0.0) -> None:
-        """Queue ``job`` of ``client``'s, of ``kind``, estimated to take ``weight`` worker seconds."""
-        flow = self._kinds.setdefault(kind, _Kind())
-        if not flow.waiting:
-            flow.time, flow.since = max(flow.time, self.clock), next(self._turns)
-        who = flow.clients.setdefault(client, _Client())
-        if not who.jobs:
-            who.time, who.since = max(who.time, flow.clock), next(self._turns)
-            flow.ready[client] = who
-        who.jobs.append((job, max(0.0, weight)))
-        flow.waiting += 1
-        self._size += 1
+    def push(self, kind: str, client: str, job: T, weight: float = 0.0, session: str = "") -> None:
+        """Queue ``job`` of ``client``'s ``session``, of ``kind``, estimated to take ``weight`` worker seconds."""
+        weight = max(0.0, weight)
+        node = self._root
+        for name in (kind, client, session):
+            child = node.children.get(name)
+            if child is None:
+                child = node.children[name] = _Flow()
+            if not child.waiting:
+                child.time, child.since = max(child.time, node.clock), next(self._turns)
+                node.ready[name] = child
+            node.waiting += 1
+            node = child
+        node.waiting += 1
+        node.jobs.append((job, weight))
 
     def pop(self) -> tuple[str, str, T]:
         """The next job to run, with its kind and client (:exc:`IndexError` when none waits); its
         weight is charged to them until :meth:`done`."""
-        if not self._size:
+        if not self._root.waiting:
             raise IndexError("no job waits")
-        kind, flow = _first((name, f) for name, f in self._kinds.items() if f.waiting)
-        client, who = _first(flow.ready.items())
-        self.clock, flow.clock = max(self.clock, flow.time), max(flow.clock, who.time)
-        job, weight = who.jobs.popleft()
-        if not who.jobs:
-            del flow.ready[client]
-        flow.waiting -= 1
-        self._size -= 1
-        who.running += 1
-        flow.time += weight
-        who.time += weight
-        return kind, client, job
+        path: list[tuple[_Flow, str, _Flow]] = []
+        node = self._root
+        while node.ready:
+            name, child = _first(node.ready.items())
+            node.clock = max(node.clock, child.time)
+            path.append((node, name, child))
+            node = child
+        job, weight = node.jobs.popleft()
+        for flow in (self._root, *(child for _, _, child in path)):
+            flow.waiting -= 1
+        for parent, name, child in path:
+            if not child.waiting:
+                del parent.ready[name]
+            child.running += 1
+            child.time += weight
+        return path[0][1], path[1][1], job
 
-    def done(self, kind: str, client: str, seconds: float) -> None:
-        """A job :meth:`pop` took for ``client`` took ``seconds`` more than its weight (negative:
-        less), charged to its kind and client."""
-        flow = self._kinds[kind]
-        who = flow.clients[client]
-        flow.time += seconds
-        who.time += seconds
-        who.running -= 1
-        if not who.jobs and not who.running and who.time <= flow.clock:
-            del flow.clients[client]  # it would come back at the clock: nothing to remember
-        elif len(flow.clients) > MAX_CLIENTS:  # forget what the idle ones had
-            flow.clients = {name: c for name, c in flow.clients.items() if c.jobs or c.running}
+    def done(self, kind: str, client: str, seconds: float, session: str = "") -> None:
+        """A job :meth:`pop` took for ``client``'s ``session`` took ``seconds`` more than its weight
+        (negative: less), charged to its kind, client and session."""
+        path: list[tuple[_Flow, str, _Flow]] = []
+        node = self._root
+        for name in (kind, client, session):
+            child = node.children[name]
+            child.time += seconds
+            child.running -= 1
+            path.append((node, name, child))
+            node = child
+        for parent, name, child in reversed(path[1:]):  # kinds stay
+            if not child.waiting and not child.running and child.time <= parent.clock:
+                del parent.children[name]  # it would come back at the clock: nothing to remember
+            elif len(parent.children) > MAX_CLIENTS:  # forget what the idle ones had
+                parent.children = {n: c for n, c in parent.children.items() if c.waiting or c.running}
 
 
 class WorkPool:
@@ -158,12 +164,14 @@ class WorkPool:
     ``await pool.run(kind, key, fn, *args)`` runs ``fn(*args)`` on one of ``workers`` threads
     and returns its result. Waiting jobs are taken from a :class:`FairQueue`: kinds of work
     (text streams, phone streams, uploads, chats, ...) in turn by the worker time each has had,
-    within a kind its clients (``key``, the IP address) likewise, a client's own jobs in order;
-    so no kind starves beside another's flood, and a new or light client goes before a heavy
-    one's next job. With ``max_queue`` jobs already waiting a job is refused at once
-    (:class:`Busy`) unless its kind holds fewer than its share of them (``max_queue`` over the
-    kinds waiting): a flood of one kind cannot lock the others out. A job whose ``cancelled``
-    event is set, or whose caller stopped waiting, is dropped unrun.
+    within a kind its clients (``key``, the IP address) likewise, within a client its sessions
+    (``session``: a stream connection), a session's own jobs in order; so no kind starves beside
+    another's flood, and a new or light client or session goes before a heavy one's next job.
+
+    With ``max_queue`` jobs already waiting a job is refused at once (:class:`Busy`) unless its
+    kind holds fewer than its share of them (``max_queue`` over the kinds waiting): a flood of one
+    kind cannot lock the others out. A job whose ``cancelled`` event is set, or whose caller
+    stopped waiting, is dropped unrun.
     """
 
     def __init__(self, workers: int, max_queue: int) -> None:
@@ -202,20 +210,21 @@ class WorkPool:
         *args,
         cancelled: threading.Event | None = None,
         weight: float = 0.0,
+        session: str = "",
     ):
-        """``fn(*args)`` on a worker thread, a job of client ``key``'s of ``kind``, estimated to take
-        ``weight`` seconds; :class:`Busy` when the queue is full, :class:`Cancelled` when
-        ``cancelled`` was set before it started."""
+        """``fn(*args)`` on a worker thread, a job of client ``key``'s ``session`` of ``kind``,
+        estimated to take ``weight`` seconds; :class:`Busy` when the queue is full,
+        :class:`Cancelled` when ``cancelled`` was set before it started."""
         loop = asyncio.get_running_loop()
         future = loop.create_future()
-        job = _Job(fn, args, kind, key, max(0.0, weight), future, loop, cancelled)
+        job = _Job(fn, args, kind, key, session, max(0.0, weight), future, loop, cancelled)
         with self._cond:
             if self._closed:
                 raise Busy("the server is shutting down")
             if self._full(kind):
                 raise Busy(f"server busy: {len(self._queue)} jobs waiting, try again later")
             self._start()
-            self._queue.push(kind, key, job, job.weight)
+            self._queue.push(kind, key, job, job.weight, session)
             self._cond.notify()
         try:
             return await future
@@ -248,7 +257,7 @@ class WorkPool:
                 job = self._queue.pop()[2]
                 skip = job.abandoned or (job.cancelled is not None and job.cancelled.is_set())
                 if skip:
-                    self._queue.done(job.kind, job.key, -job.weight)
+                    self._queue.done(job.kind, job.key, -job.weight, job.session)
                 else:
                     self.running += 1
             if skip:
@@ -263,5 +272,5 @@ class WorkPool:
             spent = time.perf_counter() - started
             with self._cond:
                 self.running -= 1
-                self._queue.done(job.kind, job.key, spent - job.weight)
+                self._queue.done(job.kind, job.key, spent - job.weight, job.session)
             self._resolve(job, result, error)
