@@ -100,6 +100,36 @@ def test_a_new_session_goes_before_the_next_jobs_of_its_clients_older_ones():
     assert order == ["s1 first", "s2 first", "s3 first", "s0 second"]
 
 
+def test_the_pool_is_full_by_the_work_waiting_and_by_a_count_of_jobs():
+    async def scenario():
+        pool = WorkPool(workers=1, max_queue=50, max_wait=1.0)
+        started, gate = threading.Event(), threading.Event()
+
+        def job(name):
+            if name == "gate":
+                started.set()
+                gate.wait(30)
+            return name
+
+        blocker = asyncio.ensure_future(pool.run("other", "x", job, "gate"))
+        await asyncio.to_thread(started.wait, 30)
+        heavy = [asyncio.ensure_future(pool.run("upload", "u", job, f"u{k}", weight=0.3)) for k in range(4)]
+        await asyncio.sleep(0)  # 1.2 s of work waits, past max_wait for the one worker
+        with pytest.raises(Busy, match="4 jobs waiting"):
+            await pool.run("upload", "u", job, "refused", weight=0.001)
+        # many small jobs of another kind fit beside, up to its share of the count (50 over 2 kinds)
+        light = [asyncio.ensure_future(pool.run("text", f"t{k}", job, f"t{k}", weight=0.001)) for k in range(25)]
+        await asyncio.sleep(0)
+        with pytest.raises(Busy):
+            await pool.run("text", "t", job, "refused", weight=0.001)
+        gate.set()
+        done = await asyncio.gather(blocker, *heavy, *light)
+        assert "refused" not in done and len(done) == 30
+        pool.close()
+
+    asyncio.run(scenario())
+
+
 def test_an_empty_queue_pops_nothing():
     queue: FairQueue = FairQueue()
     assert len(queue) == 0

@@ -86,9 +86,10 @@ class ServeConfig:
 
     Abuse: ``workers`` threads run the CPU-heavy work (speech, stream clauses, phone pushes
     in pieces of ``piece_seconds``), the native libraries' part of it in as many worker processes
-    (:mod:`vispeech.frontends.isolation`), with at most ``max_queue`` jobs waiting (503 / stream
-    error beyond, but to a kind of work holding less than its share), taken fairly between kinds
-    of work and clients (:class:`~vispeech.serve.pool.WorkPool`). ``max_streams`` WebSocket
+    (:mod:`vispeech.frontends.isolation`), with at most ``max_wait`` seconds of estimated work
+    waiting for each worker and at most ``max_queue`` jobs (503 / stream error beyond, but to a
+    kind of work holding less than its share), taken fairly between kinds of work, clients and
+    their sessions (:class:`~vispeech.serve.pool.WorkPool`). ``max_streams`` WebSocket
     connections at once, ``max_streams_per_ip`` of them from one address and
     ``max_streams_per_network`` from one /24 (IPv4) or /64 (IPv6); a connection that finds the
     server full takes the place of the one idle longest. Each closes after ``idle_timeout`` s
@@ -252,10 +253,20 @@ class ServeConfig:
         default_factory=_default_workers,
         metadata=_option("--workers", "Threads for the CPU-heavy work [default: cores - 1].", minimum=1),
     )
-    max_queue: int = field(
-        default=64,
+    max_wait: float = field(
+        default=2.0,
         metadata=_option(
-            "--max-queue", "Jobs that may wait for a worker; beyond that requests get 503 (busy).", minimum=1
+            "--max-wait",
+            "Estimated seconds of work that may wait for each worker; beyond that requests get 503 (busy).",
+            minimum=0.01,
+        ),
+    )
+    max_queue: int = field(
+        default=1024,
+        metadata=_option(
+            "--max-queue",
+            "Jobs that may wait for a worker, however small; beyond that requests get 503 (busy).",
+            minimum=1,
         ),
     )
     piece_seconds: float = 1.0

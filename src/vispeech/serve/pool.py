@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import math
 import threading
 import time
 from collections import deque
@@ -51,13 +52,14 @@ class _Flow:
     """A node of the queue's tree: the root, a kind of work, a client of a kind, or a session of a
     client (whose ``jobs`` wait in order)."""
 
-    __slots__ = ("children", "clock", "jobs", "ready", "running", "since", "time", "waiting")
+    __slots__ = ("children", "clock", "jobs", "ready", "running", "since", "time", "waiting", "work")
 
     def __init__(self) -> None:
         self.time = 0.0  # virtual time: worker seconds had, caught up to its parent's clock when it comes back
         self.since = 0  # when it last came back (ties: the one waiting longer first)
         self.clock = 0.0  # the virtual time of the last of its children taken
         self.waiting = 0  # jobs waiting in it
+        self.work = 0.0  # their estimated worker seconds
         self.running = 0  # jobs taken from it, not done
         self.children: dict[str, _Flow] = {}
         self.ready: dict[str, _Flow] = {}  # the children with jobs waiting
@@ -92,6 +94,16 @@ class FairQueue(Generic[T]):
     def __len__(self) -> int:
         return self._root.waiting
 
+    @property
+    def work(self) -> float:
+        """The estimated worker seconds of the jobs waiting."""
+        return self._root.work
+
+    def work_of(self, kind: str) -> float:
+        """The estimated worker seconds of the jobs of ``kind`` waiting."""
+        flow = self._root.children.get(kind)
+        return 0.0 if flow is None else flow.work
+
     def waiting(self, kind: str) -> int:
         """How many jobs of ``kind`` wait."""
         flow = self._root.children.get(kind)
@@ -114,8 +126,10 @@ class FairQueue(Generic[T]):
                 child.time, child.since = max(child.time, node.clock), next(self._turns)
                 node.ready[name] = child
             node.waiting += 1
+            node.work += weight
             node = child
         node.waiting += 1
+        node.work += weight
         node.jobs.append((job, weight))
 
     def pop(self) -> tuple[str, str, T]:
@@ -133,6 +147,7 @@ class FairQueue(Generic[T]):
         job, weight = node.jobs.popleft()
         for flow in (self._root, *(child for _, _, child in path)):
             flow.waiting -= 1
+            flow.work = flow.work - weight if flow.waiting else 0.0  # no rounding error left over
         for parent, name, child in path:
             if not child.waiting:
                 del parent.ready[name]
@@ -168,17 +183,20 @@ class WorkPool:
     (``session``: a stream connection), a session's own jobs in order; so no kind starves beside
     another's flood, and a new or light client or session goes before a heavy one's next job.
 
-    With ``max_queue`` jobs already waiting a job is refused at once (:class:`Busy`) unless its
-    kind holds fewer than its share of them (``max_queue`` over the kinds waiting): a flood of one
-    kind cannot lock the others out. A job whose ``cancelled`` event is set, or whose caller
-    stopped waiting, is dropped unrun.
+    The queue is full when its jobs' estimated work passes ``max_wait`` seconds for each worker
+    (what a job queued last would wait), or when ``max_queue`` jobs wait (each costs memory,
+    whatever its weight). A job that finds it full is refused at once (:class:`Busy`) unless its
+    kind holds less than its share of the work and of the jobs (over the kinds waiting): a flood
+    of one kind cannot lock the others out. A job whose ``cancelled`` event is set, or whose
+    caller stopped waiting, is dropped unrun.
     """
 
-    def __init__(self, workers: int, max_queue: int) -> None:
-        if workers < 1 or max_queue < 1:
-            raise ValueError("workers and max_queue must be at least 1")
+    def __init__(self, workers: int, max_queue: int, max_wait: float = math.inf) -> None:
+        if workers < 1 or max_queue < 1 or not max_wait > 0:
+            raise ValueError("workers and max_queue must be at least 1, max_wait more than 0")
         self.workers = workers
         self.max_queue = max_queue
+        self.max_wait = max_wait
         self._queue: FairQueue[_Job] = FairQueue()
         self._cond = threading.Condition()
         self._threads: list[threading.Thread] = []
@@ -197,10 +215,12 @@ class WorkPool:
 
     def _full(self, kind: str) -> bool:
         queue = self._queue
-        if len(queue) < self.max_queue:
+        budget = self.max_wait * self.workers
+        if len(queue) < self.max_queue and queue.work < budget:
             return False
         mine = queue.waiting(kind)
-        return mine >= self.max_queue // (queue.kinds_waiting + (0 if mine else 1))
+        kinds = queue.kinds_waiting + (0 if mine else 1)
+        return mine >= self.max_queue // kinds or queue.work_of(kind) >= budget / kinds
 
     async def run(
         self,
@@ -222,7 +242,8 @@ class WorkPool:
             if self._closed:
                 raise Busy("the server is shutting down")
             if self._full(kind):
-                raise Busy(f"server busy: {len(self._queue)} jobs waiting, try again later")
+                queue = self._queue
+                raise Busy(f"server busy: {len(queue)} jobs waiting ({queue.work:.1f} s of work), try again later")
             self._start()
             self._queue.push(kind, key, job, job.weight, session)
             self._cond.notify()

@@ -190,7 +190,7 @@ class SpeechService:
         self.upload_model = None if config.upload_model is None else self._offer(config.upload_model)
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
-        self.pool = WorkPool(config.workers, config.max_queue)
+        self.pool = WorkPool(config.workers, config.max_queue, config.max_wait)
         set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
         self.pushes = PushBatcher(self, "phones", "phone streams", push_together)
         """The phone streams' pushes (``/api/stream``)."""
