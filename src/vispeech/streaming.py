@@ -92,9 +92,22 @@ def _with_stream_channels(channels: Sequence[str]) -> tuple[str, ...]:
 def stream_channels(model: Estimator, language: str, fps: float) -> tuple[str, ...]:
     """The channels a stream of ``model``'s frames carries for phones of ``language`` (a phone
     set: ``sv``, ``en`` or ``ipa``): :data:`STREAM_CHANNELS` and any others its post-processed
-    tracks have."""
-    probe = PhoneSequence([Phone(SILENCE, 0.0, 1.0 / fps)], language)
-    return _with_stream_channels(animate(probe, model, fps).channels)
+    tracks have. Remembered by the model's channels and post-processing preset, so a stream's
+    first frames do not wait for a probe animated anew."""
+    key = (model.channels, model.postprocessing, language, fps)
+    channels = _CHANNELS.get(key)
+    if channels is None:
+        probe = PhoneSequence([Phone(SILENCE, 0.0, 1.0 / fps)], language)
+        channels = _with_stream_channels(animate(probe, model, fps).channels)
+        if len(_CHANNELS) >= MAX_REMEMBERED:
+            _CHANNELS.clear()
+        _CHANNELS[key] = channels
+    return channels
+
+
+MAX_REMEMBERED = 256
+"""Channel lists :func:`stream_channels` remembers (a frame rate is a client's choice)."""
+_CHANNELS: dict[tuple, tuple[str, ...]] = {}
 
 
 def speech_messages(
