@@ -8,7 +8,7 @@ from vispeech import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import (
     FRAME_RATE, N_FFT, SpectrumStream, audio_features, log_mel, mel_filter_bank, mfcc, power_spectrogram,
-    running_normalize, warp_frequencies,
+    running_normalize, running_normalize_together, warp_frequencies,
 )
 
 
@@ -84,6 +84,33 @@ def test_spectrum_stream_equals_offline():
         i += n
     parts.append(stream.finish())
     np.testing.assert_allclose(np.concatenate(parts), power_spectrogram(samples), rtol=1e-5, atol=1e-7)
+
+
+def test_streams_pushed_together_give_what_each_gives_alone():
+    """Several spectrum streams pushed at once (one FFT) and their features normalised at once
+    give each what it gets alone, whatever the chunk sizes (none, too, and a stream without a
+    running state yet)."""
+    rng = np.random.default_rng(4)
+    signals = [rng.normal(0, 0.1, n).astype(np.float32) for n in (9000, 4000, 12000)]
+    alone, together = [SpectrumStream() for _ in signals], [SpectrumStream() for _ in signals]
+    states: list = [None] * 3
+    alone_states: list = [None] * 3
+    mean, std = np.full(5, 0.5), np.full(5, 2.0)
+    positions = [0, 0, 0]
+    while any(at < len(x) for at, x in zip(positions, signals)):
+        chunks = []
+        for k, x in enumerate(signals):
+            n = int(rng.integers(0, 700))
+            chunks.append(x[positions[k]:positions[k] + n])
+            positions[k] += n
+        powers = SpectrumStream.push_together(together, chunks)
+        features = [power[:, :5] for power in powers]
+        normalised, states = running_normalize_together(features, mean, std, 50, states)
+        for k, (stream, chunk) in enumerate(zip(alone, chunks)):
+            power = stream.push(chunk)
+            np.testing.assert_array_equal(powers[k], power)
+            expected, alone_states[k] = running_normalize(power[:, :5], mean, std, 50, alone_states[k])
+            np.testing.assert_allclose(normalised[k], expected, atol=1e-6)
 
 
 def test_running_normalisation_continues_and_adapts():

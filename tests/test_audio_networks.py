@@ -177,13 +177,17 @@ def test_cnn_stream_equals_offline_prediction(fixture, fps, request, held_out):
 def test_streams_advanced_together_give_what_each_gives_alone(cnn, recurrent_cnn, encdec, held_out, monkeypatch):
     """AudioStream.advance_together (what a server runs for the audio its sessions sent in one
     tick) gives every stream the frames it gets pushed alone, whatever the chunks, lengths and
-    starts: the streams of one convolution network take each layer at once."""
+    starts: the spectra of all the streams are one FFT, and the streams of one convolution
+    network take each layer at once."""
+    from vispeech.frontends import features
     from vispeech.models.networks import kernels
     from vispeech.models.networks.audio_stream import AudioStream
 
-    gather = kernels._window_starts
+    gather, spectra = kernels._window_starts, features._windows_power
     products = []  # the layers run: each gathers its windows once
+    ffts = []
     monkeypatch.setattr(kernels, "_window_starts", lambda *args: products.append(1) or gather(*args))
+    monkeypatch.setattr(features, "_windows_power", lambda frames: ffts.append(len(frames)) or spectra(frames))
     sessions = [(cnn, 0, 0), (cnn, 1, 4), (recurrent_cnn, 2, 2), (cnn, 2, 9), (encdec, 0, 1), (recurrent_cnn, 1, 0)]
     rng = np.random.default_rng(3)
     plans = []  # each session's chunk sizes
@@ -205,8 +209,10 @@ def test_streams_advanced_together_give_what_each_gives_alone(cnn, recurrent_cnn
             a = sum(plans[k][: tick - start])
             streams[k].feed(held_out[u].audio[a:a + plans[k][tick - start]])
         products.clear()
+        ffts.clear()
         AudioStream.advance_together([streams[k] for k in due])
         assert len(products) <= 6  # three layers for each convolution network, whatever the streams
+        assert len(ffts) == 1  # every stream's new spectra at once
         for k in due:
             together[k].append(streams[k].collect()[1])
     for k, stream in enumerate(streams):

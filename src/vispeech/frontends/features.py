@@ -20,6 +20,7 @@ arrives in chunks: frame j once the samples up to ``j * 10 ms + 16 ms`` are in.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -47,11 +48,15 @@ def power_spectrogram(samples: np.ndarray) -> np.ndarray:
 
 
 def _frames_power(padded: np.ndarray) -> np.ndarray:
-    """Power spectra of every whole frame of an already padded float32 signal: the frames
-    windowed in float64, their spectra rounded to complex64 (``librosa.stft(center=False)``)."""
+    """Power spectra of every whole frame of an already padded float32 signal (``librosa.stft(center=False)``)."""
     if len(padded) < N_FFT:
         return np.zeros((0, N_FFT // 2 + 1), dtype=np.float32)
-    frames = np.lib.stride_tricks.sliding_window_view(padded, N_FFT)[::HOP]
+    return _windows_power(np.lib.stride_tricks.sliding_window_view(padded, N_FFT)[::HOP])
+
+
+def _windows_power(frames: np.ndarray) -> np.ndarray:
+    """``(n, N_FFT // 2 + 1)`` power spectra of ``(n, N_FFT)`` float32 frames: windowed in
+    float64, their spectra rounded to complex64, each row on its own."""
     spectrum = np.fft.rfft(frames * _window(), axis=1).astype(np.complex64)
     return np.abs(spectrum) ** 2
 
@@ -176,8 +181,8 @@ def running_normalize(
     mean: np.ndarray,
     std: np.ndarray,
     prior_frames: float,
-    state: tuple[float, np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, tuple[float, np.ndarray, np.ndarray]]:
+    state: NormState | None = None,
+) -> tuple[np.ndarray, NormState]:
     """Causal per-dimension normalisation (speaker and channel normalisation that streams).
 
     Frame t is standardised by the mean and variance of the frames up to t, pooled with a prior
@@ -185,23 +190,46 @@ def running_normalize(
     on the prior and later ones on the voice heard so far. ``state`` (count, sum, sum of
     squares) continues an earlier call; the new state is returned with the frames.
     """
-    x = np.asarray(features, dtype=np.float64)
-    if state is None:
-        state = (
-            float(prior_frames),
-            prior_frames * np.asarray(mean, dtype=np.float64),
-            prior_frames * (np.asarray(std, dtype=np.float64) ** 2 + np.asarray(mean, dtype=np.float64) ** 2),
-        )
-    count, total, squares = state
-    counts = count + np.arange(1, len(x) + 1)[:, None]
-    sums = total + np.cumsum(x, axis=0)
-    sum_squares = squares + np.cumsum(x**2, axis=0)
-    mu = sums / counts
-    sigma = np.sqrt(np.maximum(sum_squares / counts - mu**2, 1e-4))
-    out = ((x - mu) / sigma).astype(np.float32)
-    if len(x):
-        state = (float(counts[-1, 0]), sums[-1], sum_squares[-1])
+    (out,), (state,) = running_normalize_together([features], mean, std, prior_frames, [state])
     return out, state
+
+
+NormState = tuple[float, np.ndarray, np.ndarray]
+""":func:`running_normalize`'s state: frames counted (with the prior's), their sum and sum of squares per dimension."""
+
+
+def running_normalize_together(
+    features: Sequence[np.ndarray],
+    mean: np.ndarray,
+    std: np.ndarray,
+    prior_frames: float,
+    states: Sequence[NormState | None],
+) -> tuple[list[np.ndarray], list[NormState]]:
+    """:func:`running_normalize` of several streams' next frames at once (``states[i]`` continues
+    ``features[i]``, ``(frames_i, dims)``): one cumulative sum over all of them."""
+    mean64, std64 = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
+    prior: NormState = (float(prior_frames), prior_frames * mean64, prior_frames * (std64**2 + mean64**2))
+    begun = [prior if state is None else state for state in states]
+    lengths = np.array([len(x) for x in features])
+    ends = np.cumsum(lengths)
+    x = np.concatenate([np.asarray(f, dtype=np.float64) for f in features])
+    starts = np.repeat(ends - lengths, lengths)
+    counts = np.repeat([count for count, _, _ in begun], lengths) + (np.arange(len(x)) - starts + 1)
+    sums, sum_squares = np.cumsum(x, axis=0), np.cumsum(x**2, axis=0)
+    if len(features) > 1:  # each stream's running sums from its own state on
+        before = starts - 1
+        sums -= np.where(before[:, None] >= 0, sums[np.maximum(before, 0)], 0.0)
+        sum_squares -= np.where(before[:, None] >= 0, sum_squares[np.maximum(before, 0)], 0.0)
+    sums += np.repeat(np.stack([total for _, total, _ in begun]), lengths, axis=0)
+    sum_squares += np.repeat(np.stack([squares for _, _, squares in begun]), lengths, axis=0)
+    mu = sums / counts[:, None]
+    sigma = np.sqrt(np.maximum(sum_squares / counts[:, None] - mu**2, 1e-4))
+    out = ((x - mu) / sigma).astype(np.float32)
+    last = [
+        state if not n else (float(counts[end - 1]), sums[end - 1], sum_squares[end - 1])
+        for state, n, end in zip(begun, lengths.tolist(), ends.tolist())
+    ]
+    return np.split(out, ends[:-1]), last
 
 
 class SpectrumStream:
@@ -220,16 +248,25 @@ class SpectrumStream:
         """Samples pushed so far."""
 
     def push(self, samples: np.ndarray) -> np.ndarray:
-        chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
-        self.samples += len(chunk)
-        self._buffer = np.concatenate([self._buffer, chunk])
-        return self._take(self._complete_frames())
+        return self.push_together([self], [samples])[0]
+
+    @staticmethod
+    def push_together(streams: Sequence[SpectrumStream], chunks: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """:meth:`push` of ``chunks[i]`` to ``streams[i]``, the new frames of all of them in one FFT."""
+        frames = []
+        for stream, samples in zip(streams, chunks):
+            chunk = np.asarray(samples, dtype=np.float32).reshape(-1)
+            stream.samples += len(chunk)
+            stream._buffer = np.concatenate([stream._buffer, chunk])
+            frames.append(stream._take(stream._complete_frames()))
+        power = _windows_power(np.concatenate(frames))
+        return np.split(power, np.cumsum([len(f) for f in frames])[:-1])
 
     def finish(self) -> np.ndarray:
         total = self.samples // HOP + 1
         needed = (total - 1) * HOP + N_FFT - self._consumed
         self._buffer = np.pad(self._buffer, (0, max(0, needed - len(self._buffer))))
-        return self._take(total)
+        return _windows_power(self._take(total))
 
     def _complete_frames(self) -> int:
         """Frames whose window lies inside the samples pushed so far (never more than the offline count)."""
@@ -237,13 +274,12 @@ class SpectrumStream:
         return min(max(0, (padded - N_FFT) // HOP + 1), self.samples // HOP + 1)
 
     def _take(self, upto: int) -> np.ndarray:
-        if upto <= self.frames:
-            return np.zeros((0, N_FFT // 2 + 1), dtype=np.float32)
+        """``(n, N_FFT)``: the samples of the frames before ``upto`` not yet given; drops those no later frame needs."""
+        n = max(0, upto - self.frames)
         start = self.frames * HOP - self._consumed
-        stop = (upto - 1) * HOP + N_FFT - self._consumed
-        power = _frames_power(self._buffer[start:stop])
-        self.frames = upto
+        frames = self._buffer[start + np.arange(n)[:, np.newaxis] * HOP + np.arange(N_FFT)]
+        self.frames += n
         drop = self.frames * HOP - self._consumed
         self._buffer = self._buffer[drop:]
         self._consumed += drop
-        return power
+        return frames

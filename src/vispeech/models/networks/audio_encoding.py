@@ -26,14 +26,14 @@ one scale, so the fusion weights compare layers rather than their magnitudes.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import cast
 
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.frontends.features import FEATURE_KINDS, FRAME_RATE, running_normalize, spectral_features
+from vispeech.frontends.features import FEATURE_KINDS, FRAME_RATE, running_normalize_together, spectral_features
 
 NORMALIZATIONS = ("running", "global")
 KINDS = (*FEATURE_KINDS, "encoder")
@@ -139,14 +139,19 @@ class AudioEncoding:
 
     def normalise(self, features: np.ndarray, state=None) -> tuple[np.ndarray, object]:
         """Normalised features and the running state to continue from (``None`` for global)."""
+        (out,), (state,) = self.normalise_together([features], [state])
+        return out, state
+
+    def normalise_together(self, features: Sequence[np.ndarray], states: Sequence) -> tuple[list[np.ndarray], list]:
+        """:meth:`normalise` of several streams' next features at once, ``states[i]`` continuing ``features[i]``."""
         mean, std = np.asarray(self.mean), np.asarray(self.std)
         if len(mean) != self.dims:
             raise VispeechError("the audio encoding has no training statistics (fit the model first)")
-        if self.normalize == "global":
-            out = np.subtract(features, mean.astype(np.float32), dtype=np.float32)
-            out /= std.astype(np.float32)
-            return out, None
-        return running_normalize(features, mean, std, self.prior_seconds * self.frame_rate, state)
+        if self.normalize == "running":
+            return running_normalize_together(features, mean, std, self.prior_seconds * self.frame_rate, states)
+        out = np.subtract(np.concatenate(features), mean.astype(np.float32), dtype=np.float32)
+        out /= std.astype(np.float32)
+        return np.split(out, np.cumsum([len(f) for f in features])[:-1]), [None] * len(features)
 
     def stacked(self, normalised: np.ndarray, n_frames: int) -> np.ndarray:
         """``(n_frames, size)`` network inputs from normalised feature frames (the last one

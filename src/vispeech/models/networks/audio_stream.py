@@ -54,8 +54,9 @@ class AudioStream(ModelStream[np.ndarray]):
         else:
             self._encoder = None
             self._spectra = SpectrumStream()
+        self._unheard: list[np.ndarray] = []  # audio fed whose features are not computed yet
         self._norm_state: object = None  # AudioEncoding.normalise's running state
-        self._normalised: list[np.ndarray] = []  # feature frames not yet stacked into network inputs
+        self._normalised = np.zeros((0, model.encoding_.dims), np.float32)  # feature frames not yet stacked
         self._inputs: list[np.ndarray] = []  # network input rows from row _first_input on
         self._first_input = 0
         self._frames = ResampledFrames(model.fps_, self.fps)
@@ -86,7 +87,7 @@ class AudioStream(ModelStream[np.ndarray]):
         self._samples += len(chunk)
         self.end = self._samples / SAMPLE_RATE
         if self._encoder is None:
-            self._add_features(self._spectra.push(chunk))
+            self._unheard.append(chunk)
         else:
             self._add_hidden(chunk, final=False)
 
@@ -97,9 +98,11 @@ class AudioStream(ModelStream[np.ndarray]):
 
     @classmethod
     def advance_together(cls, streams: Sequence[AudioStream]) -> None:
-        """Compute the network frames the audio fed to ``streams`` made computable: the
-        incremental streams of one network together (each layer one matrix product for the new
-        frames of all of them), the others one by one."""
+        """Compute the network frames the audio fed to ``streams`` made computable: the spectra
+        of all of them in one FFT, the features of the streams of one network in one filter-bank
+        product and normalisation, the incremental streams of one network together (each layer
+        one matrix product for the new frames of all of them), the others one by one."""
+        _featurise([stream for stream in streams if stream._unheard])
         groups: dict[int, list[AudioStream]] = {}
         for stream in streams:
             if stream._incremental is None:
@@ -113,7 +116,7 @@ class AudioStream(ModelStream[np.ndarray]):
         if self.closed:
             raise VispeechError("this audio stream has ended")
         if self._encoder is None:
-            self._add_features(self._spectra.finish(), final=True)
+            _featurise([self], final=True)
         else:
             self._add_hidden(np.zeros(0, dtype=np.float32), final=True)
         self.close()
@@ -125,22 +128,20 @@ class AudioStream(ModelStream[np.ndarray]):
     def _n_model_frames(self) -> int:
         return max(1, math.ceil(self.end * self.model.fps_ - 1e-9))
 
-    def _add_features(self, power: np.ndarray, final: bool = False) -> None:
+    def _add_normalised(self, normalised: np.ndarray, final: bool = False) -> None:
+        """Stack the next normalised feature frames into network input rows; with ``final``, as
+        offline, the last feature frame repeated to fill the network frames the audio covers."""
         encoding = self.model.encoding_
-        if len(power):
-            normalised, self._norm_state = encoding.normalise(encoding.features(power), self._norm_state)
-            self._normalised.extend(normalised)
         stack = encoding.stack
-        while len(self._normalised) >= stack:
-            self._inputs.append(np.concatenate(self._normalised[:stack]))
-            del self._normalised[:stack]
+        rows = np.concatenate([self._normalised, normalised]) if len(self._normalised) else normalised
+        whole = len(rows) // stack
+        self._inputs.extend(rows[: whole * stack].reshape(whole, encoding.size))
+        self._normalised = rows[whole * stack :]
         if final:
-            # as offline: the last feature frame repeated to fill the network frames the audio covers
             n = self._n_model_frames() if self._samples else 0
-            tail = self._normalised or ([self._inputs[-1][-encoding.dims :]] if self._inputs else [])
+            tail = list(self._normalised) or ([self._inputs[-1][-encoding.dims :]] if self._inputs else [])
             while self._first_input + len(self._inputs) < n and tail:
-                rows = (tail + [tail[-1]] * stack)[:stack]
-                self._inputs.append(np.concatenate(rows))
+                self._inputs.append(np.concatenate((tail + [tail[-1]] * stack)[:stack]))
                 tail = [tail[-1]]
 
     def _add_hidden(self, chunk: np.ndarray, final: bool) -> None:
@@ -177,6 +178,31 @@ class AudioStream(ModelStream[np.ndarray]):
             return self._empty()
         start, self.emitted = self.emitted, upto
         return start, self._frames.give(start, upto)
+
+
+def _featurise(streams: Sequence[AudioStream], final: bool = False) -> None:
+    """The network input rows of the audio fed to ``streams`` (of spectral features): the spectra
+    of all of them in one FFT, the features and their normalisation one call for the streams of
+    each network; with ``final``, up to the audio's end."""
+    if not streams:
+        return
+    chunks = [np.concatenate(s._unheard or [np.zeros(0, np.float32)]) for s in streams]
+    for stream in streams:
+        stream._unheard = []
+    powers = SpectrumStream.push_together([s._spectra for s in streams], chunks)
+    if final:
+        powers = [np.concatenate([power, s._spectra.finish()]) for power, s in zip(powers, streams)]
+    groups: dict[int, list[int]] = {}
+    for k, stream in enumerate(streams):
+        groups.setdefault(id(stream.model), []).append(k)
+    for members in groups.values():
+        encoding = streams[members[0]].model.encoding_
+        features = encoding.features(np.concatenate([powers[k] for k in members]))
+        parts = np.split(features, np.cumsum([len(powers[k]) for k in members])[:-1])
+        normalised, states = encoding.normalise_together(parts, [streams[k]._norm_state for k in members])
+        for k, rows, state in zip(members, normalised, states):
+            streams[k]._norm_state = state
+            streams[k]._add_normalised(rows, final)
 
 
 def _advance_incremental(streams: Sequence[AudioStream], final: bool) -> None:
