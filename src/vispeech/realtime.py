@@ -10,6 +10,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, Word
 from vispeech.errors import VispeechError
+from vispeech.frontends.audio import check_sample_rate
 from vispeech.frontends.timings import (
     LAST_VISEME_SECONDS,
     characters_to_words,
@@ -21,7 +22,7 @@ from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.pipeline import DEFAULT_FPS
-from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream, SentFrames, check_sample_rate
+from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream, SentFrames
 
 TIMINGS = ("characters", "words", "visemes")
 """The timings a :class:`TimedSpeechStream` takes: ElevenLabs-style characters with times, words

@@ -37,7 +37,6 @@ a client keys one list of channels, text, phone and audio streams alike.
 from __future__ import annotations
 
 import base64
-import functools
 import math
 from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import replace
@@ -48,7 +47,7 @@ import numpy as np
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
 from vispeech.frontends import vad
-from vispeech.frontends.audio import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, to_pcm16
+from vispeech.frontends.audio import check_sample_rate, resampler_delay, to_pcm16
 from vispeech.frontends.sentiment import sentiment
 from vispeech.frontends.text import split_clauses
 from vispeech.limits import check_fps
@@ -578,27 +577,3 @@ def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:
     n = max(1, math.ceil(EASE * fps - 1e-9))
     keep = 1.0 - smoothstep(np.arange(1, n + 1) / n)
     return keep[:, None] * np.asarray(last, dtype=float)[None, :]
-
-
-def check_sample_rate(sample_rate: int) -> int:
-    """``sample_rate`` if it is a whole number of Hz that live audio may have; :class:`VispeechError` if not."""
-    if not (isinstance(sample_rate, int) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
-        raise VispeechError(
-            f"sample rate must be a whole number of Hz within {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE}, got {sample_rate!r}"
-        )
-    return sample_rate
-
-
-@functools.lru_cache(maxsize=64)
-def resampler_delay(rate: int, model_rate: int) -> float:
-    """The output (seconds) soxr's streaming resampler (HQ) from ``rate`` to ``model_rate`` Hz holds
-    back on average, fed 4 s of audio in 20 ms chunks (it works in blocks, so the amount varies
-    around that): about 21–23 ms from 22.05–48 kHz to 16 kHz, 63 ms from 8 kHz."""
-    import soxr
-
-    probe = soxr.ResampleStream(rate, model_rate, 1, dtype="float32", quality="HQ")
-    held = []
-    for _ in range(200):
-        probe.resample_chunk(np.zeros(max(1, rate // 50), np.float32))
-        held.append(probe.delay())
-    return float(np.mean(held)) / model_rate
