@@ -597,7 +597,7 @@ def test_a_listen_stream_sets_its_output_scale(client, pcm, clip, model):
     (tracker here)."""
     from vispeech.motion.rigging.calibration import load_scale
     from vispeech.motion.track import Track
-    from vispeech.streaming import rest_ease
+    from vispeech.postprocess.rest import rest_ease
 
     arkit = load_scale("arkit")
     with client.websocket_connect("/api/listen") as ws:

@@ -53,14 +53,13 @@ from vispeech.frontends.text import split_clauses
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
-from vispeech.motion.easing import smoothstep
 from vispeech.motion.life import LifePlan
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track, interpolate_rows
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
-from vispeech.postprocess.rest import EASE, rest_in_silence
+from vispeech.postprocess.rest import rest_ease, rest_in_silence
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -561,19 +560,11 @@ class SentFrames:
 
     def ease(self, frame: int | None = None) -> tuple[int, np.ndarray]:
         """``(k + 1, rows)``: the frames after frame ``k`` that take the face from it to rest
-        (:func:`rest_ease`), ``k`` being ``frame`` (the last given if ``None`` or later, the
-        oldest kept if earlier), to be shown in place of the frames given after it."""
+        (:func:`~vispeech.postprocess.rest.rest_ease`), ``k`` being ``frame`` (the last given if
+        ``None`` or later, the oldest kept if earlier), to be shown in place of the frames given
+        after it."""
         if not self.count:
             return 0, rest_ease(np.zeros(self.n_channels), self.fps)
         k = self.count - 1 if frame is None else min(max(frame, self._first), self.count - 1)
         kept = np.concatenate(self._chunks)
         return k + 1, rest_ease(kept[k - self._first], self.fps)
-
-
-def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:
-    """The frames after a frame ``last`` (a row over a stream's channels) that take the face to
-    rest, every channel at 0, over :data:`~vispeech.postprocess.rest.EASE` seconds (smoothstep):
-    ``ceil(EASE · fps)`` rows, the last at rest."""
-    n = max(1, math.ceil(EASE * fps - 1e-9))
-    keep = 1.0 - smoothstep(np.arange(1, n + 1) / n)
-    return keep[:, None] * np.asarray(last, dtype=float)[None, :]

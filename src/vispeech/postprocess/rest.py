@@ -9,11 +9,12 @@ channels fade to rest over :data:`EASE` seconds (smoothstep). The rule looks onl
 speech on either side of a frame, so leading and trailing silence reach rest when they last
 ``HOLD + EASE``, a pause within an utterance when it lasts twice that, and a window of frames
 post-processed on its own (a stream's) gets what the whole utterance would, given that much
-context on both sides.
+context on both sides. :func:`rest_ease` takes a face to rest from any frame (a stream cut short).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import numpy as np
@@ -75,3 +76,12 @@ def rest_in_silence(track: Track, speech: np.ndarray) -> Track:
     columns = [i for i, channel in enumerate(out.channels) if channel in _RESTING]
     out.values[:, columns] *= keep[:, None]
     return out
+
+
+def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:
+    """The frames after a frame ``last`` (a row over a stream's channels) that take the face to
+    rest, every channel at 0, over :data:`EASE` seconds (smoothstep):
+    ``ceil(EASE · fps)`` rows, the last at rest."""
+    n = max(1, math.ceil(EASE * fps - 1e-9))
+    keep = 1.0 - smoothstep(np.arange(1, n + 1) / n)
+    return keep[:, None] * np.asarray(last, dtype=float)[None, :]
