@@ -146,11 +146,16 @@ def test_live_audio_stream_refuses_what_it_cannot_take(model):
         LiveAudioStream(model, 16000).push(b"\x00\x00\x00")
 
 
-def test_live_audio_streams_pushed_together_give_what_each_gives_alone(model, pcm):
+def test_live_audio_streams_pushed_together_give_what_each_gives_alone(model, pcm, monkeypatch):
     """push_audio_together (what the server runs for the listen sessions of one tick) gives every
-    stream the frames it gets pushed alone, whatever its chunks, frame rate and start; a stream
-    whose chunk is refused gets its error and is left as it was, the others go on."""
+    stream the frames it gets pushed alone, whatever its chunks, frame rate and start, the new
+    frames of all of them post-processed in one call; a stream whose chunk is refused gets its
+    error and is left as it was, the others go on."""
+    from vispeech import streaming
     from vispeech.streaming import push_audio_together
+
+    postprocess, calls = streaming.postprocess, []
+    monkeypatch.setattr(streaming, "postprocess", lambda *args: calls.append(1) or postprocess(*args))
 
     rng = np.random.default_rng(5)
     audio = [pcm.tobytes(), pcm[: len(pcm) // 2].tobytes(), pcm[::-1].tobytes()]
@@ -167,7 +172,9 @@ def test_live_audio_streams_pushed_together_give_what_each_gives_alone(model, pc
         pushes = [(streams[k], plans[k][tick - starts[k]]) for k in due]
         if tick == 10:
             pushes.append((streams[0], b"\x00\x00\x00"))  # cut short: refused
+        calls.clear()
         results = push_audio_together(pushes)
+        assert len(calls) <= 1
         if tick == 10:
             assert isinstance(results[-1], VispeechError) and "cut short" in str(results[-1])
             results = results[:-1]

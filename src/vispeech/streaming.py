@@ -59,7 +59,7 @@ from vispeech.motion.track import Track, interpolate_rows
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
-from vispeech.postprocess.rest import rest_ease, rest_in_silence
+from vispeech.postprocess.rest import REST_CHANNELS, rest_ease, rest_weights
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -369,10 +369,12 @@ def push_audio_together(
     pushes: Sequence[tuple[LiveAudioStream, bytes]],
 ) -> list[tuple[int, np.ndarray] | VispeechError]:
     """:meth:`LiveAudioStream.push` of several streams at once, as :func:`push_together` does for
-    phone streams: the convolution network of every stream of one audio network takes the new
-    frames of all of them in one matrix product a layer
-    (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`)."""
-    return _together([_fed(stream, stream.feed, pcm) for stream, pcm in pushes])
+    phone streams: the spectra of all of them in one FFT, and for the streams of one audio
+    network its features, each convolution layer and the post-processing one call for the new
+    frames of all of them (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`)."""
+    fed = [_fed(stream, stream.feed, pcm) for stream, pcm in pushes]
+    frames = iter(LiveAudioStream.collect_together([entry for entry in fed if not isinstance(entry, VispeechError)]))
+    return [entry if isinstance(entry, VispeechError) else next(frames) for entry in fed]
 
 
 def _fed(stream: _FedT, feed: Callable[[_ChunkT], None], chunk: _ChunkT) -> _FedT | VispeechError:
@@ -384,9 +386,7 @@ def _fed(stream: _FedT, feed: Callable[[_ChunkT], None], chunk: _ChunkT) -> _Fed
     return stream
 
 
-def _together(
-    fed: Sequence[PhoneStream | LiveAudioStream | VispeechError],
-) -> list[tuple[int, np.ndarray] | VispeechError]:
+def _together(fed: Sequence[PhoneStream | VispeechError]) -> list[tuple[int, np.ndarray] | VispeechError]:
     """The model work the fed streams wait on, done together, then each one's frames (or its error)."""
     groups: dict[type[ModelStream], list[ModelStream]] = {}
     for entry in fed:
@@ -461,6 +461,8 @@ class LiveAudioStream:
         self.activity = vad.VoiceActivity() if vad.installed() and self._inner.sample_rate == vad.SAMPLE_RATE else None
         """The stream's voice activity detector (``None`` without ONNX Runtime: no rest)."""
         self.sent = SentFrames(len(self.channels), self.fps)
+        self._columns = [self.channels.index(name) for name in self._inner.channels]  # of the model's channels
+        self._resting = [j for j, name in enumerate(self.channels) if name in REST_CHANNELS]
 
     @property
     def duration(self) -> float:
@@ -500,7 +502,16 @@ class LiveAudioStream:
 
     def collect(self) -> tuple[int, np.ndarray]:
         """:meth:`push`'s second half: the frames that became ready since :meth:`feed`."""
-        return self._postprocessed(*self._inner.collect())
+        return self.collect_together([self])[0]
+
+    @staticmethod
+    def collect_together(streams: Sequence[LiveAudioStream]) -> list[tuple[int, np.ndarray]]:
+        """:meth:`collect` of several streams at once: the network work together
+        (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`), the new
+        frames of the streams of one model post-processed in one call."""
+        if streams:
+            type(streams[0]._inner).advance_together([stream._inner for stream in streams])
+        return _postprocessed(streams, [stream._inner.collect() for stream in streams])
 
     def finish(self) -> tuple[int, np.ndarray]:
         """End the stream; the frames still owed."""
@@ -515,22 +526,41 @@ class LiveAudioStream:
             rows.append(self._inner.push(tail)[1])
         rows.append(self._inner.finish()[1])
         self.close()
-        return self._postprocessed(start, np.concatenate(rows))
+        return _postprocessed([self], [(start, np.concatenate(rows))])[0]
 
     def close(self) -> None:
         """Drop the stream (a client went away); safe to call more than once."""
         self.closed = True
         self._inner.close()
 
-    def _postprocessed(self, start: int, rows: np.ndarray) -> tuple[int, np.ndarray]:
-        if not len(rows):
-            return start, np.zeros((0, len(self.channels)))
-        track = postprocess(Track(rows, self._inner.channels, self.fps, start / self.fps), None, self._config)
+    def _select(self, values: np.ndarray, start: int) -> np.ndarray:
+        """Post-processed model frames from frame ``start`` over :attr:`channels`, the mouth at
+        rest away from the speech heard; noted as sent."""
+        rows = np.zeros((len(values), len(self.channels)))
+        rows[:, self._columns] = values
         if self.activity is not None:
-            track = rest_in_silence(track, self.activity.spans)
-        values = track.select(self.channels).values
-        self.sent.add(values)
-        return start, values
+            keep = 1.0 - rest_weights(start / self.fps + np.arange(len(rows)) / self.fps, self.activity.spans)
+            rows[:, self._resting] *= keep[:, None]
+        self.sent.add(rows)
+        return rows
+
+
+def _postprocessed(
+    streams: Sequence[LiveAudioStream], raw: Sequence[tuple[int, np.ndarray]]
+) -> list[tuple[int, np.ndarray]]:
+    """Each stream's model frames ``raw[i]`` (start frame, rows) post-processed, those of one model in one call."""
+    out = [(start, np.zeros((0, len(stream.channels)))) for stream, (start, _) in zip(streams, raw)]
+    groups: dict[int, list[int]] = {}
+    for k, (stream, (_, rows)) in enumerate(zip(streams, raw)):
+        if len(rows):
+            groups.setdefault(id(stream.model), []).append(k)
+    for members in groups.values():
+        first = streams[members[0]]
+        rows = np.concatenate([raw[k][1] for k in members])
+        values = postprocess(Track(rows, first._inner.channels, first.fps), None, first._config).values
+        for k, part in zip(members, np.split(values, np.cumsum([len(raw[k][1]) for k in members])[:-1])):
+            out[k] = (raw[k][0], streams[k]._select(part, raw[k][0]))
+    return out
 
 
 CANCEL_SECONDS = 120.0
