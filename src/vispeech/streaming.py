@@ -418,11 +418,10 @@ class LiveAudioStream:
     makes (the live ``grid-audio-cnn`` hears no closures), and for the mouth at rest in silence,
     over :attr:`channels`, those of every stream (:data:`STREAM_CHANNELS`: the tongue at rest).
 
-    The mouth rests where Silero VAD (:class:`~vispeech.frontends.vad.VoiceActivity`, with ONNX
-    Runtime installed) hears no speech, as offline animation rests it away from the loudness span
+    The mouth rests where Silero VAD (:class:`~vispeech.frontends.vad.VoiceActivity`) hears no
+    speech, as offline animation rests it away from the loudness span
     (:mod:`vispeech.postprocess.rest`), between utterances too; a frame's rest is decided from the
-    speech heard up to :attr:`delay` after it. Without ONNX Runtime the mouth follows the model
-    throughout.
+    speech heard up to :attr:`delay` after it.
     """
 
     def __init__(self, model: Estimator, sample_rate: int, fps: float = DEFAULT_FPS) -> None:
@@ -458,8 +457,9 @@ class LiveAudioStream:
         self.samples = 0
         """Samples received so far, at :attr:`sample_rate`."""
         self.closed = False
-        self.activity = vad.VoiceActivity() if vad.installed() and self._inner.sample_rate == vad.SAMPLE_RATE else None
-        """The stream's voice activity detector (``None`` without ONNX Runtime: no rest)."""
+        self.activity = vad.VoiceActivity() if self._inner.sample_rate == vad.SAMPLE_RATE else None
+        """The stream's voice activity detector (``None`` for a network at another rate: no rest)."""
+        self._unheard: list[np.ndarray] = []  # audio fed that the detector has not heard yet
         self.sent = SentFrames(len(self.channels), self.fps)
         self._columns = [self.channels.index(name) for name in self._inner.channels]  # of the model's channels
         self._resting = [j for j, name in enumerate(self.channels) if name in REST_CHANNELS]
@@ -497,7 +497,7 @@ class LiveAudioStream:
         if self._resampler is not None:
             samples = self._resampler.resample_chunk(samples)
         if self.activity is not None:
-            self.activity.push(samples)
+            self._unheard.append(samples)
         self._inner.feed(samples)
 
     def collect(self) -> tuple[int, np.ndarray]:
@@ -506,9 +506,12 @@ class LiveAudioStream:
 
     @staticmethod
     def collect_together(streams: Sequence[LiveAudioStream]) -> list[tuple[int, np.ndarray]]:
-        """:meth:`collect` of several streams at once: the network work together
+        """:meth:`collect` of several streams at once: the voice activity windows of all of them
+        in one call, the network work together
         (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`), the new
         frames of the streams of one model post-processed in one call."""
+        heard = [(stream.activity, stream._heard()) for stream in streams if stream.activity is not None]
+        vad.VoiceActivity.push_together([activity for activity, _ in heard], [audio for _, audio in heard])
         if streams:
             type(streams[0]._inner).advance_together([stream._inner for stream in streams])
         return _postprocessed(streams, [stream._inner.collect() for stream in streams])
@@ -521,9 +524,10 @@ class LiveAudioStream:
         rows = []
         if self._resampler is not None:
             tail = self._resampler.resample_chunk(np.zeros(0, np.float32), last=True)
-            if self.activity is not None:
-                self.activity.push(tail)
+            self._unheard.append(tail)  # (dropped when there is no detector)
             rows.append(self._inner.push(tail)[1])
+        if self.activity is not None:
+            self.activity.push(self._heard())
         rows.append(self._inner.finish()[1])
         self.close()
         return _postprocessed([self], [(start, np.concatenate(rows))])[0]
@@ -532,6 +536,11 @@ class LiveAudioStream:
         """Drop the stream (a client went away); safe to call more than once."""
         self.closed = True
         self._inner.close()
+
+    def _heard(self) -> np.ndarray:
+        """The audio fed since the detector last heard it (taken)."""
+        audio, self._unheard = np.concatenate([np.zeros(0, np.float32), *self._unheard]), []
+        return audio
 
     def _select(self, values: np.ndarray, start: int) -> np.ndarray:
         """Post-processed model frames from frame ``start`` over :attr:`channels`, the mouth at
