@@ -18,7 +18,8 @@ the frame arrived: the model's look-ahead, the features, inference and transport
    and per-network stream caps lifted; ``--processes`` server processes): one session, then
    ``--sessions`` at once, all clients in this process.
 
-p50 and p95 are over all frames of all sessions. ``--model`` is an audio model name or saved
+p50 and p95 are over all frames of all sessions; the server's CPU time and the clients' (this
+process's) are reported beside them. ``--model`` is an audio model name or saved
 folder (default: the shipped ``grid-audio-cnn``); ``--tiny`` trains the stand-in the tests use
 (``audio-cnn``, one epoch, 16 channels a layer, 10 GRID utterances; ``--look-ahead`` frames at
 50 fps) into a temporary folder first.
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import resource
 import shutil
 import sys
 import tempfile
@@ -101,7 +103,13 @@ def in_process(model, samples: np.ndarray, fps: float, chunk_seconds: float) -> 
     return {**percentiles(np.array(delays)), "delay_s": stream.delay, "push_ms_p50": float(p50), "push_ms_p95": float(p95)}
 
 
-def summarise(results: list, wall: float, cpu: float | None) -> dict:
+def own_cpu_seconds() -> float:
+    """CPU seconds this process (the benchmark's clients) has used."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def summarise(results: list, wall: float, cpu: float | None, client_cpu: float) -> dict:
     done = [r for r in results if isinstance(r, ListenResult)]
     failures = [repr(r) for r in results if not isinstance(r, ListenResult)]
     if not done:
@@ -109,6 +117,7 @@ def summarise(results: list, wall: float, cpu: float | None) -> dict:
     return {**percentiles(np.concatenate([r.delays for r in done])), "sessions": len(results),
             "failed": len(failures), "failures": failures[:3], "warnings": sum(len(r.warnings) for r in done),
             "warning_examples": [w for r in done for w in r.warnings][:3], "wall_s": wall, "server_cpu_s": cpu,
+            "client_cpu_s": client_cpu,
             "delay_s": float(done[0].start["delay"]), "model": done[0].start["model"]}
 
 
@@ -119,10 +128,10 @@ async def served(url: str, server, pcm: np.ndarray, rate: int, sessions: int, ch
     await stream_audio(url, pcm[: rate], rate, chunk_seconds=chunk_seconds, realtime=False)  # warm-up
     report = {}
     for label, count in (("single", 1), ("concurrent", sessions)):
-        started, cpu = time.perf_counter(), server.cpu_seconds()
+        started, cpu, client = time.perf_counter(), server.cpu_seconds(), own_cpu_seconds()
         results = await asyncio.gather(*(one() for _ in range(count)), return_exceptions=True)
         used = None if cpu is None else server.cpu_seconds() - cpu
-        report[label] = summarise(results, time.perf_counter() - started, used)
+        report[label] = summarise(results, time.perf_counter() - started, used, own_cpu_seconds() - client)
     return report
 
 
@@ -176,6 +185,7 @@ def print_report(report: dict) -> None:
     for label in ("single", "concurrent"):
         r = report[label]
         cpu = "" if r["server_cpu_s"] is None else f", server CPU {r['server_cpu_s']:.1f} s"
+        cpu += f", clients' CPU {r['client_cpu_s']:.1f} s"
         print(f"/api/listen, {r['sessions']} session(s) (stream delay {r['delay_s'] * 1000:.0f} ms, "
               f"{r['failed']} failed, "
               f"{r['wall_s']:.1f} s wall{cpu}): frame delay p50 {r['p50_ms']:.1f} ms, p95 {r['p95_ms']:.1f} ms, "
