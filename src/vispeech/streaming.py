@@ -369,9 +369,10 @@ def push_audio_together(
     pushes: Sequence[tuple[LiveAudioStream, bytes]],
 ) -> list[tuple[int, np.ndarray] | VispeechError]:
     """:meth:`LiveAudioStream.push` of several streams at once, as :func:`push_together` does for
-    phone streams: the spectra of all of them in one FFT, and for the streams of one audio
-    network its features, each convolution layer and the post-processing one call for the new
-    frames of all of them (:meth:`~vispeech.models.networks.audio_stream.AudioStream.advance_together`)."""
+    phone streams: the voice activity windows of all of them in one call of the detector's
+    network, their spectra in one FFT, and for the streams of one audio network its features,
+    each convolution layer and the post-processing one call for the new frames of all of them
+    (:meth:`LiveAudioStream.collect_together`)."""
     fed = [_fed(stream, stream.feed, pcm) for stream, pcm in pushes]
     frames = iter(LiveAudioStream.collect_together([entry for entry in fed if not isinstance(entry, VispeechError)]))
     return [entry if isinstance(entry, VispeechError) else next(frames) for entry in fed]
@@ -524,7 +525,8 @@ class LiveAudioStream:
         rows = []
         if self._resampler is not None:
             tail = self._resampler.resample_chunk(np.zeros(0, np.float32), last=True)
-            self._unheard.append(tail)  # (dropped when there is no detector)
+            if self.activity is not None:
+                self._unheard.append(tail)
             rows.append(self._inner.push(tail)[1])
         if self.activity is not None:
             self.activity.push(self._heard())
