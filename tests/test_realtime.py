@@ -23,9 +23,9 @@ from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
 from vispeech.motion.formats.visemes import OCULUS_VISEMES
 from vispeech.motion.track import Track
 from vispeech.pipeline import animate, padded
-from vispeech.postprocess.rest import rest_ease
+from vispeech.postprocess.rest import SentFrames, rest_ease
 from vispeech.realtime import TimedSpeechStream
-from vispeech.streaming import STREAM_CHANNELS, SentFrames
+from vispeech.streaming import STREAM_CHANNELS
 
 SENTENCE = "Please bring my map back by noon."
 BILABIALS = ("P", "B", "M")

@@ -22,7 +22,8 @@ from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.phonetics.inventory import SILENCE
 from vispeech.pipeline import DEFAULT_FPS
-from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream, SentFrames
+from vispeech.postprocess.rest import SentFrames
+from vispeech.streaming import MAX_PHONE_SECONDS, PhoneStream
 
 TIMINGS = ("characters", "words", "visemes")
 """The timings a :class:`TimedSpeechStream` takes: ElevenLabs-style characters with times, words
@@ -152,7 +153,7 @@ class TimedSpeechStream:
     def cancel(self, frame: int | None = None) -> tuple[int, np.ndarray]:
         """End the stream at once (the listener interrupted), or after it ended: the frames easing
         the face to rest from frame ``frame`` (``None``: the last given), after it
-        (:meth:`~vispeech.streaming.SentFrames.ease`)."""
+        (:meth:`~vispeech.postprocess.rest.SentFrames.ease`)."""
         self.close()
         return self.sent.ease(frame)
 

@@ -59,7 +59,7 @@ from vispeech.motion.track import Track, interpolate_rows
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
 from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
 from vispeech.postprocess import PostprocessConfig, postprocess
-from vispeech.postprocess.rest import REST_CHANNELS, rest_ease, rest_weights
+from vispeech.postprocess.rest import REST_CHANNELS, SentFrames, rest_weights
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -572,40 +572,3 @@ def _postprocessed(
         for k, part in zip(members, np.split(values, np.cumsum([len(raw[k][1]) for k in members])[:-1])):
             out[k] = (raw[k][0], streams[k]._select(part, raw[k][0]))
     return out
-
-
-CANCEL_SECONDS = 120.0
-"""How far back (seconds of frames) a cancel may name the frame a client shows."""
-
-
-class SentFrames:
-    """The latest frames a stream gave (:data:`CANCEL_SECONDS` of them), so that a cancel eases
-    the face to rest from the one a client shows when the listener interrupts."""
-
-    def __init__(self, n_channels: int, fps: float) -> None:
-        self.n_channels = n_channels
-        self.fps = fps
-        self.count = 0
-        """Frames given so far."""
-        self._chunks: list[np.ndarray] = []
-        self._first = 0  # the number of the first frame kept
-
-    def add(self, rows: np.ndarray) -> None:
-        """The next frames given."""
-        if not len(rows):
-            return
-        self._chunks.append(np.asarray(rows, dtype=np.float32))
-        self.count += len(rows)
-        while self.count - self._first - len(self._chunks[0]) >= CANCEL_SECONDS * self.fps:
-            self._first += len(self._chunks.pop(0))
-
-    def ease(self, frame: int | None = None) -> tuple[int, np.ndarray]:
-        """``(k + 1, rows)``: the frames after frame ``k`` that take the face from it to rest
-        (:func:`~vispeech.postprocess.rest.rest_ease`), ``k`` being ``frame`` (the last given if
-        ``None`` or later, the oldest kept if earlier), to be shown in place of the frames given
-        after it."""
-        if not self.count:
-            return 0, rest_ease(np.zeros(self.n_channels), self.fps)
-        k = self.count - 1 if frame is None else min(max(frame, self._first), self.count - 1)
-        kept = np.concatenate(self._chunks)
-        return k + 1, rest_ease(kept[k - self._first], self.fps)

@@ -9,7 +9,8 @@ channels fade to rest over :data:`EASE` seconds (smoothstep). The rule looks onl
 speech on either side of a frame, so leading and trailing silence reach rest when they last
 ``HOLD + EASE``, a pause within an utterance when it lasts twice that, and a window of frames
 post-processed on its own (a stream's) gets what the whole utterance would, given that much
-context on both sides. :func:`rest_ease` takes a face to rest from any frame (a stream cut short).
+context on both sides. :func:`rest_ease` takes a face to rest from any frame (a stream cut short),
+and a stream's :class:`SentFrames` keeps the frames it gave to ease from the one a client shows.
 """
 
 from __future__ import annotations
@@ -85,3 +86,40 @@ def rest_ease(last: np.ndarray, fps: float) -> np.ndarray:
     n = max(1, math.ceil(EASE * fps - 1e-9))
     keep = 1.0 - smoothstep(np.arange(1, n + 1) / n)
     return keep[:, None] * np.asarray(last, dtype=float)[None, :]
+
+
+CANCEL_SECONDS = 120.0
+"""How far back (seconds of frames) a cancel may name the frame a client shows."""
+
+
+class SentFrames:
+    """The latest frames a stream gave (:data:`CANCEL_SECONDS` of them), so that a cancel eases
+    the face to rest from the one a client shows when the listener interrupts."""
+
+    def __init__(self, n_channels: int, fps: float) -> None:
+        self.n_channels = n_channels
+        self.fps = fps
+        self.count = 0
+        """Frames given so far."""
+        self._chunks: list[np.ndarray] = []
+        self._first = 0  # the number of the first frame kept
+
+    def add(self, rows: np.ndarray) -> None:
+        """The next frames given."""
+        if not len(rows):
+            return
+        self._chunks.append(np.asarray(rows, dtype=np.float32))
+        self.count += len(rows)
+        while self.count - self._first - len(self._chunks[0]) >= CANCEL_SECONDS * self.fps:
+            self._first += len(self._chunks.pop(0))
+
+    def ease(self, frame: int | None = None) -> tuple[int, np.ndarray]:
+        """``(k + 1, rows)``: the frames after frame ``k`` that take the face from it to rest
+        (:func:`rest_ease`), ``k`` being ``frame`` (the last given if
+        ``None`` or later, the oldest kept if earlier), to be shown in place of the frames given
+        after it."""
+        if not self.count:
+            return 0, rest_ease(np.zeros(self.n_channels), self.fps)
+        k = self.count - 1 if frame is None else min(max(frame, self._first), self.count - 1)
+        kept = np.concatenate(self._chunks)
+        return k + 1, rest_ease(kept[k - self._first], self.fps)
