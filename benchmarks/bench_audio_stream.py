@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import importlib.util
 import json
 import resource
 import shutil
@@ -157,6 +158,7 @@ def main() -> int:
         samples = grid_audio(args.grid, clips)
         report = {"model": folder if not args.tiny else f"tiny audio-cnn (look_ahead {args.look_ahead})",
                   "audio_s": len(samples) / 16000, "chunk_ms": args.chunk_ms, "rate": args.rate,
+                  "event_loop": "uvloop" if importlib.util.find_spec("uvloop") else "asyncio",
                   "in_process": in_process(model, samples, args.fps, chunk)}
         sent = samples if args.rate == 16000 else AudioClip.from_array(samples, 16000).resampled(args.rate).samples
         pcm = to_pcm16(sent)
@@ -177,7 +179,8 @@ def main() -> int:
 
 def print_report(report: dict) -> None:
     print(f"model: {report['model']}; {report['audio_s']:.1f} s of GRID audio a session, "
-          f"{report['chunk_ms']} ms chunks at {report['rate']} Hz, paced in real time")
+          f"{report['chunk_ms']} ms chunks at {report['rate']} Hz, paced in real time; "
+          f"the server's event loop: {report['event_loop']} (uvicorn takes uvloop where it is installed)")
     p = report["in_process"]
     print(f"in-process AudioStream (delay {p['delay_s'] * 1000:.0f} ms): frame delay p50 {p['p50_ms']:.1f} ms, "
           f"p95 {p['p95_ms']:.1f} ms, max {p['max_ms']:.1f} ms; a push {p['push_ms_p50']:.2f} ms "
