@@ -221,9 +221,12 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
         yield from execute_on_ray(todo, out, workers, address)
         return
     workers = min(workers, len(todo))
-    if any(line.kind == "audio" and line.text is not None and (line.language or "en") == "en" for line, _, _ in todo):
-        from vispeech.frontends.align import load_decoders
+    from vispeech.frontends.align import default_method, load_decoders
 
+    if any(
+        line.kind == "audio" and line.text is not None and default_method(line.language or "en") == "pocketsphinx"
+        for line, _, _ in todo
+    ):
         load_decoders()  # once, before the workers and their native workers are forked
     if workers == 1:
         for line, key, record in todo:

@@ -116,7 +116,7 @@ def align(
     (``None``: any is taken; DTW alignment is not scored).
     """
     clip = AudioClip.from_array(audio, sample_rate)
-    method = method or ("pocketsphinx" if language == "en" else "dtw")
+    method = method or default_method(language)
     if method == "dtw":
         return dtw_align(clip, text, language)
     if method != "pocketsphinx":
@@ -276,6 +276,11 @@ def _shared_spans(decoder, words_found: list[tuple[str, int, int]]) -> _Segments
         spans = zip(labels, edges[:-1], edges[1:], strict=True)
         segments.append((name, [(label, int(a), int(b - a)) for label, a, b in spans]))
     return segments
+
+
+def default_method(language: str) -> str:
+    """The method :func:`align` takes for ``language`` by default: pocketsphinx for ``"en"``, DTW otherwise."""
+    return "pocketsphinx" if language == "en" else "dtw"
 
 
 def load_decoders() -> None:
