@@ -246,6 +246,22 @@ def test_parallel_workers_write_what_one_process_writes(tmp_path):
         _assert_same_files(tmp_path / "two" / result.id, tmp_path / "one" / result.id, SAY_FILES | {RECORD})
 
 
+def test_lines_run_on_one_blas_thread_and_the_caller_gets_its_threads_back(tmp_path):
+    """Lines run side by side, one a core: OpenBLAS's own threads would spin on the cores the
+    other lines need."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"}
+
+    job = _csv(tmp_path / "job.csv", ["id,text,language", "a,Hello there.,en", "b,Good morning.,en"])
+    with threadpool_limits(2, user_api="blas"):
+        during: list[set[int]] = []
+        report = run_batch(job, tmp_path / "out", workers=1, progress=lambda _: during.append(blas_threads()))
+        assert report.count("written") == 2
+        assert during == [{1}, {1}] and blas_threads() == {2}
+
+
 def test_killed_batch_loses_and_duplicates_nothing(tmp_path):
     n = 40
     job = _csv(tmp_path / "job.csv", ["id,text"] + [f"k{i:02d},This is sentence {i} of a long batch." for i in range(n)])

@@ -14,8 +14,9 @@ never finished. ``OUT/index.jsonl`` lists every line of the last run (written at
 
 Lines run on a pool of processes (pebble's), one per core by default; each process loads a
 model once (forked, the workers share the models and pocketsphinx's decoders the parent
-loaded). A line that fails is reported with its message and never stops the others, not even
-when its worker process dies: a new worker takes the next line. Native code (espeak-ng,
+loaded) and runs NumPy's BLAS on one thread (threadpoolctl), as Ray runs its actors. A line
+that fails is reported with its message and never stops the others, not even when its worker
+process dies: a new worker takes the next line. Native code (espeak-ng,
 pocketsphinx, libsndfile) runs in worker processes of its own
 (:mod:`vispeech.frontends.isolation`) in any case, so a line it crashes on fails with that one
 line with ``--jobs 1`` too.
@@ -28,12 +29,13 @@ import json
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from pebble import ProcessExpired, ProcessPool
+from threadpoolctl import threadpool_limits
 
 import vispeech
 from vispeech.batch.job import BatchLine, JobDefaults, read_job
@@ -220,7 +222,6 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
 
         yield from execute_on_ray(todo, out, workers, address)
         return
-    workers = min(workers, len(todo))
     from vispeech.frontends.align import default_method, load_decoders
 
     if any(
@@ -228,6 +229,15 @@ def _execute(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int | N
         for line, _, _ in todo
     ):
         load_decoders()  # once, before the workers and their native workers are forked
+    # the lines run side by side, one a core: OpenBLAS's threads would only spin, waiting for
+    # work, on the cores the other lines need (a quarter of a line's CPU time); Ray's actors get
+    # one thread from Ray
+    with threadpool_limits(1, user_api="blas"):
+        yield from _run_locally(todo, out, min(workers, len(todo)))
+
+
+def _run_locally(todo: list[tuple[BatchLine, str, str]], out: Path, workers: int) -> Iterator[LineResult]:
+    """Run the lines in this process (one worker) or in a pool of ``workers`` forked processes."""
     if workers == 1:
         for line, key, record in todo:
             yield run_line(line, out, key, record)
