@@ -17,6 +17,8 @@ Ray instance) can be told from the steady rate:
   only (the native workers of a pool's workers, and Ray's, are not always waited for, so their
   time is not always counted).
 
+``vispeech batch`` runs as a user runs it, without the thread-count variables of
+:data:`THREAD_VARIABLES` (``OMP_NUM_THREADS=1`` would hide the threads NumPy's BLAS starts).
 Every configuration's line folders must be byte-identical to the first one's; the load average
 is printed with each figure (other work on the machine slows every one). Failed lines are
 listed; exits non-zero if a line fails or an output differs.
@@ -40,6 +42,8 @@ import time
 from pathlib import Path
 
 GRID = Path(__file__).resolve().parents[2] / "shared" / "data" / "grid_s1"
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""Left out of ``vispeech batch``'s environment: what it does with threads is measured too."""
 
 
 def write_job(path: Path, n: int) -> list[str]:
@@ -61,7 +65,8 @@ def batch(job: Path, out: Path, jobs: int, backend: str) -> tuple[float, float, 
     command += ["-j", str(jobs), "-q", "--force", "--backend", backend]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
-    result = subprocess.run(command, capture_output=True, text=True)
+    env = {name: value for name, value in os.environ.items() if name not in THREAD_VARIABLES}
+    result = subprocess.run(command, capture_output=True, text=True, env=env)
     seconds = time.perf_counter() - started
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if result.returncode not in (0, 1) or not (out / "index.jsonl").is_file():  # 1: some lines failed
