@@ -183,3 +183,30 @@ def _until_end(ws) -> list[dict]:
     while not messages or messages[-1]["type"] not in ("end", "error"):
         messages.append(ws.receive_json())
     return messages
+
+
+def _spoken_length(text: str) -> int:
+    """In a worker: samples espeak-ng speaks ``text`` in, through :func:`synthesize`'s own isolation."""
+    return len(synthesize(text, "en").audio)
+
+
+def _shared_sum(key: str) -> float:
+    return float(isolation.shared(key).sum())
+
+
+def test_many_calls_run_at_once_and_a_crash_fails_its_own_alone(crash):
+    isolation.set_workers(2)
+    try:
+        texts = ["Say hello now.", f"Say {MARKER} now.", "Say goodbye now."]
+        got = isolation.run_isolated_many("espeak-ng", "a text", _spoken_length, [(text,) for text in texts])
+        # synthesize called in a worker runs there, under the fault of the job that called it
+        assert isinstance(got[1], NativeFailure) and str(got[1]) == "espeak-ng crashed on a text"
+        assert got[0] == len(synthesize(texts[0], "en").audio) and got[2] == len(synthesize(texts[2], "en").audio)
+    finally:
+        isolation.set_workers(1)
+
+
+def test_what_is_shared_reaches_workers_without_being_sent():
+    synthesize("Hello.", "en")  # a pool running: it is replaced, so its workers hold what is shared next
+    isolation.share("test:weights", np.arange(10.0))
+    assert isolation.run_isolated("numpy", "a sum", _shared_sum, "test:weights") == 45.0

@@ -13,7 +13,10 @@ replaced; either is a :class:`~vispeech.errors.NativeFailure` for that job alone
 other jobs go on (the standard library's ``ProcessPoolExecutor``, and loky's, fail every job
 in flight when one worker dies, and have no time limit per job). A job pays about 0.15 ms
 plus the copying of its arguments and result, a program about 0.1 s for starting and
-stopping the pool (``benchmarks/bench_isolation.py``).
+stopping the pool (``benchmarks/bench_isolation.py``). :func:`run_isolated_many` sends several
+jobs at once, one worker each; a job may isolate calls of its own (they run in place, in its
+worker); what is too big to send with every job (a model) is :func:`share`-d once, and the
+workers, forked from this process, hold it.
 
 Chaos tests make a worker crash or hang on purpose through :data:`FAULT_VARIABLE`.
 """
@@ -31,7 +34,7 @@ import os
 import stat
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
@@ -59,25 +62,56 @@ _lock = threading.Lock()
 _pool: Any = None  # the pebble ProcessPool, made on first use
 _pool_size = 0
 _workers = 1
+_shared: dict[str, Any] = {}  # share()
+_worker_fault: tuple[str | None] | None = None  # in a worker: the fault of the job it runs (FAULT_VARIABLE)
 
 
 def set_workers(workers: int) -> None:
-    """Run at most ``workers`` jobs at once (default 1; a server sets its worker threads'
-    number); a pool of another size is replaced after its jobs end."""
-    global _pool, _workers
+    """Run at most ``workers`` jobs at once (default 1; a server sets its own number); a pool of
+    another size is replaced after its jobs end."""
+    global _workers
     if workers < 1:
         raise ValueError("workers must be at least 1")
     with _lock:
         _workers = workers
         if _pool is not None and _pool_size != workers:
-            _pool.close()  # its jobs end, then its workers
-            threading.Thread(target=_pool.join, name="vispeech-native-pool-join", daemon=True).start()
-            _pool = None
+            _replace_pool()
+
+
+def workers() -> int:
+    """How many jobs run at once (:func:`set_workers`)."""
+    return _workers
+
+
+def share(key: str, value: Any) -> None:
+    """Hand ``value`` (a model: too big to copy into every job) to the workers as ``key``
+    (:func:`shared`): the workers, forked from this process, hold what was shared before they
+    started, so a running pool is replaced after its jobs end."""
+    with _lock:
+        if _shared.get(key) is value:
+            return
+        _shared[key] = value
+        if _pool is not None:
+            _replace_pool()
+
+
+def shared(key: str) -> Any:
+    """What :func:`share` handed over as ``key`` (in a worker, or in this process)."""
+    return _shared[key]
+
+
+def _replace_pool() -> None:
+    """Under ``_lock``: forget the pool, its jobs ending, then its workers (a new one is made on next use)."""
+    global _pool
+    _pool.close()
+    threading.Thread(target=_pool.join, name="vispeech-native-pool-join", daemon=True).start()
+    _pool = None
 
 
 def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any, extra_time: float = 0.0) -> Result:
     """``fn(*args)`` in a worker process (``fn`` a module-level function without side effects,
-    the arguments and result picklable); its exceptions are raised here.
+    the arguments and result picklable); its exceptions are raised here. Called in a worker (a
+    job whose work is isolated as a whole), ``fn(*args)`` runs there and then.
 
     A worker that crashes on the job, or runs it longer than :data:`TIME_LIMIT` (plus
     ``extra_time`` seconds, for a job that grows with its input), raises
@@ -86,30 +120,71 @@ def run_isolated(library: str, what: str, fn: Callable[..., Result], *args: Any,
     When pebble loses track of a crash (a worker dying before its job's start was seen breaks
     the whole pool, failing every job in it), the pool is started anew and the job run once more.
     """
+    result = run_isolated_many(library, what, fn, [args], TIME_LIMIT + extra_time)[0]
+    if isinstance(result, NativeFailure):
+        raise result
+    return result
+
+
+def run_isolated_many(
+    library: str, what: str, fn: Callable[..., Result], calls: Sequence[tuple], limit: float | None = None
+) -> list[Result | NativeFailure]:
+    """``fn(*args)`` for each ``args`` of ``calls``, all sent to the workers at once (as many run
+    together as there are workers, :func:`set_workers`): each call's result, or the
+    :class:`~vispeech.errors.NativeFailure` of :func:`run_isolated` for a call whose worker
+    crashed or ran past ``limit`` seconds (default :data:`TIME_LIMIT`); a call's own exception is
+    raised. In a worker the calls run there, one after another."""
     from pebble import ProcessExpired
 
-    limit = TIME_LIMIT + extra_time
-    for _ in range(2):
-        pool = _running_pool()
+    if _worker_fault is not None:
+        return [_call(_worker_fault[0], fn, args) for args in calls]
+    limit = TIME_LIMIT if limit is None else limit
+    pool = _running_pool()
+    fault = os.environ.get(FAULT_VARIABLE)
+    futures = [pool.schedule(_call, args=(fault, fn, args), timeout=limit) for args in calls]
+    results: list[Result | NativeFailure] = []
+    for args, future in zip(calls, futures):
         try:
-            future = pool.schedule(_call, args=(os.environ.get(FAULT_VARIABLE), fn, args), timeout=limit)
-            return future.result()
+            results.append(future.result())
         except ProcessExpired as exc:
             failure = NativeFailure(f"{library} crashed on {what}")
             log.warning("%s (worker exit code %s); the worker is replaced", failure, exc.exitcode)
-            raise failure from None
+            results.append(failure)
         except FutureTimeout:
             failure = NativeFailure(f"{library} took more than {limit:g} s on {what}")
             log.warning("%s; the worker is killed and replaced", failure)
-            raise failure from None
+            results.append(failure)
         except (CancelledError, RuntimeError) as exc:
             if isinstance(exc, RuntimeError) and not isinstance(exc, BrokenProcessPool) and pool.active:
                 raise  # the job's own error
-            _discard(pool)
-            log.warning("the pool of native workers broke; it is started anew")
-    failure = NativeFailure(f"{library} crashed on {what}")
+            results.append(_run_again(pool, library, what, fn, args, limit))
+    return results
+
+
+def _run_again(
+    pool, library: str, what: str, fn: Callable[..., Result], args: tuple, limit: float
+) -> Result | NativeFailure:
+    """A call lost with the broken ``pool``: run once more in a pool started anew (a
+    :class:`~vispeech.errors.NativeFailure` if that one breaks too)."""
+    from pebble import ProcessExpired
+
+    _discard(pool)
+    log.warning("the pool of native workers broke; it is started anew")
+    pool = _running_pool()
+    try:
+        return pool.schedule(_call, args=(os.environ.get(FAULT_VARIABLE), fn, args), timeout=limit).result()
+    except FutureTimeout:
+        failure = NativeFailure(f"{library} took more than {limit:g} s on {what}")
+    except (ProcessExpired, CancelledError, BrokenProcessPool):
+        failure = NativeFailure(f"{library} crashed on {what}")
+        _discard(pool)
+    except RuntimeError:
+        if pool.active:
+            raise  # the job's own error
+        failure = NativeFailure(f"{library} crashed on {what}")
+        _discard(pool)
     log.warning("%s, breaking the pool of native workers twice", failure)
-    raise failure
+    return failure
 
 
 def _running_pool():
@@ -166,7 +241,10 @@ def _start_worker() -> None:
 
 
 def _call(fault: str | None, fn: Callable[..., Result], args: tuple) -> Result:
-    """In the worker: ``fn(*args)``, after the fault :data:`FAULT_VARIABLE` asks for, if any."""
+    """In the worker: ``fn(*args)``, after the fault :data:`FAULT_VARIABLE` asks for, if any (for
+    every call ``fn`` isolates in its turn too)."""
+    global _worker_fault
+    _worker_fault = (fault,)
     kind, _, marker = (fault or "").partition(":")
     if marker and any(
         (isinstance(a, str) and marker in a) or (isinstance(a, bytes) and marker.encode() in a) for a in args
