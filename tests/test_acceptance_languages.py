@@ -87,7 +87,8 @@ def test_every_language_speaks_numbers_without_unknown_phonemes():
 
 def test_text_and_phone_streams_in_any_language():
     from vispeech.models.registry import load_model
-    from vispeech.streaming import open_phone_stream, speech_messages
+    from vispeech.streaming import open_phone_stream
+    from vispeech.text_stream import speech_messages
 
     model = load_model(DEFAULT_MODEL)
     messages = [m for batch in speech_messages("Guten Tag. Wie geht es dir?", "de", model) for m in batch]

@@ -140,7 +140,7 @@ def test_audio_starts_and_ends_at_rest_and_keeps_the_breath_in(model, grid_clip)
 
 
 def test_a_text_stream_starts_and_ends_at_rest():
-    from vispeech.streaming import speech_messages
+    from vispeech.text_stream import speech_messages
 
     model = load_model("grid-tdnn-lowlatency")
     messages = [m for batch in speech_messages(TEXT, "en", model) for m in batch]

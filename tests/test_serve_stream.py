@@ -89,6 +89,29 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
         assert "warning" not in [m["type"] for m in receive_until_end(ws)]
 
 
+def test_clauses_voiced_together_each_get_their_voice_or_their_error():
+    from vispeech.models.registry import load_model
+    from vispeech.text_stream import SpeechTimeline, voice_clauses
+
+    model = load_model("grid-tdnn-lowlatency")
+    timelines = [SpeechTimeline(model, fps=fps) for fps in (30.0, 30.0, 25.0)]
+    asked = [timelines[0].clause("Hello,", "en"), timelines[1].clause("Hej!", "sv", last=True),
+             timelines[2].clause("Good day.", "en", last=True)]
+    unsayable = asked[1]._replace(rate=9.0)
+    voiced = voice_clauses(model, [asked[0], unsayable, asked[2]])
+    assert isinstance(voiced[1], VispeechError) and "rate must be between" in str(voiced[1])
+    for timeline, clause, one in zip((timelines[0], timelines[2]), (asked[0], asked[2]), (voiced[0], voiced[2])):
+        assert one.text == clause.text and one.channels == clause.channels
+        duration = len(one.pcm) / one.sample_rate
+        assert one.phones.duration == pytest.approx(duration)
+        assert one.values.shape == (one.phones.n_frames(clause.fps), len(clause.channels))
+        assert not one.pcm[: round(clause.lead * one.sample_rate)].any()  # the silence before the first clause
+        messages = timeline.place(one)
+        assert messages[0]["type"] == "start" and messages[0]["channels"] == list(clause.channels)
+        frames = sum(len(m["frames"]) for m in messages if m["type"] == "frames")
+        assert frames == math.ceil(duration * clause.fps - 1e-9)
+
+
 def test_split_clauses():
     assert split_clauses("Hello, world! How are you? Fine; thanks.") == [
         "Hello,", "world!", "How are you?", "Fine;", "thanks."]

@@ -1,17 +1,5 @@
-"""Streaming animation: text spoken clause by clause, and frames for phones as they arrive.
-
-**Text.** :func:`speech_messages` splits the text into sentences and clauses
-(:func:`~vispeech.frontends.text.split_clauses`: after ``. ! ? ; : , …`` followed by white
-space, and at line breaks), synthesises and animates each in turn (a :class:`SpeechTimeline`,
-which also speaks clauses as they come, each in its own language) and gives the ``/api/stream``
-protocol messages for it at once, so the first frames and audio leave after the first clause,
-not after the whole text. The first clause starts with the silence
-:func:`~vispeech.pipeline.speak` puts before speech, the last ends with the silence it adds
-after, so that the mouth opens from rest and comes back to it. The clauses follow each other on
-one timeline: frame k sits at ``k / fps`` seconds from the start of the first clause's audio,
-and a frame that falls between two clauses' frame grids is interpolated from its own clause's
-track. Audio goes in pieces of ``chunk_seconds`` (PCM16, base64), each preceded by the frames up
-to its end.
+"""Streaming animation: frames for phones and for live audio as they arrive (text spoken clause by
+clause: :mod:`vispeech.text_stream`).
 
 **Phones.** :func:`open_phone_stream` takes timed phones as a recogniser or a TTS engine
 emits them and gives each frame as soon as it may be computed: the model's own
@@ -36,28 +24,26 @@ a client keys one list of channels, text, phone and audio streams alike.
 
 from __future__ import annotations
 
-import base64
 import math
-from collections.abc import Callable, Generator, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, TypeVar, cast
 
 import numpy as np
 
-from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends import vad
-from vispeech.frontends.audio import check_sample_rate, resampler_delay, to_pcm16
-from vispeech.frontends.sentiment import sentiment
-from vispeech.frontends.text import split_clauses
+from vispeech.frontends.audio import check_sample_rate, resampler_delay
 from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator
 from vispeech.motion.arkit import THESIS_CHANNELS, TONGUE_CHANNELS
-from vispeech.motion.life import LifePlan
-from vispeech.motion.rigging.calibration import Calibration
-from vispeech.motion.track import Track, interpolate_rows
+from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import SILENCE, parse_symbol
-from vispeech.pipeline import DEFAULT_FPS, LEADING_SILENCE, TRAILING_SILENCE, animate, padded, spoken_text
+from vispeech.pipeline import (
+    DEFAULT_FPS,
+    animate,
+)
 from vispeech.postprocess import PostprocessConfig, postprocess
 from vispeech.postprocess.rest import REST_CHANNELS, SentFrames, rest_weights
 
@@ -106,137 +92,6 @@ def stream_channels(model: Estimator, language: str, fps: float) -> tuple[str, .
 MAX_REMEMBERED = 256
 """Channel lists :func:`stream_channels` remembers (a frame rate is a client's choice)."""
 _CHANNELS: dict[tuple, tuple[str, ...]] = {}
-
-
-def speech_messages(
-    text: str,
-    language: str,
-    model: Estimator,
-    *,
-    fps: float = DEFAULT_FPS,
-    rate: float = 1.0,
-    chunk_seconds: float = 0.1,
-    scale: Calibration | None = None,
-    voice: str | None = None,
-    life: Iterable[str] = (),
-    seed: int = 0,
-) -> Generator[list[dict], None, None]:
-    """The ``/api/stream`` messages for ``text``, one list per clause, computed as they are asked for.
-
-    The first list begins with ``start`` (``fps``, ``channels``, ``sample_rate``, ``model``);
-    then come ``frames`` (``start_frame``, ``frames``) and ``audio`` (``seq``, ``start`` in
-    seconds, ``pcm16`` base64 little-endian mono) in time order; the last list is ``[end]``
-    (``n_frames``, ``duration`` in seconds). The frames cover the audio as
-    :func:`vispeech.pipeline.speak` would: ``ceil(duration · fps)`` of them, in the output
-    ``scale`` (``None``: the model's own), spoken with the espeak-ng ``voice``, with the
-    non-verbal layers ``life`` drawn with ``seed`` (:class:`~vispeech.motion.life.LifePlan`).
-    """
-    clauses = split_clauses(spoken_text(text))
-    timeline = SpeechTimeline(
-        model, fps=fps, rate=rate, chunk_seconds=chunk_seconds, scale=scale, voice=voice, life=life, seed=seed
-    )
-    for k, clause in enumerate(clauses):
-        yield timeline.say(clause, language, last=k == len(clauses) - 1)
-    yield timeline.end()
-
-
-class SpeechTimeline:
-    """Clauses spoken one after another on one timeline, each in its own language (a chat
-    reply's sentences in theirs): the ``/api/stream`` messages of each, as :func:`speech_messages`
-    gives them, computed when it is said.
-
-    The channels are those of the first clause's phone set, then those of the ``life`` layers; the
-    espeak-ng ``voice`` (a variant: ``f3``) speaks every language.
-    """
-
-    def __init__(
-        self,
-        model: Estimator,
-        *,
-        fps: float = DEFAULT_FPS,
-        rate: float = 1.0,
-        chunk_seconds: float = 0.1,
-        scale: Calibration | None = None,
-        voice: str | None = None,
-        life: Iterable[str] = (),
-        seed: int = 0,
-    ) -> None:
-        self.model, self.fps, self.rate, self.scale, self.voice = model, fps, rate, scale, voice
-        self.chunk_seconds = chunk_seconds
-        self.life = LifePlan(life, fps, seed, scale) if life else None  # the non-verbal layers, if any
-        self.said = ""  # every clause so far: the expression's mood
-        self.channels: tuple[str, ...] = ()
-        self.speech_channels: tuple[str, ...] = ()  # the model's, before the life layers' channels
-        self.sample_rate: int | None = None
-        self.samples = self.frames = self.seq = 0
-
-    @property
-    def duration(self) -> float:
-        """Seconds of audio said so far."""
-        return self.samples / self.sample_rate if self.sample_rate else 0.0
-
-    def say(self, clause: str, language: str, last: bool = False) -> list[dict]:
-        """The messages of ``clause`` (spoken text) in ``language``: ``start`` first when it is the first
-        clause, which begins with the silence :func:`~vispeech.pipeline.speak` puts before speech; a
-        ``last`` clause ends with the silence it adds after."""
-        from vispeech.frontends.espeak import phone_set, synthesize
-
-        speech = synthesize(clause, language, self.rate, voice=self.voice, reproducible=False)  # latency first
-        speech = padded(speech, LEADING_SILENCE if self.sample_rate is None else 0.0, TRAILING_SILENCE if last else 0.0)
-        messages: list[dict] = []
-        if self.sample_rate is None:
-            self.speech_channels = self.channels = stream_channels(self.model, phone_set(language), self.fps)
-            self.sample_rate = speech.sample_rate
-            self.channels = self.life.joined_channels(self.channels) if self.life else self.channels
-            start = {"fps": self.fps, "channels": list(self.channels), "sample_rate": self.sample_rate}
-            messages.append({"type": "start", **start, "model": self.model.name})
-        elif speech.sample_rate != self.sample_rate:
-            raise VispeechError(f"{language} speaks at {speech.sample_rate} Hz, this stream at {self.sample_rate} Hz")
-        track = animate(speech.phones, self.model, self.fps).select(self.speech_channels)
-        if self.scale is not None:
-            track = self.scale.apply(track)
-        self.said += f" {clause}"
-        return messages + self._pieces(to_pcm16(speech.audio), track.values, speech.phones)
-
-    def _pieces(self, pcm: np.ndarray, values: np.ndarray, phones: PhoneSequence) -> list[dict]:
-        """``frames`` and ``audio`` messages of a clause's audio, track (rows at ``fps`` from its
-        start) and phones, in pieces of ``chunk_seconds``, each piece's frames before its audio."""
-        rate, fps = cast(int, self.sample_rate), self.fps
-        clause_start = self.samples / rate
-        frame_end = _frames_before((self.samples + len(pcm)) / rate, fps)
-        values = interpolate_rows(values, np.arange(self.frames, frame_end) - clause_start * fps)
-        if self.life is not None:
-            mood = sentiment(self.said, phones.language) if "expression" in self.life.layers else 0.0
-            timed = [replace(p, start=p.start + clause_start, end=p.end + clause_start) for p in phones]
-            track = Track(values, self.speech_channels, fps, self.frames / fps)
-            values = self.life.join(track, timed, phones.language, mood).values
-        step = max(1, round(self.chunk_seconds * rate))
-        messages: list[dict] = []
-        sent = self.frames
-        for a in range(0, len(pcm), step):
-            b = min(a + step, len(pcm))
-            upto = frame_end if b == len(pcm) else min(frame_end, _frames_before((self.samples + b) / rate, fps))
-            if upto > sent:
-                rows = np.round(values[sent - self.frames : upto - self.frames], 6).tolist()
-                messages.append({"type": "frames", "start_frame": sent, "frames": rows})
-                sent = upto
-            pcm16 = base64.b64encode(pcm[a:b].tobytes()).decode("ascii")
-            messages.append({"type": "audio", "seq": self.seq, "start": (self.samples + a) / rate, "pcm16": pcm16})
-            self.seq += 1
-        self.samples += len(pcm)
-        self.frames = frame_end
-        return messages
-
-    def end(self) -> list[dict]:
-        """The ``end`` message (``n_frames``, ``duration``)."""
-        if self.sample_rate is None:
-            raise VispeechError("nothing was said")
-        return [{"type": "end", "n_frames": self.frames, "duration": self.duration}]
-
-
-def _frames_before(seconds: float, fps: float) -> int:
-    """Frames whose time ``k / fps`` lies before ``seconds`` (none at 0)."""
-    return n_frames_for(seconds, fps) if seconds > 0 else 0
 
 
 class PhoneStream:

@@ -11,7 +11,8 @@ from vispeech.serve.config import ServeConfig
 from vispeech.serve.llm import OpenAIChatBot
 from vispeech.serve.service import SpeechService
 from vispeech.serve.sessions import ChatSessions, UnknownSession
-from vispeech.streaming import PhoneStream, open_phone_stream, speech_messages, split_clauses
+from vispeech.streaming import PhoneStream, open_phone_stream
+from vispeech.text_stream import speech_messages, split_clauses
 
 __all__ = [
     "CacheKey",

@@ -13,7 +13,7 @@ from vispeech.frontends.text import Clause, ClauseReader, detect_language, speak
 from vispeech.models.contract import Estimator
 from vispeech.motion.rigging.calibration import Calibration
 from vispeech.motion.track import Track
-from vispeech.streaming import SpeechTimeline
+from vispeech.text_stream import SpeechTimeline
 
 WHOLE_CLAUSE = 3600.0
 """Seconds of audio in a piece of :func:`speak_reply`'s timeline: more than any clause has."""
@@ -85,7 +85,7 @@ def speak_reply(
     scale: Calibration | None = None,
     voice: str | None = None,
 ) -> tuple[bytes, Track]:
-    """A reply's clauses spoken as the stream speaks them (:class:`~vispeech.streaming.SpeechTimeline`:
+    """A reply's clauses spoken as the stream speaks them (:class:`~vispeech.text_stream.SpeechTimeline`:
     each in its language, one after another on one timeline): the WAV file of the audio and the
     track (over the stream's channels, in the output scale ``scale``)."""
     timeline = SpeechTimeline(model, fps=fps, rate=rate, chunk_seconds=WHOLE_CLAUSE, scale=scale, voice=voice)

@@ -30,7 +30,8 @@ from vispeech.serve.schemas import (
     WarningMessage,
 )
 from vispeech.serve.service import PHONE_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
-from vispeech.streaming import PhoneStream, SpeechTimeline, open_phone_stream, speech_messages, split_clauses
+from vispeech.streaming import PhoneStream, open_phone_stream
+from vispeech.text_stream import SpeechTimeline, speech_messages, split_clauses
 
 router = APIRouter()
 
