@@ -187,15 +187,16 @@ def _chat(ws, message: str, session: str | None = None, gate: threading.Event | 
 
 
 def test_the_reply_is_spoken_clause_by_clause_as_it_streams_in(client, fake, monkeypatch):
-    import vispeech.frontends.espeak as espeak
+    from vispeech.text_stream import SpeechTimeline
 
     voices = []  # what espeak-ng was asked to say, in which language
+    asked = SpeechTimeline.clause
 
-    def spied(text, language, *args, **kwargs):
+    def spied(self, text, language, *args, **kwargs):
         voices.append((text, language))
-        return synthesize(text, language, *args, **kwargs)
+        return asked(self, text, language, *args, **kwargs)
 
-    monkeypatch.setattr(espeak, "synthesize", spied)
+    monkeypatch.setattr(SpeechTimeline, "clause", spied)
     gate = threading.Event()
     first = "Hello there, my friend! "
     rest = "Hej, hur mår du idag? I hope you are well."

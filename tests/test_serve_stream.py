@@ -63,17 +63,17 @@ def receive_until_end(ws) -> list[dict]:
 def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
     import time
 
-    import vispeech.serve.stream as stream_module
+    from vispeech.text_stream import SpeechTimeline
 
-    original = stream_module.speech_messages
+    original, placed = SpeechTimeline.place, []
 
-    def slow_after_first(*args, **kwargs):  # an overloaded server: the second clause comes 1.5 s later
-        for i, batch in enumerate(original(*args, **kwargs)):
-            if i == 1:
-                time.sleep(1.5)
-            yield batch
+    def slow_after_first(self, voiced):  # an overloaded server: the second clause comes 1.5 s later
+        placed.append(voiced)
+        if len(placed) == 2:
+            time.sleep(1.5)
+        return original(self, voiced)
 
-    monkeypatch.setattr(stream_module, "speech_messages", slow_after_first)
+    monkeypatch.setattr(SpeechTimeline, "place", slow_after_first)
     with client.websocket_connect("/api/stream") as ws:
         ws.send_json({"type": "text", "text": "Hello, my good friend.", "language": "en"})
         messages = receive_until_end(ws)
@@ -83,7 +83,7 @@ def test_a_clause_that_leaves_late_is_announced(client, monkeypatch):
     assert 1.5 - first_clause - 0.3 < warnings[0]["seconds"] < 1.5 - first_clause + 0.5  # the sleep past the due time
     assert "overloaded" in warnings[0]["message"] and messages[-1]["type"] == "end"
 
-    monkeypatch.setattr(stream_module, "speech_messages", original)
+    monkeypatch.setattr(SpeechTimeline, "place", original)
     with client.websocket_connect("/api/stream") as ws:  # in time: no warning
         ws.send_json({"type": "text", "text": "Hello, my good friend.", "language": "en"})
         assert "warning" not in [m["type"] for m in receive_until_end(ws)]

@@ -9,6 +9,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import os
 import threading
 from collections.abc import AsyncGenerator, Callable, Generator, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -38,6 +39,7 @@ from vispeech.realtime import TimedSpeechStream
 from vispeech.serve.bot import ChatBot, ChatBotError, ChatModel, ChatTurn
 from vispeech.serve.cache import CachedUtterance, CacheKey, UtteranceCache
 from vispeech.serve.chat import ReplyReader, SpokenClause, speak_reply
+from vispeech.serve.clauses import ClauseBatcher
 from vispeech.serve.config import ServeConfig
 from vispeech.serve.pool import Busy, WorkPool
 from vispeech.serve.safety import RateLimited, Slots
@@ -52,6 +54,7 @@ from vispeech.serve.schemas import (
 )
 from vispeech.serve.sessions import ChatSessions
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_audio_together, push_together
+from vispeech.text_stream import SpeechTimeline
 
 log = logging.getLogger("vispeech.serve")
 
@@ -191,9 +194,11 @@ class SpeechService:
         self.cache = UtteranceCache(config.cache, config.cache_entries, config.cache_bytes)
         self.bucket = TokenBucket(config.rate_limit, config.burst)
         self.pool = WorkPool(config.workers, config.max_queue, config.max_wait)
-        set_workers(config.workers)  # a worker process for each thread's native work (espeak-ng, libsndfile, ...)
+        set_workers(max(config.workers, os.cpu_count() or 1))  # native work (espeak-ng, ...): one process a core
         self.pushes = PushBatcher(self, "phones", "phone streams", push_together)
         """The phone streams' pushes (``/api/stream``)."""
+        self.clauses = ClauseBatcher(self.pool, self.models, "text", "text streams")
+        """The text streams' clauses (``/api/stream``), voiced in the native workers."""
         self.listens = PushBatcher(self, "listen", "listen streams", push_audio_together)
         """The live audio streams' pushes (``/api/listen`` without timings)."""
         self.connections = Slots(config.max_streams, config.max_streams_per_ip, config.max_streams_per_network)
@@ -285,13 +290,15 @@ class SpeechService:
     def warm_up(self) -> None:
         """Load espeak-ng's voices, the language identifier (a chat reply's sentences are told apart
         on the event loop) and run the default, stream, upload (English and Swedish) and audio models
-        once, so a first request is no slower."""
+        once, and the stream model in each native worker, so a first request is no slower."""
         for language, text in GREETINGS.items():
             utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
             assert utterance.phones is not None  # speak gives the phones it spoke
             detect_language(text, self.reply_languages)
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
                 animate(utterance.phones, self.models[self.stream_model], self.config.fps)
+                timeline = SpeechTimeline(self.models[self.stream_model], fps=self.config.fps)
+                self.clauses.warm_up(self.stream_model, timeline.clause(text, language, last=True))
         for name in dict.fromkeys(self.upload_model or recording_model(False, language) for language in GREETINGS):
             upload = self.models[name]
             if upload.input_kind == "audio":  # Whisper's encoder loads on its first clip

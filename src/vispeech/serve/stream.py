@@ -14,8 +14,8 @@ from pydantic import ValidationError
 from vispeech.alignment.phones import Phone
 from vispeech.errors import VispeechError
 from vispeech.motion.rigging.calibration import Calibration
+from vispeech.pipeline import spoken_text
 from vispeech.serve.bot import ChatBotError
-from vispeech.serve.chat import SpokenClause
 from vispeech.serve.connection import Connection, message_json, send_error, send_message, serve_connection
 from vispeech.serve.dependencies import Service
 from vispeech.serve.errors import REFUSALS, describe_errors
@@ -31,14 +31,14 @@ from vispeech.serve.schemas import (
 )
 from vispeech.serve.service import PHONE_WORK_PER_SECOND, TEXT_WORK_PER_CHAR, SpeechService
 from vispeech.streaming import PhoneStream, open_phone_stream
-from vispeech.text_stream import SpeechTimeline, speech_messages, split_clauses
+from vispeech.text_stream import SpeechTimeline, split_clauses
 
 router = APIRouter()
 
 
 @router.websocket("/api/stream")
 async def stream(websocket: WebSocket, service: Service) -> None:
-    """Speech animation as it is computed (see :mod:`vispeech.streaming`)."""
+    """Speech animation as it is computed (see :mod:`vispeech.text_stream` and :mod:`vispeech.streaming`)."""
     await serve_connection(websocket, service, StreamConnection)
 
 
@@ -102,45 +102,43 @@ class StreamConnection(Connection):
         }
 
     async def _text(self, message: TextMessage) -> None:
-        _, model = self.service.model(message.model, stream=True)
-        messages = speech_messages(message.text, message.language, model, **self._timeline_settings(message))
-
-        def next_clause() -> tuple[list[str], float | None] | None:
-            batch = next(messages, None)
-            if batch is None:
-                return None
-            begin = next((item["start"] for item in batch if item["type"] == "audio"), None)
-            return [message_json(item) for item in batch], begin
-
-        weights = [len(clause) * TEXT_WORK_PER_CHAR for clause in split_clauses(message.text)]
+        name, model = self.service.model(message.model, stream=True)
+        timeline = SpeechTimeline(model, **self._timeline_settings(message))
+        clauses = split_clauses(spoken_text(message.text))
         playing: float | None = None  # when the first audio chunk left: the client's playback starts no earlier
-        try:
-            while (batch := await self._run(next_clause, weight=weights.pop(0) if weights else 0.0)) is not None:
-                texts, begin = batch
-                now = time.monotonic()
-                if playing is None and begin is not None:
-                    playing = now - begin
-                elif begin is not None and playing is not None and now - playing > begin:
-                    late = now - playing - begin
-                    await send_message(
-                        self.ws,
-                        WarningMessage(
-                            code="late",
-                            seconds=round(late, 3),
-                            message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
-                            "overloaded (buffer more before playing, or try again later)",
-                        ),
-                    )
-                for text in texts:
-                    await self.ws.send_text(text)
-        finally:
-            with contextlib.suppress(ValueError):  # still running in its thread
-                messages.close()
+        for k, clause in enumerate(clauses):
+            begin = timeline.duration  # where the clause's audio starts
+            texts = await self._say(timeline, name, clause, message.language, k == len(clauses) - 1)
+            now = time.monotonic()
+            if playing is None:
+                playing = now - begin
+            elif now - playing > begin:
+                late = now - playing - begin
+                await send_message(
+                    self.ws,
+                    WarningMessage(
+                        code="late",
+                        seconds=round(late, 3),
+                        message=f"the clause at {begin:.2f} s leaves {late:.2f} s after it is due: the server is "
+                        "overloaded (buffer more before playing, or try again later)",
+                    ),
+                )
+            for text in texts:
+                await self.ws.send_text(text)
+        await send_message(self.ws, timeline.end()[0])
+
+    async def _say(self, timeline: SpeechTimeline, model: str, clause: str, language: str, last: bool) -> list[str]:
+        """The stream messages (JSON) of saying ``clause`` in ``language`` on ``timeline`` (of the
+        model named ``model``), voiced with the other streams' clauses
+        (:class:`~vispeech.serve.clauses.ClauseBatcher`)."""
+        asked = timeline.clause(clause, language, last)
+        voiced = await self.service.clauses.voice(model, asked, len(clause) * TEXT_WORK_PER_CHAR)
+        return [message_json(item) for item in timeline.place(voiced)]
 
     async def _chat(self, message: ChatStreamMessage) -> None:
         """The bot's reply to ``message``, spoken clause by clause as it is written: each clause's
         ``reply`` message, then its frames and audio (after the stream's ``start``); then ``end``."""
-        _, model = self.service.model(message.model, stream=True)
+        name, model = self.service.model(message.model, stream=True)
         session = self.service.chats.open(message.session)
         timeline = SpeechTimeline(model, **self._timeline_settings(message))
         async with contextlib.aclosing(self.service.chat(message.message, message.language, session)) as clauses:
@@ -149,7 +147,7 @@ class StreamConnection(Connection):
                 first = timeline.sample_rate is None
                 start = timeline.duration
                 reply = ReplyMessage(session=session, text=clause.text, language=clause.language, start=start)
-                texts = await self._run(_said, timeline, clause, weight=len(clause.spoken) * TEXT_WORK_PER_CHAR)
+                texts = await self._say(timeline, name, clause.spoken, clause.language, clause.last)
                 texts.insert(1 if first else 0, reply.model_dump_json())  # after the stream's start
                 for text in texts:
                     await self.ws.send_text(text)
@@ -237,11 +235,6 @@ class PhoneSettings(NamedTuple):
 
 _KINDS = ("text", "chat", "phones")
 """The types of stream client message."""
-
-
-def _said(timeline: SpeechTimeline, clause: SpokenClause) -> list[str]:
-    """The stream messages (JSON) of saying ``clause`` on ``timeline``."""
-    return [message_json(item) for item in timeline.say(clause.spoken, clause.language, clause.last)]
 
 
 PIECE_GROWTH, MAX_PIECE = 2.0, 4.0
