@@ -21,8 +21,13 @@ def _waiting(text: str, first: bool, weight: float) -> _Waiting:
 
 
 def test_a_batch_takes_first_clauses_before_later_ones_up_to_its_work():
-    waiting = [_waiting("later one,", False, 0.02), _waiting("Hello,", True, 0.01), _waiting("later two,", False, 0.02),
-               _waiting("Hi,", True, 0.01), _waiting("Hey,", True, 0.01)]
+    waiting = [
+        _waiting("later one,", False, 0.02),
+        _waiting("Hello,", True, 0.01),
+        _waiting("later two,", False, 0.02),
+        _waiting("Hi,", True, 0.01),
+        _waiting("Hey,", True, 0.01),
+    ]
     assert [w.clause.text for w in _next_batch(waiting, 0.035)] == ["Hello,", "Hi,", "Hey,"]
     assert [w.clause.text for w in _next_batch(waiting, 1.0)] == ["Hello,", "Hi,", "Hey,", "later one,", "later two,"]
     assert [w.clause.text for w in _next_batch(waiting[:1], 0.001)] == ["later one,"]  # at least one
@@ -47,12 +52,36 @@ def test_clauses_of_many_sessions_are_voiced_in_one_batch_and_a_crash_fails_its_
 
         async def voice_all():
             return await asyncio.gather(
-                *(batcher.voice("low", clause, 0.001) for clause in clauses), return_exceptions=True)
+                *(batcher.voice("low", clause, 0.001) for clause in clauses), return_exceptions=True
+            )
 
         voiced = asyncio.run(voice_all())
     finally:
         pool.close()
         isolation.set_workers(1)
     assert isinstance(voiced[1], NativeFailure) and str(voiced[1]) == "espeak-ng crashed on this text in language en"
-    assert all(isinstance(one, VoicedClause) and one.text == text for one, text in zip(voiced, texts) if one is not voiced[1])
+    assert all(
+        isinstance(one, VoicedClause) and one.text == text for one, text in zip(voiced, texts) if one is not voiced[1]
+    )
     assert (batcher.batches, batcher.clauses, batcher.largest) == (1, 4, 4)
+
+
+def test_a_fault_of_a_whole_batch_leaves_each_clause_its_own_try(monkeypatch):
+    def broken(batch, workers):
+        raise RuntimeError("a bug in batching")
+
+    monkeypatch.setattr("vispeech.serve.clauses._voiced_in_workers", broken)
+    model = load_model("grid-tdnn-lowlatency")
+    pool = WorkPool(1, 64)
+    try:
+        batcher = ClauseBatcher(pool, {"low": model}, "text", "text streams")
+        texts = ["Hello,", "Good morning!"]
+        clauses = [SpeechTimeline(model).clause(text, "en") for text in texts]
+
+        async def voice_all():
+            return await asyncio.gather(*(batcher.voice("low", clause, 0.001) for clause in clauses))
+
+        voiced = asyncio.run(voice_all())
+    finally:
+        pool.close()
+    assert [one.text for one in voiced] == texts

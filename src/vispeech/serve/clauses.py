@@ -105,8 +105,8 @@ class ClauseBatcher:
             self._waiting = [entry for entry in waiting if id(entry) not in taken]
         try:
             return batch, _voiced_in_workers(batch, workers)
-        except Exception as exc:  # noqa: BLE001 (every session of the batch is told)
-            return batch, [exc] * len(batch)
+        except Exception:  # noqa: BLE001 (a fault of the batch: each clause is tried alone, so only its own fails)
+            return batch, [_tried_alone(entry) for entry in batch]
 
 
 def _next_batch(waiting: list[_Waiting], budget: float) -> list[_Waiting]:
@@ -147,6 +147,14 @@ def _voiced_alone(entry: _Waiting) -> VoicedClause | VispeechError:
     what = f"this text in language {find_language(entry.clause.language).code}"
     voiced = isolation.run_isolated_many("espeak-ng", what, _voiced, [(entry.model, [entry.clause])])[0]
     return voiced if isinstance(voiced, NativeFailure) else voiced[0]
+
+
+def _tried_alone(entry: _Waiting) -> VoicedClause | BaseException:
+    """One clause voiced alone, or the exception that stopped it."""
+    try:
+        return _voiced_alone(entry)
+    except Exception as exc:  # noqa: BLE001 (given to its session alone)
+        return exc
 
 
 def _split(members: list[int], weights: list[float], parts: int) -> list[list[int]]:
