@@ -45,7 +45,7 @@ from vispeech.pipeline import (
     animate,
 )
 from vispeech.postprocess import PostprocessConfig, postprocess
-from vispeech.postprocess.rest import REST_CHANNELS, SentFrames, rest_weights
+from vispeech.postprocess.rest import EASE, HOLD, REST_CHANNELS, SentFrames, rest_weights
 
 if TYPE_CHECKING:
     from vispeech.models.networks.audio import AudioNetwork
@@ -399,22 +399,13 @@ class LiveAudioStream:
         audio, self._unheard = np.concatenate([np.zeros(0, np.float32), *self._unheard]), []
         return audio
 
-    def _select(self, values: np.ndarray, start: int) -> np.ndarray:
-        """Post-processed model frames from frame ``start`` over :attr:`channels`, the mouth at
-        rest away from the speech heard; noted as sent."""
-        rows = np.zeros((len(values), len(self.channels)))
-        rows[:, self._columns] = values
-        if self.activity is not None:
-            keep = 1.0 - rest_weights(start / self.fps + np.arange(len(rows)) / self.fps, self.activity.spans)
-            rows[:, self._resting] *= keep[:, None]
-        self.sent.add(rows)
-        return rows
-
 
 def _postprocessed(
     streams: Sequence[LiveAudioStream], raw: Sequence[tuple[int, np.ndarray]]
 ) -> list[tuple[int, np.ndarray]]:
-    """Each stream's model frames ``raw[i]`` (start frame, rows) post-processed, those of one model in one call."""
+    """Each stream's model frames ``raw[i]`` (start frame, rows) post-processed over its
+    :attr:`~LiveAudioStream.channels`, the mouth at rest away from the speech its detector heard,
+    and noted as sent: those of one model in one call."""
     out = [(start, np.zeros((0, len(stream.channels)))) for stream, (start, _) in zip(streams, raw)]
     groups: dict[int, list[int]] = {}
     for k, (stream, (_, rows)) in enumerate(zip(streams, raw)):
@@ -422,8 +413,33 @@ def _postprocessed(
             groups.setdefault(id(stream.model), []).append(k)
     for members in groups.values():
         first = streams[members[0]]
-        rows = np.concatenate([raw[k][1] for k in members])
-        values = postprocess(Track(rows, first._inner.channels, first.fps), None, first._config).values
-        for k, part in zip(members, np.split(values, np.cumsum([len(raw[k][1]) for k in members])[:-1])):
-            out[k] = (raw[k][0], streams[k]._select(part, raw[k][0]))
+        values = postprocess(
+            Track(np.concatenate([raw[k][1] for k in members]), first._inner.channels, first.fps), None, first._config
+        ).values
+        rows = np.zeros((len(values), len(first.channels)))
+        rows[:, first._columns] = values
+        bounds = np.cumsum([0] + [len(raw[k][1]) for k in members]).tolist()
+        heard = [(k, a, b) for k, a, b in zip(members, bounds, bounds[1:]) if streams[k].activity is not None]
+        if heard:
+            keep = 1.0 - _rest_together(
+                [raw[k][0] / first.fps + np.arange(b - a) / first.fps for k, a, b in heard],
+                [cast(vad.VoiceActivity, streams[k].activity).spans for k, _, _ in heard],
+            )
+            at = np.concatenate([np.arange(a, b) for _, a, b in heard])
+            rows[at[:, None], first._resting] *= keep[:, None]
+        for k, a, b in zip(members, bounds, bounds[1:]):
+            streams[k].sent.add(rows[a:b])
+            out[k] = (raw[k][0], rows[a:b])
     return out
+
+
+def _rest_together(times: Sequence[np.ndarray], spans: Sequence[np.ndarray]) -> np.ndarray:
+    """:func:`~vispeech.postprocess.rest.rest_weights` of several streams' frame times (seconds),
+    each by its own speech ``spans[i]``, in one call: stream i's times and spans moved ``i`` gaps
+    later, a gap outlasting every time and span by more than the hold and ease, so that no
+    stream's speech comes near another's frames."""
+    ends = [t[-1] for t in times if len(t)] + [s[-1, 1] for s in spans if len(s)]
+    gap = max(ends, default=0.0) + 2 * (HOLD + EASE) + 1.0
+    shifted = np.concatenate([t + i * gap for i, t in enumerate(times)])
+    speech = np.concatenate([s + i * gap for i, s in enumerate(spans)]).reshape(-1, 2)
+    return rest_weights(shifted, speech)
