@@ -23,6 +23,7 @@ with the outputs' overlap average.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from itertools import pairwise
 from typing import TypedDict
 
 import numpy as np
@@ -333,30 +334,31 @@ class ConvStackStream:
         hs = [np.asarray(r, dtype=np.float32) for r in rows]
         for i, layer in enumerate(streams[0].kernel.layers):
             behind, ahead = layer["pad"]
-            size = behind + ahead + 1
-            buffers = []
-            for stream, h in zip(streams, hs):
-                tail = [np.zeros((ahead, h.shape[1]), np.float32)] if final else []
-                buffers.append(np.concatenate([stream._buffers[i], h, *tail]))
-            counts = [max(0, len(buffer) - size + 1) for buffer in buffers]
+            tail = [np.zeros((ahead, hs[0].shape[1]), np.float32)] if final else []  # the end's padding
+            extra = ahead if final else 0
+            buffers = np.concatenate(
+                [piece for stream, h in zip(streams, hs) for piece in (stream._buffers[i], h, *tail)]
+            )
+            lengths = [len(stream._buffers[i]) + len(h) + extra for stream, h in zip(streams, hs)]
+            counts = [max(0, n - behind - ahead) for n in lengths]
             if not sum(counts):
-                hs = [np.zeros((0, len(layer["bias"])), np.float32) for _ in buffers]
-            elif len(buffers) == 1:  # its windows are every whole one
-                hs = [_conv_layer(layer, buffers[0])]
+                out = np.zeros((0, len(layer["bias"])), np.float32)
+            elif len(streams) == 1:  # its windows are every whole one
+                out = _conv_layer(layer, buffers)
             else:
-                hs = np.split(_conv_layer(layer, *_window_starts(buffers, counts)), np.cumsum(counts)[:-1])
-            for stream, buffer, n in zip(streams, buffers, counts):
-                stream._buffers[i] = buffer[n:] if not final else buffer[:0]
+                out = _conv_layer(layer, buffers, _window_starts(lengths, counts))
+            for stream, n, end, length in zip(streams, counts, np.cumsum(lengths).tolist(), lengths):
+                stream._buffers[i] = buffers[end - length + n : end] if not final else buffers[:0]
+            hs = [out[a:b] for a, b in pairwise(np.cumsum([0, *counts]).tolist())]
         return hs
 
 
-def _window_starts(buffers: Sequence[np.ndarray], counts: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of ``buffers`` stacked, and where the first ``counts[i]`` windows of each
-    ``buffers[i]`` begin in them, buffer after buffer."""
-    lengths = np.array([len(buffer) for buffer in buffers])
+def _window_starts(lengths: Sequence[int], counts: Sequence[int]) -> np.ndarray:
+    """Where the first ``counts[i]`` windows of each of several buffers (of ``lengths[i]`` rows,
+    stacked one after another) begin in the rows stacked, buffer after buffer."""
     offsets = np.cumsum(lengths) - lengths  # where each buffer begins in the rows stacked
     before = np.cumsum(counts) - counts  # windows of the buffers before
-    return np.concatenate(buffers), np.arange(sum(counts)) + np.repeat(offsets - before, counts)
+    return np.arange(sum(counts)) + np.repeat(offsets - before, counts)
 
 
 def _conv_layer(layer: _ConvLayer, rows: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
@@ -473,7 +475,8 @@ class AudioCNNStream:
         hs = ConvStackStream.push_together([stream.convs for stream in streams], hs, final)
         if kernel.gru is not None:
             hs = [stream._recur(h) for stream, h in zip(streams, hs)]
-        return np.split(kernel._output(np.concatenate(hs)), np.cumsum([len(h) for h in hs])[:-1])
+        out = kernel._output(np.concatenate(hs))
+        return [out[a:b] for a, b in pairwise(np.cumsum([0, *map(len, hs)]).tolist())]
 
     def _recur(self, h: np.ndarray) -> np.ndarray:
         """The GRU over the next convolution outputs ``h``, from the state the last push left."""
