@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
+from itertools import pairwise
 
 import numpy as np
 
@@ -229,7 +230,7 @@ def running_normalize_together(
         state if not n else (float(counts[end - 1]), sums[end - 1], sum_squares[end - 1])
         for state, n, end in zip(begun, lengths.tolist(), ends.tolist())
     ]
-    return np.split(out, ends[:-1]), last
+    return [out[end - n : end] for n, end in zip(lengths.tolist(), ends.tolist())], last
 
 
 class SpectrumStream:
@@ -260,7 +261,8 @@ class SpectrumStream:
             stream._buffer = np.concatenate([stream._buffer, chunk])
             frames.append(stream._take(stream._complete_frames()))
         power = _windows_power(np.concatenate(frames))
-        return np.split(power, np.cumsum([len(f) for f in frames])[:-1])
+        bounds = np.cumsum([0, *map(len, frames)]).tolist()
+        return [power[a:b] for a, b in pairwise(bounds)]
 
     def finish(self) -> np.ndarray:
         total = self.samples // HOP + 1

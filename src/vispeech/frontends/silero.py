@@ -72,7 +72,8 @@ class Silero:
             hidden[rows] = h[active]
         logits = np.maximum(hidden, 0.0) @ self.out_weights + self.out_bias
         probabilities = 1.0 / (1.0 + np.exp(-logits))
-        return np.split(probabilities, firsts[1:]), [np.stack([h[k], c[k]]) for k in range(len(inputs))]
+        parts = [probabilities[a : a + n] for a, n in zip(firsts.tolist(), lengths)]
+        return parts, [np.stack([h[k], c[k]]) for k in range(len(inputs))]
 
     def _encode(self, windows: np.ndarray) -> np.ndarray:
         """``(n, HIDDEN)``: the encoder's output for each window input."""

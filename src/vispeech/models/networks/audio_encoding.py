@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import pairwise
 from typing import cast
 
 import numpy as np
@@ -151,7 +152,8 @@ class AudioEncoding:
             return running_normalize_together(features, mean, std, self.prior_seconds * self.frame_rate, states)
         out = np.subtract(np.concatenate(features), mean.astype(np.float32), dtype=np.float32)
         out /= std.astype(np.float32)
-        return np.split(out, np.cumsum([len(f) for f in features])[:-1]), [None] * len(features)
+        bounds = np.cumsum([0, *map(len, features)]).tolist()
+        return [out[a:b] for a, b in pairwise(bounds)], [None] * len(features)
 
     def stacked(self, normalised: np.ndarray, n_frames: int) -> np.ndarray:
         """``(n_frames, size)`` network inputs from normalised feature frames (the last one

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -198,7 +199,8 @@ def _featurise(streams: Sequence[AudioStream], final: bool = False) -> None:
     for members in groups.values():
         encoding = streams[members[0]].model.encoding_
         features = encoding.features(np.concatenate([powers[k] for k in members]))
-        parts = np.split(features, np.cumsum([len(powers[k]) for k in members])[:-1])
+        bounds = np.cumsum([0, *(len(powers[k]) for k in members)]).tolist()
+        parts = [features[a:b] for a, b in pairwise(bounds)]
         normalised, states = encoding.normalise_together(parts, [streams[k]._norm_state for k in members])
         for k, rows, state in zip(members, normalised, states):
             streams[k]._norm_state = state
