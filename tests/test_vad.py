@@ -146,25 +146,30 @@ def test_a_live_stream_rests_between_utterances_and_keeps_the_speech(samples, mo
 
 
 def test_live_streams_pushed_together_rest_as_each_does_alone(samples):
-    """push_audio_together with voice activity: the detectors of all the streams run in one call
-    and every stream gets the frames, rest included, it gets pushed alone."""
+    """push_audio_together with voice activity: the detectors of all the streams run in one call,
+    the rest of all their frames is weighed in one call, and every stream gets the frames, rest
+    included, it gets pushed alone, whenever it began and wherever its speech and silences lie."""
     audio = np.concatenate([samples, np.zeros(int(GAP * SAMPLE_RATE), np.float32), samples[: SAMPLE_RATE]])
-    pcm = [(audio * 32767).astype("<i2").tobytes(), (samples[::-1] * 32767).astype("<i2").tobytes()]
+    late = np.concatenate([np.zeros(SAMPLE_RATE, np.float32), samples[SAMPLE_RATE:]])
+    pcm = [(x * 32767).astype("<i2").tobytes() for x in (audio, samples[::-1], late)]
     model = load_model(DEFAULT_AUDIO_STREAM_MODEL)
     plans = [[640] * (len(pcm[0]) // 640 + 1), list(np.random.default_rng(2).integers(1, 2000, 200) * 2)]
-    chunks = [[], []]
+    plans.append([960] * (len(pcm[2]) // 960 + 1))
+    starts = [0, 0, 40]  # the third stream begins 40 ticks later
+    chunks: list[list[bytes]] = [[], [], []]
     for k, sizes in enumerate(plans):
         ends = np.cumsum([0, *sizes])
         chunks[k] = [pcm[k][a:b] for a, b in zip(ends[:-1], ends[1:]) if a < len(pcm[k])]
     alone = []
-    for k in range(2):
+    for k in range(3):
         stream = LiveAudioStream(model, SAMPLE_RATE, 30.0)
         alone.append(np.concatenate([*(stream.push(c)[1] for c in chunks[k]), stream.finish()[1]]))
-    streams = [LiveAudioStream(model, SAMPLE_RATE, 30.0) for _ in range(2)]
-    together = [[], []]
-    for tick in range(max(map(len, chunks))):
-        due = [k for k in range(2) if tick < len(chunks[k])]
-        for k, (_, rows) in zip(due, push_audio_together([(streams[k], chunks[k][tick]) for k in due])):
+    streams = [LiveAudioStream(model, SAMPLE_RATE, 30.0) for _ in range(3)]
+    together: list[list[np.ndarray]] = [[], [], []]
+    for tick in range(max(start + len(c) for start, c in zip(starts, chunks))):
+        due = [k for k in range(3) if 0 <= tick - starts[k] < len(chunks[k])]
+        pushes = [(streams[k], chunks[k][tick - starts[k]]) for k in due]
+        for k, (_, rows) in zip(due, push_audio_together(pushes)):
             together[k].append(rows)
     for k, stream in enumerate(streams):
         np.testing.assert_allclose(np.concatenate([*together[k], stream.finish()[1]]), alone[k], atol=1e-6)
