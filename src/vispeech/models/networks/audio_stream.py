@@ -212,8 +212,9 @@ def _advance_incremental(streams: Sequence[AudioStream], final: bool) -> None:
     together; with ``final``, each stream's last frames as if its input ended there."""
     model = streams[0].model
     pending = [s._inputs[: s._n_model_frames() - s._first_input] if final else s._inputs for s in streams]
-    width = model.encoding_.size
-    rows = [np.stack(p) if p else np.zeros((0, width), np.float32) for p in pending]
+    waiting = [row for p in pending for row in p]
+    stacked = np.stack(waiting) if waiting else np.zeros((0, model.encoding_.size), np.float32)
+    rows = [stacked[a:b] for a, b in pairwise(np.cumsum([0, *map(len, pending)]).tolist())]
     outs = AudioCNNStream.push_together([s._incremental for s in streams if s._incremental is not None], rows, final)
     denormalised = iter(model._denormalise(np.concatenate(outs)))
     for stream, out in zip(streams, outs):
