@@ -225,6 +225,57 @@ def test_the_server_pushes_the_listen_sessions_of_one_tick_together(tiny_audio_m
     service.pool.close()
 
 
+
+def test_listen_sessions_answered_join_the_next_batch_with_the_pushes_waiting():
+    """The sessions a listen batch answers, back within a few turns of the event loop with the
+    chunks that came while it ran (as a connection is: resume, send, take its chunks, push),
+    join the next batch together with a push that waited for the first to end, instead of
+    making a third batch of their own."""
+    import asyncio
+    import threading
+    from types import SimpleNamespace
+
+    from vispeech.serve.pool import WorkPool
+    from vispeech.serve.service import LISTEN_SETTLE_TURNS, PushBatcher
+
+    sizes, running = [], threading.Event()
+
+    def together(pushes):
+        sizes.append(len(pushes))
+        if len(sizes) == 1:
+            running.wait(5)  # the first batch runs until the late push is waiting
+        return [(0, np.zeros((0, 1)))] * len(pushes)
+
+    service = SimpleNamespace(pool=WorkPool(1, 16), frames_message=lambda *args: None)
+    batcher = PushBatcher(service, "listen", "listen streams", together, LISTEN_SETTLE_TURNS)
+
+    async def session(stream, chunks):
+        for _ in range(chunks):
+            await batcher.push(stream, b"", None, 0.0)
+            for _ in range(3):  # the connection's turns from its answer to its next push
+                await asyncio.sleep(0)
+
+    async def busy(done):  # a loop with other work: each turn takes 5 ms, the worker free meanwhile
+        while not done.done():
+            time.sleep(0.005)
+            await asyncio.sleep(0)
+
+    async def sessions():
+        answered = [asyncio.ensure_future(session(object(), 2)) for _ in range(3)]
+        while not sizes:
+            await asyncio.sleep(0.001)
+        late = asyncio.ensure_future(batcher.push(object(), b"", None, 0.0))
+        await asyncio.sleep(0)
+        everyone = asyncio.gather(*answered, late)
+        loop_work = asyncio.ensure_future(busy(everyone))
+        running.set()
+        await everyone
+        await loop_work
+
+    asyncio.run(sessions())
+    service.pool.close()
+    assert sizes == [3, 4]
+
 # -- POST /api/animate --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("fmt", ["WAV", "FLAC", "OGG", "MP3"])

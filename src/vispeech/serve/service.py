@@ -77,6 +77,10 @@ AUDIO_WORK_PER_SECOND = 0.03
 """Estimated worker seconds per second of audio animated (an upload) or pushed (live audio)."""
 MIN_CHUNK_SECONDS = 0.01
 """A live audio chunk is priced as at least this much audio (seconds), so floods of tiny chunks pay."""
+LISTEN_SETTLE_TURNS = 8
+"""Turns of the event loop the next batch of live audio pushes waits after a batch's frames are
+handed out: a session answered takes four to push the chunks that came meanwhile (resume, send its
+frames, take its waiting chunks, push them), and would otherwise wait a whole batch more."""
 
 
 StreamT = TypeVar("StreamT", PhoneStream, LiveAudioStream)
@@ -104,13 +108,24 @@ class PushBatcher(Generic[StreamT, ChunkT]):
     all the phone streams of a model, :func:`~vispeech.streaming.push_audio_together` one matrix
     product a layer for the new audio frames of all the audio streams of a network, instead of
     one each). Pushes made while the job waits for a worker join it; those made while it runs go
-    with the next.
+    with the next. With ``settle_turns``, the next job waits that many turns of the event loop
+    after a job's frames are handed out, so that the sessions just answered, whose next chunks
+    came while their push ran, push them in time to join it (a session takes a few turns to send
+    its frames and take its waiting chunks) instead of waiting a whole job more.
 
     ``batches`` and ``pushes`` count what it ran, ``largest`` is the most pushes one batch held.
     """
 
-    def __init__(self, service: SpeechService, kind: str, key: str, together: Together[StreamT, ChunkT]) -> None:
+    def __init__(
+        self,
+        service: SpeechService,
+        kind: str,
+        key: str,
+        together: Together[StreamT, ChunkT],
+        settle_turns: int = 0,
+    ) -> None:
         self.service, self.kind, self.key = service, kind, key
+        self.settle_turns = settle_turns
         self.together: Together[StreamT, ChunkT] = together
         self._waiting: list[_Push[StreamT, ChunkT]] = []
         self._lock = threading.Lock()  # the waiting list is taken in a worker thread
@@ -148,6 +163,8 @@ class PushBatcher(Generic[StreamT, ChunkT]):
                     push.future.set_exception(result)
                 else:
                     push.future.set_result(result)
+            for _ in range(self.settle_turns):
+                await asyncio.sleep(0)  # one turn: the sessions answered run to their next await
             with self._lock:
                 if not self._waiting:
                     self._busy = False
@@ -199,7 +216,7 @@ class SpeechService:
         """The phone streams' pushes (``/api/stream``)."""
         self.clauses = ClauseBatcher(self.pool, self.models, "text", "text streams")
         """The text streams' clauses (``/api/stream``), voiced in the native workers."""
-        self.listens = PushBatcher(self, "listen", "listen streams", push_audio_together)
+        self.listens = PushBatcher(self, "listen", "listen streams", push_audio_together, LISTEN_SETTLE_TURNS)
         """The live audio streams' pushes (``/api/listen`` without timings)."""
         self.connections = Slots(config.max_streams, config.max_streams_per_ip, config.max_streams_per_network)
         self.chats = ChatSessions(
