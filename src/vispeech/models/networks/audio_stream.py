@@ -93,7 +93,8 @@ class AudioStream(ModelStream[np.ndarray]):
             self._add_hidden(chunk, final=False)
 
     def collect(self) -> tuple[int, np.ndarray]:
-        self.advance_together([self])
+        if self._unheard or self._inputs:  # else advanced already (advance_together): nothing to compute
+            self.advance_together([self])
         n_total = math.ceil(self.end * self.fps - 1e-9)
         return self._give(min(self._frames.ready(), n_total))
 
