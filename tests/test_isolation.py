@@ -82,23 +82,6 @@ def test_a_worker_holds_none_of_the_caller_s_sockets(crash):
             assert held not in {os.readlink(fd) for fd in fds.iterdir()}
 
 
-def test_a_worker_holds_none_of_the_caller_s_pipes_so_its_children_see_them_end(crash):
-    """A child process the caller talks to through a pipe (a browser driver, say) ends when the
-    caller closes its stdin, even with native workers forked while the pipe was open."""
-    import subprocess
-    import sys
-
-    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
-    try:
-        with pytest.raises(NativeFailure):
-            synthesize(f"Say {MARKER} now.", "en")
-        synthesize("Say hello now.", "en")  # by a worker forked while the pipe was open
-        child.stdin.close()
-        assert child.wait(timeout=10) == 0
-    finally:
-        child.kill()
-
-
 def test_a_hang_is_stopped_at_the_time_limit(hang):
     started = time.monotonic()
     with pytest.raises(NativeFailure, match="^espeak-ng took more than 1 s on this text in language en$"):

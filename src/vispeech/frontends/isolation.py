@@ -26,7 +26,6 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import faulthandler
-import gc
 import importlib
 import logging
 import multiprocessing
@@ -39,8 +38,6 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import resource_tracker
-from multiprocessing.connection import Connection
 from typing import Any, TypeVar
 
 from vispeech.errors import NativeFailure
@@ -233,18 +230,13 @@ os.register_at_fork(after_in_child=_forget)
 
 def _start_worker() -> None:
     """In a new worker: no crash report of its own on stderr (the caller logs the crash), and none
-    of the caller's sockets or pipes held open (a server's connections end when the server closes
-    them; a child process the caller talks to through pipes sees their end when the caller closes
-    them): what stays open is the standard streams and the pipes of multiprocessing's connections,
-    among them the pool's own channels, and of its resource tracker."""
+    of the caller's sockets held open (a server's connections end when the server closes them;
+    the pool's own channels are pipes)."""
     faulthandler.disable()
-    kept = {0, 1, 2, getattr(resource_tracker._resource_tracker, "_fd", None)}
-    kept |= {c.fileno() for c in gc.get_objects() if isinstance(c, Connection) and not c.closed}
     folder = "/proc/self/fd" if os.path.isdir("/proc/self/fd") else "/dev/fd"
     for name in os.listdir(folder):
         with contextlib.suppress(OSError):
-            mode = os.fstat(int(name)).st_mode
-            if stat.S_ISSOCK(mode) or (stat.S_ISFIFO(mode) and int(name) not in kept):
+            if stat.S_ISSOCK(os.fstat(int(name)).st_mode):
                 os.close(int(name))
 
 
