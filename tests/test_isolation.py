@@ -104,9 +104,13 @@ def test_the_server_answers_a_crash_with_422_and_goes_on(client, crash):
 def test_an_upload_that_crashes_its_decoder_or_aligner_is_422(client, crash):
     buffer = io.BytesIO()
     wavfile.write(buffer, 16_000, np.zeros(1600, np.int16))
-    answer = client.post("/api/animate", content=buffer.getvalue() + MARKER.encode(), headers={"Content-Type": "audio/wav"})
+    answer = client.post(
+        "/api/animate", content=buffer.getvalue() + MARKER.encode(), headers={"Content-Type": "audio/wav"}
+    )
     assert answer.status_code == 422 and answer.json()["detail"] == "libsndfile crashed on the uploaded audio"
-    answer = client.post("/api/animate", params=KALAALLISUT, content=buffer.getvalue(), headers={"Content-Type": "audio/wav"})
+    answer = client.post(
+        "/api/animate", params=KALAALLISUT, content=buffer.getvalue(), headers={"Content-Type": "audio/wav"}
+    )
     assert answer.status_code == 422  # aligned against espeak-ng's speech of the text, which crashes
     assert answer.json()["detail"] == "espeak-ng crashed on this text in language kl"
 
@@ -126,7 +130,13 @@ def test_a_live_stream_gets_a_typed_error_and_goes_on(client, hang):
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_batch_writes_every_other_line(tmp_path, crash, workers):
-    lines = ["id,text,language", "a,First line.,en", f"b,Then {MARKER}.,en", "c,1 2 3 4 5 6 7 8 9 10 100,kl", "d,Last.,en"]
+    lines = [
+        "id,text,language",
+        "a,First line.,en",
+        f"b,Then {MARKER}.,en",
+        "c,1 2 3 4 5 6 7 8 9 10 100,kl",
+        "d,Last.,en",
+    ]
     (tmp_path / "job.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
     report = run_batch(tmp_path / "job.csv", tmp_path / "out", workers=workers)
     assert [r.status for r in report.results] == ["written", "failed", "failed", "written"]
@@ -188,25 +198,3 @@ def _until_end(ws) -> list[dict]:
 def _spoken_length(text: str) -> int:
     """In a worker: samples espeak-ng speaks ``text`` in, through :func:`synthesize`'s own isolation."""
     return len(synthesize(text, "en").audio)
-
-
-def _shared_sum(key: str) -> float:
-    return float(isolation.shared(key).sum())
-
-
-def test_many_calls_run_at_once_and_a_crash_fails_its_own_alone(crash):
-    isolation.set_workers(2)
-    try:
-        texts = ["Say hello now.", f"Say {MARKER} now.", "Say goodbye now."]
-        got = isolation.run_isolated_many("espeak-ng", "a text", _spoken_length, [(text,) for text in texts])
-        # synthesize called in a worker runs there, under the fault of the job that called it
-        assert isinstance(got[1], NativeFailure) and str(got[1]) == "espeak-ng crashed on a text"
-        assert got[0] == len(synthesize(texts[0], "en").audio) and got[2] == len(synthesize(texts[2], "en").audio)
-    finally:
-        isolation.set_workers(1)
-
-
-def test_what_is_shared_reaches_workers_without_being_sent():
-    synthesize("Hello.", "en")  # a pool running: it is replaced, so its workers hold what is shared next
-    isolation.share("test:weights", np.arange(10.0))
-    assert isolation.run_isolated("numpy", "a sum", _shared_sum, "test:weights") == 45.0

@@ -15,8 +15,7 @@ in flight when one worker dies, and have no time limit per job). A job pays abou
 plus the copying of its arguments and result, a program about 0.1 s for starting and
 stopping the pool (``benchmarks/bench_isolation.py``). :func:`run_isolated_many` sends several
 jobs at once, one worker each; a job may isolate calls of its own (they run in place, in its
-worker); what is too big to send with every job (a model) is :func:`share`-d once, and the
-workers, forked from this process, hold it.
+worker).
 
 Chaos tests make a worker crash or hang on purpose through :data:`FAULT_VARIABLE`.
 """
@@ -62,7 +61,6 @@ _lock = threading.Lock()
 _pool: Any = None  # the pebble ProcessPool, made on first use
 _pool_size = 0
 _workers = 1
-_shared: dict[str, Any] = {}  # share()
 _worker_fault: tuple[str | None] | None = None  # in a worker: the fault of the job it runs (FAULT_VARIABLE)
 
 
@@ -81,23 +79,6 @@ def set_workers(workers: int) -> None:
 def workers() -> int:
     """How many jobs run at once (:func:`set_workers`)."""
     return _workers
-
-
-def share(key: str, value: Any) -> None:
-    """Hand ``value`` (a model: too big to copy into every job) to the workers as ``key``
-    (:func:`shared`): the workers, forked from this process, hold what was shared before they
-    started, so a running pool is replaced after its jobs end."""
-    with _lock:
-        if _shared.get(key) is value:
-            return
-        _shared[key] = value
-        if _pool is not None:
-            _replace_pool()
-
-
-def shared(key: str) -> Any:
-    """What :func:`share` handed over as ``key`` (in a worker, or in this process)."""
-    return _shared[key]
 
 
 def _replace_pool() -> None:

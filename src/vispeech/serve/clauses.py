@@ -20,10 +20,10 @@ clause): a new stream's first clause waits for no more than about that much befo
 
 
 class _Waiting(NamedTuple):
-    """A session's clause waiting: the name of its model, the clause, its estimated work
-    (seconds) and the future of its voice."""
+    """A session's clause waiting: its model, the clause, its estimated work (seconds) and the
+    future of its voice."""
 
-    model: str
+    model: Estimator
     clause: Clause
     weight: float
     future: asyncio.Future
@@ -34,9 +34,9 @@ class ClauseBatcher:
     behalf of ``key``) at a time takes the clauses waiting, every session's first clause before
     any later one, up to :data:`BATCH_SECONDS` of estimated work for each native worker, and
     voices them (:func:`~vispeech.text_stream.voice_clauses`: espeak-ng and the model) in the
-    native worker processes (:mod:`vispeech.frontends.isolation`, where ``models`` that animate
-    phones are shared), split between them so that every core speaks, the clauses of a model in
-    each one call of the model. The event loop's process only puts each voiced clause on its
+    native worker processes (:mod:`vispeech.frontends.isolation`; each part carries its model),
+    split between them so that every core speaks, the clauses of a model in each one call of the
+    model. The event loop's process only puts each voiced clause on its
     stream's timeline and sends it.
 
     A worker that crashes or hangs on its part of a batch costs that part one more try, each of
@@ -45,10 +45,7 @@ class ClauseBatcher:
     """
 
     def __init__(self, pool: WorkPool, models: Mapping[str, Estimator], kind: str, key: str) -> None:
-        for name, model in models.items():
-            if model.input_kind == "phones":  # in the workers without being copied into each job
-                isolation.share(_shared_name(name), model)
-        self.pool, self.kind, self.key = pool, kind, key
+        self.pool, self.models, self.kind, self.key = pool, models, kind, key
         self._waiting: list[_Waiting] = []
         self._lock = threading.Lock()  # the waiting list is taken in a worker thread
         self._busy = False  # a job is in the pool
@@ -59,7 +56,7 @@ class ClauseBatcher:
         :class:`~vispeech.errors.VispeechError` when it cannot be said."""
         future = asyncio.get_running_loop().create_future()
         with self._lock:
-            self._waiting.append(_Waiting(model, clause, weight, future))
+            self._waiting.append(_Waiting(self.models[model], clause, weight, future))
         if not self._busy:
             self._busy = True
             asyncio.ensure_future(self._run())
@@ -67,7 +64,7 @@ class ClauseBatcher:
 
     def warm_up(self, model: str, clause: Clause) -> None:
         """Voice ``clause`` a few times in each native worker, so a first stream is no slower."""
-        calls = [(model, [clause])] * (2 * isolation.workers())
+        calls = [(self.models[model], [clause])] * (2 * isolation.workers())
         isolation.run_isolated_many("espeak-ng", "a greeting", _voiced, calls)
 
     async def _run(self) -> None:
@@ -127,8 +124,8 @@ def _voiced_in_workers(batch: Sequence[_Waiting], workers: int) -> list[VoicedCl
     ``workers`` parts of about equal work, sent at once; a part whose worker crashes or hangs
     tried again clause by clause."""
     parts: list[list[int]] = []
-    for name in dict.fromkeys(entry.model for entry in batch):
-        members = [k for k, entry in enumerate(batch) if entry.model == name]
+    for model in {id(entry.model): entry.model for entry in batch}.values():
+        members = [k for k, entry in enumerate(batch) if entry.model is model]
         parts += _split(members, [batch[k].weight for k in members], workers)
     limit = min(isolation.TIME_LIMIT, 1.0 + 10 * max(sum(batch[k].weight for k in part) for part in parts))
     calls = [(batch[part[0]].model, [batch[k].clause for k in part]) for part in parts]
@@ -169,11 +166,6 @@ def _split(members: list[int], weights: list[float], parts: int) -> list[list[in
     return groups
 
 
-def _shared_name(model: str) -> str:
-    """What the model named ``model`` is shared with the native workers as."""
-    return f"vispeech.serve.clauses:{model}"
-
-
-def _voiced(model: str, clauses: list[Clause]) -> list[VoicedClause | VispeechError]:
-    """In a native worker: :func:`~vispeech.text_stream.voice_clauses` by the shared model ``model``."""
-    return voice_clauses(isolation.shared(_shared_name(model)), clauses)
+def _voiced(model: Estimator, clauses: list[Clause]) -> list[VoicedClause | VispeechError]:
+    """In a native worker: :func:`~vispeech.text_stream.voice_clauses` by ``model``."""
+    return voice_clauses(model, clauses)
