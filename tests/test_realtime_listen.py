@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -28,6 +29,7 @@ from vispeech.pipeline import animate, animate_audio  # noqa: E402
 from vispeech.postprocess import PostprocessConfig  # noqa: E402
 from vispeech.realtime import TimedSpeechStream  # noqa: E402
 from vispeech.serve import ServeConfig, create_app  # noqa: E402
+from vispeech.serve.listen import ListenConnection  # noqa: E402
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "realtime" / "relay.py"
 spec = importlib.util.spec_from_file_location("relay", EXAMPLE)
@@ -154,23 +156,33 @@ def test_barge_in_rests_the_mouth_and_the_next_utterance_goes_on(client, service
 
 
 def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypatch):
-    """While the first words are worked on (slowly here), the reader reads the rest and the cancel
-    (within the 2 s of audio it lets wait): the words and audio waiting before the cancel are
-    dropped unworked."""
-    worked = []
-    add_words = TimedSpeechStream.add_words
+    """While the first words are worked on, the reader reads the rest and the cancel (within the
+    2 s of audio it lets wait): the words and audio waiting before the cancel are dropped unworked.
+    The first words are worked until the cancel has been read, whatever the machine's load."""
+    worked, working, cancel_read = [], threading.Event(), threading.Event()
+    add_words, enqueue = TimedSpeechStream.add_words, ListenConnection._enqueue
 
-    def slow_add_words(stream, words):
+    def held_add_words(stream, words):
         worked.append([w.text for w in words])
-        time.sleep(0.3)
+        working.set()
+        assert cancel_read.wait(10)
         return add_words(stream, words)
 
-    monkeypatch.setattr(TimedSpeechStream, "add_words", slow_add_words)
+    async def spied_enqueue(connection, event):
+        await enqueue(connection, event)
+        if event["epoch"]:  # the cancel is in the inbox
+            cancel_read.set()
+
+    monkeypatch.setattr(TimedSpeechStream, "add_words", held_add_words)
+    monkeypatch.setattr(ListenConnection, "_enqueue", spied_enqueue)
     messages = list(relay.messages_for("azure"))
     first = next(k for k, m in enumerate(messages) if isinstance(m, str) and '"type": "words"' in m)
     assert [type(m) for m in messages[:first]] == [str, bytes]  # the start, 0.2 s of audio, then "Please"
     with client.websocket_connect("/api/listen") as ws:
-        answers = answers_of(ws, [*messages[:len(messages) * 2 // 3], json.dumps({"type": "cancel"})])
+        for message in messages[:first + 1]:
+            (ws.send_bytes if isinstance(message, bytes) else ws.send_text)(message)
+        assert working.wait(10)
+        answers = answers_of(ws, [*messages[first + 1:len(messages) * 2 // 3], json.dumps({"type": "cancel"})])
     assert worked == [["Please"]]
     assert [a["type"] for a in answers] == ["start", "frames", "cancelled"]
     assert answers[2]["start_frame"] == len(answers[1]["frames"])
