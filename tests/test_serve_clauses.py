@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import asyncio
 
+import numpy as np
 
 from vispeech.errors import NativeFailure
 from vispeech.frontends import isolation
 from vispeech.models.registry import load_model
 from vispeech.serve.clauses import ClauseBatcher, _next_batch, _split, _Waiting
 from vispeech.serve.pool import WorkPool
-from vispeech.text_stream import SpeechTimeline, VoicedClause
+from vispeech.text_stream import SpeechTimeline, VoicedClause, voice_clauses
 
 MARKER = "Chaosword"
 
@@ -85,3 +86,35 @@ def test_a_fault_of_a_whole_batch_leaves_each_clause_its_own_try(monkeypatch):
     finally:
         pool.close()
     assert [one.text for one in voiced] == texts
+
+
+def test_a_model_crosses_to_each_native_worker_once(monkeypatch):
+    """Jobs name their model by its digest; its pickle goes only to a worker that lacks it."""
+    models = {"low": load_model("grid-tdnn-lowlatency"), "base": load_model("baseline")}
+    sent = []
+    run_isolated_many = isolation.run_isolated_many
+
+    def spy(library, what, fn, calls, limit=None):
+        if fn.__name__ == "_voiced":  # not espeak-ng's own calls, run in place in a worker
+            sent.extend(call[0].payload is not None for call in calls)
+        return run_isolated_many(library, what, fn, calls, limit)
+
+    monkeypatch.setattr(isolation, "run_isolated_many", spy)
+    isolation.set_workers(2)
+    pool = WorkPool(1, 64)
+    try:
+        batcher = ClauseBatcher(pool, models, "text", "text streams")
+        texts = ["Hello,", "Good morning!", "Hi there.", "See you soon."]
+        voiced = {}
+        for name, model in models.items():
+            for text in texts:  # one batch each
+                clause = SpeechTimeline(model).clause(text, "en")
+                voiced[name, text] = (asyncio.run(batcher.voice(name, clause, 0.001)), clause)
+    finally:
+        pool.close()
+        isolation.set_workers(1)
+    assert len(sent) >= 8 and sum(sent) <= 4  # each model's pickle at most once to each of the 2 workers
+    for (name, text), (one, clause) in voiced.items():
+        other = models["base" if name == "low" else "low"]
+        own, others = (voice_clauses(m, [clause])[0].values for m in (models[name], other))
+        assert one.text == text and np.abs(one.values - own).mean() < np.abs(one.values - others).mean()

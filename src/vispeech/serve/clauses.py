@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
+import pickle
 import threading
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
@@ -19,11 +21,29 @@ BATCH_SECONDS = 0.05
 clause): a new stream's first clause waits for no more than about that much before its turn."""
 
 
+class _Model(NamedTuple):
+    """A model as a native worker's job names it: ``key``, the digest of its pickle, and the
+    pickle itself (``payload``) only when the worker has not got it yet (:func:`_voiced`)."""
+
+    key: str
+    payload: bytes | None = None
+
+    @classmethod
+    def of(cls, model: Estimator) -> _Model:
+        payload = pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL)
+        return cls(hashlib.blake2b(payload, digest_size=16).hexdigest(), payload)
+
+    @property
+    def named(self) -> _Model:
+        """The model by its key alone."""
+        return _Model(self.key)
+
+
 class _Waiting(NamedTuple):
     """A session's clause waiting: its model, the clause, its estimated work (seconds) and the
     future of its voice."""
 
-    model: Estimator
+    model: _Model
     clause: Clause
     weight: float
     future: asyncio.Future
@@ -37,7 +57,9 @@ class ClauseBatcher:
     native worker processes (:mod:`vispeech.frontends.isolation`; each part carries its model),
     split between them so that every core speaks, the clauses of a model in each one call of the
     model. The event loop's process only puts each voiced clause on its
-    stream's timeline and sends it.
+    stream's timeline and sends it. A model crosses to each native worker once: a job names it by
+    its digest, and carries its pickle (1.9 MB for ``grid-tdnn-lowlatency``) only to a worker that
+    answers that it has not got it.
 
     A worker that crashes or hangs on its part of a batch costs that part one more try, each of
     its clauses alone: only the clause it crashes or hangs on fails. ``batches`` and ``clauses``
@@ -46,6 +68,7 @@ class ClauseBatcher:
 
     def __init__(self, pool: WorkPool, models: Mapping[str, Estimator], kind: str, key: str) -> None:
         self.pool, self.models, self.kind, self.key = pool, models, kind, key
+        self._pickled: dict[str, _Model] = {}  # model name → its pickle, made on first use
         self._waiting: list[_Waiting] = []
         self._lock = threading.Lock()  # the waiting list is taken in a worker thread
         self._busy = False  # a job is in the pool
@@ -55,8 +78,9 @@ class ClauseBatcher:
         """``clause`` spoken and animated by the model named ``model`` (one of those given);
         :class:`~vispeech.errors.VispeechError` when it cannot be said."""
         future = asyncio.get_running_loop().create_future()
+        pickled = self._pickled[model] if model in self._pickled else await asyncio.to_thread(self._pickle, model)
         with self._lock:
-            self._waiting.append(_Waiting(self.models[model], clause, weight, future))
+            self._waiting.append(_Waiting(pickled, clause, weight, future))
         if not self._busy:
             self._busy = True
             asyncio.ensure_future(self._run())
@@ -64,8 +88,15 @@ class ClauseBatcher:
 
     def warm_up(self, model: str, clause: Clause) -> None:
         """Voice ``clause`` a few times in each native worker, so a first stream is no slower."""
-        calls = [(self.models[model], [clause])] * (2 * isolation.workers())
+        calls = [(self._pickle(model), [clause])] * (2 * isolation.workers())
         isolation.run_isolated_many("espeak-ng", "a greeting", _voiced, calls)
+
+    def _pickle(self, model: str) -> _Model:
+        """The model named ``model`` as jobs carry it (pickled once)."""
+        with self._lock:
+            if model not in self._pickled:
+                self._pickled[model] = _Model.of(self.models[model])
+            return self._pickled[model]
 
     async def _run(self) -> None:
         while True:
@@ -124,13 +155,13 @@ def _voiced_in_workers(batch: Sequence[_Waiting], workers: int) -> list[VoicedCl
     ``workers`` parts of about equal work, sent at once; a part whose worker crashes or hangs
     tried again clause by clause."""
     parts: list[list[int]] = []
-    for model in {id(entry.model): entry.model for entry in batch}.values():
-        members = [k for k, entry in enumerate(batch) if entry.model is model]
+    for key in dict.fromkeys(entry.model.key for entry in batch):
+        members = [k for k, entry in enumerate(batch) if entry.model.key == key]
         parts += _split(members, [batch[k].weight for k in members], workers)
     limit = min(isolation.TIME_LIMIT, 1.0 + 10 * max(sum(batch[k].weight for k in part) for part in parts))
     calls = [(batch[part[0]].model, [batch[k].clause for k in part]) for part in parts]
     out: list[VoicedClause | BaseException] = [NativeFailure("unvoiced")] * len(batch)
-    for part, voiced in zip(parts, isolation.run_isolated_many("espeak-ng", "a batch", _voiced, calls, limit)):
+    for part, voiced in zip(parts, _run_voiced("a batch", calls, limit)):
         if isinstance(voiced, NativeFailure):
             voiced = [_voiced_alone(batch[k]) for k in part]
         for k, result in zip(part, voiced):
@@ -142,7 +173,7 @@ def _voiced_alone(entry: _Waiting) -> VoicedClause | VispeechError:
     """One clause voiced in a worker of its own: its :class:`~vispeech.errors.NativeFailure` if
     espeak-ng crashes or hangs on it."""
     what = f"this text in language {find_language(entry.clause.language).code}"
-    voiced = isolation.run_isolated_many("espeak-ng", what, _voiced, [(entry.model, [entry.clause])])[0]
+    voiced = _run_voiced(what, [(entry.model, [entry.clause])])[0]
     return voiced if isinstance(voiced, NativeFailure) else voiced[0]
 
 
@@ -166,6 +197,30 @@ def _split(members: list[int], weights: list[float], parts: int) -> list[list[in
     return groups
 
 
-def _voiced(model: Estimator, clauses: list[Clause]) -> list[VoicedClause | VispeechError]:
-    """In a native worker: :func:`~vispeech.text_stream.voice_clauses` by ``model``."""
-    return voice_clauses(model, clauses)
+def _run_voiced(
+    what: str, calls: list[tuple[_Model, list[Clause]]], limit: float | None = None
+) -> list[list[VoicedClause | VispeechError] | NativeFailure]:
+    """:func:`_voiced` for each call in the native workers, named models (:attr:`_Model.named`)
+    first, and again with the model's pickle for a call whose worker has not got it."""
+    results = isolation.run_isolated_many(
+        "espeak-ng", what, _voiced, [(model.named, clauses) for model, clauses in calls], limit
+    )
+    lacking = [k for k, result in enumerate(results) if result is None]
+    sent = isolation.run_isolated_many("espeak-ng", what, _voiced, [calls[k] for k in lacking], limit)
+    for k, result in zip(lacking, sent):
+        results[k] = result
+    return results  # type: ignore[return-value]  # a call with the model's pickle never returns None
+
+
+_received: dict[str, Estimator] = {}
+"""In a native worker: the models it has been sent, by :attr:`_Model.key`."""
+
+
+def _voiced(model: _Model, clauses: list[Clause]) -> list[VoicedClause | VispeechError] | None:
+    """In a native worker: :func:`~vispeech.text_stream.voice_clauses` by ``model``; ``None``
+    when the worker has not got the model and the job carries only its key."""
+    if model.key not in _received:
+        if model.payload is None:
+            return None
+        _received[model.key] = pickle.loads(model.payload)
+    return voice_clauses(_received[model.key], clauses)
