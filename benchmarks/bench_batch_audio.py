@@ -1,6 +1,6 @@
 """``vispeech batch`` with audio lines: 3-s grid_s1 clips with their transcripts, alignment included.
 
-    python benchmarks/bench_batch_audio.py [--lines 60] [--jobs 1 2] [--no-ray] [--keep DIR]
+    python benchmarks/bench_batch_audio.py [--lines 60] [--jobs 1 2] [--no-ray] [--keep DIR] [--trust-transcripts]
 
 Makes a manifest of ``--lines`` grid_s1 utterances (a seed-0 sample; audio + transcript, so each
 line is read, aligned by pocketsphinx with its transcript fit checked, animated by the default
@@ -19,6 +19,8 @@ Ray instance) can be told from the steady rate:
 
 ``vispeech batch`` runs as a user runs it, without the thread-count variables of
 :data:`THREAD_VARIABLES` (``OMP_NUM_THREADS=1`` would hide the threads NumPy's BLAS starts).
+``--trust-transcripts`` runs ``vispeech batch --trust-transcripts``: the transcripts are aligned
+without the check that they fit the audio (:func:`vispeech.frontends.align.transcript_fit`).
 Every configuration's line folders must be byte-identical to the first one's; the load average
 is printed with each figure (other work on the machine slows every one). Failed lines are
 listed; exits non-zero if a line fails or an output differs.
@@ -59,10 +61,10 @@ def write_job(path: Path, n: int) -> list[str]:
     return ids
 
 
-def batch(job: Path, out: Path, jobs: int, backend: str) -> tuple[float, float, list[str]]:
+def batch(job: Path, out: Path, jobs: int, backend: str, trust: bool = False) -> tuple[float, float, list[str]]:
     """Wall seconds, CPU seconds (this run's process tree) and failed lines of one ``vispeech batch`` run."""
     command = [sys.executable, "-c", "from vispeech.cli import main; main()", "batch", str(job), "-o", str(out)]
-    command += ["-j", str(jobs), "-q", "--force", "--backend", backend]
+    command += ["-j", str(jobs), "-q", "--force", "--backend", backend] + ["--trust-transcripts"] * trust
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     env = {name: value for name, value in os.environ.items() if name not in THREAD_VARIABLES}
@@ -95,6 +97,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--no-ray", action="store_true", help="skip the Ray backend even when Ray is installed")
     parser.add_argument("--keep", type=Path, default=None, help="work in this folder and keep it")
+    parser.add_argument("--trust-transcripts", action="store_true", help="align without checking the transcripts' fit")
     args = parser.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="vispeech-bench-batch-audio-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -105,7 +108,8 @@ def main() -> None:
         else:
             backends.append("ray")
     ids = write_job(work / "job.csv", args.lines)
-    print(f"{args.lines} grid_s1 lines (audio + transcript), {os.cpu_count()} cores; work in {work}")
+    trusted = ", transcripts trusted (no fit check)" if args.trust_transcripts else ""
+    print(f"{args.lines} grid_s1 lines (audio + transcript){trusted}, {os.cpu_count()} cores; work in {work}")
     print(f"{'backend':8s} {'jobs':>4s} {'lines/s':>8s} {'steady lines/s':>15s} {'CPU s/line':>11s}  load (1, 5 min)")
     reference, ok = None, True
     try:
@@ -115,9 +119,9 @@ def main() -> None:
                 with open(work / "job.csv", encoding="utf-8") as f:
                     short.write_text("".join(f.readlines()[: 2 * jobs + 1]), encoding="utf-8")
                 shutil.rmtree(work / "short", ignore_errors=True)
-                short_seconds, _, _ = batch(short, work / "short", jobs, backend)
+                short_seconds, _, _ = batch(short, work / "short", jobs, backend, args.trust_transcripts)
                 out = work / f"out-{backend}-{jobs}"
-                seconds, cpu, failures = batch(work / "job.csv", out, jobs, backend)
+                seconds, cpu, failures = batch(work / "job.csv", out, jobs, backend, args.trust_transcripts)
                 steady = (args.lines - 2 * jobs) / max(seconds - short_seconds, 1e-9)
                 load = os.getloadavg()
                 per_line = f"{cpu / args.lines:11.3f}" if (backend, jobs) == ("local", 1) else f"{'-':>11s}"

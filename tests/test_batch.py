@@ -226,6 +226,27 @@ def test_audio_and_alignment_lines_match_the_single_commands(tmp_path, grid_s1):
         assert ours == (tmp_path / f"single-{name}" / "animation.csv").read_bytes()  # no speech synthesis here
 
 
+def test_a_transcript_that_does_not_fit_fails_its_line_unless_transcripts_are_trusted(tmp_path, grid_s1):
+    audio = grid_s1 / "utterances" / f"{GRID_ID}.flac"
+    job = _jsonl(tmp_path / "job.jsonl", [
+        {"id": "true", "audio": str(audio), "text": GRID_TEXT, "formats": "csv"},
+        {"id": "wrong", "audio": str(audio), "text": "lay white with zed three please", "formats": "csv"},
+    ])
+    checked = run_batch(job, tmp_path / "checked", workers=1)
+    assert [r.status for r in checked.results] == ["written", "failed"]
+    assert "the transcript does not fit the audio" in checked.results[1].error
+    result = run("batch", str(job), "-o", str(tmp_path / "trusted"), "-q", "-j", "1", "--trust-transcripts")
+    assert result.exit_code == 0, result.output
+    assert [r["status"] for r in _index(tmp_path / "trusted")] == ["written", "written"]
+    same = tmp_path / "checked" / "true" / "animation.csv"
+    assert (tmp_path / "trusted" / "true" / "animation.csv").read_bytes() == same.read_bytes()
+    forced = run("animate", str(audio), "--text", "lay white with zed three please", "--force", "-o",
+                 str(tmp_path / "forced"))
+    assert forced.exit_code == 0, forced.output
+    wrong = (tmp_path / "trusted" / "wrong" / "animation.csv").read_bytes()
+    assert wrong == (tmp_path / "forced" / "animation.csv").read_bytes() != same.read_bytes()
+
+
 def _single(name: str, tmp_path: Path, audio: Path) -> list[str]:
     out = ["-o", str(tmp_path / f"single-{name}")]
     if name == "phones":

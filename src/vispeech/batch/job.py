@@ -73,6 +73,11 @@ class JobDefaults:
     life: tuple[str, ...] = ()
     """The non-verbal layers every line gets (:mod:`vispeech.motion.life`), and their seed."""
     seed: int = 0
+    check_transcripts: bool = True
+    """Whether an English audio line's transcript must fit its audio
+    (:func:`~vispeech.frontends.align.transcript_fit`, at least
+    :data:`~vispeech.frontends.align.MIN_FIT`, as ``vispeech animate`` asks); ``False`` takes
+    every transcript as what its audio says, as ``vispeech animate --force`` does."""
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,7 @@ class BatchLine:
     voice: str | None = None
     life: tuple[str, ...] = ()
     seed: int = 0
+    check_transcript: bool = True
     error: str | None = field(default=None, compare=False)
 
     @property
@@ -267,6 +273,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         voice=voice if kind == "text" else None,
         life=defaults.life,
         seed=defaults.seed,
+        check_transcript=defaults.check_transcripts,
     )
 
 

@@ -101,7 +101,7 @@ def prepare(line: BatchLine) -> Prepared:
     if line.kind == "audio":
         assert line.audio is not None  # an audio line has its file (read_job)
         clip = AudioClip.read(line.audio)
-        return Prepared(hear(clip, line.text, line.language or "en"), clip)
+        return Prepared(hear(clip, line.text, line.language or "en", force=not line.check_transcript), clip)
     from vispeech.alignment.formats import read_alignment
 
     assert line.alignment is not None  # the remaining kind, alignment, has its file (read_job)

@@ -59,6 +59,12 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
     help="With --backend ray: the cluster to join (HEAD:6379 or auto) [default: a local Ray instance].",
 )
 @click.option("--force", is_flag=True, help="Redo lines whose outputs are up to date.")
+@click.option(
+    "--trust-transcripts",
+    is_flag=True,
+    help="Animate every English audio line on its transcript without checking that it fits the audio "
+    "(the check is about 60 % of such a line's time; a wrong transcript then gives wrong lips).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @scale_option(DEFAULT_SCALE)
 @click.option(
@@ -79,6 +85,7 @@ def batch(
     backend: str,
     address: str | None,
     force: bool,
+    trust_transcripts: bool,
     quiet: bool,
     scale: str,
     voice: str | None,
@@ -110,6 +117,7 @@ def batch(
         voice=voice,
         life=check_layers(life),
         seed=seed,
+        check_transcripts=not trust_transcripts,
     )
     lines = read_job(job, defaults)
     if address is not None and backend != "ray":
