@@ -40,10 +40,10 @@ class _Model(NamedTuple):
 
 
 class _Waiting(NamedTuple):
-    """A session's clause waiting: its model, the clause, its estimated work (seconds) and the
-    future of its voice."""
+    """A session's clause waiting: the name of its model, the clause, its estimated work
+    (seconds) and the future of its voice."""
 
-    model: _Model
+    model: str
     clause: Clause
     weight: float
     future: asyncio.Future
@@ -54,12 +54,12 @@ class ClauseBatcher:
     behalf of ``key``) at a time takes the clauses waiting, every session's first clause before
     any later one, up to :data:`BATCH_SECONDS` of estimated work for each native worker, and
     voices them (:func:`~vispeech.text_stream.voice_clauses`: espeak-ng and the model) in the
-    native worker processes (:mod:`vispeech.frontends.isolation`; each part carries its model),
+    native worker processes (:mod:`vispeech.frontends.isolation`),
     split between them so that every core speaks, the clauses of a model in each one call of the
     model. The event loop's process only puts each voiced clause on its
-    stream's timeline and sends it. A model crosses to each native worker once: a job names it by
-    its digest, and carries its pickle (1.9 MB for ``grid-tdnn-lowlatency``) only to a worker that
-    answers that it has not got it.
+    stream's timeline and sends it. A model crosses to the native workers rarely: a job names it
+    by its digest, and is sent again with the pickle (1.9 MB for ``grid-tdnn-lowlatency``) when
+    its worker answers that it has not got it; whichever worker takes that job keeps the model.
 
     A worker that crashes or hangs on its part of a batch costs that part one more try, each of
     its clauses alone: only the clause it crashes or hangs on fails. ``batches`` and ``clauses``
@@ -69,6 +69,7 @@ class ClauseBatcher:
     def __init__(self, pool: WorkPool, models: Mapping[str, Estimator], kind: str, key: str) -> None:
         self.pool, self.models, self.kind, self.key = pool, models, kind, key
         self._pickled: dict[str, _Model] = {}  # model name → its pickle, made on first use
+        self._pickling = threading.Lock()
         self._waiting: list[_Waiting] = []
         self._lock = threading.Lock()  # the waiting list is taken in a worker thread
         self._busy = False  # a job is in the pool
@@ -78,9 +79,8 @@ class ClauseBatcher:
         """``clause`` spoken and animated by the model named ``model`` (one of those given);
         :class:`~vispeech.errors.VispeechError` when it cannot be said."""
         future = asyncio.get_running_loop().create_future()
-        pickled = self._pickled[model] if model in self._pickled else await asyncio.to_thread(self._pickle, model)
         with self._lock:
-            self._waiting.append(_Waiting(pickled, clause, weight, future))
+            self._waiting.append(_Waiting(model, clause, weight, future))
         if not self._busy:
             self._busy = True
             asyncio.ensure_future(self._run())
@@ -93,7 +93,7 @@ class ClauseBatcher:
 
     def _pickle(self, model: str) -> _Model:
         """The model named ``model`` as jobs carry it (pickled once)."""
-        with self._lock:
+        with self._pickling:
             if model not in self._pickled:
                 self._pickled[model] = _Model.of(self.models[model])
             return self._pickled[model]
@@ -131,10 +131,11 @@ class ClauseBatcher:
             batch = _next_batch(waiting, BATCH_SECONDS * workers)
             taken = {id(entry) for entry in batch}
             self._waiting = [entry for entry in waiting if id(entry) not in taken]
+        models = {name: self._pickle(name) for name in {entry.model for entry in batch}}
         try:
-            return batch, _voiced_in_workers(batch, workers)
+            return batch, _voiced_in_workers(batch, models, workers)
         except Exception:  # noqa: BLE001 (a fault of the batch: each clause is tried alone, so only its own fails)
-            return batch, [_tried_alone(entry) for entry in batch]
+            return batch, [_tried_alone(entry, models[entry.model]) for entry in batch]
 
 
 def _next_batch(waiting: list[_Waiting], budget: float) -> list[_Waiting]:
@@ -150,37 +151,39 @@ def _next_batch(waiting: list[_Waiting], budget: float) -> list[_Waiting]:
     return batch
 
 
-def _voiced_in_workers(batch: Sequence[_Waiting], workers: int) -> list[VoicedClause | BaseException]:
+def _voiced_in_workers(
+    batch: Sequence[_Waiting], models: Mapping[str, _Model], workers: int
+) -> list[VoicedClause | BaseException]:
     """Each clause of ``batch`` voiced in a native worker: the clauses of each model in up to
     ``workers`` parts of about equal work, sent at once; a part whose worker crashes or hangs
     tried again clause by clause."""
     parts: list[list[int]] = []
-    for key in dict.fromkeys(entry.model.key for entry in batch):
-        members = [k for k, entry in enumerate(batch) if entry.model.key == key]
+    for name in dict.fromkeys(entry.model for entry in batch):
+        members = [k for k, entry in enumerate(batch) if entry.model == name]
         parts += _split(members, [batch[k].weight for k in members], workers)
     limit = min(isolation.TIME_LIMIT, 1.0 + 10 * max(sum(batch[k].weight for k in part) for part in parts))
-    calls = [(batch[part[0]].model, [batch[k].clause for k in part]) for part in parts]
+    calls = [(models[batch[part[0]].model], [batch[k].clause for k in part]) for part in parts]
     out: list[VoicedClause | BaseException] = [NativeFailure("unvoiced")] * len(batch)
     for part, voiced in zip(parts, _run_voiced("a batch", calls, limit)):
         if isinstance(voiced, NativeFailure):
-            voiced = [_voiced_alone(batch[k]) for k in part]
+            voiced = [_voiced_alone(batch[k], models[batch[k].model]) for k in part]
         for k, result in zip(part, voiced):
             out[k] = result
     return out
 
 
-def _voiced_alone(entry: _Waiting) -> VoicedClause | VispeechError:
+def _voiced_alone(entry: _Waiting, model: _Model) -> VoicedClause | VispeechError:
     """One clause voiced in a worker of its own: its :class:`~vispeech.errors.NativeFailure` if
     espeak-ng crashes or hangs on it."""
     what = f"this text in language {find_language(entry.clause.language).code}"
-    voiced = _run_voiced(what, [(entry.model, [entry.clause])])[0]
+    voiced = _run_voiced(what, [(model, [entry.clause])])[0]
     return voiced if isinstance(voiced, NativeFailure) else voiced[0]
 
 
-def _tried_alone(entry: _Waiting) -> VoicedClause | BaseException:
+def _tried_alone(entry: _Waiting, model: _Model) -> VoicedClause | BaseException:
     """One clause voiced alone, or the exception that stopped it."""
     try:
-        return _voiced_alone(entry)
+        return _voiced_alone(entry, model)
     except Exception as exc:  # noqa: BLE001 (given to its session alone)
         return exc
 
