@@ -209,9 +209,10 @@ def _run_voiced(
         "espeak-ng", what, _voiced, [(model.named, clauses) for model, clauses in calls], limit
     )
     lacking = [k for k, result in enumerate(results) if result is None]
-    sent = isolation.run_isolated_many("espeak-ng", what, _voiced, [calls[k] for k in lacking], limit)
-    for k, result in zip(lacking, sent):
-        results[k] = result
+    if lacking:
+        sent = isolation.run_isolated_many("espeak-ng", what, _voiced, [calls[k] for k in lacking], limit)
+        for k, result in zip(lacking, sent):
+            results[k] = result
     return results  # type: ignore[return-value]  # a call with the model's pickle never returns None
 
 
