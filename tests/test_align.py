@@ -110,6 +110,39 @@ def test_a_transcript_that_does_not_fit_the_audio_is_refused(grid_s1):
     assert [w.text for w in forced.words] == texts[other].split()
 
 
+def test_a_piece_of_a_recording_is_aligned_on_the_whole_s_frames(grid_s1):
+    """transcript_fit's phone loop hears only the words' span: decoded with the cepstral mean of the
+    whole recording, a piece of it gives the words where the whole did, scored alike (the mean fit
+    is a difference of such scores); normalised by its own mean, as pocketsphinx would, its scores
+    move by several units, as much as the fits of true transcripts spread."""
+    from vispeech.frontends import align as aligner
+    from vispeech.frontends.audio import AudioClip
+
+    clip = AudioClip.read(grid_s1 / "utterances" / "bbaf2n.flac")
+    raw = aligner.padded_pcm(clip)
+    whole, realigner = aligner._decoder(), aligner._realigner()
+    found = aligner._word_pass(whole, raw, TEXT.split())
+    aligner._phone_pass(whole, raw)
+    mean = whole.get_cmn()
+    words = [(name, first) for name, first, _ in found if not name.startswith(("<", "["))]
+    end = found[-1][1] if found[-1][0].startswith(("<", "[")) else found[-1][2] + 1
+    first = words[0][1]
+    scores = aligner._frame_scores(whole, end)[first:end]
+    start = first - 30
+    piece = raw[start * aligner._FRAME_BYTES : (end + 30) * aligner._FRAME_BYTES + aligner._WINDOW_BYTES]
+    shift = {}
+    for whole_mean in (mean, None):
+        in_piece = aligner._word_pass(realigner, piece, TEXT.split(), whole_mean)
+        starts = [a + start for name, a, _ in in_piece if not name.startswith(("<", "["))]
+        assert len(starts) == len(words)
+        if whole_mean:
+            assert max(abs(a - b) for a, (_, b) in zip(starts, words, strict=True)) <= 1
+        aligner._phone_pass(realigner, piece, whole_mean)
+        in_span = aligner._frame_scores(realigner, end - start)[first - start :]
+        shift[whole_mean is not None] = np.mean(in_span) - np.mean(scores)
+    assert abs(shift[True]) < 2.0 and abs(shift[False]) > 4.0, shift
+
+
 @pytest.mark.parametrize("name,wrong", [("bgauzp", "lay green at z seven soon"),
                                         ("pgbk7s", "place green with e eight please")])
 def test_a_transcript_wrong_in_some_words_is_refused(grid_s1, name, wrong):

@@ -63,7 +63,7 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
     "--trust-transcripts",
     is_flag=True,
     help="Animate every English audio line on its transcript without checking that it fits the audio "
-    "(the check is about 60 % of such a line's time; a wrong transcript then gives wrong lips).",
+    "(the check is about half of such a line's time; a wrong transcript then gives wrong lips).",
 )
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @scale_option(DEFAULT_SCALE)

@@ -21,7 +21,9 @@ How well a transcript fits the audio (:func:`transcript_fit`) is the mean log-li
 per frame, over the words' span, of the transcript's state alignment against that of the phones
 a free phone loop (pocketsphinx's allphone search, its phone language model weighed as the
 acoustics are: :data:`LOOP_LANGUAGE_WEIGHT`) hears: near 0 or above when the audio says the
-transcript, far below when it says something else. :func:`align` refuses a transcript
+transcript, far below when it says something else. The loop hears the words' span and
+:data:`FIT_MARGIN` around it, normalised by the cepstral mean of the whole recording, so that its
+frames are those the transcript was aligned on. :func:`align` refuses a transcript
 whose fit is below ``min_fit`` (:data:`MIN_FIT` where :func:`vispeech.pipeline.listen` asks).
 """
 
@@ -57,9 +59,9 @@ WIDE_BEAM = 1e-300
 
 MIN_FIT = -10.0
 """The least :func:`transcript_fit` of a transcript that fits its audio. On 100 grid_s1 utterances
-(``benchmarks/bench_transcript_fit.py --choose``) the true transcripts fit from -6.8 up, those of
-other utterances 90 of 100 below -10 (the rest differ from the true ones in a few similar-sounding
-words); on 20 others every true transcript fits from -5.4 up and every other one is below -11.9.
+(``benchmarks/bench_transcript_fit.py --choose``) the true transcripts fit from -7.4 up, those of
+other utterances 91 of 100 below -10 (the rest differ from the true ones in a few similar-sounding
+words); on 20 others every true transcript fits from -6.6 up and every other one is below -11.4.
 The margin below the lowest true fit keeps true transcripts taken: Whisper's transcript of
 espeak-ng's synthetic speech, which the acoustic model hears worse, fits -8.0."""
 
@@ -69,6 +71,15 @@ acoustics (pocketsphinx's ``lw``, 6.5 by default, is for words). Weighed as for 
 hears few, long phones that fit the audio worse than many a wrong transcript; at 1 it hears about
 twice as many. On the utterances of :data:`MIN_FIT`, 2 below the least true fit, 96 of the 100
 wrong transcripts are below rather than 80."""
+
+FIT_MARGIN = 0.3
+"""Seconds of audio before the transcript's first word and after its last that the phone loop of
+:func:`transcript_fit` hears, not the rest (a 3-s GRID clip and its padding are about half
+silence; the loop and the re-alignment of what it heard are two thirds of the fit's time)."""
+_FRAME_BYTES = 2 * SAMPLE_RATE // FRAMES_PER_SECOND
+"""Bytes of 16-bit samples between the starts of two frames."""
+_WINDOW_BYTES = 2 * 410
+"""Bytes of 16-bit samples in a frame's analysis window (pocketsphinx's 25.625 ms)."""
 
 MIN_PHONE_FRAMES = 3
 """Frames each phone needs at least: the acoustic model's phones have three states."""
@@ -198,21 +209,26 @@ def transcript_fit(clip: AudioClip, text: str) -> float:
 
 
 def _fit(decoder, raw: bytes) -> float:
-    """The transcript fit of the alignment the last phone pass made (``nan`` when the phone loop's
-    phones cannot be aligned); the decoder is left set up for another alignment."""
+    """The transcript fit of the alignment ``decoder``'s last phone pass made in ``raw`` (``nan`` when
+    the phone loop's phones cannot be aligned)."""
     words = [w for w in decoder.get_alignment() if not w.name.startswith(("<", "["))]
     first, end = words[0].start, words[-1].start + words[-1].duration
     forced = _frame_scores(decoder, end)
+    start = max(first - round(FIT_MARGIN * FRAMES_PER_SECOND), 0)
+    stop = end + round(FIT_MARGIN * FRAMES_PER_SECOND)
+    piece = raw[start * _FRAME_BYTES : stop * _FRAME_BYTES + _WINDOW_BYTES]
+    mean = decoder.get_cmn()
     loop = _phone_loop()
-    decode_utterance(loop, raw)
+    decode_utterance(loop, piece, mean)
     heard = [s.word.lower() for s in loop.seg() if s.word != "SIL" and not s.word.startswith(("+", "("))]
-    if not heard or _word_pass(decoder, raw, [_LOOP_WORD + phone for phone in heard]) is None:
+    realigner = _realigner()
+    if not heard or _word_pass(realigner, piece, [_LOOP_WORD + phone for phone in heard], mean) is None:
         return float("nan")
     try:
-        _phone_pass(decoder, raw)
+        _phone_pass(realigner, piece, mean)
     except RuntimeError:
         return float("nan")
-    return float(np.mean(forced[first:end] - _frame_scores(decoder, end)[first:end]))
+    return float(np.mean(forced[first:end] - _frame_scores(realigner, end - start)[first - start :]))
 
 
 def _frame_scores(decoder, n_frames: int) -> np.ndarray:
@@ -226,14 +242,14 @@ def _frame_scores(decoder, n_frames: int) -> np.ndarray:
     return scores
 
 
-def _word_pass(decoder, raw: bytes, words: list[str]) -> list[tuple[str, int, int]] | None:
+def _word_pass(decoder, raw: bytes, words: list[str], mean: str | None = None) -> list[tuple[str, int, int]] | None:
     """Words and fillers found by the word search, ``(name, first frame, last frame)``; tried with
     the usual beams, then with :data:`WIDE_BEAM`; ``None`` if neither finds a path."""
     for beam, word_beam in ((BEAM, WORD_BEAM), (WIDE_BEAM, WIDE_BEAM)):
         decoder.config["beam"], decoder.config["pbeam"], decoder.config["wbeam"] = beam, beam, word_beam
         decoder.set_align_text(" ".join(words))  # the search reads the beams when it is set up
         try:
-            decode_utterance(decoder, raw)
+            decode_utterance(decoder, raw, mean)
         except RuntimeError:
             continue
         if decoder.hyp() is not None:
@@ -241,10 +257,10 @@ def _word_pass(decoder, raw: bytes, words: list[str]) -> list[tuple[str, int, in
     return None
 
 
-def _phone_pass(decoder, raw: bytes) -> _Segments:
+def _phone_pass(decoder, raw: bytes, mean: str | None = None) -> _Segments:
     """Phones inside the words the last word pass found; raises RuntimeError when pocketsphinx fails."""
     decoder.set_alignment()
-    decode_utterance(decoder, raw)
+    decode_utterance(decoder, raw, mean)
     return [(w.name, [(p.name, p.start, p.duration) for p in w]) for w in decoder.get_alignment()]
 
 
@@ -284,21 +300,42 @@ def default_method(language: str) -> str:
 
 
 def load_decoders() -> None:
-    """Load pocketsphinx's decoders, the aligner's and the phone loop's (about 0.3 s), in this
+    """Load pocketsphinx's decoders, the aligner's and the fit's two (about 0.4 s), in this
     process now: the processes forked from it afterwards (a batch's workers and their native
     workers, :mod:`vispeech.frontends.isolation`) share them instead of each loading its own."""
     _decoder()
+    _realigner()
     _phone_loop()
+
+
+def _new_decoder(**options):
+    """A pocketsphinx decoder of the shipped en-us model at :data:`SAMPLE_RATE`, with this module's beams."""
+    from pocketsphinx import Decoder
+
+    return Decoder(
+        samprate=SAMPLE_RATE,
+        lm=None,
+        bestpath=False,
+        beam=BEAM,
+        wbeam=WORD_BEAM,
+        pbeam=BEAM,
+        loglevel="FATAL",
+        **options,
+    )
 
 
 @functools.cache
 def _decoder():
-    from pocketsphinx import Decoder
+    """The aligner: the transcript's words, then their phones, in a whole recording."""
+    return _new_decoder()
 
-    decoder = Decoder(
-        samprate=SAMPLE_RATE, lm=None, bestpath=False, beam=BEAM, wbeam=WORD_BEAM, pbeam=BEAM, loglevel="FATAL"
-    )
-    for phone in get_inventory("en").symbols:  # the phone loop's phones, each a word of its own
+
+@functools.cache
+def _realigner():
+    """The aligner of :func:`transcript_fit`'s phone loop's phones, each a word of its own, in a
+    piece of a recording (normalised live: :func:`decode_utterance`)."""
+    decoder = _new_decoder(cmn="live")
+    for phone in get_inventory("en").symbols:
         if not is_silence(phone):
             decoder.add_word(_LOOP_WORD + phone.lower(), phone, False)
     return decoder
@@ -306,30 +343,25 @@ def _decoder():
 
 @functools.cache
 def _phone_loop():
-    """pocketsphinx's allphone search: the phones heard, under the shipped phone language model."""
-    from pocketsphinx import Decoder, get_model_path
+    """pocketsphinx's allphone search: the phones heard, under the shipped phone language model, in
+    a piece of a recording (normalised live: :func:`decode_utterance`)."""
+    from pocketsphinx import get_model_path
 
-    phone_lm = f"{get_model_path()}/en-us/en-us-phone.lm.bin"
-    return Decoder(
-        samprate=SAMPLE_RATE,
-        allphone=phone_lm,
-        lm=None,
-        bestpath=False,
-        beam=BEAM,
-        wbeam=WORD_BEAM,
-        pbeam=BEAM,
-        lw=LOOP_LANGUAGE_WEIGHT,
-        loglevel="FATAL",
-    )
+    return _new_decoder(allphone=f"{get_model_path()}/en-us/en-us-phone.lm.bin", lw=LOOP_LANGUAGE_WEIGHT, cmn="live")
 
 
-def decode_utterance(decoder, raw: bytes) -> None:
-    """Decode ``raw`` (:func:`padded_pcm`) as one utterance, its features computed afresh: without
-    resetting them pocketsphinx carries a running cepstral mean from one utterance to the next,
-    and a result would depend on what was decoded before."""
+def decode_utterance(decoder, raw: bytes, mean: str | None = None) -> None:
+    """Decode ``raw`` (:func:`padded_pcm`, or a piece of it) as one utterance, its features computed
+    afresh: without resetting them pocketsphinx carries a running cepstral mean from one utterance
+    to the next, and a result would depend on what was decoded before. The cepstral mean is that
+    of ``raw`` (``None``) or ``mean`` (``get_cmn()`` of the decoder that decoded the whole of
+    which ``raw`` is a piece, so that the piece's frames are the whole's; ``decoder`` must then
+    normalise live, ``cmn="live"``, which starts from ``mean`` and leaves it only slowly)."""
     decoder.reinit_feat()
+    if mean is not None:
+        decoder.set_cmn(mean)
     decoder.start_utt()
-    decoder.process_raw(raw, full_utt=True)
+    decoder.process_raw(raw, full_utt=mean is None)
     decoder.end_utt()
 
 
