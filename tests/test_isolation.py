@@ -11,6 +11,7 @@ import multiprocessing
 import os
 import signal
 import socket
+import subprocess
 import time
 from pathlib import Path
 
@@ -83,6 +84,22 @@ def test_a_worker_holds_none_of_the_caller_s_sockets(crash):
         while any(held in open_files(w.pid) for w in workers) and time.monotonic() < deadline:
             time.sleep(0.01)
         assert not [w.pid for w in workers if held in open_files(w.pid)]
+
+
+def test_a_worker_holds_none_of_the_caller_s_pipes(crash):
+    """A program the caller feeds through a pipe (ffmpeg, Rscript, a library user's own) sees the end
+    of its input when the caller closes it, though a native worker was forked while it was open."""
+    reader = subprocess.Popen(["cat"], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL)
+    try:
+        reader.stdin.write(b"some input")
+        with pytest.raises(NativeFailure):
+            synthesize(f"Say {MARKER} now.", "en")
+        synthesize("Say hello now.", "en")  # by a worker forked while the pipe was open
+        reader.stdin.close()
+        assert reader.wait(timeout=10) == 0  # the worker forked in place of the crashed one may still be starting
+    finally:
+        reader.kill()
+        reader.wait()
 
 
 def open_files(pid: int) -> set[str]:

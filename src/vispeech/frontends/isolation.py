@@ -7,7 +7,8 @@ the process of a server or a batch that would end every request or line at once.
 ``ProcessPool``, whose workers are forked from this process (in milliseconds, sharing its
 memory; in a process with threads the modules a worker needs are imported first, so that one
 forked while another thread imports never waits on that import's lock; a worker closes the
-sockets it inherits, so that a server's connections end when the server closes them). A
+sockets and the pipes it inherits, so that a server's connections end when the server closes
+them and a program the caller feeds through a pipe sees the end of its input). A
 worker that dies is replaced; a job that runs past its time limit has its worker killed and
 replaced; either is a :class:`~vispeech.errors.NativeFailure` for that job alone, and the
 other jobs go on (the standard library's ``ProcessPoolExecutor``, and loky's, fail every job
@@ -28,6 +29,8 @@ import faulthandler
 import importlib
 import logging
 import multiprocessing
+import multiprocessing.connection
+import multiprocessing.context
 import multiprocessing.util
 import os
 import stat
@@ -178,8 +181,7 @@ def _running_pool():
             if threading.active_count() > 1:  # another thread could be importing one when a worker is forked
                 for module in PRELOAD:
                     importlib.import_module(module)
-            context = multiprocessing.get_context("fork")
-            _pool = ProcessPool(max_workers=_workers, initializer=_start_worker, context=context)
+            _pool = ProcessPool(max_workers=_workers, context=_WorkerContext())
             _pool_size = _workers
             # at exit (of the program, or of a multiprocessing child), before its children are waited for
             multiprocessing.util.Finalize(_pool, _stop, (_pool,), exitpriority=10)
@@ -209,16 +211,67 @@ def _forget() -> None:
 os.register_at_fork(after_in_child=_forget)
 
 
-def _start_worker() -> None:
-    """In a new worker: no crash report of its own on stderr (the caller logs the crash), and none
-    of the caller's sockets held open (a server's connections end when the server closes them;
-    the pool's own channels are pipes)."""
-    faulthandler.disable()
+class _WorkerProcess(multiprocessing.context.ForkProcess):
+    """A pool's worker, forked from the caller. It reports no crash of its own on stderr (the caller
+    logs the crash) and holds none of the caller's sockets (a server's connections end when the
+    server closes them) nor of the pipes the caller had when it was forked, but for the pool's
+    channels it is handed (a program the caller feeds through a pipe sees the end of its input)."""
+
+    def __init__(
+        self,
+        group: None = None,
+        target: Callable[..., object] | None = None,
+        name: str | None = None,
+        args: tuple = (),
+        kwargs: dict | None = None,
+        *,
+        daemon: bool | None = None,
+    ) -> None:
+        super().__init__(group, target, name, args, kwargs or {}, daemon=daemon)
+        self._own_pipes = {connection.fileno() for connection in _connections(args)}
+        self._callers_pipes: list[int] = []
+
+    def start(self) -> None:
+        """In the caller: note its pipes, before forking makes the new process's own."""
+        self._callers_pipes = [fd for fd in _descriptors() if _is(fd, stat.S_ISFIFO) and fd not in self._own_pipes]
+        super().start()
+
+    def run(self) -> None:
+        faulthandler.disable()
+        for fd in self._callers_pipes + [fd for fd in _descriptors() if _is(fd, stat.S_ISSOCK)]:
+            if fd > 2:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        super().run()
+
+
+class _WorkerContext(multiprocessing.context.ForkContext):
+    Process = _WorkerProcess
+
+
+def _connections(args: tuple) -> list[multiprocessing.connection.Connection]:
+    """The connections in ``args`` and in their attributes (a pebble channel's)."""
+    found = []
+    for arg in args:
+        for value in (arg, *getattr(arg, "__dict__", {}).values()):
+            for item in value if isinstance(value, (tuple, list)) else (value,):
+                if isinstance(item, multiprocessing.connection.Connection):
+                    found.append(item)
+    return found
+
+
+def _descriptors() -> list[int]:
+    """This process's open file descriptors."""
     folder = "/proc/self/fd" if os.path.isdir("/proc/self/fd") else "/dev/fd"
-    for name in os.listdir(folder):
-        with contextlib.suppress(OSError):
-            if stat.S_ISSOCK(os.fstat(int(name)).st_mode):
-                os.close(int(name))
+    return [int(name) for name in os.listdir(folder)]
+
+
+def _is(fd: int, kind: Callable[[int], bool]) -> bool:
+    """Whether ``fd`` is open and of ``kind`` (a :mod:`stat` test of its mode)."""
+    try:
+        return kind(os.fstat(fd).st_mode)
+    except OSError:  # the listing's own, closed since
+        return False
 
 
 def _call(fault: str | None, fn: Callable[..., Result], args: tuple) -> Result:
