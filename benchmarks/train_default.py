@@ -54,7 +54,8 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     "grid-cohen-massaro": ("cohen-massaro", {}),
     "grid-ohman": ("ohman", {}),
     # audio → face (issue 9): PhISANet's loss terms and CTC weights, VTLP and pitch-shift augmentation
-    # the streaming model: 5 frames (100 ms) of look-ahead, so a live frame comes about 130 ms after its audio
+    # the streaming model: 5 frames (100 ms) of look-ahead, so a live frame comes about 130 ms after its audio;
+    # augment=1 and prior_seconds=0.5 were measured and not taken (espeak-ng's voices: docs/audio.md)
     "grid-audio-cnn": ("audio-cnn", {"look_ahead": 5, "learning_rate": 0.002, "ctc_weight": 0.004,
                                      "velocity_weight": 0.3, "acceleration_weight": 0.3, "epochs": 40, "patience": 6}),
     # the offline model: the learning rate halves whenever the training loss rises (the thesis's schedule)
