@@ -4,9 +4,9 @@
 
 A wrong pair is an utterance's audio with the transcript of the next utterance of a random sample.
 ``--choose`` measures the 100 grid_s1 utterances ``MIN_FIT`` was chosen on (seed 0); otherwise
-``--pairs`` others (20 by default) are checked against ``MIN_FIT``, and with ``--dev-eval`` every
-utterance of ``../shared/data/dev_eval`` as well (for measuring only: never choose the
-threshold on it). Prints the fits' spread and how many true transcripts are taken and wrong ones
+``--pairs`` others (20 by default; 0 for none) are checked against ``MIN_FIT``, and with
+``--dev-eval`` every utterance of ``../shared/data/dev_eval`` as well (for measuring only:
+never choose the threshold on it). Prints the fits' spread and how many true transcripts are taken and wrong ones
 refused.
 """
 
@@ -73,7 +73,8 @@ def main() -> None:
     others = sorted(set(texts) - set(chosen))
     ids = chosen if args.choose else random.Random(1).sample(others, args.pairs)
     t0 = time.perf_counter()
-    report("grid_s1", fits(grid, ids, texts), every=args.choose)
+    if ids:
+        report("grid_s1", fits(grid, ids, texts), every=args.choose)
     if args.dev_eval:
         for name in ("grid_s4", "natural"):
             folder = DATA / "dev_eval" / name
