@@ -229,16 +229,19 @@ class _WorkerProcess(multiprocessing.context.ForkProcess):
     ) -> None:
         super().__init__(group, target, name, args, kwargs or {}, daemon=daemon)
         self._own_pipes = {connection.fileno() for connection in _connections(args)}
-        self._callers_pipes: list[int] = []
+        self._callers_pipes: dict[int, int] = {}
 
     def start(self) -> None:
         """In the caller: note its pipes, before forking makes the new process's own."""
-        self._callers_pipes = [fd for fd in _descriptors() if _is(fd, stat.S_ISFIFO) and fd not in self._own_pipes]
+        pipes = _open_files(stat.S_ISFIFO)
+        self._callers_pipes = {fd: inode for fd, inode in pipes.items() if fd not in self._own_pipes}
         super().start()
 
     def run(self) -> None:
         faulthandler.disable()
-        for fd in self._callers_pipes + [fd for fd in _descriptors() if _is(fd, stat.S_ISSOCK)]:
+        pipes = _open_files(stat.S_ISFIFO)  # a number the caller closed meanwhile may hold another pipe now
+        closing = [fd for fd, inode in self._callers_pipes.items() if pipes.get(fd) == inode]
+        for fd in closing + list(_open_files(stat.S_ISSOCK)):
             if fd > 2:
                 with contextlib.suppress(OSError):
                     os.close(fd)
@@ -260,18 +263,19 @@ def _connections(args: tuple) -> list[multiprocessing.connection.Connection]:
     return found
 
 
-def _descriptors() -> list[int]:
-    """This process's open file descriptors."""
+def _open_files(kind: Callable[[int], bool]) -> dict[int, int]:
+    """This process's open file descriptors of ``kind`` (a :mod:`stat` test of a mode), with the
+    inode each points at."""
     folder = "/proc/self/fd" if os.path.isdir("/proc/self/fd") else "/dev/fd"
-    return [int(name) for name in os.listdir(folder)]
-
-
-def _is(fd: int, kind: Callable[[int], bool]) -> bool:
-    """Whether ``fd`` is open and of ``kind`` (a :mod:`stat` test of its mode)."""
-    try:
-        return kind(os.fstat(fd).st_mode)
-    except OSError:  # the listing's own, closed since
-        return False
+    found = {}
+    for name in os.listdir(folder):
+        try:
+            status = os.fstat(int(name))
+        except OSError:  # the listing's own, closed since
+            continue
+        if kind(status.st_mode):
+            found[int(name)] = status.st_ino
+    return found
 
 
 def _call(fault: str | None, fn: Callable[..., Result], args: tuple) -> Result:
