@@ -367,6 +367,18 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         """:meth:`predict`'s track and the bilabials the CTC head hears in the clip
         (:func:`~vispeech.models.networks.phone_head.heard_bilabials`, possibly none), or
         ``None`` when the network has no head or ``closure_threshold`` is 0."""
+        track, posteriors = self.predict_with_posteriors(clip, fps)
+        p = self._params
+        if posteriors is None or not p["closure_threshold"] or self.phone_language_ is None:
+            return track, None
+        return track, heard_bilabials(
+            posteriors, self.phones_, self.phone_language_, self.fps_, p["closure_threshold"], p["closure_length"]
+        )
+
+    def predict_with_posteriors(self, clip: AudioClip, fps: float) -> tuple[Track, np.ndarray | None]:
+        """:meth:`predict`'s track and the CTC head's phone posteriors: ``(clip.n_frames(fps_),
+        len(phones_) + 1)`` at the network's own rate :attr:`fps_`, column 0 the blank
+        (``None`` without a head)."""
         kernel = self.kernel
         if not isinstance(clip, AudioClip):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
@@ -381,12 +393,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         n = clip.n_frames(fps)
         if fps != self.fps_ or track.n_frames != n:
             track = track.resample(fps, n_frames=n)
-        p = self._params
-        if posteriors is None or not p["closure_threshold"] or self.phone_language_ is None:
-            return track, None
-        return track, heard_bilabials(
-            posteriors, self.phones_, self.phone_language_, self.fps_, p["closure_threshold"], p["closure_length"]
-        )
+        return track, posteriors
 
     def stream(self, language: str | None = None, fps: float = 30.0) -> AudioStream:
         """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
