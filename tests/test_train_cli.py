@@ -136,6 +136,7 @@ def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
     (["--corpus", "{takes}", "-m", "nonesuch"], "unknown model family 'nonesuch'"),
     (["--corpus", "{takes}", "-m", "grid-tdnn"], "unknown model family 'grid-tdnn'"),
     (["--corpus", "{takes}", "-m", "baseline"], "model baseline is data-free"),
+    (["--corpus", "{takes}", "-m", "audio-ensemble"], "model audio-ensemble learns nothing itself"),
     (["--corpus", "{takes}", "-m", "cohen-massaro", "--epochs", "3"], "model cohen-massaro takes no --epochs"),
     (["--corpus", "{takes}", "-m", "ohman", "--resume", "{takes}"], "--resume needs a network"),
 ])

@@ -120,7 +120,9 @@ def train_command(
         raise VispeechError(f"unknown model family {model_name!r} (train one of: {', '.join(FAMILIES)})")
     cls = family_class(model_name)
     if not cls.trainable:
-        raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
+        if cls.data_free:
+            raise VispeechError(f"model {model_name} is data-free: its parameters are authored, not fitted")
+        raise VispeechError(f"model {model_name} learns nothing itself: train the models it combines")
     options = _model_options(cls, model_name, epochs, seed, inputs, targets, params)
     neural = issubclass(cls, Network)
     if resume is not None and not neural:

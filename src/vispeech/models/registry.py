@@ -23,6 +23,7 @@ from vispeech.models.persistence import model_from_config, read_config
 FAMILIES: dict[str, str] = {
     "audio-cnn": "vispeech.models.networks.audio:AudioCNNNetwork",
     "audio-encdec": "vispeech.models.networks.audio:EncoderDecoderNetwork",
+    "audio-ensemble": "vispeech.models.networks.ensemble:AudioEnsemble",
     "baseline": "vispeech.models.rules.baseline:Baseline",
     "beskow-rules": "vispeech.models.rules.beskow_rules:BeskowRules",
     "cohen-massaro": "vispeech.models.rules.cohen_massaro:CohenMassaro",
@@ -85,6 +86,11 @@ def load_model(name_or_path: str | os.PathLike) -> Estimator:
         return load_folder(pretrained_path(name_or_path))
     if isinstance(name_or_path, str) and name_or_path in DATA_FREE:
         return create_model(name_or_path)
+    if isinstance(name_or_path, str) and name_or_path in FAMILIES and not family_class(name_or_path).trainable:
+        raise VispeechError(
+            f"model family {name_or_path} learns nothing itself: give its parameters (members) in Python "
+            f"and load the folder it saves; ready to run: {', '.join(RUNNABLE)}"
+        )
     if isinstance(name_or_path, str) and name_or_path in FAMILIES:
         raise VispeechError(
             f"model {name_or_path} must be trained first (vispeech train --model {name_or_path}); "
