@@ -14,6 +14,7 @@ from vispeech.pipeline import (
     DEFAULT_AUDIO_MODEL,
     DEFAULT_MODEL,
     WHISPER_AUDIO_MODEL,
+    WHISPER_ENSEMBLE_MODEL,
     WHISPER_SWEDISH_MODEL,
     animate_audio,
     blend_with_phones,
@@ -43,16 +44,22 @@ def test_blend_mixes_the_shared_channels_and_keeps_the_audio_models_others():
 def test_the_default_for_a_recording_follows_the_transcript_its_language_and_whisper(monkeypatch):
     import vispeech.frontends.whisper as whisper
 
+    monkeypatch.delenv(whisper.MODEL_ENV, raising=False)
     monkeypatch.setattr(whisper, "installed", lambda model="whisper-tiny.en": True)
-    assert recording_model(False) == default_audio_model() == WHISPER_AUDIO_MODEL
-    assert recording_model(True, "en") == WHISPER_AUDIO_MODEL
+    # both Whisper models: their ensemble hears audio in every language, and English with its transcript
+    assert recording_model(False) == default_audio_model() == WHISPER_ENSEMBLE_MODEL
+    assert recording_model(False, "sv") == recording_model(False, "de") == WHISPER_ENSEMBLE_MODEL
+    assert recording_model(True, "en") == WHISPER_ENSEMBLE_MODEL
     assert recording_model(True, "sv") == DEFAULT_MODEL  # Swedish transcripts: the phone model on their phones
-    # Swedish audio alone: the model on Whisper base, which heard Swedish; tiny.en for any other language
+    # one Whisper folder in place of both: Swedish audio takes the model on Whisper base, which heard
+    # Swedish, and any other language tiny.en's
+    monkeypatch.setenv(whisper.MODEL_ENV, "/somewhere/whisper")
     assert recording_model(False, "sv") == default_audio_model("sv") == WHISPER_SWEDISH_MODEL
-    assert recording_model(False, "de") == recording_model(False, "en") == WHISPER_AUDIO_MODEL
+    assert recording_model(False, "de") == recording_model(False, "en") == recording_model(True, "en") == WHISPER_AUDIO_MODEL
+    monkeypatch.delenv(whisper.MODEL_ENV)
     # tiny.en without base's packages: Swedish audio takes tiny.en rather than a model that cannot run
     monkeypatch.setattr(whisper, "installed", lambda model="whisper-tiny.en": model == "whisper-tiny.en")
-    assert recording_model(False, "sv") == WHISPER_AUDIO_MODEL
+    assert recording_model(False, "sv") == recording_model(True, "en") == WHISPER_AUDIO_MODEL
     monkeypatch.setattr(whisper, "installed", lambda model="whisper-tiny.en": False)
     assert recording_model(True, "en") == DEFAULT_MODEL
     assert recording_model(False) == default_audio_model() == recording_model(False, "sv") == DEFAULT_AUDIO_MODEL

@@ -147,7 +147,8 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     scores = json.loads((out / "scores.json").read_text())
     labels = [m["label"] for m in scores["models"]]
     assert labels == ["grid-tdnn", "grid-tdnn-lowlatency", "grid-cohen-massaro", "grid-ohman", "grid-audio-cnn",
-                      "grid-audio-encdec", "grid-audio-whisper", "grid-audio-whisper-base", "baseline"]
+                      "grid-audio-encdec", "grid-audio-whisper", "grid-audio-whisper-base",
+                      "grid-audio-whisper-ensemble", "baseline"]
     printed = next(line.split() for line in result.output.splitlines() if line.split()[:2] == ["grid-tdnn", "jawOpen"])
     tdnn = scores["models"][0]["scores"]["jawOpen"]
     assert f"{tdnn['r']:.3f}" == printed[4]
@@ -156,7 +157,7 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     per_model = {label: [float(r[f"{label} jawOpen_rmse_percent"]) for r in rows] for label in labels}
     again = compare_models(per_model)
     assert scores["comparison"]["anova"]["f"] == pytest.approx(again.anova.f, rel=1e-4)  # the CSV keeps 6 digits
-    assert scores["comparison"]["anova"]["df_model"] == 8 and len(scores["comparison"]["pairs"]) == 36
+    assert scores["comparison"]["anova"]["df_model"] == 9 and len(scores["comparison"]["pairs"]) == 45
     page = (out / "report.html").read_text()
     assert "Repeated-measures ANOVA" in page
     assert 'src="trajectory.png"' in page and "Lip closures" in page and "How jawOpen moves" in page

@@ -298,11 +298,11 @@ def test_animate_an_uploaded_file(client, pcm, clip, model, fmt):
 
 def test_a_server_animates_uploads_as_vispeech_animate_does(pcm, clip):
     """With no upload model set, /api/animate takes the model `vispeech animate` takes
-    (recording_model: with the whisper extra grid-audio-whisper, blended with the transcript's
-    phones when there is one, and grid-audio-whisper-base for Swedish audio alone) and answers
-    its frames."""
+    (recording_model: with the whisper extra grid-audio-whisper-ensemble for audio alone in every
+    language, grid-audio-whisper blended with the transcript's phones when there is one) and
+    answers its frames."""
     from vispeech.frontends.whisper import installed
-    from vispeech.pipeline import listen
+    from vispeech.pipeline import listen, recording_model
 
     config = ServeConfig(cache=":memory:", rate_limit=0, scale="tracker", audio_model=None)
     frames = {}
@@ -315,8 +315,10 @@ def test_a_server_animates_uploads_as_vispeech_animate_does(pcm, clip):
             expected = listen(clip, text, language, fps=30.0).track
             frames[text, language] = animation["frames"]
             np.testing.assert_allclose(animation["frames"], expected.select(animation["channels"]).values, atol=1e-4)
-    # the language reaches the choice: Swedish audio alone takes the other Whisper model
-    assert installed() != np.allclose(frames[None, "en"], frames[None, "sv"])
+    # the language reaches the choice: Swedish audio alone takes its own model where that differs
+    same = recording_model(False, "en") == recording_model(False, "sv")
+    assert same == np.allclose(frames[None, "en"], frames[None, "sv"])
+    assert same == (installed() and installed("whisper-base"))  # the ensemble of both, in every language
 
 
 def test_animate_takes_what_curl_data_binary_sends(client, pcm):
@@ -674,3 +676,12 @@ def test_a_listen_stream_sets_its_output_scale(client, pcm, clip, model):
     assert frames[:, jaw].max() > raw.values[:, jaw].max() + 0.05  # not the server's scale
     eased = arkit.apply(Track(rest_ease(raw.values[-1], 30.0), channels, 30.0)).values
     np.testing.assert_allclose(cancelled["frames"], eased, atol=1e-4)
+
+
+def test_a_server_refuses_an_audio_model_that_cannot_stream_live_audio():
+    """--audio-model names the model of /api/listen: an ensemble animates whole recordings only,
+    so a server given one stops at start with a one-line reason."""
+    from vispeech.serve.service import SpeechService
+
+    with pytest.raises(VispeechError, match="the audio model must stream live audio: .*does not stream"):
+        SpeechService(ServeConfig(cache=":memory:", workers=1, audio_model="grid-audio-whisper-ensemble"))

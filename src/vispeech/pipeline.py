@@ -47,18 +47,28 @@ WHISPER_AUDIO_MODEL = "grid-audio-whisper"
 faces jawOpen r 0.78 against 0.65 (another GRID speaker) and 0.30 against 0.20 (TV and web
 speech), docs/audio.md."""
 WHISPER_SWEDISH_MODEL = "grid-audio-whisper-base"
-"""The same recipe on Whisper base's multilingual encoder, for Swedish recordings: tiny.en never
-heard Swedish, and on espeak-ng's Swedish voices this one agrees better with the phone model
-(mean pooled r 0.417 against 0.370), docs/audio.md."""
+"""The same recipe on Whisper base's multilingual encoder: tiny.en never heard Swedish, and on
+espeak-ng's Swedish voices this one agrees better with the phone model (mean pooled r 0.417
+against 0.370), docs/audio.md."""
+WHISPER_ENSEMBLE_MODEL = "grid-audio-whisper-ensemble"
+"""The mean of :data:`WHISPER_AUDIO_MODEL`, :data:`WHISPER_SWEDISH_MODEL` and
+:data:`DEFAULT_AUDIO_STREAM_MODEL` (:class:`~vispeech.models.networks.ensemble.AudioEnsemble`):
+better than any of them on grid_s1's validation split (jawOpen r 0.887 against 0.880, 0.872
+and 0.819) and on espeak-ng's English and Swedish voices (mean pooled r 0.572 against 0.461
+and 0.476 for the two Whisper models), docs/audio.md."""
 
 
 def default_audio_model(language: str = "en") -> str:
-    """The audio model that animates a recording in ``language`` by default: where Whisper is
-    installed (:func:`vispeech.frontends.whisper.installed`) :data:`WHISPER_SWEDISH_MODEL` for
+    """The audio model that animates a recording in ``language`` by default: where both Whisper
+    models are installed (:func:`vispeech.frontends.whisper.installed`),
+    :data:`WHISPER_ENSEMBLE_MODEL` in every language; where one Whisper folder replaces both
+    (``$VISPEECH_WHISPER_MODEL``) or only one is installed, :data:`WHISPER_SWEDISH_MODEL` for
     Swedish (``sv``, where Whisper base is) and :data:`WHISPER_AUDIO_MODEL` for every other
-    language, else :data:`DEFAULT_AUDIO_MODEL`."""
-    from vispeech.frontends.whisper import installed
+    language; else :data:`DEFAULT_AUDIO_MODEL`."""
+    from vispeech.frontends.whisper import MODEL_ENV, installed
 
+    if installed() and installed("whisper-base") and not os.environ.get(MODEL_ENV):
+        return WHISPER_ENSEMBLE_MODEL
     if language == "sv" and installed("whisper-base"):
         return WHISPER_SWEDISH_MODEL
     return WHISPER_AUDIO_MODEL if installed() else DEFAULT_AUDIO_MODEL
@@ -66,15 +76,14 @@ def default_audio_model(language: str = "en") -> str:
 
 def recording_model(transcript: bool, language: str = "en") -> str:
     """The model that animates a recording in ``language`` by default: without its ``transcript``,
-    :func:`default_audio_model`; with an English one, :data:`WHISPER_AUDIO_MODEL` where Whisper is
-    installed (its frames blended with the phones', :func:`blend_with_phones`: the best on every
-    English corpus measured, docs/audio.md), else :data:`DEFAULT_MODEL` on the phones. Whisper
-    tiny.en's features carry less of other languages, whose aligned phones say more."""
-    from vispeech.frontends.whisper import installed
-
+    :func:`default_audio_model`; with an English one, that model too where Whisper is installed
+    (its frames blended with the phones', :func:`blend_with_phones`: the best on every English
+    corpus measured, docs/audio.md), else :data:`DEFAULT_MODEL` on the phones. Whisper tiny.en's
+    features carry less of other languages, whose aligned phones say more."""
     if not transcript:
         return default_audio_model(language)
-    return WHISPER_AUDIO_MODEL if language == "en" and installed() else DEFAULT_MODEL
+    heard = default_audio_model("en")
+    return heard if language == "en" and heard != DEFAULT_AUDIO_MODEL else DEFAULT_MODEL
 
 
 DEFAULT_AUDIO_STREAM_MODEL = "grid-audio-cnn"

@@ -22,8 +22,7 @@ from vispeech.pipeline import (
     DEFAULT_FPS,
     DEFAULT_MODEL,
     DEFAULT_SCALE,
-    WHISPER_AUDIO_MODEL,
-    WHISPER_SWEDISH_MODEL,
+    WHISPER_ENSEMBLE_MODEL,
     check_outputs,
     listen,
     write_outputs,
@@ -45,19 +44,15 @@ from vispeech.utterance import Utterance
     "by --transcribe and by audio networks on Whisper features ($VISPEECH_WHISPER_MODEL).",
 )
 @click.option("--force", is_flag=True, help="Animate an English transcript that does not fit the audio all the same.")
-@language_option(
-    "Language of the recording: any `vispeech languages` lists (the transcript's; without one, sv "
-    f"takes {WHISPER_SWEDISH_MODEL} with the whisper extra)."
-)
+@language_option("Language of the recording: any `vispeech languages` lists (the transcript's).")
 @click.option("--output", "-o", "out_dir", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @click.option(
     "--model",
     "-m",
     default=None,
     help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
-    f"[default: {WHISPER_AUDIO_MODEL} ({WHISPER_SWEDISH_MODEL} for Swedish) with the whisper extra, else "
-    f"{DEFAULT_AUDIO_MODEL}; with --text or "
-    f"--transcribe {DEFAULT_MODEL}, blended with {WHISPER_AUDIO_MODEL} for English with the whisper extra].",
+    f"[default: {WHISPER_ENSEMBLE_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; with --text or "
+    f"--transcribe {DEFAULT_MODEL}, blended with {WHISPER_ENSEMBLE_MODEL} for English with the whisper extra].",
 )
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @postprocessing_option()

@@ -49,6 +49,7 @@ PRETRAINED: dict[str, str] = {
     "grid-audio-encdec": "grid_audio_encdec",
     "grid-audio-whisper": "grid_audio_whisper",
     "grid-audio-whisper-base": "grid_audio_whisper_base",
+    "grid-audio-whisper-ensemble": "grid_audio_whisper_ensemble",
 }
 """Shipped trained models: name → folder in ``vispeech/models/pretrained``."""
 

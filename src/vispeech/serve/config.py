@@ -194,9 +194,9 @@ class ServeConfig:
         default=None,
         metadata=_option(
             "--upload-model",
-            "Model name or saved folder for /api/animate [default: as `vispeech animate`: grid-audio-whisper "
-            "(grid-audio-whisper-base for Swedish) with the whisper extra, blended with grid-tdnn on an "
-            "English transcript's phones; else grid-audio-encdec, or grid-tdnn with a transcript].",
+            "Model name or saved folder for /api/animate [default: as `vispeech animate`: "
+            "grid-audio-whisper-ensemble with the whisper extra, blended with grid-tdnn on an English "
+            "transcript's phones; else grid-audio-encdec, or grid-tdnn with a transcript].",
         ),
     )
     fps: float = DEFAULT_FPS

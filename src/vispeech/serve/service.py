@@ -291,6 +291,10 @@ class SpeechService:
         name = self._offer(spec)
         if self.models[name].input_kind != "audio":
             raise VispeechError(f"the audio model must animate audio: {name} animates phones")
+        try:
+            self.models[name].stream(None, self.config.fps).close()  # type: ignore[arg-type]  # audio: no language
+        except VispeechError as exc:
+            raise VispeechError(f"the audio model must stream live audio: {exc}") from None
         return name
 
     def _offer(self, spec: str) -> str:
