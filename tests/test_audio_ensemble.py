@@ -12,7 +12,7 @@ from test_audio_networks import TINY, clip_of, synthetic_utterance  # noqa: E402
 from vispeech import VispeechError  # noqa: E402
 from vispeech.models.fitting import Splits  # noqa: E402
 from vispeech.models.networks.audio import AudioCNNNetwork, EncoderDecoderNetwork  # noqa: E402
-from vispeech.models.networks.ensemble import AudioEnsemble  # noqa: E402
+from vispeech.models.ensemble import AudioEnsemble  # noqa: E402
 from vispeech.models.networks.phone_head import heard_bilabials  # noqa: E402
 from vispeech.models.registry import create_model, load_model  # noqa: E402
 

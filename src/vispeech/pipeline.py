@@ -52,7 +52,7 @@ espeak-ng's Swedish voices this one agrees better with the phone model (mean poo
 against 0.370), docs/audio.md."""
 WHISPER_ENSEMBLE_MODEL = "grid-audio-whisper-ensemble"
 """The mean of :data:`WHISPER_AUDIO_MODEL`, :data:`WHISPER_SWEDISH_MODEL` and
-:data:`DEFAULT_AUDIO_STREAM_MODEL` (:class:`~vispeech.models.networks.ensemble.AudioEnsemble`):
+:data:`DEFAULT_AUDIO_STREAM_MODEL` (:class:`~vispeech.models.ensemble.AudioEnsemble`):
 better than any of them on grid_s1's validation split (jawOpen r 0.887 against 0.880, 0.872
 and 0.819) and on espeak-ng's English and Swedish voices (mean pooled r 0.572 against 0.461
 and 0.476 for the two Whisper models), docs/audio.md."""

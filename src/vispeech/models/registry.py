@@ -23,7 +23,7 @@ from vispeech.models.persistence import model_from_config, read_config
 FAMILIES: dict[str, str] = {
     "audio-cnn": "vispeech.models.networks.audio:AudioCNNNetwork",
     "audio-encdec": "vispeech.models.networks.audio:EncoderDecoderNetwork",
-    "audio-ensemble": "vispeech.models.networks.ensemble:AudioEnsemble",
+    "audio-ensemble": "vispeech.models.ensemble:AudioEnsemble",
     "baseline": "vispeech.models.rules.baseline:Baseline",
     "beskow-rules": "vispeech.models.rules.beskow_rules:BeskowRules",
     "cohen-massaro": "vispeech.models.rules.cohen_massaro:CohenMassaro",

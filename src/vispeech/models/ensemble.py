@@ -38,6 +38,7 @@ from vispeech.models.contract import Estimator
 from vispeech.models.fitting import FitRun
 from vispeech.models.networks.audio import AudioNetwork
 from vispeech.models.networks.phone_head import heard_bilabials
+from vispeech.models.registry import load_model
 from vispeech.models.streams import ModelStream
 from vispeech.motion.track import Track
 
@@ -60,8 +61,6 @@ class AudioEnsemble(Estimator[AudioClip]):
     members_: list[AudioNetwork]
 
     def _check_params(self) -> None:
-        from vispeech.models.registry import load_model
-
         p = self._params
         members, weights = p["members"], p["weights"]
         if not isinstance(members, list) or len(members) == 1 or not all(isinstance(m, str) for m in members):
