@@ -123,3 +123,20 @@ def test_an_ensemble_refuses_what_it_cannot_average(members, clip):
         create_model("audio-ensemble").predict(clip, 25)
     with pytest.raises(VispeechError, match="audio-ensemble learns nothing itself: give its parameters"):
         load_model("audio-ensemble")
+
+
+def test_a_member_retrained_in_its_folder_changes_the_ensemble_s_version(members, tmp_path):
+    """A batch and the server key an ensemble's outputs by its version: it must follow its members'
+    files, which its own folder does not hold."""
+    import shutil
+
+    from vispeech.models.registry import model_version
+
+    member = tmp_path / "member"
+    shutil.copytree(members["encdec"], member)
+    folder = AudioEnsemble(members=[str(member), members["cnn"]]).save(tmp_path / "ensemble")
+    before = model_version(load_model(folder), folder)
+    assert model_version(load_model(folder), folder) == before  # the same files: the same version
+    shutil.rmtree(member)
+    shutil.copytree(members["cnn-head"], member)  # another network trained into the member's folder
+    assert model_version(load_model(folder), folder) != before

@@ -186,6 +186,12 @@ class Estimator(ABC, Generic[InputT]):
         post-processing may shut the lips on; ``None`` (the default) for a model that hears none."""
         return self.predict(inputs, fps), None
 
+    def saved_parts(self) -> list[tuple[Estimator, Path | None]]:
+        """The saved models this one animates with, each with its folder (an ensemble's members):
+        their versions are part of its own (:func:`~vispeech.models.registry.model_version`).
+        None for a model whole in itself (the default)."""
+        return []
+
     def stream(self, language: str, fps: float) -> ModelStream:
         """An incremental prediction for phones of ``language`` as they arrive, at ``fps``."""
         self.check_fitted()

@@ -27,6 +27,7 @@ whole recordings: it does not stream.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ from vispeech.models.contract import Estimator
 from vispeech.models.fitting import FitRun
 from vispeech.models.networks.audio import AudioNetwork
 from vispeech.models.networks.phone_head import heard_bilabials
-from vispeech.models.registry import load_model
+from vispeech.models.registry import load_model, saved_folder
 from vispeech.models.streams import ModelStream
 from vispeech.motion.track import Track
 
@@ -93,6 +94,7 @@ class AudioEnsemble(Estimator[AudioClip]):
                 if missing:
                     raise VispeechError(f"ensemble member {name} lacks the channels {', '.join(missing[:3])}")
             self.members_, self._loaded = loaded, list(members)
+            self._folders = [saved_folder(name) for name in members]
         if p["closure_threshold"]:
             heads = {(tuple(m.phones_), m.phone_language_, m.fps_) for m in self._hearing()}
             if len(heads) != 1 or not next(iter(heads))[0]:
@@ -169,6 +171,11 @@ class AudioEnsemble(Estimator[AudioClip]):
         return track, heard_bilabials(
             posteriors, head.phones_, head.phone_language_, head.fps_, p["closure_threshold"], p["closure_length"]
         )
+
+    def saved_parts(self) -> list[tuple[Estimator, Path | None]]:
+        """The members, each with the folder it was loaded from: a member retrained in its folder
+        changes the ensemble's version (what a batch and the server's cache key its outputs by)."""
+        return list(zip(self.members_, self._folders, strict=True)) if self.is_fitted else []
 
     def stream(self, language: str, fps: float) -> ModelStream:
         raise VispeechError(

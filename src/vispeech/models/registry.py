@@ -116,7 +116,8 @@ def saved_folder(name_or_path: str | os.PathLike) -> Path | None:
 
 def model_version(model: Estimator, folder: Path | None = None) -> str:
     """16 hex digits that change whenever ``model``'s output may: vispeech's version, the model's
-    name and parameters, and the files of the ``folder`` it was loaded from (its weights)."""
+    name and parameters, the files of the ``folder`` it was loaded from (its weights) and the
+    versions of the saved models it animates with (:meth:`~vispeech.models.contract.Estimator.saved_parts`)."""
     import hashlib
     import json
 
@@ -128,6 +129,8 @@ def model_version(model: Estimator, folder: Path | None = None) -> str:
         for path in sorted(folder.iterdir()):
             if path.is_file():
                 digest.update(path.name.encode() + path.read_bytes())
+    for part, part_folder in model.saved_parts():
+        digest.update(model_version(part, part_folder).encode())
     return digest.hexdigest()[:16]
 
 
