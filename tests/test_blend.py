@@ -46,10 +46,10 @@ def test_the_default_for_a_recording_follows_the_transcript_its_language_and_whi
 
     monkeypatch.delenv(whisper.MODEL_ENV, raising=False)
     monkeypatch.setattr(whisper, "installed", lambda model="whisper-tiny.en": True)
-    # both Whisper models: their ensemble hears audio in every language, and English with its transcript
+    # both Whisper models: their ensemble hears audio in every language; tiny.en with an English transcript
     assert recording_model(False) == default_audio_model() == WHISPER_ENSEMBLE_MODEL
     assert recording_model(False, "sv") == recording_model(False, "de") == WHISPER_ENSEMBLE_MODEL
-    assert recording_model(True, "en") == WHISPER_ENSEMBLE_MODEL
+    assert recording_model(True, "en") == WHISPER_AUDIO_MODEL
     assert recording_model(True, "sv") == DEFAULT_MODEL  # Swedish transcripts: the phone model on their phones
     # one Whisper folder in place of both: Swedish audio takes the model on Whisper base, which heard
     # Swedish, and any other language tiny.en's

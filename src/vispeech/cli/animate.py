@@ -22,6 +22,7 @@ from vispeech.pipeline import (
     DEFAULT_FPS,
     DEFAULT_MODEL,
     DEFAULT_SCALE,
+    WHISPER_AUDIO_MODEL,
     WHISPER_ENSEMBLE_MODEL,
     check_outputs,
     listen,
@@ -52,7 +53,7 @@ from vispeech.utterance import Utterance
     default=None,
     help=f"One of {', '.join(RUNNABLE)} (see `vispeech models`), or a saved model folder "
     f"[default: {WHISPER_ENSEMBLE_MODEL} with the whisper extra, else {DEFAULT_AUDIO_MODEL}; with --text or "
-    f"--transcribe {DEFAULT_MODEL}, blended with {WHISPER_ENSEMBLE_MODEL} for English with the whisper extra].",
+    f"--transcribe {DEFAULT_MODEL}, blended with {WHISPER_AUDIO_MODEL} for English with the whisper extra].",
 )
 @click.option("--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second.")
 @postprocessing_option()

@@ -195,8 +195,8 @@ class ServeConfig:
         metadata=_option(
             "--upload-model",
             "Model name or saved folder for /api/animate [default: as `vispeech animate`: "
-            "grid-audio-whisper-ensemble with the whisper extra, blended with grid-tdnn on an English "
-            "transcript's phones; else grid-audio-encdec, or grid-tdnn with a transcript].",
+            "grid-audio-whisper-ensemble with the whisper extra, and grid-audio-whisper blended with grid-tdnn "
+            "on an English transcript's phones; else grid-audio-encdec, or grid-tdnn with a transcript].",
         ),
     )
     fps: float = DEFAULT_FPS
