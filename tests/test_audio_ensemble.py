@@ -112,8 +112,10 @@ def test_an_ensemble_refuses_what_it_cannot_average(members, clip):
     with pytest.raises(VispeechError, match="only when some members do"):  # neither hears alone
         AudioEnsemble(members=[members["cnn-head-deaf"], members["cnn"]], closure_threshold=0.01)
     ensemble = AudioEnsemble(members=[members["encdec"], members["cnn"]])
-    with pytest.raises(VispeechError, match="closure_threshold"):
+    with pytest.raises(VispeechError, match=r"closure_threshold must be a number in \[0, 1\), got -1"):
         ensemble.set_params(closure_threshold=-1)
+    with pytest.raises(VispeechError, match="closure_length must lie in"):
+        ensemble.set_params(closure_length=0)
     assert ensemble.get_params()["closure_threshold"] == 0.0  # left as it was
     with pytest.raises(VispeechError, match="does not stream"):
         ensemble.stream(None, 30)

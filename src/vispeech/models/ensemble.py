@@ -38,7 +38,7 @@ from vispeech.frontends.audio import AudioClip
 from vispeech.models.contract import Estimator
 from vispeech.models.fitting import FitRun
 from vispeech.models.networks.audio import AudioNetwork
-from vispeech.models.networks.phone_head import heard_bilabials
+from vispeech.models.networks.phone_head import check_closure_params, heard_bilabials
 from vispeech.models.registry import load_model, saved_folder
 from vispeech.models.streams import ModelStream
 from vispeech.motion.track import Track
@@ -48,10 +48,10 @@ class AudioEnsemble(Estimator[AudioClip]):
     """The weighted mean of trained audio networks' frames (and of their CTC heads' posteriors).
 
     Parameters: ``members``, two or more audio networks by name or folder (none: a new ensemble,
-    not ready to predict); ``weights``, one
-    positive number per member (``None``: equal), normalised to sum 1; ``closure_threshold`` and
-    ``closure_length``, as an audio network's, on the mean posteriors of the members that hear
-    bilabials themselves (0: hears none). Learned: ``members_``, the loaded networks.
+    not ready to predict); ``weights``, one positive number per member (``None``: equal),
+    normalised to sum 1; ``closure_threshold`` and ``closure_length``, as an audio network's, on
+    the mean posteriors of the members that hear bilabials themselves (0: hears none). Learned:
+    ``members_``, the loaded networks.
     """
 
     family = "audio-ensemble"
@@ -74,10 +74,7 @@ class AudioEnsemble(Estimator[AudioClip]):
             raise VispeechError(
                 f"an audio ensemble's weights must be {len(members)} positive numbers, one a member, got {weights!r}"
             )
-        for key in ("closure_threshold", "closure_length"):
-            value = p[key]
-            if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise VispeechError(f"an audio ensemble's {key} must be a number ≥ 0, got {value!r}")
+        check_closure_params(p["closure_threshold"], p["closure_length"])
         if not members:  # a new ensemble has none yet: not ready to predict
             self.__dict__.pop("members_", None)
             return

@@ -64,7 +64,7 @@ from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.audio_stream import AudioStream, EncoderStream
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
 from vispeech.models.networks.network import TRAINING_PARAMS, Network
-from vispeech.models.networks.phone_head import heard_bilabials
+from vispeech.models.networks.phone_head import check_closure_params, heard_bilabials
 from vispeech.motion.track import Track
 from vispeech.phonetics.inventory import get_inventory, is_silence
 
@@ -122,13 +122,12 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
     def _check_inputs(self) -> None:
         p = self._params
         self._unfitted_encoding(float(p["fps"]))
-        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight", "closure_threshold"):
+        for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight"):
             if not (isinstance(p[key], int | float) and p[key] >= 0):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
-        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1 or p["closure_threshold"] >= 1:
-            raise VispeechError("warp must be below 0.5, dropout within [0, 1) and closure_threshold below 1")
-        if not (isinstance(p["closure_length"], int | float) and 0.01 <= p["closure_length"] <= 0.5):
-            raise VispeechError(f"closure_length must lie in [0.01, 0.5] s, got {p['closure_length']!r}")
+        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
+            raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
+        check_closure_params(p["closure_threshold"], p["closure_length"])
         if not (0 <= p["encoder_ahead"] <= 1 and 0.01 <= p["encoder_step"] <= 1 and 0 <= p["encoder_context"] <= 10):
             raise VispeechError(
                 "encoder_ahead must lie in [0, 1] s, encoder_step in [0.01, 1] s and encoder_context in [0, 10] s"

@@ -14,10 +14,21 @@ from collections.abc import Sequence
 import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence
+from vispeech.errors import VispeechError
 from vispeech.phonetics.features import FEATURE_NAMES, phone_features
 from vispeech.phonetics.inventory import SILENCE
 
 _BILABIAL = FEATURE_NAMES.index("bilabial")
+
+
+def check_closure_params(threshold: object, length: object) -> None:
+    """Raise :class:`VispeechError` unless ``threshold`` (a summed posterior; 0: hear none) is a
+    number in [0, 1) and ``length`` (seconds) one in [0.01, 0.5]: the ``closure_threshold`` and
+    ``closure_length`` of a model that hears bilabials."""
+    if not (isinstance(threshold, int | float) and not isinstance(threshold, bool) and 0 <= threshold < 1):
+        raise VispeechError(f"closure_threshold must be a number in [0, 1), got {threshold!r}")
+    if not (isinstance(length, int | float) and not isinstance(length, bool) and 0.01 <= length <= 0.5):
+        raise VispeechError(f"closure_length must lie in [0.01, 0.5] s, got {length!r}")
 
 
 def bilabial_symbols(vocabulary: Sequence[str], language: str) -> list[str]:
