@@ -30,8 +30,8 @@ from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPU
     "-m",
     default=None,
     help=f"Model of lines that do not say: one of {', '.join(RUNNABLE)}, or a saved model folder "
-    "[default: grid-tdnn; for audio without text grid-audio-whisper (grid-audio-whisper-base "
-    "for Swedish) with the whisper extra, else grid-audio-encdec].",
+    "[default: grid-tdnn; for audio without text grid-audio-whisper-ensemble with the whisper extra, "
+    "else grid-audio-encdec].",
 )
 @click.option(
     "--fps", default=DEFAULT_FPS, show_default=True, type=float, help="Frames per second of lines that do not say."
