@@ -91,7 +91,6 @@ class AudioEnsemble(Estimator[AudioClip]):
                 if missing:
                     raise VispeechError(f"ensemble member {name} lacks the channels {', '.join(missing[:3])}")
             self.members_, self._loaded = loaded, list(members)
-            self._folders = [saved_folder(name) for name in members]
         if p["closure_threshold"]:
             heads = {(tuple(m.phones_), m.phone_language_, m.fps_) for m in self._hearing()}
             if len(heads) != 1 or not next(iter(heads))[0]:
@@ -100,13 +99,18 @@ class AudioEnsemble(Estimator[AudioClip]):
                     "(their own closure_threshold > 0), all with CTC heads over the same phones at the same frame rate"
                 )
 
+    def _members(self) -> list[AudioNetwork]:
+        """The loaded members (none before any are named)."""
+        return self.members_ if self.is_fitted else []
+
     def _hearing(self) -> list[AudioNetwork]:
         """The members that hear bilabials alone, whose posteriors the ensemble's closures come from."""
         return [m for m in self.members_ if m.get_params()["closure_threshold"]]
 
     @property
     def channels(self) -> tuple[str, ...]:
-        return self.members_[0].channels if self.is_fitted else ()
+        members = self._members()
+        return members[0].channels if members else ()
 
     @property
     def weights(self) -> np.ndarray:
@@ -116,12 +120,12 @@ class AudioEnsemble(Estimator[AudioClip]):
 
     @property
     def frame_rate(self) -> float | None:
-        rates = {m.frame_rate for m in getattr(self, "members_", [])}
+        rates = {m.frame_rate for m in self._members()}
         return rates.pop() if len(rates) == 1 else None
 
     @property
     def lookahead(self) -> int:
-        return max((m.lookahead for m in getattr(self, "members_", [])), default=0)
+        return max((m.lookahead for m in self._members()), default=0)
 
     @property
     def postprocessing(self) -> str:
@@ -172,7 +176,7 @@ class AudioEnsemble(Estimator[AudioClip]):
     def saved_parts(self) -> list[tuple[Estimator, Path | None]]:
         """The members, each with the folder it was loaded from: a member retrained in its folder
         changes the ensemble's version (what a batch and the server's cache key its outputs by)."""
-        return list(zip(self.members_, self._folders, strict=True)) if self.is_fitted else []
+        return [(member, saved_folder(name)) for member, name in zip(self._members(), self._params["members"])]
 
     def stream(self, language: str, fps: float) -> ModelStream:
         raise VispeechError(
