@@ -25,6 +25,13 @@ except ImportError:  # Windows: no flock, so no clean-up of killed runs' leftove
     fcntl = None  # type: ignore[assignment]  # the optional-module idiom: checked for None before use
 
 
+def cache_root() -> Path:
+    """The folder vispeech keeps derived data in (corpus caches, the server's cache, Whisper
+    copies): ``$VISPEECH_CACHE`` or ``~/.cache/vispeech``."""
+    configured = os.environ.get("VISPEECH_CACHE")
+    return Path(configured).expanduser() if configured else Path.home() / ".cache" / "vispeech"
+
+
 def read_bytes(path: str | os.PathLike, what: str = "file", limit: int = limits.MAX_FILE_BYTES) -> bytes:
     """The bytes of ``path``, a regular file (not a folder, FIFO or device, also through a
     symlink) of at most ``limit`` bytes: checked with one ``stat`` before it is opened, and at

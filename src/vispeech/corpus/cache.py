@@ -17,15 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file
+from vispeech.files import atomic_output_file, cache_root
 
 _KEY = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
-
-
-def cache_root() -> Path:
-    """The folder that holds every corpus cache: ``$VISPEECH_CACHE`` or ``~/.cache/vispeech``."""
-    configured = os.environ.get("VISPEECH_CACHE")
-    return Path(configured).expanduser() if configured else Path.home() / ".cache" / "vispeech"
 
 
 def content_hash(files: Iterable[Path], root: Path) -> str:

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vispeech.errors import VispeechError
+from vispeech.files import atomic_output_dir, cache_root
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import mel_filter_bank
 
@@ -109,10 +110,7 @@ def _packaged(model: str) -> Path:
 def _joined_base(first: Path, second: Path) -> Path:
     """Whisper base as one folder: part 1's files and the two halves of ``model.bin`` joined,
     written atomically once into the cache."""
-    from vispeech.files import atomic_output_dir
-
-    cache = Path(os.environ.get("VISPEECH_CACHE") or Path.home() / ".cache" / "vispeech")
-    folder = cache / "whisper-base"
+    folder = cache_root() / "whisper-base"
     halves = [first / "model.bin.part1", second / "model.bin.part2"]
     size = sum(h.stat().st_size for h in halves)
     if (folder / "model.bin").is_file() and (folder / "model.bin").stat().st_size == size:

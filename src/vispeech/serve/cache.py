@@ -24,8 +24,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from vispeech.corpus.cache import cache_root
 from vispeech.errors import VispeechError
+from vispeech.files import cache_root
 
 
 def default_cache_path() -> Path:
