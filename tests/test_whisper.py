@@ -262,3 +262,112 @@ def test_the_mel_filters_are_whispers(n_mels):
 
     np.testing.assert_allclose(whisper._mel_filters(n_mels), librosa.filters.mel(sr=16000, n_fft=400, n_mels=n_mels),
                                atol=1e-7)
+
+
+def _encoder_weights(folder) -> dict[str, np.ndarray]:
+    """The encoder's variables of a CTranslate2 Whisper folder, read as float32 (the reference below)."""
+    import struct
+
+    types = {0: np.float32, 1: np.int8, 2: np.int16, 3: np.int32, 4: np.float16}
+    data = (folder / "model.bin").read_bytes()
+    weights = {}
+    for name, start, _ in whisper._variables(folder / "model.bin")[1]:
+        at = start + 2 + len(name.encode()) + 1
+        (rank,) = struct.unpack_from("<B", data, at)
+        dims = struct.unpack_from(f"<{rank}I", data, at + 1)
+        kind, size = struct.unpack_from("<BI", data, at + 1 + 4 * rank)
+        if name.startswith("encoder/"):
+            values = np.frombuffer(data, types[kind], size // np.dtype(types[kind]).itemsize, at + 6 + 4 * rank)
+            weights[name[8:]] = values.reshape(dims).astype(np.float32)
+    return weights
+
+
+def _first_layer(weights: dict[str, np.ndarray], mel: np.ndarray) -> np.ndarray:
+    """Whisper's encoder up to its first transformer layer, then its final layer norm (NumPy)."""
+    from scipy.special import erf
+
+    def gelu(x):
+        return 0.5 * x * (1 + erf(x / np.sqrt(2)))
+
+    def norm(x, name):
+        x = (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + 1e-5)
+        return x * weights[f"{name}/gamma"] + weights[f"{name}/beta"]
+
+    def conv(x, name, stride):
+        x = np.pad(x, ((0, 0), (1, 1)))
+        n = (x.shape[1] - 3) // stride + 1
+        taps = np.stack([x[:, k:k + stride * (n - 1) + 1:stride] for k in range(3)])
+        return gelu(np.einsum("ock,kct->ot", weights[f"{name}/weight"], taps) + weights[f"{name}/bias"][:, None])
+
+    x = conv(conv(mel, "conv1", 1), "conv2", 2).T
+    x = x + weights["position_encodings/encodings"][: len(x)]
+    heads, width = int(weights["num_heads"]), x.shape[1]
+    qkv = norm(x, "layer_0/self_attention/layer_norm") @ weights["layer_0/self_attention/linear_0/weight"].T
+    q, k, v = (a.reshape(len(x), heads, -1).transpose(1, 0, 2) for a in np.split(
+        qkv + weights["layer_0/self_attention/linear_0/bias"], 3, axis=1))
+    scores = q @ k.transpose(0, 2, 1) / np.sqrt(width // heads)
+    attention = np.exp(scores - scores.max(-1, keepdims=True))
+    attended = ((attention / attention.sum(-1, keepdims=True)) @ v).transpose(1, 0, 2).reshape(len(x), width)
+    x = x + attended @ weights["layer_0/self_attention/linear_1/weight"].T + weights["layer_0/self_attention/linear_1/bias"]
+    hidden = gelu(norm(x, "layer_0/ffn/layer_norm") @ weights["layer_0/ffn/linear_0/weight"].T
+                  + weights["layer_0/ffn/linear_0/bias"])
+    x = x + hidden @ weights["layer_0/ffn/linear_1/weight"].T + weights["layer_0/ffn/linear_1/bias"]
+    return norm(x, "layer_norm")
+
+
+def test_a_shallow_encoder_gives_whispers_states_after_its_first_layers(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache"))
+    tiny = whisper.model_folder("whisper-tiny.en")
+    assert whisper.encoder_depth(tiny) == 4 and whisper.shallow_folder(tiny, 4) == tiny
+    copy = whisper.shallow_folder(tiny, 1)
+    assert copy.parent == tmp_path / "cache" and whisper.encoder_depth(copy) == 1
+    # the copy drops layers 1..3 of the encoder and keeps every other variable as it was
+    original = {name: stop - start for name, start, stop in whisper._variables(tiny / "model.bin")[1]}
+    kept = {name: stop - start for name, start, stop in whisper._variables(copy / "model.bin")[1]}
+    dropped = {name for name in original if name.startswith(("encoder/layer_1/", "encoder/layer_2/", "encoder/layer_3/"))}
+    assert dropped and kept == {name: size for name, size in original.items() if name not in dropped}
+    written = (copy / "model.bin").stat().st_mtime_ns
+    assert whisper.shallow_folder(tiny, 1) == copy and (copy / "model.bin").stat().st_mtime_ns == written
+    # its states are Whisper's after one layer and the final layer norm (int8 against float32)
+    encoder = SpeechEncoder.load("whisper-tiny.en", 1)
+    assert isinstance(encoder, whisper.WhisperEncoder) and (encoder.depth, encoder.width) == (1, 384)
+    assert SpeechEncoder.load("whisper-tiny.en", 1) is encoder and SpeechEncoder.load("whisper-tiny.en") is not encoder
+    clip = speech_like(2.0)
+    states = encoder.hidden_states(clip, chunk=30.0)[0]
+    reference = _first_layer(_encoder_weights(tiny), whisper.whisper_log_mel(clip.samples)[:, :200])
+    assert states.shape == reference.shape == (100, 384)
+    assert np.corrcoef(states.ravel(), reference.ravel())[0, 1] > 0.99
+    full = SpeechEncoder.load("whisper-tiny.en").hidden_states(clip, chunk=30.0)[0]
+    assert np.corrcoef(full.ravel(), reference.ravel())[0, 1] < 0.9
+
+
+def test_a_depth_the_encoder_lacks_is_a_one_line_error(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache"))
+    for depth in (5, -1):
+        with pytest.raises(VispeechError, match=r"has 4 layers: depth must be 1\.\.4") as error:
+            SpeechEncoder.load("whisper-tiny.en", depth)
+        assert "\n" not in str(error.value)
+    with pytest.raises(VispeechError, match="encoder_depth applies to Whisper encoders"):
+        SpeechEncoder.load(tmp_path, 2)
+    with pytest.raises(VispeechError, match="encoder_depth needs features=encoder"):
+        AudioCNNNetwork(encoder_depth=2)
+    with pytest.raises(VispeechError, match="encoder_depth must be a whole number"):
+        AudioCNNNetwork(features="encoder", encoder="whisper-tiny.en", encoder_depth=1.5)
+    assert not (tmp_path / "cache").exists()
+
+
+def test_a_network_on_a_shallow_encoder_saves_its_depth(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISPEECH_CACHE", str(tmp_path / "cache"))
+    rng = np.random.default_rng(1)
+    corpus = Splits([synthetic_utterance(rng, i) for i in range(4)], [synthetic_utterance(rng, 50)])
+    network = AudioCNNNetwork(features="encoder", encoder="whisper-tiny.en", encoder_depth=2, targets=["jawOpen"],
+                              channels=[8, 8, 8], epochs=2, batch_size=4, seed=0).fit(corpus, progress=False)
+    folder = network.save(tmp_path / "model")
+    config = json.loads((folder / "config.json").read_text())
+    assert config["params"]["encoder_depth"] == 2
+    loaded = load_model(folder)
+    assert loaded.encoding_.encoder_depth == 2
+    clip = speech_like(1.3, seed=2)
+    np.testing.assert_array_equal(loaded.predict(clip, 25).values, network.predict(clip, 25).values)
+    deeper = AudioCNNNetwork(**{**network.get_params(), "encoder_depth": 0}).fit(corpus, progress=False)
+    assert not np.allclose(deeper.predict(clip, 25).values, network.predict(clip, 25).values)

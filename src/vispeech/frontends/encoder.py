@@ -68,15 +68,18 @@ class SpeechEncoder:
         """Samples one frame reads."""
 
     @classmethod
-    def load(cls, folder: str | Path) -> SpeechEncoder | WhisperEncoder:
+    def load(cls, folder: str | Path, depth: int = 0) -> SpeechEncoder | WhisperEncoder:
         """The encoder in ``folder`` (loaded once per folder, then shared): a transformers folder,
         or Whisper (a name of :data:`vispeech.frontends.whisper.MODELS` or a CTranslate2 folder
-        with ``model.bin``; :class:`vispeech.frontends.whisper.WhisperEncoder`)."""
+        with ``model.bin``; :class:`vispeech.frontends.whisper.WhisperEncoder`), whose states
+        after its first ``depth`` transformer layers are read (0: all; Whisper only)."""
         path = Path(folder).expanduser()
         if str(folder).startswith("whisper-") or (path / "model.bin").is_file():
             from vispeech.frontends.whisper import WhisperEncoder
 
-            return WhisperEncoder.load(folder)
+            return WhisperEncoder.load(folder, depth)
+        if depth:
+            raise VispeechError(f"encoder_depth applies to Whisper encoders; {folder} gives all its layers' states")
         if not path.is_dir():
             raise VispeechError(f"speech encoder folder not found: {folder}")
         return _load(str(path.resolve()))

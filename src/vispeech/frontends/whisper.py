@@ -29,9 +29,11 @@ and in training.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import os
 import shutil
+import struct
 import threading
 from pathlib import Path
 
@@ -150,21 +152,110 @@ def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
     return ((mel + 4.0) / 4.0).astype(np.float32)
 
 
+def encoder_depth(folder: str | Path) -> int:
+    """The number of transformer layers in the encoder of the CTranslate2 Whisper ``folder``."""
+    _, variables, _ = _variables(Path(folder) / "model.bin")
+    return len({name.split("/")[1] for name, _, _ in variables if _encoder_layer(name) is not None})
+
+
+def shallow_folder(folder: str | Path, depth: int) -> Path:
+    """A copy of the CTranslate2 Whisper ``folder`` whose encoder keeps only its first ``depth``
+    transformer layers (its final layer norm follows them; the decoder is kept, as CTranslate2
+    loads it), written atomically once into the cache (:func:`vispeech.files.cache_root`) under
+    a name that follows the source folder's path, size and time. ``folder`` itself when
+    ``depth`` is its encoder's depth; :class:`VispeechError` for a depth outside 1..that."""
+    source = Path(folder).resolve()
+    total = encoder_depth(source)
+    if not (isinstance(depth, int) and 1 <= depth <= total):
+        raise VispeechError(
+            f"the Whisper encoder in {source} has {total} layers: depth must be 1..{total}, not {depth!r}"
+        )
+    if depth == total:
+        return source
+    stat = (source / "model.bin").stat()
+    digest = hashlib.sha1(f"{source}\t{stat.st_size}\t{stat.st_mtime_ns}".encode()).hexdigest()[:12]
+    target = cache_root() / f"whisper-encoder-{depth}-{digest}"
+    if (target / "model.bin").is_file():
+        return target
+    header, variables, tail = _variables(source / "model.bin")
+    kept = [(start, stop) for name, start, stop in variables if (_encoder_layer(name) or 0) < depth]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output_dir(target) as tmp:
+        for other in source.iterdir():
+            if other.is_file() and other.name != "model.bin":
+                shutil.copyfile(other, tmp / other.name)
+        with open(source / "model.bin", "rb") as model, open(tmp / "model.bin", "wb") as out:
+            out.write(model.read(header))
+            out.write(struct.pack("<I", len(kept)))
+            for start, stop in [*kept, (tail, stat.st_size)]:
+                model.seek(start)
+                out.write(model.read(stop - start))
+    return target
+
+
+def _encoder_layer(name: str) -> int | None:
+    """The encoder layer a model variable belongs to (``encoder/layer_3/...`` → 3), else None."""
+    parts = name.split("/")
+    if len(parts) > 2 and parts[0] == "encoder" and parts[1].startswith("layer_") and parts[1][6:].isdigit():
+        return int(parts[1][6:])
+    return None
+
+
+def _variables(path: Path) -> tuple[int, list[tuple[str, int, int]], int]:
+    """The layout of a CTranslate2 ``model.bin`` (binary version 5 or 6): the byte offset of its
+    variable count, each variable's name with the byte range of its whole record, and the
+    offset of the aliases that follow them."""
+
+    def read(fmt: str) -> tuple:
+        size = struct.calcsize(fmt)
+        data = model.read(size)
+        if len(data) != size:
+            raise VispeechError(f"{path} ends early: not a CTranslate2 model")
+        return struct.unpack(fmt, data)
+
+    def string() -> str:
+        (length,) = read("<H")
+        return model.read(length)[:-1].decode("utf-8", "replace")
+
+    with open(path, "rb") as model:
+        (version,) = read("<I")
+        if version not in (5, 6):
+            raise VispeechError(f"{path} is CTranslate2 binary version {version}; vispeech reads 5 and 6")
+        string()
+        read("<I")
+        header = model.tell()
+        (count,) = read("<I")
+        variables = []
+        for _ in range(count):
+            start = model.tell()
+            name = string()
+            (rank,) = read("<B")
+            read(f"<{rank}I")
+            read("<B")
+            (size,) = read("<I")
+            model.seek(size, os.SEEK_CUR)
+            variables.append((name, start, model.tell()))
+        return header, variables, model.tell()
+
+
 class WhisperEncoder:
     """Whisper's encoder output: :attr:`layers` = 1 state of :attr:`width` values a frame at 50 fps
-    (what :class:`vispeech.frontends.encoder.SpeechEncoder` gives, for the audio networks)."""
+    (what :class:`vispeech.frontends.encoder.SpeechEncoder` gives, for the audio networks), after
+    the first :attr:`depth` of its transformer layers (0: all)."""
 
-    def __init__(self, folder: str, model, n_mels: int, width: int) -> None:
+    def __init__(self, folder: str, model, n_mels: int, width: int, depth: int) -> None:
         self.folder = folder
         self.model = model
         self.n_mels = n_mels
         self.layers = 1
         self.width = width
+        self.depth = depth
 
     @classmethod
-    def load(cls, folder: str | Path) -> WhisperEncoder:
-        """The encoder of a named model or folder (:func:`model_folder`), loaded once and shared."""
-        return _load_whisper(str(model_folder(str(folder))))
+    def load(cls, folder: str | Path, depth: int = 0) -> WhisperEncoder:
+        """The encoder of a named model or folder (:func:`model_folder`) after its first ``depth``
+        transformer layers (0: all of them), loaded once and shared."""
+        return _load_whisper(str(model_folder(str(folder))), depth)
 
     def hidden_states(
         self, clip: AudioClip, chunk: float = CHUNK_SECONDS, overlap: float = CHUNK_OVERLAP
@@ -191,11 +282,13 @@ class WhisperEncoder:
 
 
 @functools.cache
-def _load_whisper(folder: str) -> WhisperEncoder:
+def _load_whisper(folder: str, depth: int) -> WhisperEncoder:
     try:
         import ctranslate2
     except ImportError:
         raise VispeechError(f"Whisper features need CTranslate2: {INSTALL}") from None
+    if depth:
+        folder = str(shallow_folder(folder, depth))
     preprocessor = Path(folder) / "preprocessor_config.json"
     try:
         n_mels = (
@@ -208,4 +301,4 @@ def _load_whisper(folder: str) -> WhisperEncoder:
         raise VispeechError(f"cannot load Whisper model {folder}: {str(exc).splitlines()[0]}") from None
     probe = np.zeros((1, n_mels, 20), dtype=np.float32)
     width = int(np.asarray(model.encode(ctranslate2.StorageView.from_array(probe), to_cpu=True)).shape[-1])
-    return WhisperEncoder(folder, model, n_mels, width)
+    return WhisperEncoder(folder, model, n_mels, width, depth)

@@ -76,6 +76,7 @@ AUDIO_PARAMS: dict = {
     "patience": 8,
     "features": "log-mel",
     "encoder": None,
+    "encoder_depth": 0,
     "n_mels": 80,
     "n_mfcc": 13,
     "normalize": "running",
@@ -145,7 +146,14 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             )
         normalize = "global" if p["features"] == "encoder" else p["normalize"]
         return AudioEncoding(
-            p["features"], p["n_mels"], p["n_mfcc"], fps, normalize, p["prior_seconds"], encoder=p["encoder"]
+            p["features"],
+            p["n_mels"],
+            p["n_mfcc"],
+            fps,
+            normalize,
+            p["prior_seconds"],
+            encoder=p["encoder"],
+            encoder_depth=p["encoder_depth"],
         )
 
     def _make_encoding(self, train_set: list, corpus) -> AudioEncoding:
@@ -154,7 +162,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         self.phone_language_ = train_set[0].phones.language
         if encoding.kind == "encoder":
             assert encoding.encoder is not None  # AudioEncoding: kind encoder has its folder
-            encoder = SpeechEncoder.load(encoding.encoder)
+            encoder = SpeechEncoder.load(encoding.encoder, encoding.encoder_depth)
             encoding = replace(encoding, layers=encoder.layers, width=encoder.width)
             self._hidden = {id(u): self._utterance_hidden(u, encoder) for u in train_set}
             return encoding.with_statistics(encoding.features(hidden) for hidden in self._hidden.values())
@@ -230,7 +238,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             hidden = getattr(self, "_hidden", {}).get(id(utterance))
             if hidden is None:
                 assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-                hidden = self._utterance_hidden(utterance, SpeechEncoder.load(self.encoding_.encoder))
+                encoder = SpeechEncoder.load(self.encoding_.encoder, self.encoding_.encoder_depth)
+                hidden = self._utterance_hidden(utterance, encoder)
             return _Example([], n_frames, labels, hidden)
         powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
         return _Example(powers, n_frames, labels)
@@ -384,7 +393,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         n_model = clip.n_frames(self.fps_)
         if self.encoding_.kind == "encoder":
             assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-            source = self._hidden_states(clip, SpeechEncoder.load(self.encoding_.encoder))
+            encoder = SpeechEncoder.load(self.encoding_.encoder, self.encoding_.encoder_depth)
+            source = self._hidden_states(clip, encoder)
         else:
             source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
         outputs, posteriors = kernel.forward_with_phones(self.encoding_.encode(source, n_model))

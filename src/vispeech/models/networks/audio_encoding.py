@@ -21,7 +21,9 @@ training data's statistics (``normalize`` is ``"global"``): the self-supervised 
 were trained across thousands of voices and read a per-clip normalised waveform, a running
 normalisation of thousands of dimensions would be noisy, and global statistics keep a
 streamed frame independent of the audio before it; standardising also puts every layer on
-one scale, so the fusion weights compare layers rather than their magnitudes.
+one scale, so the fusion weights compare layers rather than their magnitudes. A Whisper
+encoder gives one state, read after its first ``encoder_depth`` transformer layers (0: all;
+:mod:`vispeech.frontends.whisper`).
 """
 
 from __future__ import annotations
@@ -47,8 +49,9 @@ class AudioEncoding:
 
     ``mean``/``std`` are the training features' statistics (per dimension); ``prior_seconds``
     is how much audio the running normalisation's prior is worth. ``encoder`` (the folder, as
-    given), ``layers`` and ``width`` describe a speech encoder's hidden states (``kind="encoder"``;
-    ``layers`` and ``width`` are 0 until the encoder is loaded at fit).
+    given), ``encoder_depth`` (a Whisper encoder's layers read; 0: all), ``layers`` and ``width``
+    describe a speech encoder's hidden states (``kind="encoder"``; ``layers`` and ``width`` are 0
+    until the encoder is loaded at fit).
     """
 
     kind: str = "log-mel"
@@ -60,6 +63,7 @@ class AudioEncoding:
     mean: list[float] = field(default_factory=list)
     std: list[float] = field(default_factory=list)
     encoder: str | None = None
+    encoder_depth: int = 0
     layers: int = 0
     width: int = 0
 
@@ -78,6 +82,10 @@ class AudioEncoding:
                 raise VispeechError(
                     f"speech encoder features are normalised globally, got normalize {self.normalize!r}"
                 )
+        if not (isinstance(self.encoder_depth, int) and 0 <= self.encoder_depth <= 64):
+            raise VispeechError(f"encoder_depth must be a whole number within 0..64, got {self.encoder_depth!r}")
+        if self.encoder_depth and self.kind != "encoder":
+            raise VispeechError("encoder_depth needs features=encoder")
         if self.normalize not in NORMALIZATIONS:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
         stack = FRAME_RATE / self.fps
@@ -183,6 +191,7 @@ class AudioEncoding:
             "mean": list(self.mean),
             "std": list(self.std),
             "encoder": self.encoder,
+            "encoder_depth": self.encoder_depth,
             "layers": self.layers,
             "width": self.width,
         }

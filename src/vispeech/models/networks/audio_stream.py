@@ -51,7 +51,8 @@ class AudioStream(ModelStream[np.ndarray]):
         self._encoder: EncoderStream | None
         if model.encoding_.kind == "encoder":
             assert model.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-            self._encoder = EncoderStream(SpeechEncoder.load(model.encoding_.encoder), model.fps_, model.get_params())
+            encoder = SpeechEncoder.load(model.encoding_.encoder, model.encoding_.encoder_depth)
+            self._encoder = EncoderStream(encoder, model.fps_, model.get_params())
         else:
             self._encoder = None
             self._spectra = SpectrumStream()
