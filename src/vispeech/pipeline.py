@@ -47,15 +47,15 @@ WHISPER_AUDIO_MODEL = "grid-audio-whisper"
 faces jawOpen r 0.78 against 0.65 (another GRID speaker) and 0.30 against 0.20 (TV and web
 speech), docs/audio.md."""
 WHISPER_SWEDISH_MODEL = "grid-audio-whisper-base"
-"""The same recipe on Whisper base's multilingual encoder: tiny.en never heard Swedish, and on
-espeak-ng's Swedish voices this one agrees better with the phone model (mean pooled r 0.417
-against 0.370), docs/audio.md."""
+"""The same recipe on Whisper base's multilingual encoder, read after 4 of its 6 layers: tiny.en
+never heard Swedish, and on espeak-ng's Swedish voices this one agrees better with the phone
+model (mean pooled r 0.464 against 0.370), docs/audio.md."""
 WHISPER_ENSEMBLE_MODEL = "grid-audio-whisper-ensemble"
 """The mean of :data:`WHISPER_AUDIO_MODEL`, :data:`WHISPER_SWEDISH_MODEL` and
 :data:`DEFAULT_AUDIO_STREAM_MODEL` (:class:`~vispeech.models.ensemble.AudioEnsemble`):
-better than any of them on grid_s1's validation split (jawOpen r 0.887 against 0.880, 0.872
-and 0.819) and on espeak-ng's English and Swedish voices (mean pooled r 0.572 against 0.461
-and 0.476 for the two Whisper models), docs/audio.md."""
+better than any of them on grid_s1's validation split (jawOpen r 0.888 against 0.880, 0.884
+and 0.819) and on espeak-ng's English and Swedish voices (mean pooled r 0.575 against 0.461
+and 0.524 for the two Whisper models), docs/audio.md."""
 
 
 def default_audio_model(language: str = "en") -> str:

@@ -3,9 +3,9 @@
 Networks on different front ends err differently on a voice none of them heard, so their mean
 carries further than any one: ``grid-audio-whisper-ensemble``, the mean of ``grid-audio-whisper``
 (Whisper tiny.en), ``grid-audio-whisper-base`` (Whisper base) and ``grid-audio-cnn`` (log-mel),
-agrees with the phone model on espeak-ng's voices at a mean pooled jawOpen r of 0.57 against
-0.46 and 0.48 for the Whisper networks alone, and scores 0.887 on grid_s1's validation split
-against 0.880 and 0.872 (docs/audio.md).
+agrees with the phone model on espeak-ng's voices at a mean pooled jawOpen r of 0.58 against
+0.46 and 0.52 for the Whisper networks alone, and scores 0.888 on grid_s1's validation split
+against 0.880 and 0.884 (docs/audio.md).
 
 An :class:`AudioEnsemble` learns nothing itself: its ``members`` are trained audio networks named
 as :func:`~vispeech.models.registry.load_model` takes them (shipped names, or saved folders,
