@@ -20,6 +20,13 @@ Markdown: jawOpen r per corpus, the mean over utterances of each one's r over it
 r over the pooled frames beside it; the lip closures per corpus; then espeak-ng's English and
 Swedish voices (``bench_audio_voices.py``): each audio model on the synthetic audio against the
 default phone model (``grid-tdnn``) on espeak's own phone timings. ``--json`` saves every number.
+
+With two models or more, a last table says whether the differences are more than the corpus can
+tell apart: each row against the first one, per corpus, the mean paired difference of the
+per-utterance r, Fisher's LSD p after a repeated-measures ANOVA over the table's rows
+(:func:`vispeech.evaluation.statistics.compare_models`, as ``vispeech evaluate --report`` does;
+the floor left out), and on how many utterances the row is higher. dev_eval's 25 and 14 clips
+separate only large differences: read it before acting on one.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from vispeech.evaluation import Evaluation, evaluate_models
 from vispeech.evaluation.floor import LoudnessFloor
 from vispeech.evaluation.report_folder import evaluation_json
 from vispeech.evaluation.report_parts import json_ready
+from vispeech.evaluation.statistics import compare_models
 from vispeech.files import atomic_output_file
 from vispeech.models.contract import Estimator
 from vispeech.models.registry import PRETRAINED, load_model
@@ -174,6 +182,22 @@ def markdown(models: dict[str, Estimator], results: dict[str, Evaluation], colum
             lines.append(f"| {label} | " + " | ".join(
                 f"{by_key[k]['pooled_r']:.3f} / {by_key[k]['mean_r']:.3f}" for k in keys) + " |")
     lines += ["", "Seconds: " + ", ".join(f"{name} {s:.0f}" for name, s in seconds.items()) + "."]
+    compared = [label for label, _ in rows(models) if label != FLOOR]
+    if len(compared) > 1:
+        lines += ["", "## Paired against the first row", "",
+                  f"Per-utterance jawOpen r of each row minus {compared[0]}'s: mean difference, Fisher's LSD p "
+                  "(repeated-measures ANOVA over these rows), utterances where the row is higher.", "",
+                  "| model | " + " | ".join(columns[n] for n in names) + " |", "|---|" + "---:|" * len(names)]
+        cells = {label: [] for label in compared[1:]}
+        for n in names:
+            scores = {label: results[n][label].scores.per_utterance_r[:, 0] for label in compared}
+            pairs = {pair.b: pair for pair in compare_models(scores, "jawOpen r").pairs if pair.a == compared[0]}
+            for label in compared[1:]:
+                higher = int((scores[label] > scores[compared[0]]).sum())
+                p = pairs[label].p_lsd
+                cells[label].append(f"{-pairs[label].difference:+.3f} (p {'< 0.01' if p < 0.01 else f'{p:.2f}'}; "
+                                    f"{higher}/{len(scores[label])})")
+        lines += [f"| {label} | " + " | ".join(row) + " |" for label, row in cells.items()]
     return "\n".join(lines)
 
 
