@@ -57,11 +57,10 @@ from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
-from vispeech.frontends.encoder import SpeechEncoder
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, power_spectrogram, warp_frequencies
 from vispeech.models.fitting import FitRun, Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
-from vispeech.models.networks.audio_stream import AudioStream, EncoderStream
+from vispeech.models.networks.audio_stream import AudioStream, EncoderStream, speech_encoder
 from vispeech.models.networks.kernels import AudioCNNKernel, EncoderDecoderKernel
 from vispeech.models.networks.network import TRAINING_PARAMS, Network
 from vispeech.models.networks.phone_head import check_closure_params, heard_bilabials
@@ -161,8 +160,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         self.phones_ = self._phone_vocabulary(train_set)
         self.phone_language_ = train_set[0].phones.language
         if encoding.kind == "encoder":
-            assert encoding.encoder is not None  # AudioEncoding: kind encoder has its folder
-            encoder = SpeechEncoder.load(encoding.encoder, encoding.encoder_depth)
+            encoder = speech_encoder(encoding)
             encoding = replace(encoding, layers=encoder.layers, width=encoder.width)
             self._hidden = {id(u): self._utterance_hidden(u, encoder) for u in train_set}
             return encoding.with_statistics(encoding.features(hidden) for hidden in self._hidden.values())
@@ -237,9 +235,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         if self.encoding_.kind == "encoder":
             hidden = getattr(self, "_hidden", {}).get(id(utterance))
             if hidden is None:
-                assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-                encoder = SpeechEncoder.load(self.encoding_.encoder, self.encoding_.encoder_depth)
-                hidden = self._utterance_hidden(utterance, encoder)
+                hidden = self._utterance_hidden(utterance, speech_encoder(self.encoding_))
             return _Example([], n_frames, labels, hidden)
         powers = getattr(self, "_powers", {}).get(id(utterance)) or self._utterance_powers(utterance, copies=False)
         return _Example(powers, n_frames, labels)
@@ -392,9 +388,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
         n_model = clip.n_frames(self.fps_)
         if self.encoding_.kind == "encoder":
-            assert self.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-            encoder = SpeechEncoder.load(self.encoding_.encoder, self.encoding_.encoder_depth)
-            source = self._hidden_states(clip, encoder)
+            source = self._hidden_states(clip, speech_encoder(self.encoding_))
         else:
             source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
         outputs, posteriors = kernel.forward_with_phones(self.encoding_.encode(source, n_model))

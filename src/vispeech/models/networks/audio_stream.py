@@ -23,7 +23,17 @@ from vispeech.models.networks.kernels import AudioCNNStream
 from vispeech.models.streams import ModelStream, ResampledFrames
 
 if TYPE_CHECKING:
+    from vispeech.frontends.whisper import WhisperEncoder
     from vispeech.models.networks.audio import AudioNetwork
+    from vispeech.models.networks.audio_encoding import AudioEncoding
+
+
+def speech_encoder(encoding: AudioEncoding) -> SpeechEncoder | WhisperEncoder:
+    """The speech encoder an encoding of ``kind="encoder"`` reads (its folder, at its
+    ``encoder_depth``), loaded once and shared."""
+    if encoding.encoder is None:
+        raise VispeechError(f"{encoding.kind} features come from no speech encoder")
+    return SpeechEncoder.load(encoding.encoder, encoding.encoder_depth)
 
 
 class AudioStream(ModelStream[np.ndarray]):
@@ -50,9 +60,7 @@ class AudioStream(ModelStream[np.ndarray]):
         self._samples = 0  # pushed so far
         self._encoder: EncoderStream | None
         if model.encoding_.kind == "encoder":
-            assert model.encoding_.encoder is not None  # AudioEncoding: kind encoder has its folder
-            encoder = SpeechEncoder.load(model.encoding_.encoder, model.encoding_.encoder_depth)
-            self._encoder = EncoderStream(encoder, model.fps_, model.get_params())
+            self._encoder = EncoderStream(speech_encoder(model.encoding_), model.fps_, model.get_params())
         else:
             self._encoder = None
             self._spectra = SpectrumStream()
