@@ -154,8 +154,12 @@ def whisper_log_mel(samples: np.ndarray, n_mels: int = 80) -> np.ndarray:
 
 def encoder_depth(folder: str | Path) -> int:
     """The number of transformer layers in the encoder of the CTranslate2 Whisper ``folder``."""
-    _, variables, _ = _variables(Path(folder) / "model.bin")
-    return len({name.split("/")[1] for name, _, _ in variables if _encoder_layer(name) is not None})
+    return _depth(_variables(Path(folder) / "model.bin")[1])
+
+
+def _depth(variables: list[tuple[str, int, int]]) -> int:
+    """The number of encoder layers among a ``model.bin``'s variables (:func:`_variables`)."""
+    return len({layer for name, _, _ in variables if (layer := _encoder_layer(name)) is not None})
 
 
 def shallow_folder(folder: str | Path, depth: int) -> Path:
@@ -165,7 +169,8 @@ def shallow_folder(folder: str | Path, depth: int) -> Path:
     a name that follows the source folder's path, size and time. ``folder`` itself when
     ``depth`` is its encoder's depth; :class:`VispeechError` for a depth outside 1..that."""
     source = Path(folder).resolve()
-    total = encoder_depth(source)
+    header, variables, tail = _variables(source / "model.bin")
+    total = _depth(variables)
     if not (isinstance(depth, int) and 1 <= depth <= total):
         raise VispeechError(
             f"the Whisper encoder in {source} has {total} layers: depth must be 1..{total}, not {depth!r}"
@@ -177,7 +182,6 @@ def shallow_folder(folder: str | Path, depth: int) -> Path:
     target = cache_root() / f"whisper-encoder-{depth}-{digest}"
     if (target / "model.bin").is_file():
         return target
-    header, variables, tail = _variables(source / "model.bin")
     kept = [(start, stop) for name, start, stop in variables if (_encoder_layer(name) or 0) < depth]
     target.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output_dir(target) as tmp:
