@@ -166,3 +166,29 @@ def test_missing_extra_or_model_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "faster_whisper", None)
     with pytest.raises(VispeechError, match=r'pip install "vispeech\[whisper\]"'):
         transcribe(clip, model=str(fake))
+
+
+def test_transcribes_after_encoding_in_process(tmp_path):
+    """A worker forked after this process ran Whisper's encoder still transcribes: CTranslate2's
+    GNU OpenMP pool does not survive fork(), and with the encoder on two threads the worker hung
+    until its time limit (whisper.THREADS). A fresh process that has used no worker before the
+    encoding (its audio read with NumPy), so that the pool's first worker is forked after it;
+    the time limit cut so that a hang fails in seconds."""
+    import subprocess
+
+    sentence = ENGLISH[1]
+    clip = spoken(sentence, "en")
+    np.save(tmp_path / "speech.npy", clip.samples)
+    script = f"""
+import numpy as np
+from vispeech.frontends import isolation, whisper
+from vispeech.frontends.audio import AudioClip
+from vispeech.frontends.transcribe import transcribe
+isolation.TIME_LIMIT = 10.0
+clip = AudioClip.from_array(np.load("speech.npy"), {clip.sample_rate})
+whisper.WhisperEncoder.load(whisper.model_folder("whisper-tiny.en")).hidden_states(clip)
+print(transcribe(clip, "en"))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert word_error_rate(aligner_text(sentence, "en"), done.stdout.strip()) <= 0.2, done.stdout

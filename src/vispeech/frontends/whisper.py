@@ -61,8 +61,12 @@ CHUNK_SECONDS = 3.0
 """Audio encoded per chunk (seconds)."""
 CHUNK_OVERLAP = 1.0
 """Audio (seconds) encoded either side of a chunk for context, then dropped."""
-THREADS = 2
-"""CPU threads CTranslate2 runs the encoder on."""
+THREADS = 1
+"""CPU threads CTranslate2 runs Whisper on (the encoder in this process, faster-whisper in a worker).
+One: on two cores it is as fast as two (10 s encoded in 0.09 s by tiny.en, 0.13 s by base's four
+layers; 12 s transcribed in 0.84 s against 0.94 s), and CTranslate2's GNU OpenMP thread pool does
+not survive ``fork()``: a worker forked from a process that had run Whisper on two threads hung in
+its own first Whisper call (:mod:`vispeech.frontends.isolation` forks its workers)."""
 
 _ENCODE_LOCK = threading.Lock()
 
