@@ -25,6 +25,7 @@ from vispeech.frontends import transcribe as transcription  # noqa: E402
 from vispeech.frontends import whisper  # noqa: E402
 from vispeech.frontends.align import in_dictionary  # noqa: E402
 from vispeech.frontends.audio import AudioClip  # noqa: E402
+from vispeech.frontends.isolation import FAULT_VARIABLE  # noqa: E402
 from vispeech.frontends.transcribe import aligner_text, transcribe, word_error_rate, words_of  # noqa: E402
 from vispeech.pipeline import listen, utter  # noqa: E402
 
@@ -192,3 +193,35 @@ print(transcribe(clip, "en"))
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
     assert word_error_rate(aligner_text(sentence, "en"), done.stdout.strip()) <= 0.2, done.stdout
+
+
+def test_whisper_takes_a_true_transcript_that_pocketsphinx_refuses(monkeypatch):
+    """espeak-ng's Annie voice is far from pocketsphinx's acoustic model: the fit refuses its true
+    transcript, Whisper hears it (one word of eight otherwise) and the transcript is aligned; a
+    wrong one stays refused and the error says what Whisper heard; without the extra, as before."""
+    from vispeech.frontends.align import MIN_FIT, TranscriptMismatch, align, transcript_fit
+    from vispeech.frontends.espeak import synthesize
+    from vispeech.pipeline import hear
+
+    true, wrong = ENGLISH[0], "Bob's mom made big blue balloons for the baby."
+    speech = synthesize(true, "en", voice="Annie")
+    clip = AudioClip.from_array(speech.audio, speech.sample_rate)
+    assert transcript_fit(clip, true) < MIN_FIT  # the refusal this test is about
+    with pytest.raises(TranscriptMismatch):
+        align(clip.samples, clip.sample_rate, true, min_fit=MIN_FIT)
+    agrees, heard = transcription.second_opinion(clip, true)
+    assert agrees and 0 < word_error_rate(aligner_text(true, "en"), heard) <= transcription.MAX_HEARD_WER
+    utterance = hear(clip, true)
+    assert [w.text for w in utterance.phones.words] == words_of(aligner_text(true, "en"))
+    with pytest.raises(TranscriptMismatch, match=r"does not fit the audio .* Whisper heard 'people") as error:
+        hear(clip, wrong)
+    assert "\n" not in str(error.value)
+    assert hear(clip, wrong, force=True).phones is not None
+    monkeypatch.setenv(FAULT_VARIABLE, f"crash:{whisper.model_folder(transcription.ENGLISH_MODEL)}")
+    assert transcription.second_opinion(clip, true) == (False, None)  # Whisper crashed: nothing heard
+    monkeypatch.delenv(FAULT_VARIABLE)
+    monkeypatch.setattr(whisper, "installed", lambda model="whisper-tiny.en": False)
+    assert transcription.second_opinion(clip, true) == (False, None)
+    with pytest.raises(TranscriptMismatch) as error:
+        hear(clip, true)
+    assert "Whisper" not in str(error.value)

@@ -413,13 +413,24 @@ def hear(clip: AudioClip, text: str | None = None, language: str = "en", *, forc
     """The first half of :func:`listen`: the recording's utterance without a track, its audio at
     most :data:`MAX_OUTPUT_SAMPLE_RATE` and, with ``text``, the transcript's aligned phones
     (:class:`~vispeech.frontends.align.TranscriptMismatch` for an English transcript whose fit
-    is below :data:`~vispeech.frontends.align.MIN_FIT`, unless ``force``)."""
+    is below :data:`~vispeech.frontends.align.MIN_FIT`, unless ``force`` or Whisper hears it:
+    :func:`~vispeech.frontends.transcribe.second_opinion`, with the ``whisper`` extra)."""
     phones = None
     if text is not None:
-        from vispeech.frontends.align import MIN_FIT, align
+        from vispeech.frontends.align import MIN_FIT, TranscriptMismatch, align
+        from vispeech.frontends.transcribe import second_opinion
 
         check_text(text)
-        phones = align(clip.samples, clip.sample_rate, text, language, min_fit=None if force else MIN_FIT)
+        try:
+            phones = align(clip.samples, clip.sample_rate, text, language, min_fit=None if force else MIN_FIT)
+        except TranscriptMismatch as mismatch:
+            agrees, heard = second_opinion(clip, text)
+            if not agrees:
+                said = (
+                    f" Whisper heard {heard[:80]!r}." if heard else "" if heard is None else " Whisper heard no words."
+                )
+                raise TranscriptMismatch(f"{mismatch}{said}") from None
+            phones = align(clip.samples, clip.sample_rate, text, language)
     audio = clip.resampled(min(clip.sample_rate, MAX_OUTPUT_SAMPLE_RATE))
     return Utterance(text=text or "", phones=phones, audio=audio.samples, sample_rate=audio.sample_rate)
 
