@@ -359,3 +359,71 @@ def test_the_loudness_floor_is_scored_like_a_model(corpus):
     assert floor.scores["jawOpen"]["r"] > 0.95 and floor.closures.tracked_closures == 6
     with pytest.raises(VispeechError, match="learns nothing"):
         LoudnessFloor().fit(corpus)
+
+
+def _long_utterance(name: str, seconds: float, fps: float = 25.0, slow: bool = False) -> Utterance:
+    """``seconds`` of one word over a smooth random jaw (2-6 Hz; ``slow``: a 4-s wave), tracked at ``fps``."""
+    rng = np.random.default_rng(len(name) + int(seconds))
+    n = int(seconds * fps)
+    jaw = np.convolve(rng.normal(size=n + 20), np.hanning(9), "same")[10:-10]
+    if slow:
+        jaw = np.sin(2 * np.pi * np.arange(n) / (4 * fps))
+    jaw = jaw - jaw.min()
+    phones = PhoneSequence([Phone("AA", 0.0, n / fps, 0)], "en", [Word("ah", 0.0, n / fps)])
+    track = Track(np.column_stack([jaw, np.zeros(n)]), ("jawOpen", "mouthClose"), fps)
+    return Utterance(id=name, text="ah", audio_path=Path("none.wav"), duration=n / fps, track=track,
+                     words=list(phones.words), phones=phones)
+
+
+class Late(Replay):
+    """Plays back the recorded track ``frames`` frames late, as from a picture that leads its sound."""
+
+    defaults = {"offset": 0.0, "frames": 0}
+    channels = ("jawOpen", "mouthClose")
+
+    def __init__(self, utterances, frames: int = 0):
+        Estimator.__init__(self, frames=frames)
+        self.by_phones = {id(u.phones): u.track.select(self.channels) for u in utterances}
+
+    def predict(self, phones, fps):
+        track = self.by_phones[id(phones)]
+        frames = self.get_params()["frames"]
+        values = track.values[np.clip(np.arange(track.n_frames) - frames, 0, track.n_frames - 1)]
+        return Track(values, track.channels, fps)
+
+
+def test_sync_moves_predictions_by_each_long_utterances_lag():
+    """The picture of a 10-s take leads its sound by 3 frames (a model in sync trails it): with
+    ``sync`` every model's predictions are moved 3 frames earlier and score as if in sync; a 4-s
+    take keeps its lag (too short to tell), and a lag beyond reach is not guessed."""
+    utterances = [_long_utterance("long", 10.0), _long_utterance("short", 4.0)]
+    corpus = Corpus("late", utterances, 25.0, ("jawOpen", "mouthClose"))
+    late = Late(corpus, frames=3)
+    plain = evaluate_models(corpus, {"late": late}, channels=["jawOpen"], postprocessing="none")
+    synced = evaluate_models(corpus, {"late": late, "replay": Replay(corpus)}, channels=["jawOpen"],
+                             postprocessing="none", sync=late)
+    assert synced.sync == late.name and synced.lags == {"long": pytest.approx(3 / 25), "short": 0.0}
+    assert plain.sync is None and plain.lags is None
+    before, after = plain["late"].scores.per_utterance_r[:, 0], synced["late"].scores.per_utterance_r[:, 0]
+    assert before[0] < 0.9 and after[0] == pytest.approx(1.0, abs=0.005) and after[1] == before[1]
+    assert synced["replay"].scores.per_utterance_r[0, 0] < 0.9  # moved too: the lag is the recording's
+    assert f"re-synced by {late.name}: predictions moved by each utterance's lag (median +60 ms, +0 to +120 ms; " \
+           "1 of 2 moved)" in synced.to_text()
+    from vispeech.evaluation.report_folder import evaluation_json
+
+    assert evaluation_json(synced)["sync"] == {"model": late.name, "lags_s": {"long": 0.12, "short": 0.0}}
+    assert "sync" not in evaluation_json(plain)
+    moved = predict_on_frames(late, corpus["long"], "none", lag=3)
+    np.testing.assert_array_equal(moved.values[:-3, 0], corpus["long"].track["jawOpen"][:-3])
+    wave = Corpus("wave", [_long_utterance("wave", 10.0, slow=True)], 25.0, ("jawOpen", "mouthClose"))
+    far = Late(wave, frames=12)  # 0.48 s late: beyond SYNC_REACH, r best at its edge
+    assert evaluate_models(wave, {"far": far}, channels=["jawOpen"], postprocessing="none", sync=far).lags == {
+        "wave": 0.0}
+    assert evaluate_models(wave, {"near": Late(wave, frames=5)}, channels=["jawOpen"], postprocessing="none",
+                           sync=Late(wave, frames=5)).lags == {"wave": pytest.approx(0.2)}
+    with pytest.raises(VispeechError, match="has no jawOpen to re-sync"):
+        evaluate_models(corpus, {"late": late}, channels=["jawOpen"], sync=Pucker(corpus))
+
+
+class Pucker(Late):
+    channels = ("mouthPucker",)

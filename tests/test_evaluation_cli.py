@@ -199,5 +199,11 @@ def test_split_all_scores_a_corpus_of_mixed_frame_rates(grid_s1, tmp_path):
     closures = next(line.split() for line in lines if line.startswith("baseline ") and "/" in line)
     closed = sum(int(tracked_closed(u.landmarks)[scored_frames(u)].sum()) for u in corpus)
     assert closures[1] == "3/3" and closures[4] == f"{100 * closed / sum(frames):.1f}"  # tracked, per own frame
+    synced = _evaluate("--corpus", root, "--split", "all", "-m", "baseline", "--channels", "jawOpen", "--sync", "-q")
+    assert synced.exit_code == 0, synced.output
+    assert synced.output.splitlines()[0] == (  # 3-s takes: too short for their lags to be told
+        f"{lines[0]}, re-synced by grid-tdnn: predictions moved by each utterance's lag (median +0 ms, +0 to +0 ms; "
+        "0 of 2 moved)")
+    assert synced.output.splitlines()[1:] == lines[1:]
     bad = _evaluate("--corpus", root, "--split", "every", "-m", "baseline", "-q")
     assert bad.exit_code == 2 and "'every' is not one of 'train', 'validation', 'test', 'all'" in bad.output

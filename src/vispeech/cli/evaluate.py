@@ -8,7 +8,7 @@ import click
 
 from vispeech.cli import main, postprocessing_option, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
-from vispeech.corpus.corpus import ALL, SPLITS
+from vispeech.corpus.corpus import ALL, SPLITS, recorded_track
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, check_output_dir
 
@@ -46,6 +46,13 @@ from vispeech.files import atomic_output_file, check_output_dir
     "(their frames blended with the phone model's, the lips closed on the phones' bilabials).",
 )
 @click.option(
+    "--sync",
+    is_flag=True,
+    help="Re-sync recordings whose picture and sound are out of step (web video): move every model's "
+    "predictions by each utterance's lag, where the default phone model's jawOpen agrees best with "
+    "the recording's (within 0.3 s); the lags are summed up in the header.",
+)
+@click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
@@ -77,6 +84,7 @@ def evaluate_command(
     channels: str | None,
     postprocessing: str,
     transcript: bool,
+    sync: bool,
     markdown: Path | None,
     plot: Path | None,
     plot_utterance: str | None,
@@ -92,6 +100,7 @@ def evaluate_command(
     """
     from vispeech.evaluation.report import evaluate_models, predict_on_frames
     from vispeech.models.registry import PRETRAINED, load_model
+    from vispeech.pipeline import DEFAULT_MODEL
 
     models = {}
     specs = [name for spec in model_specs for name in (PRETRAINED if spec == "shipped" else [spec])]
@@ -110,7 +119,13 @@ def evaluate_command(
         raise VispeechError(f"the {split} split of corpus {aligned.name} has no utterances")
     example = corpus[plot_utterance] if plot_utterance is not None else corpus[0]
     evaluation = evaluate_models(
-        corpus, models, channels=wanted, postprocessing=postprocessing, transcript=transcript, progress=not quiet
+        corpus,
+        models,
+        channels=wanted,
+        postprocessing=postprocessing,
+        transcript=transcript,
+        sync=load_model(DEFAULT_MODEL) if sync else None,
+        progress=not quiet,
     )
     click.echo(evaluation.to_text(), nl=False)
     if markdown is not None:
@@ -118,8 +133,9 @@ def evaluate_command(
             tmp.write_text(evaluation.to_markdown(), encoding="utf-8")
         click.echo(f"tables -> {markdown}")
     if plot is not None or report_dir is not None:
+        lag = round(evaluation.lags[example.id] * recorded_track(example).fps) if evaluation.lags is not None else 0
         predictions = {
-            label: predict_on_frames(model, example, postprocessing, transcript) for label, model in models.items()
+            label: predict_on_frames(model, example, postprocessing, transcript, lag) for label, model in models.items()
         }
     if plot is not None:
         from vispeech.evaluation.plots import plot_utterance as draw

@@ -175,6 +175,8 @@ def evaluation_json(evaluation: Evaluation, comparison: Comparison | None = None
         "models": models,
         "recorded_jawOpen_dynamics": evaluation.recorded_dynamics,
     }
+    if evaluation.sync is not None:
+        out["sync"] = {"model": evaluation.sync, "lags_s": evaluation.lags}
     if comparison is not None:
         out["comparison"] = {
             "means": comparison.means,
