@@ -1,7 +1,7 @@
 """How far the models carry beyond the one speaker they learned from: other people's tracked faces and espeak-ng's voices.
 
     python benchmarks/bench_generalisation.py [--models NAME_OR_FOLDER ...] [--corpus NAME=DIR ...]
-                                              [--json OUT.json] [--no-voices]
+                                              [--json OUT.json] [--no-voices] [--sync]
 
 Every model (by default every shipped one, ``vispeech models``) and the loudness floor
 (:class:`vispeech.evaluation.floor.LoudnessFloor`: the sound's level as jawOpen) are scored by
@@ -20,6 +20,9 @@ Markdown: jawOpen r per corpus, the mean over utterances of each one's r over it
 r over the pooled frames beside it; the lip closures per corpus; then espeak-ng's English and
 Swedish voices (``bench_audio_voices.py``): each audio model on the synthetic audio against the
 default phone model (``grid-tdnn``) on espeak's own phone timings. ``--json`` saves every number.
+``--sync`` moves every model's predictions by each long utterance's lag first, as ``vispeech
+evaluate --sync`` does: the TV and web clips' picture leads their sound by up to 200 ms
+(docs/evaluation.md), and this shows what that costs; issue 22's figures are those without.
 
 With two models or more, a last table says whether the differences are more than the corpus can
 tell apart: each row against the first one, per corpus, the mean paired difference of the
@@ -44,6 +47,7 @@ from vispeech.cli._corpus_input import read_aligned_corpus
 from vispeech.errors import VispeechError
 from vispeech.evaluation import Evaluation, evaluate_models
 from vispeech.evaluation.floor import LoudnessFloor
+from vispeech.evaluation.report import SYNC_MIN_SECONDS
 from vispeech.evaluation.report_folder import evaluation_json
 from vispeech.evaluation.report_parts import json_ready
 from vispeech.evaluation.statistics import compare_models
@@ -72,6 +76,9 @@ def main() -> None:
                         help="another folder for a corpus above, or one more corpus (scored whole); repeat")
     parser.add_argument("--json", type=Path, default=None, metavar="OUT", help="also save every number here")
     parser.add_argument("--no-voices", action="store_true", help="leave out espeak-ng's voices")
+    parser.add_argument("--sync", action="store_true",
+                        help="re-sync each utterance of 6 s or more by the phone model's lag (evaluate --sync): "
+                             "how much the recordings' own audio-video offsets cost; not the figures that count")
     args = parser.parse_args()
     try:
         run(args)
@@ -99,10 +106,12 @@ def run(args: argparse.Namespace) -> None:
     for name, (folder, split) in corpora.items():
         start = time.perf_counter()
         corpus = read_aligned_corpus(folder, "en", None, False).split(split)
-        results[name] = evaluate_models(corpus, models, channels=["jawOpen"])
+        sync = load_model(DEFAULT_MODEL) if args.sync else None
+        results[name] = evaluate_models(corpus, models, channels=["jawOpen"], sync=sync)
         with_phones = {f"{label}{TRANSCRIPT}": m for label, m in models.items() if m.input_kind == "audio"
                        and label != FLOOR}
-        results[name].models += evaluate_models(corpus, with_phones, channels=["jawOpen"], transcript=True).models
+        results[name].models += evaluate_models(corpus, with_phones, channels=["jawOpen"], transcript=True,
+                                                sync=sync).models
         seconds[name] = time.perf_counter() - start
         print(f"{results[name].to_text().splitlines()[0]}: {seconds[name]:.0f} s", file=sys.stderr, flush=True)
     voices = []
@@ -126,6 +135,17 @@ def run(args: argparse.Namespace) -> None:
             tmp.write_text(json.dumps(json_ready(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
+def _lags(results: dict[str, Evaluation]) -> str:
+    """Each re-synced corpus's lags, summed up ("" when none was re-synced)."""
+    parts = []
+    for name, evaluation in results.items():
+        if evaluation.lags is not None:
+            ms = [round(1000 * lag) for lag in evaluation.lags.values() if lag]
+            parts.append(f"{name} {len(ms)} of {len(evaluation.lags)} moved" + (f", {min(ms):+d} to {max(ms):+d} ms"
+                                                                               if ms else ""))
+    return ", ".join(parts)
+
+
 def rows(models: dict[str, Estimator]) -> list[tuple[str, str]]:
     """The table's rows, label and input: each model, then each audio model with the transcript."""
     plain = [(label, model.input_kind) for label, model in models.items()]
@@ -139,7 +159,9 @@ def markdown(models: dict[str, Estimator], results: dict[str, Evaluation], colum
     names = list(results)
     lines = ["## jawOpen r", "",
              "Mean over utterances of r over each one's speech span (r over the pooled frames in brackets); "
-             "post-processed, tracker scale, lag 0. " + "; ".join(
+             "post-processed, tracker scale, " + (
+                 f"each utterance of {SYNC_MIN_SECONDS:g} s or more re-synced by {DEFAULT_MODEL}'s lag (evaluate "
+                 f"--sync: {synced}). " if (synced := _lags(results)) else "lag 0. ") + "; ".join(
                  f"{columns[n]}: {r.utterances} utterances, {r.models[0].scores.frames} frames" for n, r in results.items())
              + ".", "",
              "| model | input | " + " | ".join(columns[n] for n in names) + " |",
