@@ -138,7 +138,7 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
 
     out = tmp_path / "report"
     result = _evaluate("--corpus", grid5, "-m", "shipped", "-m", "baseline", "--channels", "jawOpen,mouthClose",
-                       "--report", out, "-q")
+                       "--report", out, "--sync", "-q")
     assert result.exit_code == 0, result.output
     names = {p.name for p in out.iterdir()}
     assert {"report.html", "scores.csv", "utterances.csv", "anova.csv", "pairs.csv", "scores.json"} <= names
@@ -160,6 +160,8 @@ def test_the_report_folder_on_five_grid_utterances(grid5, tmp_path):
     assert scores["comparison"]["anova"]["df_model"] == 9 and len(scores["comparison"]["pairs"]) == 45
     page = (out / "report.html").read_text()
     assert "Repeated-measures ANOVA" in page
+    assert scores["sync"] == {"model": "grid-tdnn", "lags_s": dict.fromkeys(GRID_TEST_IDS, 0.0)}  # 3-s takes
+    assert "Sound and picture re-synced by grid-tdnn: predictions moved by each utterance" in page
     assert 'src="trajectory.png"' in page and "Lip closures" in page and "How jawOpen moves" in page
     dynamics = scores["models"][0]["jawOpen_dynamics"]
     assert abs(dynamics["lag_s"]) <= 0.2 and 0 < dynamics["high_frequency_share"] < 1

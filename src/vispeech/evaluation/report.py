@@ -145,14 +145,16 @@ class Evaluation:
         return (
             f"{self.corpus}: {self.utterances} utterances, {frames} speech frames at "
             f"{frame_rates_text(self.frame_rates)} fps, "
-            f"post-processing {self.postprocessing}" + (self._sync_text() if self.sync else "")
+            f"post-processing {self.postprocessing}" + (f", {self.sync_summary()}" if self.sync else "")
         )
 
-    def _sync_text(self) -> str:
-        assert self.lags is not None  # set with sync
+    def sync_summary(self) -> str:
+        """How the predictions were re-synced (``sync``), in words; ``""`` when they were not."""
+        if self.sync is None or self.lags is None:
+            return ""
         ms = np.array(list(self.lags.values())) * 1000
         return (
-            f", re-synced by {self.sync}: predictions moved by each utterance's lag (median {np.median(ms):+.0f} ms, "
+            f"re-synced by {self.sync}: predictions moved by each utterance's lag (median {np.median(ms):+.0f} ms, "
             f"{ms.min():+.0f} to {ms.max():+.0f} ms; {int((ms != 0).sum())} of {len(ms)} moved)"
         )
 

@@ -251,6 +251,8 @@ def _html_scores(evaluation: Evaluation, command: str) -> list[str]:
         f"post-processing {html.escape(evaluation.postprocessing)}. "
         "RMSE is in % of the recording's range; r is Pearson's, over the speech span.</p>",
     ]
+    if evaluation.sync is not None:
+        parts.append(f"<p>Sound and picture {html.escape(evaluation.sync_summary())}.</p>")
     if command:
         parts.append(f"<p>Rebuild with: <code>{html.escape(command)}</code></p>")
     parts.append("<h2>Scores</h2>")
