@@ -49,8 +49,8 @@ from vispeech.files import atomic_output_file, check_output_dir
     "--sync",
     is_flag=True,
     help="Re-sync recordings whose picture and sound are out of step (web video): move every model's "
-    "predictions by each utterance's lag, where the default phone model's jawOpen agrees best with "
-    "the recording's (within 0.3 s); the lags are summed up in the header.",
+    "predictions by the lag of each utterance of 6 s or more, where the default phone model's jawOpen "
+    "agrees best with the recording's (within 0.3 s); the lags are summed up in the header.",
 )
 @click.option(
     "--markdown",
