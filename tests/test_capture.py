@@ -294,6 +294,60 @@ def test_sync_puts_a_late_picture_back_in_time(videos, face_model_env, tmp_path)
         assert int(np.argmax(r)) == best, (folder.name, np.round(r, 3))
 
 
+GRID_TEST_IDS = ["bbaf2n", "bbas3a", "bbbm2p", "bbbmzn", "bgan4n"]  # grid_s1's test split: no model trained on them
+
+
+@pytest.mark.parametrize("late", [0.12, -0.08])
+def test_a_speech_model_tells_the_offset_of_a_3_s_take(late):
+    """On five 3-s grid_s1 takes of the test split with the picture moved by ``late``, the jaw
+    opening the live audio model hears in the sound finds it within 40 ms, where the sound's
+    energy needs 10 s; under 3 s it tells nothing."""
+    from vispeech.corpus.articulation import lip_gap
+    from vispeech.corpus.av_sync import ANALYSIS_RATE, estimate_offset, openness_offset, shift_frames
+    from vispeech.corpus.grid import read_face_csv
+    from vispeech.frontends.audio import AudioClip, read_audio
+    from vispeech.models.registry import load_model
+
+    require(GRID.is_dir(), f"grid_s1 ({GRID})")
+    model = load_model("grid-audio-cnn")
+    for name in GRID_TEST_IDS:
+        _, landmarks, mask = read_face_csv(GRID / "utterances" / f"{name}.csv")
+        samples, rate = read_audio(GRID / "utterances" / f"{name}.flac")
+        gap = shift_frames(np.where(mask, lip_gap(landmarks, (360, 288)), np.nan)[:, None], -late, 25.0)[:, 0]
+        openness = model.predict(AudioClip.from_array(samples, rate), ANALYSIS_RATE).select(["jawOpen"]).values[:, 0]
+        assert abs(openness_offset(gap, 25.0, openness) - late) < 0.04, name
+        assert np.isnan(estimate_offset(gap, 25.0, samples, rate))
+    assert np.isnan(openness_offset(gap[:70], 25.0, openness))  # 2.8 s
+
+
+def test_sync_puts_a_3_s_take_back_in_time_from_what_the_sound_says(videos, face_model_env, tmp_path):
+    """One grid_s1 video (3 s, test split) with the picture 120 ms late: with vispeech's speech
+    openness (what `vispeech capture` passes) the offset is told and synced; without it, as
+    before, a 3-s take's offset cannot be told and --sync is a one-line error."""
+    from functools import partial
+
+    from vispeech.corpus.capture import capture_take
+    from vispeech.frontends.audio import read_audio
+    from vispeech.pipeline import speech_openness
+
+    frames = _grid_frames(videos[0])
+    samples, rate = read_audio(GRID / "utterances" / f"{videos[0].stem}.flac")
+    n = round(len(frames) / 25 * rate)
+    video = tmp_path / "late.mkv"
+    _write_video(video, [frames[0]] * 3 + frames[:-3], audio=np.concatenate([samples, np.zeros(n)])[:n], rate=rate,
+                 codec="pcm_s16le")
+    synced = capture_take(video, tmp_path / "synced", sync=True, openness=partial(speech_openness, language="en"))
+    assert abs(synced.offset - 0.12) < 0.045 and synced.synced, synced
+    plain = capture_take(video, tmp_path / "plain")
+    assert np.isnan(plain.offset) and not plain.synced
+    with pytest.raises(VispeechError, match=r"cannot tell the sound.s offset from the picture \(it needs 10 s of speech\)"):
+        capture_take(video, tmp_path / "refused", sync=True)
+    result = CliRunner().invoke(main, ["capture", str(video), "-o", str(tmp_path / "cli"), "--sync"])
+    assert result.exit_code == 0, result.output
+    said = next(line for line in result.output.splitlines() if line.startswith("audio-video offset"))
+    assert said.endswith("ms late (moved back in time with the sound)") and abs(int(said.split()[5]) - 120) < 45, said
+
+
 def test_smoothing_takes_jitter_and_keeps_speech():
     """On 20 grid_s1 tracks the Savitzky–Golay filter cuts jawOpen's frame-to-frame jitter (mean
     absolute second difference) by a quarter or more and keeps its movements (r > 0.98); frames

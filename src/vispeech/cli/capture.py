@@ -50,7 +50,8 @@ from vispeech.frontends.video import FACE_MODEL_VARIABLE
 @click.option(
     "--sync",
     is_flag=True,
-    help="Move the face track by the estimated audio-video offset (always measured and reported).",
+    help="Move the face track by the estimated audio-video offset (always measured and reported, from how "
+    "open the default audio model hears the jaw; takes of 3 s or more).",
 )
 @click.option("--smooth", is_flag=True, help="Filter tracker jitter (Savitzky-Golay, 0.2 s window).")
 @click.option(
@@ -74,7 +75,10 @@ def capture(
     eye landmarks per video frame; frames without a face left empty), <name>.csv (Live Link Face)
     and, with --text, <name>.TextGrid (docs/capture.md). Needs the capture extra.
     """
+    from functools import partial
+
     from vispeech.corpus.capture import capture_corpus, capture_take, import_livelink_take
+    from vispeech.pipeline import speech_openness
 
     if livelink_csv is not None:
         if batch or sync or smooth:
@@ -101,6 +105,7 @@ def capture(
                 face_model=face_model,
                 sync=sync,
                 smooth=smooth,
+                openness=partial(speech_openness, language=language),
                 jobs=jobs,
                 progress=_advance(bar),
             )
@@ -121,6 +126,7 @@ def capture(
             face_model=face_model,
             sync=sync,
             smooth=smooth,
+            openness=partial(speech_openness, language=language),
             progress=_advance(bar),
         )
     missing = f", {report.missing} without a face (left empty in {report.name}.face.csv)" if report.missing else ""
@@ -129,7 +135,7 @@ def capture(
         f"{report.frames} frames at {report.fps:g} fps{missing}, {report.duration:.2f} s of sound{phones} -> {out_dir}/"
     )
     if math.isnan(report.offset):
-        click.echo("audio-video offset: cannot be told (too short, or the mouth does not move)")
+        click.echo("audio-video offset: cannot be told (under 3 s, or the mouth does not move)")
     else:
         late = "late" if report.offset >= 0 else "early"
         done = "moved back in time with the sound" if report.synced else "--sync moves it"

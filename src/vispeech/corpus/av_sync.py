@@ -1,13 +1,17 @@
 """Audio–video sync of a captured take, and optional smoothing of tracker jitter.
 
 A camera's sound can lead or trail its picture (a phone's or a webcam's capture pipeline, a
-re-encoded file). :func:`estimate_offset` measures it from the take itself. At 100 Hz, the
+re-encoded file). :func:`openness_offset` measures it from the take itself: at 100 Hz, the
 rate of change of the inner-lip gap (:func:`vispeech.corpus.articulation.lip_gap`) is
-cross-correlated with that of the sound's log energy (low-passed at 10 Hz) over lags of up to
-``max_lag``; the peak, refined by a parabola, less what synchronous recordings show
-(:data:`NATURAL_LAG`, measured on grid_s1), is the offset. Positive: the picture
-is late (the mouth moves after the sound). It needs :data:`MIN_SECONDS` of the take: on 3-s
-takes a fifth of the estimates are wrong by more than 80 ms, on 30 s of speech none of 30 were.
+cross-correlated with that of the jaw opening a speech model hears in the sound
+(:func:`vispeech.pipeline.speech_openness`) over lags of up to ``max_lag``; the peak, refined
+by a parabola, is the offset. Positive: the picture is late (the mouth moves after the sound).
+It needs :data:`MIN_OPENNESS_SECONDS` of the take (on 3-s takes of grid_s1's test split 1 % of
+the estimates were more than 40 ms off, none more than 80 ms; docs/capture.md).
+:func:`estimate_offset` does the same with the sound's log energy (low-passed at 10 Hz) in place
+of the model, less what synchronous recordings show (:data:`NATURAL_LAG`, measured on grid_s1),
+for a caller without a model: it needs :data:`MIN_SECONDS` (on 3-s takes a fifth of its
+estimates are wrong by more than 80 ms, on 30 s of speech none of 30 were).
 :func:`shift_frames` moves a track by an offset (linear interpolation, ends held).
 
 :func:`smooth_frames` is a Savitzky–Golay filter (scipy) over the frames, off unless asked:
@@ -23,6 +27,8 @@ ANALYSIS_RATE = 100
 """Hz at which the lip gap and the sound's energy are compared."""
 MIN_SECONDS = 10.0
 """The shortest take whose offset :func:`estimate_offset` tells (NaN below)."""
+MIN_OPENNESS_SECONDS = 3.0
+"""The shortest take whose offset :func:`openness_offset` tells (NaN below)."""
 NATURAL_LAG = 0.025
 """Seconds by which the lip gap's changes seem to follow the sound's in a synchronous recording
 (frame times taken at their middles): the median over 30 stretches of 30 s of grid_s1 (its first
@@ -45,19 +51,46 @@ def estimate_offset(
     mouth or sound does not change."""
     from scipy.signal import butter, sosfiltfilt  # scipy: in the `capture` extra
 
-    gap = np.asarray(gap, dtype=float)
-    known = np.isfinite(gap) if mask is None else (np.asarray(mask, bool) & np.isfinite(gap))
     n = len(gap)
-    if n / fps < MIN_SECONDS or known.sum() < 2:
+    if n / fps < MIN_SECONDS:
         return float("nan")
     m = int(n / fps * ANALYSIS_RATE)
-    times = np.arange(m) / ANALYSIS_RATE
-    frames = np.flatnonzero(known)
-    g = np.gradient(np.interp(times, (frames + 0.5) / fps, gap[frames]))
     edges = np.clip(np.round(np.arange(m + 1) * sample_rate / ANALYSIS_RATE).astype(int), 0, len(samples))
     squares = np.concatenate([[0.0], np.cumsum(np.asarray(samples, dtype=float) ** 2)])
     rms = np.sqrt((squares[edges[1:]] - squares[edges[:-1]]) / np.maximum(np.diff(edges), 1))
-    e = np.gradient(sosfiltfilt(butter(2, 10, fs=ANALYSIS_RATE, output="sos"), np.log(rms + 1e-6)))
+    energy = sosfiltfilt(butter(2, 10, fs=ANALYSIS_RATE, output="sos"), np.log(rms + 1e-6))
+    return _lag(gap, fps, 0.5, energy, mask, max_lag) - NATURAL_LAG
+
+
+def openness_offset(
+    gap: np.ndarray, fps: float, openness: np.ndarray, mask: np.ndarray | None = None, max_lag: float = 0.3
+) -> float:
+    """Seconds by which the picture is late against the sound, as :func:`estimate_offset` says,
+    from the jaw opening a speech model hears in the sound instead of its energy
+    (:func:`vispeech.pipeline.speech_openness`: ``openness`` at :data:`ANALYSIS_RATE` from the
+    sound's start, frame k of the picture at ``k / fps``). NaN for a take shorter than
+    :data:`MIN_OPENNESS_SECONDS` or one whose mouth or model does not move."""
+    n = len(gap)
+    if n / fps < MIN_OPENNESS_SECONDS:
+        return float("nan")
+    return _lag(gap, fps, 0.0, np.asarray(openness, dtype=float)[: int(n / fps * ANALYSIS_RATE)], mask, max_lag)
+
+
+def _lag(
+    gap: np.ndarray, fps: float, middle: float, sound: np.ndarray, mask: np.ndarray | None, max_lag: float
+) -> float:
+    """Seconds by which the rate of change of ``gap`` (frame k at ``(k + middle) / fps``) follows
+    that of ``sound`` (a curve at :data:`ANALYSIS_RATE`) where they agree best, within
+    ``max_lag``, refined by a parabola; NaN where either does not change."""
+    gap = np.asarray(gap, dtype=float)
+    known = np.isfinite(gap) if mask is None else (np.asarray(mask, bool) & np.isfinite(gap))
+    n, m = len(gap), len(sound)
+    if known.sum() < 2 or m < 3:
+        return float("nan")
+    times = np.arange(m) / ANALYSIS_RATE
+    frames = np.flatnonzero(known)
+    g = np.gradient(np.interp(times, (frames + middle) / fps, gap[frames]))
+    e = np.gradient(sound)
     use = known[np.minimum((times * fps).astype(int), n - 1)]
     if np.std(g[use]) == 0 or np.std(e[use]) == 0:
         return float("nan")
@@ -73,7 +106,7 @@ def estimate_offset(
     if 0 < k < len(lags) - 1:
         curve = scores[k - 1] - 2 * scores[k] + scores[k + 1]
         shift = 0.5 * (scores[k - 1] - scores[k + 1]) / curve if curve < 0 else 0.0
-    return float(-(lags[k] + shift) / ANALYSIS_RATE - NATURAL_LAG)
+    return float(-(lags[k] + shift) / ANALYSIS_RATE)
 
 
 def shift_frames(values: np.ndarray, offset: float, fps: float) -> np.ndarray:

@@ -38,7 +38,14 @@ from pebble import ProcessExpired, ProcessPool
 from vispeech.alignment.formats import write_textgrid
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.corpus.articulation import lip_gap
-from vispeech.corpus.av_sync import MIN_SECONDS, estimate_offset, shift_frames, smooth_frames
+from vispeech.corpus.av_sync import (
+    MIN_OPENNESS_SECONDS,
+    MIN_SECONDS,
+    estimate_offset,
+    openness_offset,
+    shift_frames,
+    smooth_frames,
+)
 from vispeech.corpus.grid import fill_missing_frames, write_face_csv
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, check_output_dir
@@ -87,12 +94,16 @@ def capture_take(
     face_model: str | os.PathLike | None = None,
     sync: bool = False,
     smooth: bool = False,
+    openness: Callable[[AudioClip], np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> CaptureReport:
     """Write the take of ``video`` into ``out_dir`` (see the module docstring); the folder is
     written whole or not at all (:func:`vispeech.files.atomic_output_dir`) and may already hold
-    only this take's files. The audio–video offset is always estimated and reported; ``sync``
-    moves the face track by it, ``smooth`` filters tracker jitter (:mod:`vispeech.corpus.av_sync`).
+    only this take's files. The audio–video offset is always estimated and reported: from how
+    open a speech model hears the jaw in the sound where ``openness`` gives that
+    (:func:`vispeech.pipeline.speech_openness`; :func:`~vispeech.corpus.av_sync.openness_offset`,
+    takes of 3 s or more), else from the sound's energy (10 s or more); ``sync`` moves the face
+    track by it, ``smooth`` filters tracker jitter (:mod:`vispeech.corpus.av_sync`).
     Raises :class:`VispeechError` for an unreadable video, one with no audio track or no face in
     any frame, or a transcript that cannot be aligned."""
     name = Path(video).stem
@@ -105,14 +116,18 @@ def capture_take(
     face = track_face(video, face_model, progress)
     found = face.found
     landmarks = {f"lm{k}": face.landmarks[:, i] for i, k in enumerate(LANDMARKS)}
-    offset = estimate_offset(lip_gap(landmarks, face.size), face.fps, clip.samples, clip.sample_rate, mask=found)
+    gap = lip_gap(landmarks, face.size)
+    if openness is not None:
+        offset, needed = openness_offset(gap, face.fps, openness(clip), mask=found), MIN_OPENNESS_SECONDS
+    else:
+        offset, needed = estimate_offset(gap, face.fps, clip.samples, clip.sample_rate, mask=found), MIN_SECONDS
     width = face.values.shape[1]
     frames = np.concatenate([face.values, face.landmarks.reshape(len(found), -1)], axis=1)
     if sync:
         if not np.isfinite(offset):
             raise VispeechError(
                 f"{video}: cannot tell the sound's offset from the picture (it needs "
-                f"{MIN_SECONDS:g} s of speech): capture it without --sync"
+                f"{needed:g} s of speech): capture it without --sync"
             )
         frames = shift_frames(frames, offset, face.fps)
     if smooth:
@@ -169,12 +184,14 @@ def capture_corpus(
     face_model: str | os.PathLike | None = None,
     sync: bool = False,
     smooth: bool = False,
+    openness: Callable[[AudioClip], np.ndarray] | None = None,
     jobs: int | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> CorpusCaptureReport:
     """Capture every video in ``folder`` (:data:`VIDEO_SUFFIXES`, with ``<name>.txt`` beside it when
     there is a transcript) into the corpus folder ``out_dir``, ``jobs`` at a time (default: the
-    cores), with ``sync`` and ``smooth`` as :func:`capture_take` takes them. A video whose take is
+    cores), with ``sync``, ``smooth`` and ``openness`` (a picklable function) as :func:`capture_take`
+    takes them. A video whose take is
     complete in ``out_dir`` is skipped; one that fails is reported and stops nothing.
     ``progress(done, total)`` after each video."""
     root, out = Path(folder), Path(out_dir)
@@ -204,7 +221,8 @@ def capture_corpus(
     pool = ProcessPool(max_workers=min(jobs or os.cpu_count() or 1, max(len(todo), 1)))
     try:
         futures: dict[Future[str | None], Path] = {
-            pool.schedule(_capture_into, (video, out, language, face_model, sync, smooth)): video for video in todo
+            pool.schedule(_capture_into, (video, out, language, face_model, sync, smooth, openness)): video
+            for video in todo
         }
         for future in as_completed(futures):
             try:
@@ -226,7 +244,13 @@ def capture_corpus(
 
 
 def _capture_into(
-    video: Path, out: Path, language: str, face_model: str | None, sync: bool, smooth: bool
+    video: Path,
+    out: Path,
+    language: str,
+    face_model: str | None,
+    sync: bool,
+    smooth: bool,
+    openness: Callable[[AudioClip], np.ndarray] | None,
 ) -> str | None:
     """Capture one video into the corpus folder ``out`` (staged beside it, then moved in with its
     ``.face.csv`` last); None, or why it failed."""
@@ -236,7 +260,14 @@ def _capture_into(
         with tempfile.TemporaryDirectory(prefix=f".vispeech-capture-{video.stem}-", dir=out) as staging:
             take = Path(staging) / "take"
             capture_take(
-                video, take, text=text or None, language=language, face_model=face_model, sync=sync, smooth=smooth
+                video,
+                take,
+                text=text or None,
+                language=language,
+                face_model=face_model,
+                sync=sync,
+                smooth=smooth,
+                openness=openness,
             )
             written = [take / f.format(name=video.stem) for f in TAKE_FILES]
             for path in sorted((p for p in written if p.is_file()), key=lambda p: p.name.endswith(".face.csv")):
