@@ -371,3 +371,48 @@ def test_a_network_on_a_shallow_encoder_saves_its_depth(tmp_path, monkeypatch):
     np.testing.assert_array_equal(loaded.predict(clip, 25).values, network.predict(clip, 25).values)
     deeper = AudioCNNNetwork(**{**network.get_params(), "encoder_depth": 0}).fit(corpus, progress=False)
     assert not np.allclose(deeper.predict(clip, 25).values, network.predict(clip, 25).values)
+
+
+def _encode_in_child(queue, seconds):
+    clip = speech_like(seconds)
+    queue.put(whisper.WhisperEncoder.load(whisper.model_folder("whisper-tiny.en")).hidden_states(clip))
+
+
+def _transcribe_in_child(queue, samples):
+    from vispeech.frontends import transcribe
+
+    queue.put(transcribe._heard(str(whisper.model_folder("whisper-tiny.en")), samples, "en", "en"))
+
+
+@pytest.mark.parametrize("work", ["encode", "transcribe"])
+def test_a_forked_child_uses_whisper_after_its_parent_did(work):
+    """CTranslate2 runs a model's work on threads of its own, which a forked child lacks: a child
+    using the model its parent had loaded waited forever (a `capture --batch` worker forked after
+    the process had animated audio). The child loads its own and gets the parent's answer."""
+    import multiprocessing
+
+    if work == "encode":
+        here = whisper.WhisperEncoder.load(whisper.model_folder("whisper-tiny.en")).hidden_states(speech_like(2.0))
+        target, args = _encode_in_child, (2.0,)
+    else:
+        from vispeech.frontends import transcribe
+        from vispeech.frontends.espeak import synthesize
+
+        speech = synthesize("People probably prefer pumpkin pie.", "en")
+        samples = AudioClip.from_array(speech.audio, speech.sample_rate).resampled(16000).samples
+        here = transcribe._heard(str(whisper.model_folder("whisper-tiny.en")), samples, "en", "en")
+        assert "pumpkin" in here.lower()  # the model was used
+        target, args = _transcribe_in_child, (samples,)
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=target, args=(queue, *args))
+    child.start()
+    try:
+        there = queue.get(timeout=60)
+    finally:
+        child.kill()
+        child.join()
+    if work == "encode":
+        np.testing.assert_allclose(there, here, atol=1e-4)
+    else:
+        assert there == here

@@ -46,7 +46,6 @@ that Whisper hears with a word error rate of at most :data:`MAX_HEARD_WER`.
 
 from __future__ import annotations
 
-import functools
 import math
 import re
 import threading
@@ -59,7 +58,7 @@ from vispeech.errors import NativeFailure, VispeechError
 from vispeech.frontends.align import EDGE_PUNCTUATION, in_dictionary
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.isolation import run_isolated
-from vispeech.frontends.whisper import INSTALL, SAMPLE_RATE, THREADS, model_folder
+from vispeech.frontends.whisper import INSTALL, SAMPLE_RATE, THREADS, model_folder, per_process
 
 ENGLISH_MODEL = "whisper-tiny.en"
 """The Whisper model that transcribes English."""
@@ -281,7 +280,7 @@ def _whisper_model(folder: str):
         return _load(folder)
 
 
-@functools.cache
+@per_process
 def _load(folder: str):
     whisper_model = _whisper_class()
     if not (Path(folder) / "tokenizer.json").is_file():

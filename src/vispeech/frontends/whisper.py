@@ -28,6 +28,7 @@ and in training.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
 import json
@@ -35,7 +36,9 @@ import os
 import shutil
 import struct
 import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -289,7 +292,32 @@ class WhisperEncoder:
         return out
 
 
-@functools.cache
+Loaded = TypeVar("Loaded")
+
+
+def per_process(load: Callable[..., Loaded]) -> Callable[..., Loaded]:
+    """``load`` (a loader of CTranslate2 models) cached once per process, as :func:`functools.cache`
+    would, but for a forked child: a CTranslate2 model works on threads of its own, which the child
+    does not have, so using its parent's there waited forever (a ``capture --batch`` worker forked
+    after the process had animated audio) and so did freeing one. A child loads its own; the
+    parent's are kept there, unused, never freed."""
+    loaded: dict[tuple, Loaded] = {}
+
+    @functools.wraps(load)
+    def cached(*args: Any) -> Loaded:
+        if args not in loaded:
+            loaded[args] = load(*args)
+        return loaded[args]
+
+    def forget() -> None:
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(dict(loaded)))  # never freed in this process
+        loaded.clear()
+
+    os.register_at_fork(after_in_child=forget)
+    return cached
+
+
+@per_process
 def _load_whisper(folder: str, depth: int) -> WhisperEncoder:
     try:
         import ctranslate2
