@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 ANALYSIS_RATE = 100
-"""Hz at which the lip gap and the sound's energy are compared."""
+"""Hz at which the lip gap and the sound (its energy, or the jaw a speech model hears in it) are compared."""
 MIN_SECONDS = 10.0
 """The shortest take whose offset :func:`estimate_offset` tells (NaN below)."""
 MIN_OPENNESS_SECONDS = 3.0
