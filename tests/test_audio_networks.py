@@ -274,6 +274,24 @@ def test_augmentation_varies_the_inputs(corpus):
     np.testing.assert_array_equal(fixed[0][0][0].numpy(), model.encoding_.encode(example.powers[0], 10))
 
 
+def test_feature_dropout_silences_whole_dimensions_while_training(corpus):
+    params = {**TINY, "pitch_copies": 0, "warp": 0.0, "feature_dropout": 0.5}
+    model = create_model("audio-cnn", **params, channels=[8, 8, 8])
+    model._prepare(list(corpus.train), corpus)
+    example = model._encode_example(corpus.train[0], 10)
+    full = model.encoding_.encode(example.powers[0], 10)
+    (x, *_), = model._batches([(example, np.zeros((10, 2), np.float32))], np.random.default_rng(0))
+    x = x[0].numpy().reshape(10, model.encoding_.stack, model.encoding_.dims)
+    kept = (x != 0).any(axis=(0, 1))
+    assert 0.2 < kept.mean() < 0.8  # about half the dimensions, the same in every frame and stacked slot
+    np.testing.assert_array_equal(x[:, :, kept], full.reshape(x.shape)[:, :, kept])
+    assert not x[:, :, ~kept].any()
+    (fixed, *_), = model._batches([(example, np.zeros((10, 2), np.float32))], None)  # validation: untouched
+    np.testing.assert_array_equal(fixed[0].numpy(), full)
+    with pytest.raises(VispeechError, match="feature_dropout"):
+        create_model("audio-cnn", feature_dropout=1.0)
+
+
 def test_audio_networks_refuse_bad_input(cnn):
     with pytest.raises(VispeechError, match="animates audio"):
         cnn.predict(PhoneSequence([Phone("sil", 0.0, 1.0)], "en"), 25)

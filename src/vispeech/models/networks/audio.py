@@ -24,7 +24,8 @@ voices the corpus lacks comes from the running normalisation, vocal-tract-length
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
 that many copies of each training utterance as other voices in other rooms, at other rates and
 over other channels would have said it, for either kind of features
-(:mod:`vispeech.models.networks.augmentation`). Prediction runs
+(:mod:`vispeech.models.networks.augmentation`); ``feature_dropout`` sets each input dimension to
+the training mean over a whole utterance with that probability while training. Prediction runs
 on NumPy (:mod:`vispeech.models.networks.kernels`).
 
 With ``features="encoder"`` and ``encoder`` the path of a local wav2vec 2.0 / WavLM / HuBERT
@@ -94,6 +95,7 @@ AUDIO_PARAMS: dict = {
     "velocity_weight": 0.0,
     "acceleration_weight": 0.0,
     "dropout": 0.1,
+    "feature_dropout": 0.0,
     "batch_size": 16,
 }
 """Hyper-parameters every audio network has (see the module docstring)."""
@@ -125,8 +127,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         for key in ("warp", "pitch_shift", "ctc_weight", "velocity_weight", "acceleration_weight"):
             if not (isinstance(p[key], int | float) and p[key] >= 0):
                 raise VispeechError(f"{key} must be a number >= 0, got {p[key]!r}")
-        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1:
-            raise VispeechError("warp must be below 0.5 and dropout within [0, 1)")
+        if p["warp"] >= 0.5 or not 0 <= p["dropout"] < 1 or not 0 <= p["feature_dropout"] < 1:
+            raise VispeechError("warp must be below 0.5, dropout and feature_dropout within [0, 1)")
         check_closure_params(p["closure_threshold"], p["closure_length"])
         if not (0 <= p["encoder_ahead"] <= 1 and 0.01 <= p["encoder_step"] <= 1 and 0 <= p["encoder_context"] <= 10):
             raise VispeechError(
@@ -284,7 +286,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
 
         order = np.arange(len(examples)) if rng is None else rng.permutation(len(examples))
         size = self._params["batch_size"]
-        warp = self._params["warp"]
+        warp, drop = self._params["warp"], self._params["feature_dropout"]
         batches = []
         for start in range(0, len(order), size):
             chosen = [examples[i] for i in order[start : start + size]]
@@ -297,6 +299,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
                 if rng is not None and warp:
                     power = warp_frequencies(power, float(rng.uniform(1 - warp, 1 + warp)))
                 inputs.append(self.encoding_.encode(power, example.n_frames))
+            if rng is not None and drop:
+                inputs = [self._drop_features(x, drop, rng) for x in inputs]
             longest = max(len(x) for x in inputs)
             lengths = np.array([len(x) for x in inputs])
             x = np.stack([np.pad(v, ((0, longest - len(v)), (0, 0))) for v in inputs])
@@ -312,6 +316,13 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
                 )
             )
         return batches
+
+    def _drop_features(self, inputs: np.ndarray, rate: float, rng: np.random.Generator) -> np.ndarray:
+        """``inputs`` (frames × size, normalised) with each feature dimension set to the training
+        mean (0) over the whole utterance with probability ``rate``: every stacked frame loses
+        the same dimensions, so the network cannot lean on a few of them (a voice's colour)."""
+        keep = (rng.random(self.encoding_.dims) >= rate).astype(inputs.dtype)
+        return inputs * np.tile(keep, self.encoding_.stack)
 
     def _data_loss(self, module, batch):
         import torch
