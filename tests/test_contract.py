@@ -252,6 +252,41 @@ def test_set_params_checks_values_and_keeps_what_was_learned():
     assert not fresh.is_fitted and fresh.get_params() == model.get_params() and fresh.name == fresh.family
 
 
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_a_value_of_the_wrong_kind_is_refused_not_a_crash(family):
+    """Whatever JSON `vispeech train --param KEY=VALUE` passes, a model takes it or refuses it
+    with a one-line VispeechError; set_params then leaves the values as they were."""
+    model = create_model(family)
+    before = model.get_params()
+    for key in before:
+        for value in ("abc", None, [1], {"a": 1}, -1, 1e12, float("nan"), True):
+            try:
+                create_model(family, **{key: value})
+            except VispeechError as error:
+                assert "\n" not in str(error)
+            try:
+                model.set_params(**{key: value})
+            except VispeechError:
+                assert model.get_params() == before
+            else:
+                model.set_params(**{key: before[key]})
+
+
+@pytest.mark.parametrize(
+    ("family", "key", "value", "default"),
+    [
+        ("audio-cnn", "dropout", "abc", "0.1"),
+        ("audio-encdec", "fps", "abc", "50.0"),
+        ("audio-cnn", "channels", None, "[256, 256, 256]"),
+        ("sliding-window-taylor", "hidden", 5, "[3000, 3000, 3000]"),
+    ],
+)
+def test_a_value_of_the_wrong_kind_is_named_with_its_default(family, key, value, default):
+    with pytest.raises(VispeechError) as caught:
+        create_model(family, **{key: value})
+    assert str(caught.value) == f"model {family}: {key} must be like {default}, got {value!r}"
+
+
 def test_set_params_on_a_rule_model_takes_effect():
     model = create_model("baseline")
     phones = PhoneSequence([Phone("sil", 0.0, 0.1), Phone("AA", 0.1, 0.4), Phone("sil", 0.4, 0.5)], "en")

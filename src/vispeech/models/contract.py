@@ -76,7 +76,7 @@ class Estimator(ABC, Generic[InputT]):
         self._check_names(params)
         self._params = {key: _plain(params.get(key, value)) for key, value in self.defaults.items()}
         self._name = self.family
-        self._check_params()
+        self._check_values()
 
     def _check_names(self, params: Mapping[str, Any]) -> None:
         unknown = sorted(set(params) - set(self.defaults))
@@ -102,12 +102,29 @@ class Estimator(ABC, Generic[InputT]):
         before = self._params
         self._params = {**before, **{key: _plain(value) for key, value in params.items()}}
         try:
-            self._check_params()
+            self._check_values()
         except VispeechError:
             self._params = before
             self._check_params()
             raise
         return self
+
+    def _check_values(self) -> None:
+        """:meth:`_check_params`, with a value of the wrong type (a word where a number goes, a
+        number where a list goes) told as a :class:`VispeechError` naming it, not a crash of
+        the checks' comparisons."""
+        try:
+            self._check_params()
+        except VispeechError:
+            raise
+        except (TypeError, ValueError) as error:
+            odd = [key for key, value in self._params.items() if not _same_kind(value, self.defaults[key])]
+            if not odd:
+                raise VispeechError(f"model {self.family}: a hyper-parameter cannot be used ({error})") from None
+            raise VispeechError(
+                f"model {self.family}: "
+                + "; ".join(f"{key} must be like {self.defaults[key]!r}, got {self._params[key]!r}" for key in odd)
+            ) from None
 
     @property
     def name(self) -> str:
@@ -249,6 +266,18 @@ def clone(model: _Self) -> _Self:
     """A new, unfitted model of ``model``'s family with the same hyper-parameters (scikit-learn's
     ``clone``): nothing learned, known by its family's name."""
     return type(model)(**model.get_params())
+
+
+def _same_kind(value: Any, default: Any) -> bool:
+    """Whether ``value`` is of the kind of ``default`` (a number, a flag, a word, a list or a
+    mapping; anything where the default is ``None``)."""
+    if default is None:
+        return True
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(default, bool)
+    if isinstance(default, int | float):
+        return isinstance(value, int | float)
+    return isinstance(value, type(default))
 
 
 def _plain(value: Any) -> Any:
