@@ -287,6 +287,28 @@ def test_a_value_of_the_wrong_kind_is_named_with_its_default(family, key, value,
     assert str(caught.value) == f"model {family}: {key} must be like {default}, got {value!r}"
 
 
+@pytest.mark.parametrize(
+    ("family", "key", "value"),
+    [
+        ("tdnn-beskow", "batch_size", 0),
+        ("tdnn-beskow", "seed", -1),
+        ("tdnn-lowlatency", "learning_rate", -1),
+        ("tdnn-beskow", "hidden", 0),
+        ("tdnn-beskow", "groups", 1),
+        ("lstm-taylor", "bidirectional", 0),
+        ("sliding-window-taylor", "momentum", -1),
+        ("sliding-window-dtree", "targets", 0),
+        ("sliding-window-dtree", "seed", 0.0),
+        ("audio-cnn", "patience", []),
+    ],
+)
+def test_training_values_torch_or_scikit_learn_would_crash_on_are_refused_at_once(family, key, value):
+    """Values of the right kind but out of range were taken, then crashed the fit in torch,
+    NumPy or scikit-learn (`vispeech train` printed their traceback); they are refused when set."""
+    with pytest.raises(VispeechError, match=f"^{key} must be"):
+        create_model(family, **{key: value})
+
+
 def test_set_params_on_a_rule_model_takes_effect():
     model = create_model("baseline")
     phones = PhoneSequence([Phone("sil", 0.0, 0.1), Phone("AA", 0.1, 0.4), Phone("sil", 0.4, 0.5)], "en")

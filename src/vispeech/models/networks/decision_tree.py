@@ -21,6 +21,7 @@ from vispeech.models.fitting import FitRun, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.networks.kernels import overlap_average, padded_windows
+from vispeech.models.networks.network import check_training_params
 from vispeech.motion.arkit import MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
@@ -46,6 +47,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         for key in ("input_window", "output_window", "min_leaf"):
             if not isinstance(p[key], int) or p[key] < 1:
                 raise VispeechError(f"{key} must be a whole number of 1 or more, got {p[key]!r}")
+        check_training_params(p)
         InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], False)
 
     @property

@@ -39,11 +39,13 @@ class LSTMNetwork(PhoneNetwork):
 
     def _check_architecture(self) -> None:
         p = self._params
-        for key in ("dense", "hidden", "layers", "batch_size"):
+        for key in ("dense", "hidden", "layers"):
             if not (isinstance(p[key], int) and p[key] >= 1):
                 raise VispeechError(f"{key} must be a whole number of 1 or more, got {p[key]!r}")
         if not 0 <= p["dropout"] < 1:
             raise VispeechError(f"dropout must be in [0, 1), got {p['dropout']!r}")
+        if not isinstance(p["bidirectional"], bool):
+            raise VispeechError(f"bidirectional must be true or false, got {p['bidirectional']!r}")
 
     @property
     def lookahead(self) -> int:

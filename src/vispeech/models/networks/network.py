@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from abc import abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, Self, TypeVar
 
@@ -82,6 +83,39 @@ TRAINING_PARAMS: dict[str, Any] = {
 COMMON_PARAMS: dict[str, Any] = {**PHONE_INPUT_PARAMS, **TRAINING_PARAMS}
 """Hyper-parameters every phone network has (see the module docstring and ``docs/networks.md``)."""
 
+TARGET_SETS = ("mouth", "all", "articulatory")
+"""The named sets of channels ``targets`` may be (else a list of channel names)."""
+
+
+def check_training_params(p: Mapping[str, Any]) -> None:
+    """Raise :class:`VispeechError` on a bad value of the training parameters ``p`` has (the
+    targets, the budget, the batch size, the seed, the optimiser's), before any of them reaches
+    a library."""
+    targets = p.get("targets", "mouth")
+    if not (isinstance(targets, list) and all(isinstance(t, str) for t in targets)) and targets not in TARGET_SETS:
+        raise VispeechError(f"targets must be mouth, all, articulatory or a list of channels, got {targets!r}")
+    for key in ("epochs", "patience", "batch_size"):
+        if key in p and not (_whole(p[key]) and p[key] >= 1) and not (key == "patience" and p[key] is None):
+            stop = " (or null: no early stopping)" if key == "patience" else ""
+            raise VispeechError(f"{key} must be a whole number of 1 or more{stop}, got {p[key]!r}")
+    if "seed" in p and not (_whole(p["seed"]) and 0 <= p["seed"] < 2**32):
+        raise VispeechError(f"seed must be a whole number within 0..{2**32 - 1}, got {p['seed']!r}")
+    if "learning_rate" in p and not (_finite(p["learning_rate"]) and p["learning_rate"] > 0):
+        raise VispeechError(f"learning_rate must be a number > 0, got {p['learning_rate']!r}")
+    if "momentum" in p and not (_finite(p["momentum"]) and 0 <= p["momentum"] < 1):
+        raise VispeechError(f"momentum must be a number in [0, 1), got {p['momentum']!r}")
+    if "l2" in p and not (_finite(p["l2"]) and p["l2"] >= 0):
+        raise VispeechError(f"l2 must be a number >= 0, got {p['l2']!r}")
+
+
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 _BUDGET_PARAMS = frozenset({"epochs", "patience"})
 """Hyper-parameters a resumed run may change: the training budget."""
 
@@ -123,10 +157,9 @@ class Network(Estimator[InputT], Generic[InputT, EncodingT]):
     def _check_params(self) -> None:
         p = self._params
         self._check_inputs()
+        check_training_params(p)
         if p["optimizer"] not in ("adam", "sgd"):
             raise VispeechError(f"unknown optimizer {p['optimizer']!r} (use adam or sgd)")
-        if not (isinstance(p["targets"], list | tuple) or p["targets"] in ("mouth", "all", "articulatory")):
-            raise VispeechError(f"targets must be mouth, all, articulatory or a list of channels, got {p['targets']!r}")
         self._check_architecture()
         self._kernel = None
 

@@ -54,6 +54,10 @@ BESKOW: dict = {
 """Hyper-parameters of ANN 1 (``tdnn-beskow``); ANN 2 (``tdnn-lowlatency``) looks 28 back and 2 ahead."""
 
 
+def _channel_names(group: object) -> bool:
+    return isinstance(group, list) and bool(group) and all(isinstance(name, str) for name in group)
+
+
 class TimeDelayNetwork(PhoneNetwork):
     """Beskow's recurrent time-delay network, ANN 1 (look-back and look-ahead 15 frames).
 
@@ -73,6 +77,12 @@ class TimeDelayNetwork(PhoneNetwork):
                 raise VispeechError(f"{key} must be a whole number of frames >= 0, got {p[key]!r}")
         if not (isinstance(p["delays"], int) and p["delays"] >= 1):
             raise VispeechError(f"delays must be >= 1, got {p['delays']!r}")
+        groups, hidden = p["groups"], p["hidden"]
+        if not (groups is None or (isinstance(groups, list) and groups and all(map(_channel_names, groups)))):
+            raise VispeechError(f"groups must be a list of lists of channel names, got {groups!r}")
+        counts = hidden if isinstance(hidden, list) else [hidden]
+        if not (counts and all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in counts)):
+            raise VispeechError(f"hidden must be a whole number of units, 1 or more (or one per group), got {hidden!r}")
 
     @property
     def window(self) -> int:
