@@ -28,6 +28,7 @@ encoder gives one state, read after its first ``encoder_depth`` transformer laye
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import pairwise
@@ -88,6 +89,10 @@ class AudioEncoding:
             raise VispeechError("encoder_depth needs features=encoder")
         if self.normalize not in NORMALIZATIONS:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
+        if not (isinstance(self.prior_seconds, int | float) and 0 <= self.prior_seconds < math.inf):
+            raise VispeechError(f"prior_seconds must be a number of seconds >= 0, got {self.prior_seconds!r}")
+        if not (isinstance(self.fps, int | float) and self.fps > 0):
+            raise VispeechError(f"an audio network's fps must be a number > 0, got {self.fps!r}")
         stack = FRAME_RATE / self.fps
         if not (stack >= 1 and abs(stack - round(stack)) < 1e-9):
             raise VispeechError(
