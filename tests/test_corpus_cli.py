@@ -62,3 +62,24 @@ def test_corpus_info_strict_and_missing_folder(small_grid, tmp_path):
     assert result.output.strip() == "error: skipped miss01: missing miss01.flac, miss01.align, miss01.csv"
     result = run("corpus", "info", str(tmp_path / "nothing"))
     assert result.exit_code == 2 and result.output.startswith("error: corpus folder not found")
+
+
+def test_corpus_info_sync_names_the_take_whose_picture_is_late(small_grid):
+    import csv
+
+    path = small_grid / "utterances" / "bbaf2n.csv"
+    with path.open(newline="") as f:
+        header, *rows = list(csv.reader(f))
+    late = 3  # frames: the picture shows each moment 120 ms after its sound
+    moved = [row[:2] + rows[max(k - late, 0)][2:] for k, row in enumerate(rows)]
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows([header, *moved])
+    result = run("corpus", "info", str(small_grid), "--no-phones", "--sync")
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    header = next(line for line in lines if line.startswith("A/V sync (+: the picture late;"))
+    assert header.endswith("1 of 2 takes measured (the others lack lip landmarks or last under 3 s)")  # lrae3s: 2.96 s
+    assert "1 off by more than a frame: re-sync or leave them out before training" in result.stdout
+    listed = [line.split("\t") for line in lines if "\t" in line]
+    assert [name.strip() for name, _ in listed] == ["bbaf2n"]
+    assert abs(float(listed[0][1].removesuffix(" ms")) - 120) < 40

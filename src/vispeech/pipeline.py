@@ -271,14 +271,15 @@ def _default_phone_model() -> Estimator:
     return load_model(DEFAULT_MODEL)
 
 
-def speech_openness(clip: AudioClip, language: str = "en") -> np.ndarray:
+def speech_openness(clip: AudioClip, language: str = "en", model: Estimator | None = None) -> np.ndarray:
     """How open the jaw is through ``clip`` as the best audio model for ``language`` hears it
-    (:func:`default_audio_model`, its raw jawOpen), at
+    (:func:`default_audio_model`, its raw jawOpen; ``model``: that model loaded already), at
     :data:`~vispeech.corpus.av_sync.ANALYSIS_RATE` from the clip's start: the sound's own
     timing, to which :func:`~vispeech.corpus.av_sync.openness_offset` syncs a captured picture."""
     from vispeech.corpus.av_sync import ANALYSIS_RATE
 
-    return load_model(default_audio_model(language)).predict(clip, ANALYSIS_RATE).select(["jawOpen"]).values[:, 0]
+    model = load_model(default_audio_model(language)) if model is None else model
+    return model.predict(clip, ANALYSIS_RATE).select(["jawOpen"]).values[:, 0]
 
 
 def speech_spans(clip: AudioClip) -> list[tuple[float, float]]:

@@ -21,7 +21,13 @@ def corpus_group() -> None:
 @corpus_language_option
 @cache_option
 @click.option("--strict", is_flag=True, help="Fail on the first bad utterance instead of skipping it.")
-def info_command(directory: Path, no_phones: bool, language: str, cache: Path | None, strict: bool) -> None:
+@click.option(
+    "--sync",
+    is_flag=True,
+    help="Also tell how far each take's picture is out of step with its sound (from its lip landmarks "
+    "and the jaw the default audio model hears; takes of 3 s or more) and list those off by more than a frame.",
+)
+def info_command(directory: Path, no_phones: bool, language: str, cache: Path | None, strict: bool, sync: bool) -> None:
     """Print utterances, duration, frame rate, channels, splits and phone coverage of DIRECTORY."""
     import warnings
     from dataclasses import replace
@@ -42,6 +48,8 @@ def info_command(directory: Path, no_phones: bool, language: str, cache: Path | 
     echo(f"fps: {frame_rates_text(corpus.frame_rates)}")
     echo(f"channels ({len(corpus.channels)}): {', '.join(corpus.channels)}")
     echo("splits: " + ", ".join(f"{name} {len(corpus.split(name))}" for name in SPLITS))
+    if sync and len(corpus):
+        _print_sync(corpus, language)
     if no_phones or not len(corpus):
         return
 
@@ -60,3 +68,43 @@ def info_command(directory: Path, no_phones: bool, language: str, cache: Path | 
         echo(f"  {symbol}\t{count}")
     missing = [s for s in inventory if s not in coverage and not is_silence(s)]
     echo(f"missing inventory phones: {', '.join(missing) if missing else 'none'}")
+
+
+SYNC_LISTED = 20
+"""How many of the takes most out of step ``corpus info --sync`` names."""
+
+
+def _print_sync(corpus, language: str) -> None:
+    """Each take's A/V offset (:func:`vispeech.corpus.av_sync.utterance_offset`), summed up."""
+    from functools import partial
+
+    import numpy as np
+    from tqdm.auto import tqdm
+
+    from vispeech.corpus.av_sync import MIN_OPENNESS_SECONDS, utterance_offset
+    from vispeech.models.registry import load_model
+    from vispeech.pipeline import default_audio_model, speech_openness
+
+    name = default_audio_model(language)
+    openness = partial(speech_openness, language=language, model=load_model(name))
+    offsets = np.array([utterance_offset(u, openness) for u in tqdm(corpus, desc="syncing", unit="take")])
+    measured = np.isfinite(offsets)
+    echo = click.echo
+    echo(
+        f"A/V sync (+: the picture late; from the lip landmarks against the jaw {name} hears): "
+        f"{measured.sum()} of {len(corpus)} takes measured"
+        + ("" if measured.all() else f" (the others lack lip landmarks or last under {MIN_OPENNESS_SECONDS:g} s)")
+    )
+    if not measured.any():
+        return
+    frame = np.array([1 / u.track.fps for u in corpus])
+    off = measured & (np.abs(np.nan_to_num(offsets)) > frame)
+    echo(
+        f"  median {np.median(offsets[measured]) * 1000:+.0f} ms, {off.sum()} off by more than a frame"
+        + (": re-sync or leave them out before training" if off.any() else "")
+    )
+    order = sorted(np.flatnonzero(off), key=lambda i: -abs(offsets[i]))
+    for i in order[:SYNC_LISTED]:
+        echo(f"  {corpus.utterances[i].id}\t{offsets[i] * 1000:+.0f} ms")
+    if len(order) > SYNC_LISTED:
+        echo(f"  ... and {len(order) - SYNC_LISTED} more")

@@ -12,7 +12,9 @@ the estimates were more than 40 ms off, none more than 80 ms; docs/capture.md).
 of the model, less what synchronous recordings show (:data:`NATURAL_LAG`, measured on grid_s1),
 for a caller without a model: it needs :data:`MIN_SECONDS` (on 3-s takes a fifth of its
 estimates are wrong by more than 80 ms, on 30 s of speech none of 30 were).
-:func:`shift_frames` moves a track by an offset (linear interpolation, ends held).
+:func:`utterance_offset` measures a recorded utterance so (its lip landmarks against its audio;
+``vispeech corpus info --sync``). :func:`shift_frames` moves a track by an offset (linear
+interpolation, ends held).
 
 :func:`smooth_frames` is a Savitzky–Golay filter (scipy) over the frames, off unless asked:
 on grid_s1 it cuts jawOpen's frame-to-frame jitter (mean absolute second difference) by 29 %
@@ -21,7 +23,14 @@ on grid_s1 it cuts jawOpen's frame-to-frame jitter (mean absolute second differe
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from vispeech.frontends.audio import AudioClip
+    from vispeech.utterance import Utterance
 
 ANALYSIS_RATE = 100
 """Hz at which the lip gap and the sound (its energy, or the jaw a speech model hears in it) are compared."""
@@ -74,6 +83,28 @@ def openness_offset(
     if n / fps < MIN_OPENNESS_SECONDS:
         return float("nan")
     return _lag(gap, fps, 0.0, np.asarray(openness, dtype=float)[: int(n / fps * ANALYSIS_RATE)], mask, max_lag)
+
+
+def utterance_offset(utterance: Utterance, openness: Callable[[AudioClip], np.ndarray]) -> float:
+    """Seconds by which a recorded ``utterance``'s picture is late against its sound:
+    :func:`openness_offset` of its tracked inner-lip gap (its ``lm13``/``lm14``/``lm33``/``lm263``
+    landmarks; untracked frames left out) and ``openness`` of its audio (e.g.
+    :func:`vispeech.pipeline.speech_openness`). NaN without those landmarks or a track, or for
+    an utterance shorter than :data:`MIN_OPENNESS_SECONDS`."""
+    from vispeech.corpus.articulation import lip_gap
+    from vispeech.errors import VispeechError
+    from vispeech.frontends.audio import AudioClip
+
+    track = utterance.track
+    if track is None or utterance.landmarks is None or track.n_frames / track.fps < MIN_OPENNESS_SECONDS:
+        return float("nan")
+    try:
+        gap = lip_gap(utterance.landmarks)
+    except VispeechError:  # no lip or eye-corner landmarks
+        return float("nan")
+    samples, rate = utterance.load_audio()
+    sound = openness(AudioClip.from_array(samples, rate))
+    return openness_offset(gap, track.fps, sound, utterance.frame_mask) + track.start_time
 
 
 def _lag(
