@@ -95,10 +95,10 @@ def check_training_params(p: Mapping[str, Any]) -> None:
     if not (isinstance(targets, list) and all(isinstance(t, str) for t in targets)) and targets not in TARGET_SETS:
         raise VispeechError(f"targets must be mouth, all, articulatory or a list of channels, got {targets!r}")
     for key in ("epochs", "patience", "batch_size"):
-        if key in p and not (_whole(p[key]) and p[key] >= 1) and not (key == "patience" and p[key] is None):
+        if key in p and not (whole_number(p[key]) and p[key] >= 1) and not (key == "patience" and p[key] is None):
             stop = " (or null: no early stopping)" if key == "patience" else ""
             raise VispeechError(f"{key} must be a whole number of 1 or more{stop}, got {p[key]!r}")
-    if "seed" in p and not (_whole(p["seed"]) and 0 <= p["seed"] < 2**32):
+    if "seed" in p and not (whole_number(p["seed"]) and 0 <= p["seed"] < 2**32):
         raise VispeechError(f"seed must be a whole number within 0..{2**32 - 1}, got {p['seed']!r}")
     if "learning_rate" in p and not (_finite(p["learning_rate"]) and p["learning_rate"] > 0):
         raise VispeechError(f"learning_rate must be a number > 0, got {p['learning_rate']!r}")
@@ -108,7 +108,8 @@ def check_training_params(p: Mapping[str, Any]) -> None:
         raise VispeechError(f"l2 must be a number >= 0, got {p['l2']!r}")
 
 
-def _whole(value: Any) -> bool:
+def whole_number(value: Any) -> bool:
+    """Whether ``value`` is an int (a flag is not one)."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 

@@ -35,7 +35,7 @@ import numpy as np
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import RecurrentKernel
-from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches
+from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches, whole_number
 from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
 
 BESKOW: dict = {
@@ -81,7 +81,7 @@ class TimeDelayNetwork(PhoneNetwork):
         if not (groups is None or (isinstance(groups, list) and groups and all(map(_channel_names, groups)))):
             raise VispeechError(f"groups must be a list of lists of channel names, got {groups!r}")
         counts = hidden if isinstance(hidden, list) else [hidden]
-        if not (counts and all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in counts)):
+        if not (counts and all(whole_number(h) and h >= 1 for h in counts)):
             raise VispeechError(f"hidden must be a whole number of units, 1 or more (or one per group), got {hidden!r}")
 
     @property
