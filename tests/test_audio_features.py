@@ -124,6 +124,42 @@ def test_running_normalisation_continues_and_adapts():
     assert abs(whole[-100:].mean()) < whole[:20].mean() / 4  # then the voice heard so far
 
 
+def test_normalisation_with_a_memory_takes_the_last_frames_heard():
+    """With memory_frames the statistics are the prior's and all frames' while no more than that
+    many were heard (exactly the cumulative ones), then the last memory_frames frames' alone, as
+    a frame-by-frame loop finds them; they continue across calls and streams side by side, and
+    follow a change of level that the cumulative ones lag behind."""
+    rng = np.random.default_rng(5)
+    mean, std = rng.normal(size=4), rng.uniform(0.5, 2.0, 4)
+    features = np.concatenate([rng.normal(3.0, 2.0, (600, 4)), rng.normal(-6.0, 1.0, (600, 4))])
+    expected = []
+    for t, frame in enumerate(features):
+        window = features[max(0, t + 1 - 150) : t + 1]
+        prior = 100 if t < 150 else 0
+        count = prior + len(window)
+        mu = (prior * mean + window.sum(axis=0)) / count
+        second = (prior * (std**2 + mean**2) + (window**2).sum(axis=0)) / count
+        expected.append((frame - mu) / np.sqrt(second - mu**2))
+    whole, _ = running_normalize(features, mean, std, 100, memory_frames=150)
+    np.testing.assert_allclose(whole, expected, atol=1e-5)
+    cumulative, _ = running_normalize(features, mean, std, 100)
+    np.testing.assert_array_equal(whole[:150], cumulative[:150])
+    parts, state = [], None
+    for start in range(0, len(features), 37):
+        part, state = running_normalize(features[start:start + 37], mean, std, 100, state, memory_frames=150)
+        parts.append(part)
+    np.testing.assert_allclose(np.concatenate(parts), whole, atol=1e-6)
+    together, states = running_normalize_together([features[:100], features[:0], features[:700]], mean, std, 100,
+                                                  [None, None, None], 150)
+    more, _ = running_normalize_together([features[100:200], features[:0], features[700:]], mean, std, 100,
+                                         states, 150)
+    np.testing.assert_allclose(np.concatenate([together[0], more[0]]), whole[:200], atol=1e-6)
+    np.testing.assert_allclose(np.concatenate([together[2], more[2]]), whole, atol=1e-6)
+    assert together[1].shape == more[1].shape == (0, 4)
+    after = slice(600 + 150, 1200)  # once the window holds only frames after the level fell by 9
+    assert abs(whole[after].mean()) < 0.2 and cumulative[after].mean() < -1.0
+
+
 def test_audio_features_of_a_file(grid_s1):
     clip = AudioClip.read(grid_s1 / "utterances" / "bbaf2n.flac")
     features = audio_features(clip)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
+from dataclasses import dataclass
 from itertools import pairwise
+from typing import TypeAlias, cast
 
 import numpy as np
 
@@ -183,20 +185,29 @@ def running_normalize(
     std: np.ndarray,
     prior_frames: float,
     state: NormState | None = None,
+    memory_frames: int = 0,
 ) -> tuple[np.ndarray, NormState]:
     """Causal per-dimension normalisation (speaker and channel normalisation that streams).
 
     Frame t is standardised by the mean and variance of the frames up to t, pooled with a prior
     (``mean``, ``std``: the training data's) worth ``prior_frames`` frames, so early frames lean
-    on the prior and later ones on the voice heard so far. ``state`` (count, sum, sum of
-    squares) continues an earlier call; the new state is returned with the frames.
+    on the prior and later ones on the voice heard so far. With ``memory_frames`` > 0, once
+    more frames than that have been heard, the statistics are those of the last
+    ``memory_frames`` frames alone (prior gone): deep into a long recording or stream they
+    follow the voice and the microphone as they are now, not as they were minutes ago, and
+    up to ``memory_frames`` frames nothing changes. ``state`` continues an earlier call (count,
+    sum and sum of squares; with ``memory_frames``, the last frames heard); the new state is
+    returned with the frames.
     """
-    (out,), (state,) = running_normalize_together([features], mean, std, prior_frames, [state])
+    (out,), (state,) = running_normalize_together([features], mean, std, prior_frames, [state], memory_frames)
     return out, state
 
 
-NormState = tuple[float, np.ndarray, np.ndarray]
-""":func:`running_normalize`'s state: frames counted (with the prior's), their sum and sum of squares per dimension."""
+Sums = tuple[float, np.ndarray, np.ndarray]
+"""Frames counted (with the prior's), their sum and sum of squares per dimension."""
+NormState: TypeAlias = "Sums | _Window"
+""":func:`running_normalize`'s state: the :data:`Sums` of all the frames heard; with
+``memory_frames``, the last ``memory_frames`` (or fewer) frames heard and their sums."""
 
 
 def running_normalize_together(
@@ -205,12 +216,15 @@ def running_normalize_together(
     std: np.ndarray,
     prior_frames: float,
     states: Sequence[NormState | None],
+    memory_frames: int = 0,
 ) -> tuple[list[np.ndarray], list[NormState]]:
     """:func:`running_normalize` of several streams' next frames at once (``states[i]`` continues
     ``features[i]``, ``(frames_i, dims)``): one cumulative sum over all of them."""
+    if memory_frames > 0:
+        return _windowed_normalize(features, mean, std, prior_frames, states, memory_frames)
     mean64, std64 = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
-    prior: NormState = (float(prior_frames), prior_frames * mean64, prior_frames * (std64**2 + mean64**2))
-    begun = [prior if state is None else state for state in states]
+    prior: Sums = (float(prior_frames), prior_frames * mean64, prior_frames * (std64**2 + mean64**2))
+    begun = [prior if state is None else cast(Sums, state) for state in states]
     lengths = np.array([len(x) for x in features])
     ends = np.cumsum(lengths)
     x = np.concatenate([np.asarray(f, dtype=np.float64) for f in features])
@@ -226,11 +240,98 @@ def running_normalize_together(
     mu = sums / counts[:, None]
     sigma = np.sqrt(np.maximum(sum_squares / counts[:, None] - mu**2, 1e-4))
     out = ((x - mu) / sigma).astype(np.float32)
-    last = [
+    last: list[NormState] = [
         state if not n else (float(counts[end - 1]), sums[end - 1], sum_squares[end - 1])
         for state, n, end in zip(begun, lengths.tolist(), ends.tolist())
     ]
     return [out[end - n : end] for n, end in zip(lengths.tolist(), ends.tolist())], last
+
+
+def _windowed_normalize(
+    features: Sequence[np.ndarray],
+    mean: np.ndarray,
+    std: np.ndarray,
+    prior_frames: float,
+    states: Sequence[NormState | None],
+    memory: int,
+) -> tuple[list[np.ndarray], list[NormState]]:
+    """:func:`running_normalize_together` with ``memory_frames`` = ``memory``. A stream's state is
+    its last ``memory`` (or fewer) frames and their sums; the window's sums at each new frame
+    are those plus the cumulative sum of the new frames less the frames leaving the window, for
+    all the streams at once. The prior counts while no more than ``memory`` frames were heard."""
+    mean64, std64 = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
+    begun = [_Window.empty(len(mean64)) if state is None else cast(_Window, state) for state in states]
+    new = [np.asarray(f, dtype=np.float64) for f in features]
+    leaving = np.concatenate([window.leaving(frames, memory) for window, frames in zip(begun, new)])
+    lengths = np.array([len(f) for f in new])
+    x = np.concatenate(new)
+    heard = np.concatenate([len(w.frames) + np.arange(n) for w, n in zip(begun, lengths.tolist())])
+    ends = np.cumsum(lengths)
+    starts = np.repeat(ends - lengths, lengths)
+    moments = []
+    for power, attribute in ((1, "total"), (2, "squares")):
+        running = np.cumsum(x**power - leaving**power, axis=0)
+        if len(new) > 1:  # each stream's sums from its own state on
+            before = starts - 1
+            running -= np.where(before[:, None] >= 0, running[np.maximum(before, 0)], 0.0)
+        running += np.repeat(np.stack([getattr(w, attribute) for w in begun]), lengths, axis=0)
+        moments.append(running)
+    prior = (heard < memory)[:, np.newaxis] * prior_frames  # the window is not yet full: the prior still counts
+    count = np.minimum(heard + 1, memory)[:, np.newaxis] + prior
+    mu = (moments[0] + prior * mean64) / count
+    second = (moments[1] + prior * (std64**2 + mean64**2)) / count
+    out = ((x - mu) / np.sqrt(np.maximum(second - mu**2, 1e-4))).astype(np.float32)
+    last: list[NormState] = [
+        window if not n else window.after(frames, moments[0][end - 1], moments[1][end - 1], memory)
+        for window, frames, n, end in zip(begun, new, lengths.tolist(), ends.tolist())
+    ]
+    return [out[end - n : end] for n, end in zip(lengths.tolist(), ends.tolist())], last
+
+
+@dataclass(frozen=True)
+class _Window:
+    """A stream's state in :func:`_windowed_normalize`: its last frames (at most the memory),
+    ``buffer[start:stop]``, and their sum and sum of squares per dimension. The buffer has room
+    for twice the memory: new frames are written after the old ones, and only when it is full
+    are the frames kept copied to a new one, so a state shares its buffer with the states
+    before it (a stream goes on from its newest state only)."""
+
+    buffer: np.ndarray
+    start: int
+    stop: int
+    total: np.ndarray
+    squares: np.ndarray
+
+    @classmethod
+    def empty(cls, dims: int) -> _Window:
+        return cls(np.zeros((0, dims)), 0, 0, np.zeros(dims), np.zeros(dims))
+
+    @property
+    def frames(self) -> np.ndarray:
+        return self.buffer[self.start : self.stop]
+
+    def leaving(self, new: np.ndarray, memory: int) -> np.ndarray:
+        """The frame each of ``new`` pushes out of a window of ``memory`` frames (zeros before it is full)."""
+        frames, held = self.frames, self.stop - self.start
+        filling = min(len(new), max(0, memory - held))
+        return np.concatenate(
+            [
+                np.zeros((filling, new.shape[1])),
+                frames[max(0, held - memory) : max(0, min(held, held - memory + len(new)))],
+                new[: max(0, len(new) - memory)],
+            ]
+        )
+
+    def after(self, new: np.ndarray, total: np.ndarray, squares: np.ndarray, memory: int) -> _Window:
+        """The state once ``new`` frames were heard, whose window sums are ``total`` and ``squares``."""
+        if self.stop + len(new) <= len(self.buffer):
+            self.buffer[self.stop : self.stop + len(new)] = new
+            stop = self.stop + len(new)
+            return _Window(self.buffer, max(self.start, stop - memory), stop, total, squares)
+        kept = np.concatenate([self.frames, new])[-memory:]
+        buffer = np.empty((2 * memory, new.shape[1]))
+        buffer[: len(kept)] = kept
+        return _Window(buffer, 0, len(kept), total, squares)
 
 
 class SpectrumStream:
