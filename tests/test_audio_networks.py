@@ -1,6 +1,7 @@
 """The audio networks: learning, NumPy inference against torch, streaming, save/load, CTC, errors."""
 
 import copy
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -152,11 +153,15 @@ def test_animate_audio_shuts_the_lips_on_the_bilabials_the_head_hears(encdec, he
     assert not model_closed(animate_audio(clip, hearing, 25, postprocessing="none"))[centres].all()
 
 
-@pytest.mark.parametrize("fixture,fps", [("cnn", 25.0), ("cnn", 30.0), ("cnn", 50.0), ("cnn", 60.0),
-                                         ("recurrent_cnn", 30.0)])
-def test_cnn_stream_equals_offline_prediction(fixture, fps, request, held_out):
-    cnn = request.getfixturevalue(fixture)
+@pytest.mark.parametrize("fixture,fps,memory", [("cnn", 25.0, 0), ("cnn", 30.0, 0), ("cnn", 50.0, 0), ("cnn", 60.0, 0),
+                                                ("recurrent_cnn", 30.0, 0), ("cnn", 30.0, 0.3)])
+def test_cnn_stream_equals_offline_prediction(fixture, fps, memory, request, held_out):
+    cnn = copy.deepcopy(request.getfixturevalue(fixture))
     clip = clip_of(held_out[1])
+    if memory:  # a normalisation of the last frames heard streams too
+        remembering_all = cnn.predict(clip, fps).values
+        cnn.encoding_ = replace(cnn.encoding_, memory_seconds=memory)
+        assert not np.allclose(cnn.predict(clip, fps).values, remembering_all, atol=1e-3)
     offline = cnn.predict(clip, fps).values
     stream = cnn.stream("en", fps)
     rng = np.random.default_rng(int(fps))

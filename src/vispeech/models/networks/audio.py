@@ -19,7 +19,8 @@ hidden layer against the utterance's phone sequence (silences left to the blank)
 ``closure_threshold`` > 0 prediction also reports the bilabials the head hears
 (:meth:`AudioNetwork.predict_with_closures`, :mod:`vispeech.models.networks.phone_head`),
 phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to
-voices the corpus lacks comes from the running normalisation, vocal-tract-length perturbation (a warp factor drawn from
+voices the corpus lacks comes from the running normalisation (of the last ``memory_seconds``
+heard, when > 0), vocal-tract-length perturbation (a warp factor drawn from
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
 that many copies of each training utterance as other voices in other rooms, at other rates and
@@ -33,8 +34,8 @@ folder (:mod:`vispeech.frontends.encoder`, the ``encoder`` extra), the networks 
 that encoder's hidden states at 50 fps (``fps`` must be 50), standardised globally, through a
 learned softmax-weighted sum of the layers (``LayerFusion``, PhISANet's All-Enc) in front of
 the convolutions. Each training utterance is encoded once (kept as float16 while fitting:
-about 1 MB per second of audio for a base model). ``normalize``, ``prior_seconds``, ``warp``,
-``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
+about 1 MB per second of audio for a base model). ``normalize``, ``prior_seconds``, ``memory_seconds``,
+``warp``, ``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
 waveform, and re-encoding pitch-shifted copies would multiply the encoding time and memory for
 an encoder already trained on thousands of voices. Prediction encodes the clip (torch) and runs
 the rest on NumPy. A stream (:class:`EncoderStream`) re-encodes the audio from
@@ -81,6 +82,7 @@ AUDIO_PARAMS: dict = {
     "n_mfcc": 13,
     "normalize": "running",
     "prior_seconds": 2.0,
+    "memory_seconds": 0.0,
     "warp": 0.1,
     "pitch_shift": 2.0,
     "pitch_copies": 1,
@@ -153,6 +155,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             fps,
             normalize,
             p["prior_seconds"],
+            p["memory_seconds"],
             encoder=p["encoder"],
             encoder_depth=p["encoder_depth"],
         )

@@ -8,7 +8,10 @@ stacking, features are normalised per dimension:
 
 - ``"running"`` (default): causally, by the mean and variance of the audio heard so far pooled
   with the training data's (:func:`~vispeech.frontends.features.running_normalize`), which
-  removes much of a new voice's and microphone's spectral colour and streams exactly;
+  removes much of a new voice's and microphone's spectral colour and streams exactly; with
+  ``memory_seconds``, once that much audio has been heard, by the last ``memory_seconds`` of
+  it alone, so that deep into a long recording or stream they follow the voice and the
+  microphone as they are now (a clip no longer than that is normalised as without it);
 - ``"global"``: by the training data's mean and variance only.
 
 ``kind="encoder"`` reads a pretrained speech encoder's hidden states instead
@@ -49,7 +52,9 @@ class AudioEncoding:
     """Audio → one input vector per network frame (see the module docstring).
 
     ``mean``/``std`` are the training features' statistics (per dimension); ``prior_seconds``
-    is how much audio the running normalisation's prior is worth. ``encoder`` (the folder, as
+    is how much audio the running normalisation's prior is worth, ``memory_seconds`` how much of
+    the audio heard it remembers (the last seconds; 0: all of it; see
+    :func:`~vispeech.frontends.features.running_normalize`). ``encoder`` (the folder, as
     given), ``encoder_depth`` (a Whisper encoder's layers read; 0: all), ``layers`` and ``width``
     describe a speech encoder's hidden states (``kind="encoder"``; ``layers`` and ``width`` are 0
     until the encoder is loaded at fit).
@@ -61,6 +66,7 @@ class AudioEncoding:
     fps: float = 50.0
     normalize: str = "running"
     prior_seconds: float = 2.0
+    memory_seconds: float = 0.0
     mean: list[float] = field(default_factory=list)
     std: list[float] = field(default_factory=list)
     encoder: str | None = None
@@ -91,6 +97,8 @@ class AudioEncoding:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
         if not (isinstance(self.prior_seconds, int | float) and 0 <= self.prior_seconds < math.inf):
             raise VispeechError(f"prior_seconds must be a number of seconds >= 0, got {self.prior_seconds!r}")
+        if not (isinstance(self.memory_seconds, int | float) and 0 <= self.memory_seconds < math.inf):
+            raise VispeechError(f"memory_seconds must be a number of seconds >= 0, got {self.memory_seconds!r}")
         if not (isinstance(self.fps, int | float) and self.fps > 0):
             raise VispeechError(f"an audio network's fps must be a number > 0, got {self.fps!r}")
         stack = FRAME_RATE / self.fps
@@ -162,7 +170,10 @@ class AudioEncoding:
         if len(mean) != self.dims:
             raise VispeechError("the audio encoding has no training statistics (fit the model first)")
         if self.normalize == "running":
-            return running_normalize_together(features, mean, std, self.prior_seconds * self.frame_rate, states)
+            rate = self.frame_rate
+            return running_normalize_together(
+                features, mean, std, self.prior_seconds * rate, states, round(self.memory_seconds * rate)
+            )
         out = np.subtract(np.concatenate(features), mean.astype(np.float32), dtype=np.float32)
         out /= std.astype(np.float32)
         bounds = np.cumsum([0, *map(len, features)]).tolist()
@@ -193,6 +204,7 @@ class AudioEncoding:
             "fps": self.fps,
             "normalize": self.normalize,
             "prior_seconds": self.prior_seconds,
+            "memory_seconds": self.memory_seconds,
             "mean": list(self.mean),
             "std": list(self.std),
             "encoder": self.encoder,
