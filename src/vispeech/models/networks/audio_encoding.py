@@ -43,6 +43,8 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.features import FEATURE_KINDS, FRAME_RATE, running_normalize_together, spectral_features
 
 NORMALIZATIONS = ("running", "global")
+MAX_MEMORY_SECONDS = 60.0
+"""The most audio (s) a running normalisation with a memory keeps: a live stream holds it."""
 KINDS = (*FEATURE_KINDS, "encoder")
 """The audio features a network can read."""
 
@@ -97,8 +99,11 @@ class AudioEncoding:
             raise VispeechError(f"normalize must be one of {', '.join(NORMALIZATIONS)}, got {self.normalize!r}")
         if not (isinstance(self.prior_seconds, int | float) and 0 <= self.prior_seconds < math.inf):
             raise VispeechError(f"prior_seconds must be a number of seconds >= 0, got {self.prior_seconds!r}")
-        if not (isinstance(self.memory_seconds, int | float) and 0 <= self.memory_seconds < math.inf):
-            raise VispeechError(f"memory_seconds must be a number of seconds >= 0, got {self.memory_seconds!r}")
+        if not (isinstance(self.memory_seconds, int | float) and 0 <= self.memory_seconds <= MAX_MEMORY_SECONDS):
+            raise VispeechError(
+                f"memory_seconds must be a number of seconds within 0..{MAX_MEMORY_SECONDS:g}, "
+                f"got {self.memory_seconds!r}"
+            )
         if not (isinstance(self.fps, int | float) and self.fps > 0):
             raise VispeechError(f"an audio network's fps must be a number > 0, got {self.fps!r}")
         stack = FRAME_RATE / self.fps
