@@ -220,23 +220,18 @@ def running_normalize_together(
 ) -> tuple[list[np.ndarray], list[NormState]]:
     """:func:`running_normalize` of several streams' next frames at once (``states[i]`` continues
     ``features[i]``, ``(frames_i, dims)``): one cumulative sum over all of them."""
-    if memory_frames > 0:
-        return _windowed_normalize(features, mean, std, prior_frames, states, memory_frames)
     mean64, std64 = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
     prior: Sums = (float(prior_frames), prior_frames * mean64, prior_frames * (std64**2 + mean64**2))
+    if memory_frames > 0:
+        return _windowed_normalize(features, states, prior, memory_frames)
     begun = [prior if state is None else cast(Sums, state) for state in states]
     lengths = np.array([len(x) for x in features])
     ends = np.cumsum(lengths)
     x = np.concatenate([np.asarray(f, dtype=np.float64) for f in features])
     starts = np.repeat(ends - lengths, lengths)
     counts = np.repeat([count for count, _, _ in begun], lengths) + (np.arange(len(x)) - starts + 1)
-    sums, sum_squares = np.cumsum(x, axis=0), np.cumsum(x**2, axis=0)
-    if len(features) > 1:  # each stream's running sums from its own state on
-        before = starts - 1
-        sums -= np.where(before[:, None] >= 0, sums[np.maximum(before, 0)], 0.0)
-        sum_squares -= np.where(before[:, None] >= 0, sum_squares[np.maximum(before, 0)], 0.0)
-    sums += np.repeat(np.stack([total for _, total, _ in begun]), lengths, axis=0)
-    sum_squares += np.repeat(np.stack([squares for _, _, squares in begun]), lengths, axis=0)
+    sums = _running_sums(x, lengths, np.stack([total for _, total, _ in begun]))
+    sum_squares = _running_sums(x**2, lengths, np.stack([squares for _, _, squares in begun]))
     mu = sums / counts[:, None]
     sigma = np.sqrt(np.maximum(sum_squares / counts[:, None] - mu**2, 1e-4))
     out = ((x - mu) / sigma).astype(np.float32)
@@ -247,45 +242,43 @@ def running_normalize_together(
     return [out[end - n : end] for n, end in zip(lengths.tolist(), ends.tolist())], last
 
 
+def _running_sums(rows: np.ndarray, lengths: np.ndarray, initial: np.ndarray) -> np.ndarray:
+    """Each stream's cumulative sums of its ``rows`` (the streams' rows one after another,
+    ``lengths[i]`` of stream i) from its ``initial`` sums (``(streams, dims)``), all in one
+    cumulative sum."""
+    sums = np.cumsum(rows, axis=0)
+    if len(lengths) > 1:  # each stream's sums from its own start
+        before = (np.cumsum(lengths) - lengths).repeat(lengths) - 1
+        sums -= np.where(before[:, None] >= 0, sums[np.maximum(before, 0)], 0.0)
+    return sums + np.repeat(initial, lengths, axis=0)
+
+
 def _windowed_normalize(
-    features: Sequence[np.ndarray],
-    mean: np.ndarray,
-    std: np.ndarray,
-    prior_frames: float,
-    states: Sequence[NormState | None],
-    memory: int,
+    features: Sequence[np.ndarray], states: Sequence[NormState | None], prior: Sums, memory: int
 ) -> tuple[list[np.ndarray], list[NormState]]:
     """:func:`running_normalize_together` with ``memory_frames`` = ``memory``. A stream's state is
     its last ``memory`` (or fewer) frames and their sums; the window's sums at each new frame
     are those plus the cumulative sum of the new frames less the frames leaving the window, for
-    all the streams at once. The prior counts while no more than ``memory`` frames were heard."""
-    mean64, std64 = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
-    begun = [_Window.empty(len(mean64)) if state is None else cast(_Window, state) for state in states]
+    all the streams at once. The ``prior`` counts while no more than ``memory`` frames were heard."""
+    begun = [_Window.empty(len(prior[1])) if state is None else cast(_Window, state) for state in states]
     new = [np.asarray(f, dtype=np.float64) for f in features]
     leaving = np.concatenate([window.leaving(frames, memory) for window, frames in zip(begun, new)])
     lengths = np.array([len(f) for f in new])
     x = np.concatenate(new)
     heard = np.concatenate([len(w.frames) + np.arange(n) for w, n in zip(begun, lengths.tolist())])
-    ends = np.cumsum(lengths)
-    starts = np.repeat(ends - lengths, lengths)
-    moments = []
-    for power, attribute in ((1, "total"), (2, "squares")):
-        running = np.cumsum(x**power - leaving**power, axis=0)
-        if len(new) > 1:  # each stream's sums from its own state on
-            before = starts - 1
-            running -= np.where(before[:, None] >= 0, running[np.maximum(before, 0)], 0.0)
-        running += np.repeat(np.stack([getattr(w, attribute) for w in begun]), lengths, axis=0)
-        moments.append(running)
-    prior = (heard < memory)[:, np.newaxis] * prior_frames  # the window is not yet full: the prior still counts
-    count = np.minimum(heard + 1, memory)[:, np.newaxis] + prior
-    mu = (moments[0] + prior * mean64) / count
-    second = (moments[1] + prior * (std64**2 + mean64**2)) / count
+    sums = _running_sums(x - leaving, lengths, np.stack([w.total for w in begun]))
+    sum_squares = _running_sums(x**2 - leaving**2, lengths, np.stack([w.squares for w in begun]))
+    filling = (heard < memory)[:, np.newaxis]  # the window is not yet full: the prior still counts
+    count = np.minimum(heard + 1, memory)[:, np.newaxis] + np.where(filling, prior[0], 0.0)
+    mu = (sums + np.where(filling, prior[1], 0.0)) / count
+    second = (sum_squares + np.where(filling, prior[2], 0.0)) / count
     out = ((x - mu) / np.sqrt(np.maximum(second - mu**2, 1e-4))).astype(np.float32)
+    ends = np.cumsum(lengths).tolist()
     last: list[NormState] = [
-        window if not n else window.after(frames, moments[0][end - 1], moments[1][end - 1], memory)
-        for window, frames, n, end in zip(begun, new, lengths.tolist(), ends.tolist())
+        window if not n else window.after(frames, sums[end - 1], sum_squares[end - 1], memory)
+        for window, frames, n, end in zip(begun, new, lengths.tolist(), ends)
     ]
-    return [out[end - n : end] for n, end in zip(lengths.tolist(), ends.tolist())], last
+    return [out[end - n : end] for n, end in zip(lengths.tolist(), ends)], last
 
 
 @dataclass(frozen=True)
