@@ -305,15 +305,10 @@ class _Window:
 
     def leaving(self, new: np.ndarray, memory: int) -> np.ndarray:
         """The frame each of ``new`` pushes out of a window of ``memory`` frames (zeros before it is full)."""
-        frames, held = self.frames, self.stop - self.start
-        filling = min(len(new), max(0, memory - held))
-        return np.concatenate(
-            [
-                np.zeros((filling, new.shape[1])),
-                frames[max(0, held - memory) : max(0, min(held, held - memory + len(new)))],
-                new[: max(0, len(new) - memory)],
-            ]
-        )
+        held = self.stop - self.start  # never more than the memory
+        filling = min(len(new), memory - held)
+        pushed_out = self.frames[: max(0, held + len(new) - memory)]
+        return np.concatenate([np.zeros((filling, new.shape[1])), pushed_out, new[: max(0, len(new) - memory)]])
 
     def after(self, new: np.ndarray, total: np.ndarray, squares: np.ndarray, memory: int) -> _Window:
         """The state once ``new`` frames were heard, whose window sums are ``total`` and ``squares``."""
