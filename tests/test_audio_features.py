@@ -8,7 +8,7 @@ from vispeech import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import (
     FRAME_RATE, N_FFT, SpectrumStream, audio_features, log_mel, mel_filter_bank, mfcc, power_spectrogram,
-    running_normalize, running_normalize_together, warp_frequencies,
+    running_normalize, running_normalize_together, speech_level, warp_frequencies,
 )
 
 
@@ -206,3 +206,21 @@ def test_mel_filter_bank_is_librosas(n_fft, n_mels, fmin):
     bank = mel_filter_bank(16000, n_fft, n_mels, fmin)
     assert bank.dtype == np.float32
     np.testing.assert_allclose(bank, expected, rtol=1e-6, atol=1e-9)
+
+
+def test_speech_level_is_the_level_of_the_loud_frames():
+    """A gain of g dB adds g to the level (the features' floor does not bound it); silence around
+    the speech does not move it (while the loud frames are more than 5 % of the clip); a clip of
+    no frames has none."""
+    rng = np.random.default_rng(3)
+    speech = (tone(220, 0.6) * (1 + 0.5 * np.sin(np.linspace(0, 12, 9600))) + 0.01 * rng.normal(size=9600))
+    speech = speech.astype(np.float32)
+    level = speech_level(power_spectrogram(speech))
+    for gain in (-40.0, 6.0):
+        gained = speech_level(power_spectrogram(speech * np.float32(10 ** (gain / 20))))
+        assert gained == pytest.approx(level + gain, abs=1e-4)
+    hiss = (0.001 * rng.normal(size=16000)).astype(np.float32)
+    padded = speech_level(power_spectrogram(np.concatenate([hiss, speech, hiss])))
+    assert padded == pytest.approx(level, abs=1.0)
+    assert speech_level(power_spectrogram(hiss)) < level - 20
+    assert np.isnan(speech_level(np.zeros((0, N_FFT // 2 + 1))))

@@ -42,6 +42,10 @@ FRAME_RATE = SAMPLE_RATE / HOP
 LOG_FLOOR = 1e-6
 """Mel-band power below which log-mel is flat."""
 FEATURE_KINDS = ("log-mel", "mfcc")
+LEVEL_QUANTILE = 0.95
+"""The share of a clip's frames quieter than its :func:`speech_level`."""
+LEVEL_FLOOR = 1e-12
+"""Mel-band power below which :func:`speech_level` takes a band as flat (60 dB below :data:`LOG_FLOOR`)."""
 
 
 def power_spectrogram(samples: np.ndarray) -> np.ndarray:
@@ -160,6 +164,18 @@ def _dct_basis(n: int) -> np.ndarray:
     basis = np.cos(np.pi * k * (2 * np.arange(n) + 1) / (2 * n)) * np.sqrt(2.0 / n)
     basis[0] /= np.sqrt(2.0)
     return basis
+
+
+def speech_level(power: np.ndarray, n_mels: int = 80) -> float:
+    """A clip's level in dB from its power spectra ``(frames, bins)``: the
+    :data:`LEVEL_QUANTILE` quantile over frames of the mean over ``n_mels`` bands of the log
+    mel-band power, the level of its loud frames (vowels) whatever its share of silence. Its
+    floor (:data:`LEVEL_FLOOR`) lies far below the features' so that a gain of g dB adds g to
+    it. NaN for no frames."""
+    if not len(power):
+        return float("nan")
+    bands = np.log(np.maximum(power @ mel_filters(n_mels).T, LEVEL_FLOOR))
+    return float(np.quantile(np.mean(bands, axis=1, dtype=np.float64), LEVEL_QUANTILE) * (10.0 / np.log(10.0)))
 
 
 def spectral_features(power: np.ndarray, kind: str = "log-mel", n_mels: int = 80, n_mfcc: int = 13) -> np.ndarray:
