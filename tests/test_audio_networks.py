@@ -250,6 +250,40 @@ def test_encoder_decoder_stream_follows_its_offline_output(encdec, held_out):
     assert np.corrcoef(streamed[:, 0], offline[:, 0])[0, 1] > 0.95
 
 
+def test_match_level_gains_whole_clips_outside_the_training_levels_into_them(corpus, held_out, tmp_path):
+    """match_level: fit stores the span of the training clips' levels; a clip within it is
+    predicted bit for bit as without it, a quiet clip as one at the span's lower end whatever
+    its level; a stream is not gained; the span is saved."""
+    from vispeech.frontends.features import power_spectrogram, speech_level
+
+    model = AudioCNNNetwork(**{**TINY, "epochs": 3}, channels=[16, 16, 16], match_level=True)
+    model.fit(corpus, progress=False)
+    low, high = model.encoding_.level_range
+    levels = [speech_level(power_spectrogram(u.audio), 24) for u in corpus.train]
+    assert (low, high) == (min(levels), max(levels))  # no training clip is gained
+    unmatched = copy.deepcopy(model)
+    unmatched.encoding_ = replace(unmatched.encoding_, level_range=[])
+    inside = next(u for u in held_out if low <= speech_level(power_spectrogram(u.audio), 24) <= high)
+    np.testing.assert_array_equal(model.predict(clip_of(inside), 25).values,
+                                  unmatched.predict(clip_of(inside), 25).values)
+
+    def quiet(db: float) -> AudioClip:
+        return AudioClip.from_array(inside.audio * np.float32(10 ** (db / 20)), RATE)
+
+    gain = model.encoding_.level_gain(power_spectrogram(quiet(-20).samples))
+    assert gain > 10  # what brings it to the lower end
+    assert speech_level(power_spectrogram(quiet(-20 + gain).samples), 24) == pytest.approx(low, abs=1e-3)
+    matched = model.predict(quiet(-20), 25).values
+    np.testing.assert_allclose(model.predict(quiet(-10), 25).values, matched, atol=1e-4)
+    assert not np.allclose(unmatched.predict(quiet(-20), 25).values, matched, atol=1e-3)
+    stream = model.stream("en", 25)
+    streamed = np.concatenate([stream.push(quiet(-20).samples)[1], stream.finish()[1]])
+    np.testing.assert_allclose(streamed, unmatched.predict(quiet(-20), 25).values, atol=1e-5)
+    assert load_model(model.save(tmp_path / "m")).encoding_.level_range == [low, high]
+    with pytest.raises(VispeechError, match="match_level needs spectral features"):
+        AudioCNNNetwork(features="encoder", encoder=str(tmp_path), fps=50, match_level=True)
+
+
 @pytest.mark.parametrize("fixture", ["cnn", "recurrent_cnn", "encdec"])
 def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_path):
     model = request.getfixturevalue(fixture)

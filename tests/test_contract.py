@@ -304,6 +304,7 @@ def test_a_value_of_the_wrong_kind_is_named_with_its_default(family, key, value,
         ("audio-encdec", "prior_seconds", [1]),
         ("audio-cnn", "memory_seconds", -1),
         ("audio-encdec", "memory_seconds", 1e12),
+        ("audio-cnn", "match_level", 1),
     ],
 )
 def test_training_values_torch_or_scikit_learn_would_crash_on_are_refused_at_once(family, key, value):

@@ -20,7 +20,8 @@ hidden layer against the utterance's phone sequence (silences left to the blank)
 (:meth:`AudioNetwork.predict_with_closures`, :mod:`vispeech.models.networks.phone_head`),
 phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to
 voices the corpus lacks comes from the running normalisation (of the last ``memory_seconds``
-heard, when > 0), vocal-tract-length perturbation (a warp factor drawn from
+heard, when > 0; with ``match_level``, whole clips whose level lies outside the training clips'
+are gained into their range first, :class:`AudioEncoding`), vocal-tract-length perturbation (a warp factor drawn from
 ``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
 (``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
 that many copies of each training utterance as other voices in other rooms, at other rates and
@@ -35,7 +36,7 @@ that encoder's hidden states at 50 fps (``fps`` must be 50), standardised global
 learned softmax-weighted sum of the layers (``LayerFusion``, PhISANet's All-Enc) in front of
 the convolutions. Each training utterance is encoded once (kept as float16 while fitting:
 about 1 MB per second of audio for a base model). ``normalize``, ``prior_seconds``, ``memory_seconds``,
-``warp``, ``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
+``match_level``, ``warp``, ``pitch_shift`` and ``pitch_copies`` act on spectral features only: the encoder reads the
 waveform, and re-encoding pitch-shifted copies would multiply the encoding time and memory for
 an encoder already trained on thousands of voices. Prediction encodes the clip (torch) and runs
 the rest on NumPy. A stream (:class:`EncoderStream`) re-encodes the audio from
@@ -83,6 +84,7 @@ AUDIO_PARAMS: dict = {
     "normalize": "running",
     "prior_seconds": 2.0,
     "memory_seconds": 0.0,
+    "match_level": False,
     "warp": 0.1,
     "pitch_shift": 2.0,
     "pitch_copies": 1,
@@ -139,6 +141,10 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         for key in ("pitch_copies", "augment"):
             if not (isinstance(p[key], int) and 0 <= p[key] <= 8):
                 raise VispeechError(f"{key} must be a whole number within 0..8, got {p[key]!r}")
+        if not isinstance(p["match_level"], bool):
+            raise VispeechError(f"match_level must be true or false, got {p['match_level']!r}")
+        if p["match_level"] and p["features"] == "encoder":
+            raise VispeechError("match_level needs spectral features (a speech encoder reads the waveform)")
 
     def _unfitted_encoding(self, fps: float) -> AudioEncoding:
         """The audio encoding the parameters ask for at ``fps``, without training statistics."""
@@ -170,6 +176,8 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
             self._hidden = {id(u): self._utterance_hidden(u, encoder) for u in train_set}
             return encoding.with_statistics(encoding.features(hidden) for hidden in self._hidden.values())
         self._powers = {id(u): self._utterance_powers(u) for u in train_set}
+        if self._params["match_level"]:
+            encoding = encoding.with_level_range(powers[0] for powers in self._powers.values())
         return encoding.with_statistics(encoding.features(powers[0]) for powers in self._powers.values())
 
     @staticmethod
