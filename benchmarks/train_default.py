@@ -58,12 +58,15 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     # augment=1 and prior_seconds=0.5 were measured and not taken (espeak-ng's voices: docs/audio.md);
     # both log-mel models normalise by the last 5 s heard (memory_seconds, chosen on long clips of the
     # validation split, benchmarks/bench_long_clips.py; the 3-s training utterances are normalised alike)
+    # and gain a whole clip quieter or louder than every training clip to the nearest training level
+    # (match_level, docs/audio.md "Recording level"; no training clip is gained, so training is unchanged)
     "grid-audio-cnn": ("audio-cnn", {"look_ahead": 5, "learning_rate": 0.002, "ctc_weight": 0.004,
                                      "velocity_weight": 0.3, "acceleration_weight": 0.3, "epochs": 40, "patience": 6,
-                                     "memory_seconds": 5.0}),
+                                     "memory_seconds": 5.0, "match_level": True}),
     # the offline model: the learning rate halves whenever the training loss rises (the thesis's schedule)
     "grid-audio-encdec": ("audio-encdec", {"ctc_weight": 0.008, "velocity_weight": 0.3, "acceleration_weight": 0.3,
-                                           "lr_step_down": True, "epochs": 60, "patience": 8, "memory_seconds": 5.0}),
+                                           "lr_step_down": True, "epochs": 60, "patience": 8, "memory_seconds": 5.0,
+                                           "match_level": True}),
     # issue 22: the offline recipe on Whisper tiny.en's encoder (the whisper extra); it learns in
     # about ten epochs. augment=1 was measured and not taken: espeak-ng's voices, the held-out other
     # voices, scored 0.442 against 0.459 without it (docs/audio.md)
