@@ -59,7 +59,7 @@ ARCHITECTURES: dict[str, tuple[str, dict]] = {
     # both log-mel models normalise by the last 5 s heard (memory_seconds, chosen on long clips of the
     # validation split, benchmarks/bench_long_clips.py; the 3-s training utterances are normalised alike)
     # and gain a whole clip quieter or louder than every training clip to the nearest training level
-    # (match_level, docs/audio.md "Recording level"; no training clip is gained, so training is unchanged)
+    # when predicting (match_level, docs/audio.md "Recording level"; training reads its clips as they are)
     "grid-audio-cnn": ("audio-cnn", {"look_ahead": 5, "learning_rate": 0.002, "ctc_weight": 0.004,
                                      "velocity_weight": 0.3, "acceleration_weight": 0.3, "epochs": 40, "patience": 6,
                                      "memory_seconds": 5.0, "match_level": True}),

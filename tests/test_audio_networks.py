@@ -253,16 +253,19 @@ def test_encoder_decoder_stream_follows_its_offline_output(encdec, held_out):
 def test_match_level_gains_whole_clips_outside_the_training_levels_into_them(corpus, held_out, tmp_path):
     """match_level: fit stores the span of the training clips' levels; a clip within it is
     predicted bit for bit as without it, a quiet clip as one at the span's lower end whatever
-    its level; a stream is not gained; the span is saved."""
+    its level; training and streams are not gained; the span is saved."""
     from vispeech.frontends.features import power_spectrogram, speech_level
 
     model = AudioCNNNetwork(**{**TINY, "epochs": 3}, channels=[16, 16, 16], match_level=True)
     model.fit(corpus, progress=False)
     low, high = model.encoding_.level_range
     levels = [speech_level(power_spectrogram(u.audio), 24) for u in corpus.train]
-    assert (low, high) == (min(levels), max(levels))  # no training clip is gained
+    assert (low, high) == (min(levels), max(levels))
     unmatched = copy.deepcopy(model)
     unmatched.encoding_ = replace(unmatched.encoding_, level_range=[])
+    plain = AudioCNNNetwork(**{**TINY, "epochs": 3}, channels=[16, 16, 16]).fit(corpus, progress=False)
+    quiet_clip = AudioClip.from_array(held_out[0].audio * np.float32(0.01), RATE)
+    np.testing.assert_array_equal(plain.predict(quiet_clip, 25).values, unmatched.predict(quiet_clip, 25).values)
     inside = next(u for u in held_out if low <= speech_level(power_spectrogram(u.audio), 24) <= high)
     np.testing.assert_array_equal(model.predict(clip_of(inside), 25).values,
                                   unmatched.predict(clip_of(inside), 25).values)
@@ -270,9 +273,9 @@ def test_match_level_gains_whole_clips_outside_the_training_levels_into_them(cor
     def quiet(db: float) -> AudioClip:
         return AudioClip.from_array(inside.audio * np.float32(10 ** (db / 20)), RATE)
 
-    gain = model.encoding_.level_gain(power_spectrogram(quiet(-20).samples))
-    assert gain > 10  # what brings it to the lower end
-    assert speech_level(power_spectrogram(quiet(-20 + gain).samples), 24) == pytest.approx(low, abs=1e-3)
+    quiet_power = power_spectrogram(quiet(-20).samples)
+    assert speech_level(quiet_power, 24) < low - 10
+    assert speech_level(model.encoding_.matched(quiet_power), 24) == pytest.approx(low, abs=1e-3)
     matched = model.predict(quiet(-20), 25).values
     np.testing.assert_allclose(model.predict(quiet(-10), 25).values, matched, atol=1e-4)
     assert not np.allclose(unmatched.predict(quiet(-20), 25).values, matched, atol=1e-3)

@@ -20,12 +20,13 @@ hidden layer against the utterance's phone sequence (silences left to the blank)
 (:meth:`AudioNetwork.predict_with_closures`, :mod:`vispeech.models.networks.phone_head`),
 phones of ``closure_length`` seconds on which post-processing shuts the lips. Robustness to
 voices the corpus lacks comes from the running normalisation (of the last ``memory_seconds``
-heard, when > 0; with ``match_level``, whole clips whose level lies outside the training clips'
-are gained into their range first, :class:`AudioEncoding`), vocal-tract-length perturbation (a warp factor drawn from
-``1 ± warp`` per utterance and epoch) and pitch-shifted copies of the training audio
-(``pitch_copies`` copies, each shifted by up to ``± pitch_shift`` semitones); ``augment`` adds
-that many copies of each training utterance as other voices in other rooms, at other rates and
-over other channels would have said it, for either kind of features
+heard, when > 0; with ``match_level``, a clip to predict whose level lies outside the training
+clips' is gained into their range first, :class:`AudioEncoding`), vocal-tract-length
+perturbation (a warp factor drawn from ``1 ± warp`` per utterance and epoch) and
+pitch-shifted copies of the training audio (``pitch_copies`` copies, each shifted by up to
+``± pitch_shift`` semitones); ``augment`` adds that many copies of each training utterance as
+other voices in other rooms, at other rates and over other channels would have said it, for
+either kind of features
 (:mod:`vispeech.models.networks.augmentation`); ``feature_dropout`` sets each input dimension to
 the training mean over a whole utterance with that probability while training. Prediction runs
 on NumPy (:mod:`vispeech.models.networks.kernels`).
@@ -412,7 +413,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         if self.encoding_.kind == "encoder":
             source = self._hidden_states(clip, speech_encoder(self.encoding_))
         else:
-            source = power_spectrogram(clip.resampled(SAMPLE_RATE).samples)
+            source = self.encoding_.matched(power_spectrogram(clip.resampled(SAMPLE_RATE).samples))
         outputs, posteriors = kernel.forward_with_phones(self.encoding_.encode(source, n_model))
         track = Track(self._denormalise(outputs), self.channels, self.fps_)
         n = clip.n_frames(fps)

@@ -17,11 +17,13 @@ stacking, features are normalised per dimension:
 The running normalisation's prior is the training audio's, at its recording level, and it
 weighs most in a clip's first seconds: a quiet recording then reads as near silence (on
 grid_s1's validation utterances 20 dB down, the log-mel CNN's jawOpen r fell from 0.83 to
-0.66). With a ``level_range`` (the span of the training clips' :func:`speech_level`), a whole
-clip (offline prediction, and training) whose level lies outside it is gained to its nearer
-end first, as if its microphone had been set for the training audio; a clip within it is
-left as it is, bit for bit. A stream cannot know its level before it has heard the speech and
-is not gained: its prior weighs less as the voice is heard, and after ``memory_seconds`` not at all.
+0.66). With a ``level_range`` (the span of the training clips'
+:func:`~vispeech.frontends.features.speech_level`), :meth:`AudioEncoding.matched` gains a
+whole clip whose level lies outside it to its nearer end, as if its microphone had been set
+for the training audio, and leaves a clip within it as it is, bit for bit; the networks apply
+it when they predict a whole clip (training reads its clips as they are). A stream cannot know
+its level before it has heard the speech and is not gained: its prior weighs less as the voice
+is heard, and after ``memory_seconds`` not at all.
 
 ``kind="encoder"`` reads a pretrained speech encoder's hidden states instead
 (:mod:`vispeech.frontends.encoder`, from the folder ``encoder``): ``layers`` hidden states
@@ -194,18 +196,19 @@ class AudioEncoding:
     def with_level_range(self, powers: Iterable[np.ndarray]) -> AudioEncoding:
         """A copy whose ``level_range`` spans the lowest to the highest
         :func:`~vispeech.frontends.features.speech_level` of the training clips' power spectra
-        ``powers`` (taken one at a time): no training clip is gained."""
+        ``powers`` (taken one at a time)."""
         levels = [speech_level(power, self.n_mels) for power in powers]
         return replace(self, level_range=[min(levels), max(levels)])
 
-    def level_gain(self, power: np.ndarray) -> float:
-        """The gain (dB) that brings a whole clip's power spectra ``(frames, bins)`` into
-        ``level_range`` (0 within it, without one, or for no frames)."""
+    def matched(self, power: np.ndarray) -> np.ndarray:
+        """A whole clip's power spectra ``(frames, bins)`` gained into ``level_range`` (the
+        same array when its level lies within it, without one, or for no frames)."""
         if not self.level_range or not len(power):
-            return 0.0
+            return power
         level = speech_level(power, self.n_mels)
         low, high = self.level_range
-        return min(max(level, low), high) - level
+        gain = min(max(level, low), high) - level
+        return power * np.float32(10.0 ** (gain / 10.0)) if gain else power
 
     def normalise(self, features: np.ndarray, state=None) -> tuple[np.ndarray, object]:
         """Normalised features and the running state to continue from (``None`` for global)."""
@@ -239,11 +242,8 @@ class AudioEncoding:
         return normalised[index].reshape(n_frames, self.size)
 
     def encode(self, source: np.ndarray, n_frames: int) -> np.ndarray:
-        """Network inputs for ``n_frames`` frames of the whole clip whose power spectra (or
-        encoder hidden states) are ``source``, gained into ``level_range`` first."""
-        gain = self.level_gain(source)
-        if gain:
-            source = source * np.float32(10.0 ** (gain / 10.0))
+        """Network inputs for ``n_frames`` frames of the audio whose power spectra (or
+        encoder hidden states) are ``source``."""
         normalised, _ = self.normalise(self.features(source))
         return self.stacked(normalised, n_frames)
 
