@@ -15,18 +15,14 @@ and each model's ``level_range`` (the training clips' levels, dB) where it match
 from __future__ import annotations
 
 import argparse
-import warnings
 from pathlib import Path
 
 import numpy as np
+from bench_long_clips import GRID, r_of, split_utterances
 
-from vispeech.corpus import CorpusWarning, read_grid
-from vispeech.evaluation.report import scored_frames, target_track
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import SAMPLE_RATE, power_spectrogram, speech_level
 from vispeech.models.registry import load_model
-
-GRID = Path(__file__).resolve().parents[2] / "shared" / "data" / "grid_s1"
 
 
 def main() -> None:
@@ -36,11 +32,7 @@ def main() -> None:
     parser.add_argument("--split", default="validation", choices=("validation", "test", "train"))
     parser.add_argument("--corpus", type=Path, default=GRID)
     args = parser.parse_args()
-    if not args.corpus.is_dir():
-        raise SystemExit(f"needs the GRID corpus at {args.corpus}")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CorpusWarning)
-        utterances = list(read_grid(args.corpus).split(args.split))
+    utterances = split_utterances(args.corpus, args.split)
     clips = []
     for utterance in utterances:
         samples, rate = utterance.load_audio()
@@ -57,10 +49,8 @@ def main() -> None:
             for utterance, clip in zip(utterances, clips):
                 louder = np.clip(clip.samples * np.float32(10 ** (gain / 20)), -1.0, 1.0)
                 jaw = model.predict(AudioClip.from_array(louder, clip.sample_rate), utterance.track.fps)["jawOpen"]
-                scored = scored_frames(utterance)
-                truth = target_track(utterance, ["jawOpen"]).values[:, 0]
-                n = min(len(jaw), len(truth))
-                scores.append(np.corrcoef(jaw[:n][scored[:n]], truth[:n][scored[:n]])[0, 1])
+                n = min(len(jaw), utterance.track.n_frames)
+                scores.append(r_of(jaw[:n], utterance, slice(0, n)))
             row.append(float(np.mean(scores)))
         span = getattr(getattr(model, "encoding_", None), "level_range", None)
         where = f"{span[0]:.1f} to {span[1]:.1f}" if span else "—"

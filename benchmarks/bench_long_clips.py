@@ -44,6 +44,15 @@ MARGIN = 0.25
 """Seconds kept either side of an utterance's scored span in the continuous layout."""
 
 
+def split_utterances(corpus: Path, split: str) -> list[Utterance]:
+    """The utterances of a split of the GRID corpus at ``corpus`` (exits without it)."""
+    if not corpus.is_dir():
+        raise SystemExit(f"needs the GRID corpus at {corpus}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CorpusWarning)
+        return list(read_grid(corpus).split(split))
+
+
 def jaw(model: Estimator, samples: np.ndarray, fps: float) -> np.ndarray:
     """The raw jawOpen ``model`` predicts for ``samples`` (16 kHz) at ``fps``."""
     track = model.predict_with_closures(AudioClip.from_array(samples, RATE), fps)[0]
@@ -109,11 +118,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--corpus", type=Path, default=GRID)
     args = parser.parse_args()
-    if not args.corpus.is_dir():
-        raise SystemExit(f"needs the GRID corpus at {args.corpus}")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CorpusWarning)
-        utterances = list(read_grid(args.corpus).split(args.split))
+    utterances = split_utterances(args.corpus, args.split)
     order = np.random.default_rng(args.seed).permutation(len(utterances))
     utterances = [utterances[i] for i in order]
     layouts = (("pauses kept", args.group, False, 1.0), ("continuous", args.group, True, 1.0),
