@@ -265,7 +265,8 @@ def test_alignment_round_trip(tmp_path, suffix, phones):
 
 
 @SETTINGS
-@given(n=st.integers(1, 150), fps=st.sampled_from([24.0, 25.0, 30.0, 60.0, 120.0]), seed=st.integers(0, 99))
+@given(n=st.integers(1, 150), fps=st.sampled_from([12.0, 15.0, 24.0, 25.0, 30.0, 60.0, 120.0, 144.0]),
+       seed=st.integers(0, 99))
 def test_track_round_trips(tmp_path, n, fps, seed):
     values = np.round(np.random.default_rng(seed).uniform(0, 1, (n, 3)), 6)
     track = Track(values, tuple(ARKIT_NAMES[:3]), fps)

@@ -84,6 +84,18 @@ def test_live_link_csv_timecodes_give_fps_and_times():
     assert got["jaw"] == pytest.approx([0.0, 0.2, 0.6, 0.4, 0.2], abs=1e-6)
 
 
+@pytest.mark.parametrize("fps", [12, 15, 20, 25, 144])
+def test_live_link_csv_at_any_whole_rate_reads_at_that_rate(fps):
+    """A take that wraps into its next seconds counts frames at the rate where FF wraps, not at
+    the next nominal one (as the Python reader: 12 fps is not read as 24)."""
+    rows = ["Timecode,BlendshapeCount,JawOpen"]
+    for k in range(2 * fps + 3):  # a little over two seconds, frame k at k / fps
+        rows.append(f"00:00:{k // fps:02d}:{k % fps:02d}.000,1,{k % 2}.0000000000")
+    got = run_node(sample_script("\n".join(rows) + "\n", [0.0, 1 / fps, 2 / fps, fps / fps]))
+    assert (got["fps"], got["n"]) == (fps, 2 * fps + 3)
+    assert got["jaw"] == pytest.approx([0.0, 1.0, 0.0, fps % 2], abs=1e-6)
+
+
 def test_talkinghead_frames_start_where_the_durations_before_them_end():
     doc = {"anim": {"name": "speech", "dt": [100, 100, 100], "vs": {"jawOpen": [0.3, None, [0.5, 0.7]]}}}
     got = run_node(sample_script(json.dumps(doc), [0.0, 0.1, 0.15, 0.2, 0.3]))

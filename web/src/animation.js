@@ -165,15 +165,14 @@ export function fromLiveLinkCsv(text, name = 'animation') {
   if (!rows.length) throw new Error(`${name}: Live Link CSV has no rows`);
   const maxFrame = Math.max(...codes.map((c) => Number(c[4])));
   const wraps = new Set(codes.map((c) => `${c[1]}:${c[2]}:${c[3]}`)).size > 1;
-  const needed = wraps ? maxFrame + 1 : Math.max(maxFrame + 1, 60);
-  const rate = TIMECODE_RATES.find((r) => r >= needed) || needed;
+  const rate = timecodeRate(maxFrame + 1, wraps);
   const times = codes.map((c) => Number(c[1]) * 3600 + Number(c[2]) * 60 + Number(c[3])
     + (Number(c[4]) + (c[5] ? Number(`0.${c[5]}`) : 0)) / rate);
   for (let i = 1; i < times.length; i++) {
     if (!(times[i] > times[i - 1])) throw new Error(`${name}: line ${i + 2}: timecode does not increase`);
   }
   const span = times[times.length - 1] - times[0];
-  const fps = times.length > 1 ? nominalRate((times.length - 1) / span) : rate;
+  const fps = times.length > 1 ? nominalRate((times.length - 1) / span, rate) : rate;
   const channels = keep.map((i) => header[i]);
   const curves = channels.map((_, c) => rows.map((row) => row[c]));
   const rel = times.map((t) => t - times[0]);
@@ -185,8 +184,16 @@ export function fromLiveLinkCsv(text, name = 'animation') {
   });
 }
 
-function nominalRate(measured) {
-  const nearest = NOMINAL_FPS.reduce((a, b) => (Math.abs(b - measured) < Math.abs(a - measured) ? b : a));
+// The timecode's frames per second: where FF wraps, the highest frame + 1, or the nominal rate
+// just above it when at most 5 % of its frame numbers (at least one) went unseen at a second's
+// end (a real take's dropped frames); a take that never wraps: 60, or the nominal rate above.
+function timecodeRate(needed, wraps) {
+  if (wraps) return TIMECODE_RATES.find((r) => needed <= r && r <= needed + Math.max(1, 0.05 * r)) || needed;
+  return TIMECODE_RATES.find((r) => r >= Math.max(needed, 60)) || needed;
+}
+
+function nominalRate(measured, rate) {
+  const nearest = [...NOMINAL_FPS, rate].reduce((a, b) => (Math.abs(b - measured) < Math.abs(a - measured) ? b : a));
   return Math.abs(nearest - measured) <= 1e-4 * measured ? nearest : measured;
 }
 

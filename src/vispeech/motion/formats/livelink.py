@@ -293,7 +293,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
         bad = int(np.flatnonzero(np.diff(times) <= 0)[0]) + 3
         raise VispeechError(f"{path}, line {bad}: timecode does not increase")
     if fps is None:
-        fps = _nominal_fps((len(times) - 1) / (times[-1] - times[0])) if len(times) > 1 else float(rate)
+        fps = _nominal_fps((len(times) - 1) / (times[-1] - times[0]), rate) if len(times) > 1 else float(rate)
         check_fps(fps, f"{path}: the frame rate of the timecodes")
     try:
         return Track(np.array(rows), channels, float(fps), float(times[0]))
@@ -302,12 +302,17 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
 
 
 def _timecode_rate(timecodes: list[tuple], fps: float | None) -> int:
-    """Frames per second of the timecode's frame field: where it wraps, else ``ceil(fps)``."""
-    max_frame = max(int(groups[3]) for groups in timecodes)
+    """Frames per second of the timecode's frame field. Where it wraps to the next second, the
+    highest frame number + 1, or the nominal rate just above it when no more than 5 % of that
+    rate's frame numbers (at least one) went unseen at a second's end (a real take's dropped
+    frames); else ``ceil(fps)``, or :data:`DEFAULT_TIMECODE_RATE` without ``fps``, or the nominal
+    rate above the highest frame number when the take has more."""
+    needed = max(int(groups[3]) for groups in timecodes) + 1
     if len({groups[:3] for groups in timecodes}) > 1:
-        needed = max_frame + 1
-    else:
-        needed = max(max_frame + 1, DEFAULT_TIMECODE_RATE if fps is None else math.ceil(fps - 1e-9))
+        return next((r for r in _TIMECODE_RATES if needed <= r <= needed + max(1, 0.05 * r)), needed)
+    assumed = DEFAULT_TIMECODE_RATE if fps is None else math.ceil(fps - 1e-9)
+    if needed <= assumed:
+        return assumed
     return next((r for r in _TIMECODE_RATES if r >= needed), needed)
 
 
@@ -326,6 +331,6 @@ def parse_timecode(text: str, rate: int, what: str = "timecode") -> float:
     return _timecode_seconds(match.groups(), rate)
 
 
-def _nominal_fps(measured: float) -> float:
-    nearest = min(_NOMINAL_FPS, key=lambda f: abs(f - measured))
+def _nominal_fps(measured: float, rate: int) -> float:
+    nearest = min((*_NOMINAL_FPS, rate), key=lambda f: abs(f - measured))
     return float(nearest) if abs(nearest - measured) <= 1e-4 * measured else float(measured)
