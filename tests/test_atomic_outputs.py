@@ -209,6 +209,21 @@ def test_a_folder_holding_other_files_is_not_replaced(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["mine", "take.TextGrid"]
 
 
+@pytest.mark.parametrize("command", ["animate-phones", "animate"])
+def test_a_folder_holding_the_input_is_not_replaced(tmp_path, command):
+    """The edited phones.TextGrid (or the speech.wav) of a folder `say` wrote, animated back into
+    that folder, would go with it: refused before any work, the folder left as it was."""
+    out = tmp_path / "hello"
+    write_outputs(_utterance(tmp_path, "P", audio=True), out)
+    before = _snapshot(out)
+    given = out / ("phones.TextGrid" if command == "animate-phones" else "speech.wav")
+    result = CliRunner().invoke(main, [command, str(given), "--model", "baseline", "-o", str(out)])
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "holds the input" in lines[0], result.output
+    assert _snapshot(out) == before
+
+
 def test_an_empty_folder_is_replaced_and_a_file_is_an_error(tmp_path):
     utterance = _utterance(tmp_path, "M", audio=False)
     (tmp_path / "empty").mkdir()

@@ -306,12 +306,21 @@ def _refuse_foreign(target: Path, allowed: set[str], shown: Path) -> None:
         )
 
 
-def check_output_dir(path: str | os.PathLike, *, replaces: Iterable[str] = ()) -> None:
+def check_output_dir(
+    path: str | os.PathLike, *, replaces: Iterable[str] = (), inputs: Iterable[str | os.PathLike] = ()
+) -> None:
     """Refuse now, with :class:`VispeechError`, a folder that :func:`atomic_output_dir` with
     ``replaces`` would refuse after the work: a path that is not a folder, read-only, the root,
     a mount point or above the current folder, or a folder holding files other than ``replaces``
-    (and vispeech's leftovers). Call it before long work; the swap checks again."""
+    (and vispeech's leftovers). Call it before long work; the swap checks again. Also refused:
+    a folder holding one of the work's ``inputs``, which the swap would remove with the folder
+    (a ``phones.TextGrid`` edited in the folder ``say`` wrote, animated back into it)."""
     target = _checked_target(path)
+    for given in inputs:
+        if target in Path(os.path.realpath(given)).parents:
+            raise VispeechError(
+                f"output folder {path} holds the input {given} and is replaced as a whole: give another folder"
+            )
     if target.is_dir():
         _refuse_foreign(target, set(replaces), Path(path))
 

@@ -87,7 +87,7 @@ def animate(
     if text is not None and transcribe:
         raise VispeechError("give --text or --transcribe, not both")
     check_fps(fps, "--fps")
-    check_outputs(out_dir)
+    check_outputs(out_dir, inputs=[audio])
     load_scale(scale)
     layers = check_layers(life)
     with _whisper_folder(whisper_model):

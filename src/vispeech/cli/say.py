@@ -133,7 +133,7 @@ def animate_phones(
     from vispeech.alignment.formats import read_alignment
 
     check_fps(fps, "--fps")
-    check_outputs(out_dir)
+    check_outputs(out_dir, inputs=[alignment])
     load_scale(scale)
     layers = check_layers(life)
     try:
