@@ -2,6 +2,7 @@
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -69,6 +70,11 @@ def test_reference_poses_sit_at_three_sigma(space):
     with pytest.raises(VispeechError, match="n_modes"):
         space.reference_poses(6)
     assert parse_pose_name("mode12-2.5sd") == (12, -2.5) and pose_name(12, -2.5) == "mode12-2.5sd"
+    for sigma in (1e-05, -2.5e-7, 3.0):  # every name export-poses writes reads back (1e-05 prints as 1e-05)
+        assert parse_pose_name(pose_name(2, sigma)) == (2, sigma)
+    for zero in ("mode1-0sd", "mode1+0.0sd", "mode1+0e3sd"):  # the mean: a rig pose at 0 σ would divide by 0
+        with pytest.raises(VispeechError, match="0 standard deviations"):
+            parse_pose_name(zero)
 
 
 def test_reference_poses_map_exactly_onto_the_artist_poses(space):
@@ -216,3 +222,8 @@ def test_rig_cli_exports_imports_and_retargets(tmp_path):
                                "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "o.json")])
     assert bad.exit_code == 2 and "rig.json: mode 1 needs one rig pose" in bad.output
     assert not (tmp_path / "o.json").exists()
+    for args in (["mouth-frames", "--corpus", str(takes), "--seed", "-1", "-o", str(tmp_path / "m.npz")],
+                 ["export-poses", "--corpus", str(takes), "--sigma", "1e308", "-o", str(tmp_path / "far.json")]):
+        bad = runner.invoke(main, ["rig", *args])  # refused by the option, before any work
+        assert bad.exit_code == 2 and "Invalid value" in bad.output, bad.output
+        assert not Path(args[-1]).exists()

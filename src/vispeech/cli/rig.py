@@ -39,7 +39,7 @@ def _space_option(required: bool):
         type=click.Path(file_okay=False, path_type=Path),
         required=required,
         default=None,
-        help="Rig-space folder (from export-poses --space or import).",
+        help="Rig-space folder (from export-poses --save-space or import).",
     )
 
 
@@ -64,7 +64,7 @@ def _space_option(required: bool):
     "--sigma",
     default=3.0,
     show_default=True,
-    type=click.FloatRange(min=0, min_open=True),
+    type=click.FloatRange(min=0, max=10, min_open=True),
     help="Reference poses at ± this many standard deviations.",
 )
 @click.option(
@@ -268,7 +268,7 @@ def prepare(head: Path, output: Path) -> None:
     type=click.IntRange(min=10),
     help="Random tracked frames of the training split to keep.",
 )
-@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed of the random sample.")
 @corpus_language_option
 def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: int, language: str) -> None:
     """Keep a sample of a corpus's tracked frames with the speaker's lip gap and mouth width:

@@ -48,7 +48,7 @@ SPACE_ARRAYS = "modes.npz"
 FORMAT = "vispeech-rigspace"
 FORMAT_VERSION = 1
 
-_POSE = re.compile(r"^mode([1-9][0-9]*)([+-][0-9]+(?:\.[0-9]+)?)sd$")
+_POSE = re.compile(r"^mode([1-9][0-9]*)([+-][0-9]+(?:\.[0-9]+)?(?:e[+-]?[0-9]+)?)sd$")
 
 
 def pose_name(mode: int, sigma: float) -> str:
@@ -61,7 +61,10 @@ def parse_pose_name(name: str) -> tuple[int, float]:
     match = _POSE.match(name)
     if match is None:
         raise VispeechError(f"pose name {name!r} is neither {MEAN_POSE!r} nor like 'mode1-3sd' / 'mode1+3sd'")
-    return int(match.group(1)), float(match.group(2))
+    sigma = float(match.group(2))
+    if sigma == 0:
+        raise VispeechError(f"pose name {name!r} is at 0 standard deviations: that pose is {MEAN_POSE!r}")
+    return int(match.group(1)), sigma
 
 
 class RigSpace:
