@@ -110,6 +110,14 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     assert "unknown post-processing 'False' (use auto, none or a preset: authored" in errors[19]
 
 
+def test_jsonl_errors_name_the_file_line_past_blank_lines(tmp_path):
+    job = tmp_path / "blank.jsonl"
+    job.write_text('{"id": "a", "text": "Hi."}\n\n\nnot json\n', encoding="utf-8")
+    lines = read_job(job)
+    assert [x.id for x in lines] == ["a", "00002"]  # the job's second line, on the file's fourth
+    assert lines[1].error.startswith("line 4 of blank.jsonl is not valid JSON")
+
+
 def test_folder_job_reads_texts_recordings_with_transcripts_and_alignments(tmp_path):
     (tmp_path / "greeting.txt").write_text("Hello there.\n", encoding="utf-8")
     (tmp_path / "take.wav").write_bytes(b"RIFF")  # read at run time, not now
@@ -122,9 +130,22 @@ def test_folder_job_reads_texts_recordings_with_transcripts_and_alignments(tmp_p
         ("greeting", "text", "Hello there."), ("line", "alignment", None), ("take", "audio", "bin blue")]
 
 
+def test_a_folder_jobs_unreadable_text_fails_its_line_only(tmp_path):
+    (tmp_path / "a.txt").write_text("Hello there.", encoding="utf-8")
+    (tmp_path / "b.txt").write_text("", encoding="utf-8")
+    (tmp_path / "c.txt").write_bytes(b"\xff\xfeA")  # UTF-16 with an odd number of bytes
+    (tmp_path / "d.wav").write_bytes(b"RIFF")
+    (tmp_path / "d.txt").write_text("", encoding="utf-8")  # its transcript
+    lines = read_job(tmp_path)
+    assert [(x.number, x.id) for x in lines] == [(1, "a"), (2, "b"), (3, "c"), (4, "d")]
+    assert lines[0].error is None and "empty" in lines[1].error and "odd number of bytes" in lines[2].error
+    assert "transcript" in lines[3].error and "empty" in lines[3].error
+
+
 @pytest.mark.parametrize("rows,message", [
     (["id,words", "a,hello"], "unknown column 'words'"),
     (["id,language", "a,en"], "needs a text, audio or alignment column"),
+    (["id,text,text", "a,hello,world"], "column 'text' appears twice"),
     (["", "id,text", "a,hello"], "no header line"),
     ([""], "is empty"),
 ])
@@ -133,6 +154,13 @@ def test_unreadable_csv_manifest_is_one_error(tmp_path, rows, message):
     result = run("batch", str(job), "-o", str(tmp_path / "out"))
     assert_clean_error(result)
     assert message in result.output
+
+
+def test_the_root_folder_is_refused_as_a_batch_output(tmp_path):
+    job = _csv(tmp_path / "job.csv", ["id,text", "zz_vispeech_test,hello"])
+    result = run("batch", str(job), "-o", "/")
+    assert result.exit_code == 2 and "is the root folder" in result.output
+    assert not Path("/zz_vispeech_test").exists() and not Path("/index.jsonl").exists()
     assert not (tmp_path / "out").exists()
 
 

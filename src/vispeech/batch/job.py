@@ -144,6 +144,9 @@ def _csv_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
     columns = [c.strip() for c in reader.fieldnames or []]
     if not columns:
         raise VispeechError(f"batch manifest {path} has no header line (columns: {', '.join(FIELDS)})")
+    twice = next((c for c in columns if columns.count(c) > 1), None)
+    if twice is not None:
+        raise VispeechError(f"batch manifest {path}: column {twice!r} appears twice")
     unknown = [c for c in columns if c not in FIELDS]
     if unknown:
         raise VispeechError(f"batch manifest {path}: unknown column {unknown[0]!r} (columns: {', '.join(FIELDS)})")
@@ -161,12 +164,12 @@ def _csv_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
 
 def _jsonl_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
     records: list[tuple[int, dict | str]] = []
-    for line in text.lstrip("\ufeff").splitlines():
+    for physical, line in enumerate(text.lstrip("\ufeff").splitlines(), start=1):
         if not line.strip():
             continue
-        number = len(records) + 1
+        number = len(records) + 1  # the job's line number (blank lines skipped): its default id
         try:
-            record = parse_json(line, f"line {number} of {path.name}")
+            record = parse_json(line, f"line {physical} of {path.name}")
         except VispeechError as exc:
             records.append((number, str(exc)))
             continue
@@ -184,20 +187,27 @@ def _jsonl_records(text: str, path: Path) -> list[tuple[int, dict | str]]:
 def _folder_lines(folder: Path, defaults: JobDefaults) -> list[BatchLine]:
     files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
     audio_stems = {p.stem for p in files if p.suffix.lower() in AUDIO_SUFFIXES}
-    records: list[dict] = []
+    lines: list[BatchLine] = []
     for p in files:
         suffix = p.suffix.lower()
-        if suffix in AUDIO_SUFFIXES:
-            record = {"id": p.stem, "audio": p.name}
-            transcript = p.with_suffix(".txt")
-            if transcript.is_file():
-                record["text"] = read_text(transcript, "transcript").strip()
-            records.append(record)
-        elif suffix == ".txt" and p.stem not in audio_stems:
-            records.append({"id": p.stem, "text": read_text(p, "text").strip()})
-        elif suffix in ALIGNMENT_SUFFIXES:
-            records.append({"id": p.stem, "alignment": p.name})
-    return [_parse_line(number, record, folder, defaults) for number, record in enumerate(records, start=1)]
+        record: dict = {"id": p.stem}
+        try:  # a text that cannot be read is its line's error, as in a manifest
+            if suffix in AUDIO_SUFFIXES:
+                record["audio"] = p.name
+                transcript = p.with_suffix(".txt")
+                if transcript.is_file():
+                    record["text"] = read_text(transcript, "transcript").strip()
+            elif suffix == ".txt" and p.stem not in audio_stems:
+                record["text"] = read_text(p, "text").strip()
+            elif suffix in ALIGNMENT_SUFFIXES:
+                record["alignment"] = p.name
+            else:
+                continue
+        except VispeechError as exc:
+            lines.append(BatchLine(len(lines) + 1, p.stem, error=str(exc)))
+            continue
+        lines.append(_parse_line(len(lines) + 1, record, folder, defaults))
+    return lines
 
 
 def _parse_line(number: int, record: dict | str, base: Path, defaults: JobDefaults) -> BatchLine:

@@ -97,6 +97,8 @@ def run_batch(
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise VispeechError(f"output path {out} exists and is not a folder")
+    if Path(os.path.realpath(out)).parent == Path(os.path.realpath(out)):
+        raise VispeechError(f"output folder {out} is the root folder: give a folder for the batch's folders")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
