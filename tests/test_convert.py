@@ -122,12 +122,20 @@ def test_glb_output_onto_the_shipped_head_or_another(tmp_path, take, shared_dir)
     (["take.csv", "out.json", "--pose-table", "nope"], "pose table not found"),
     (["take.csv", "out.tsv", "--to", "rhubarb", "--pose-table", "thesis_bone_rig"], "need a morph pose table"),
     (["take.csv", "out.visemes.csv", "--pose-table", "rhubarb_shapes"], "no control for viseme(s) sil, PP"),
+    (["take.csv", "out.json", "--to", "livelink"], "a livelink file is .csv, not .json"),  # would not read back
+    (["take.csv", "out.csv", "--to", "gltf"], "a gltf file is .glb, not .csv"),
 ])
 def test_errors_are_one_line_and_write_nothing(tmp_path, take, monkeypatch, args, text):
     monkeypatch.chdir(tmp_path)
     before = {p.name for p in tmp_path.iterdir()}
     assert_clean_error(run("convert", *args), text)
     assert {p.name for p in tmp_path.iterdir()} == before
+
+
+def test_to_names_a_format_of_the_same_kind_of_file(tmp_path, take):
+    """--to picks among the formats a file's extension allows: Oculus visemes are a CSV too."""
+    assert run("convert", take, tmp_path / "v.csv", "--to", "oculus").exit_code == 0
+    assert (tmp_path / "v.csv").read_text().startswith("time,sil,PP,FF,")
 
 
 def test_rhubarb_input_cannot_be_read(tmp_path, take):

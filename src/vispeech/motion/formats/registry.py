@@ -199,6 +199,11 @@ def track_format(path: str | os.PathLike, fmt: str | None = None, *, reading: bo
     """
     if fmt is not None:
         name = format_name(fmt)
+        suffix = Path(path).suffix.lower()
+        kinds = {"." + ext.rsplit(".", 1)[-1] for f in FORMATS.values() for ext in f.extensions}
+        own = {"." + ext.rsplit(".", 1)[-1] for ext in FORMATS[name].extensions}
+        if suffix in kinds and suffix not in own:  # a .json that holds CSV would not read back
+            raise VispeechError(f"{path}: a {name} file is {' or '.join(sorted(own))}, not {suffix}")
     else:
         lowered = Path(path).name.lower()
         matches = [(len(ext), f.name) for f in FORMATS.values() for ext in f.extensions if lowered.endswith(ext)]
