@@ -141,6 +141,21 @@ def test_oculus_viseme_curves(tmp_path):
     assert back.channels == OCULUS_VISEMES and np.allclose(back.values, visemes.values, atol=5e-7)
 
 
+def test_oculus_weights_sum_to_one_as_ovrlipsyncs_do():
+    """A wide open rounded mouth hits several clipped controls at once (their sum passes 1), and a
+    consonant's frames give its viseme the largest weight: every frame still sums to one."""
+    table = poses("oculus_visemes")
+    wide = {k: min(1.0, 1.5 * v) for k, v in {**table["viseme_aa"], **table["viseme_O"], **table["viseme_E"]}.items()}
+    track = pose_track([{}, table["viseme_aa"], wide, wide, table["viseme_PP"]], fps=25)
+    phones = PhoneSequence([Phone("sil", 0.0, 0.12), Phone("P", 0.12, 0.2)], "en")
+    for visemes in (oculus_visemes(track), oculus_visemes(track, phones=phones)):
+        assert np.allclose(visemes.values.sum(axis=1), 1.0, atol=1e-9)
+        assert np.all((visemes.values >= 0) & (visemes.values <= 1))
+    assert oculus_visemes(track)["sil"][0] == 1.0
+    with_phones = oculus_visemes(track, phones=phones)
+    assert with_phones["sil"][3:].max() == 0.0 and with_phones.values[3:].argmax(axis=1).tolist() == [1, 1]
+
+
 def rhubarb_example() -> Track:
     shapes = poses("rhubarb_shapes")
     return pose_track([{}] * 3 + [shapes["A"]] * 2 + [shapes["D"]] * 4 + [{}], fps=10)

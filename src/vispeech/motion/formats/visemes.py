@@ -127,7 +127,10 @@ def oculus_visemes(track: Track, pose_table: PoseTable | None = None, phones: Ph
     """The 15 Oculus viseme curves of an ARKit ``track``, channels named as :data:`OCULUS_VISEMES`.
 
     With ``phones``, a consonant's frames give its viseme (see the module docstring) the frame's
-    largest weight and ``sil`` none.
+    largest weight and ``sil`` none. Every frame's weights then sum to one, as OVRLipSync's do:
+    ``sil`` is ``1 - Σ`` of the others, which are scaled down where their sum passes 1 (the
+    table's controls are each clipped to [0, 1], so they may sum to more) and, in a
+    consonant's frames, scaled to sum 1.
     """
     table = pose_table or PoseTable.load("oculus_visemes")
     visemes = table.apply(track)
@@ -140,10 +143,17 @@ def oculus_visemes(track: Track, pose_table: PoseTable | None = None, phones: Ph
     if missing:
         raise VispeechError(f"pose table {table.name!r} has no control for viseme(s) {', '.join(missing)}")
     values = np.stack([visemes[names[v]] for v in OCULUS_VISEMES], axis=1)
+    spoken = np.zeros(len(values), dtype=bool)
     if phones is not None:
         for frames, viseme in _phone_frames(track, phones, oculus_viseme):
             values[frames, OCULUS_VISEMES.index(viseme)] = values[frames].max(axis=1)
-            values[frames, 0] = 0.0
+            spoken[frames] = True
+    others = values[:, 1:]
+    total = others.sum(axis=1)
+    scale = np.where(total > 1.0, 1.0 / np.maximum(total, 1e-12), 1.0)
+    scale[spoken & (total > 0)] = 1.0 / total[spoken & (total > 0)]
+    others *= scale[:, None]
+    values[:, 0] = np.clip(1.0 - others.sum(axis=1), 0.0, 1.0)
     return Track(values, OCULUS_VISEMES, track.fps, track.start_time)
 
 
