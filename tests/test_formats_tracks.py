@@ -273,3 +273,18 @@ def test_write_track_by_name_and_retargeting(tmp_path):
         write_track(rig, tmp_path / "rig.csv")
     write_track(track, tmp_path / "x.glb")  # onto the head the package ships
     assert (tmp_path / "x.glb").read_bytes()[:4] == b"glTF"
+
+
+def test_every_reader_refuses_more_than_600_s_and_takes_600_s_at_any_rate(tmp_path):
+    """The duration limit holds alike in every format: 700 frames at 1 fps are refused by the JSON
+    and Live Link readers as by TalkingHead's, and 10 min at 29.97 fps (17982 frames, whose summed
+    durations come to a hair over 600 s in floating point) reads back from each."""
+    for n, fps, ok in ((700, 1.0, False), (17982, 29.97, True)):
+        track = Track(np.full((n, 1), 0.1), ("jawOpen",), fps)
+        for name in ("t.json", "t.csv", "t.talkinghead.json"):
+            write_track(track, tmp_path / name)
+            if ok:
+                assert read_track(tmp_path / name).n_frames == n
+            else:
+                with pytest.raises(VispeechError, match="lasts 700 s; the limit is 600 s"):
+                    read_track(tmp_path / name)

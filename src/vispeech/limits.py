@@ -124,6 +124,14 @@ def check_track_range(values: np.ndarray, start_time: float, where: str = "") ->
         )
 
 
+def check_track_duration(duration: float, where: str = "") -> None:
+    """Refuse a track that lasts longer than :data:`MAX_DURATION_S` (``n_frames / fps`` seconds;
+    to within a part in 10⁹, for durations summed from rounded frame times)."""
+    if not duration <= MAX_DURATION_S * (1 + 1e-9):
+        prefix = f"{where}: " if where else ""
+        raise VispeechError(f"{prefix}the animation lasts {duration:g} s; the limit is {MAX_DURATION_S:g} s")
+
+
 def check_track_size(n_frames: int, n_channels: int, where: str = "") -> None:
     """Refuse a track with more than :data:`MAX_FRAMES` frames or :data:`MAX_CHANNELS` channels."""
     prefix = f"{where}: " if where else ""

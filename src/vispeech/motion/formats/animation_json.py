@@ -26,7 +26,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_json
-from vispeech.limits import MAX_DURATION_S, check_fps, check_track_range, check_track_size, check_utterance
+from vispeech.limits import check_fps, check_track_duration, check_track_range, check_track_size, check_utterance
 from vispeech.motion.track import Track
 
 ANIMATION_FORMAT: Final = "vispeech-animation"
@@ -90,6 +90,7 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
     if isinstance(data["fps"], bool) or not isinstance(data["fps"], (int, float)):
         raise VispeechError(f"{path}: 'fps' must be a number, got {data['fps']!r}")
     check_fps(data["fps"], f"{path}: fps")
+    check_track_duration(len(frames) / data["fps"], str(path))
     start_time = data.get("start_time", 0.0)
     if isinstance(start_time, bool) or not isinstance(start_time, (int, float)):
         raise VispeechError(f"{path}: 'start_time' must be a number, got {start_time!r}")
@@ -159,9 +160,7 @@ def read_talkinghead_json(path: str | os.PathLike, fps: float | None = None) -> 
     rate = fps if fps is not None else 1000.0 / float(np.median(durations))
     rate = round(rate, 6) if abs(rate - round(rate, 6)) < 1e-9 else rate
     check_fps(rate, f"{path}: the frame rate (1000 / dt)")
-    total = float(durations.sum()) / 1000.0
-    if not total <= MAX_DURATION_S:
-        raise VispeechError(f"{path}: the animation lasts {total:g} s; the limit is {MAX_DURATION_S:g} s")
+    check_track_duration(float(durations.sum()) / 1000.0, str(path))
     try:
         if uniform:
             return Track(values, channels, rate)

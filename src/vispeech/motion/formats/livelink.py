@@ -26,7 +26,14 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_text
-from vispeech.limits import MAX_START_TIME_S, MAX_TRACK_VALUE, check_fps, check_track_range, check_track_size
+from vispeech.limits import (
+    MAX_START_TIME_S,
+    MAX_TRACK_VALUE,
+    check_fps,
+    check_track_duration,
+    check_track_range,
+    check_track_size,
+)
 from vispeech.motion.arkit import ARKIT_NAMES
 from vispeech.motion.track import Track
 
@@ -295,6 +302,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
     if fps is None:
         fps = _nominal_fps((len(times) - 1) / (times[-1] - times[0]), rate) if len(times) > 1 else float(rate)
         check_fps(fps, f"{path}: the frame rate of the timecodes")
+    check_track_duration(len(rows) / fps, str(path))
     try:
         return Track(np.array(rows), channels, float(fps), float(times[0]))
     except VispeechError as exc:
