@@ -140,6 +140,13 @@ def test_a_take_that_drops_the_last_frames_of_a_second_keeps_its_nominal_rate(tm
     assert track.fps == pytest.approx(6 / (8 / 60))  # 7 rows over 8 frames of the 60 fps timecode
 
 
+def test_the_header_is_matched_in_any_case(tmp_path):
+    # the app writes BlendshapeCount; PyLiveLinkFace-based scripts write BlendShapeCount
+    rows = ["Timecode,BlendShapeCount,JawOpen"] + [f"00:00:00:{k:02d}.000,1,0.{k}" for k in range(3)]
+    (tmp_path / "take.csv").write_text("\n".join(rows) + "\n")
+    assert read_livelink_csv(tmp_path / "take.csv")["jawOpen"].tolist() == [0.0, 0.1, 0.2]
+
+
 def test_neurosync_68_columns_are_tolerated(tmp_path):
     rows = [IPHONE_HEADER + "," + EMOTIONS]
     rows += [f"00:00:00:{k:02d}.000,68," + ",".join(["0.5000000000"] * 68) for k in range(3)]

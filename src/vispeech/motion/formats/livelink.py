@@ -260,7 +260,7 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
         check_fps(fps)
     lines = [line for line in read_text(path, "Live Link CSV").splitlines() if line.strip()]
     header = [name.strip() for name in lines[0].split(",")]
-    if tuple(header[:2]) != _HEADER or len(header) < 3:
+    if tuple(name.lower() for name in header[:2]) != tuple(name.lower() for name in _HEADER) or len(header) < 3:
         raise VispeechError(f"{path} is not a Live Link Face CSV: the header must start with Timecode,BlendshapeCount")
     if not all(header[2:]):
         raise VispeechError(f"{path}, line 1: column {header.index('', 2) + 1} has no name")
