@@ -4,6 +4,7 @@ nothing."""
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -158,9 +159,15 @@ def test_unreadable_csv_manifest_is_one_error(tmp_path, rows, message):
 
 def test_the_root_folder_is_refused_as_a_batch_output(tmp_path):
     job = _csv(tmp_path / "job.csv", ["id,text", "zz_vispeech_test,hello"])
-    result = run("batch", str(job), "-o", "/")
-    assert result.exit_code == 2 and "is the root folder" in result.output
-    assert not Path("/zz_vispeech_test").exists() and not Path("/index.jsonl").exists()
+    made = [Path("/zz_vispeech_test"), Path("/index.jsonl")]
+    assert not any(p.exists() for p in made)
+    try:
+        result = run("batch", str(job), "-o", "/")
+        assert result.exit_code == 2 and "is the root folder" in result.output
+        assert not any(p.exists() for p in made)
+    finally:  # what a regression would write into the root folder
+        shutil.rmtree(made[0], ignore_errors=True)
+        made[1].unlink(missing_ok=True)
     assert not (tmp_path / "out").exists()
 
 
