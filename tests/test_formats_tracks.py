@@ -89,8 +89,17 @@ def test_animation_json_phones_are_checked_both_ways(tmp_path):
         write_animation_json(small_track(), tmp_path / "a.json", phones=phones)
     data = {"format": "vispeech-animation", "version": 1, **small_track().to_dict(), "phones": phones.to_dict()}
     (tmp_path / "a.json").write_text(json.dumps(data))
-    with pytest.raises(VispeechError, match="a.json: phone 1 \\(AA\\) has stress 7"):
+    with pytest.raises(VispeechError, match="a.json: phones: phone 1 \\(AA\\) has stress 7"):
         read_animation_json(tmp_path / "a.json")
+    # read as the alignment readers read phones: a symbol the language lacks, a word index that is
+    # no whole number, phones out of order
+    for phone, message in (({"symbol": "XX"}, "phone 1 at 0.100 s: unknown phone symbol 'XX' for language en"),
+                           ({"word": 0.5}, "0.5 is not a whole number"), ({"word": True}, "True is not a whole"),
+                           ({"start": 0.05}, "before the previous phone ends")):
+        data["phones"]["phones"][1] = {**phones.to_dict()["phones"][1], "stress": 1, **phone}
+        (tmp_path / "a.json").write_text(json.dumps(data))
+        with pytest.raises(VispeechError, match=message):
+            read_animation_json(tmp_path / "a.json")
 
 
 def test_not_json_and_empty(tmp_path):

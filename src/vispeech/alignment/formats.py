@@ -462,25 +462,33 @@ def _from_json(text: str, path: Path, language: str | None) -> PhoneSequence:
     check_utterance(0.0, len(data["phones"]), str(path))
     if data.get("version", 1) != 1:
         raise VispeechError(f"{path}: unsupported {JSON_FORMAT} version {data.get('version')!r}")
+    return phones_from_dict(data, str(path), language)
+
+
+def phones_from_dict(data: dict, where: str, language: str | None = None) -> PhoneSequence:
+    """The phones of ``data`` (:meth:`PhoneSequence.to_dict`'s form, as a JSON alignment or an
+    animation JSON's ``phones`` holds it), checked as every alignment reader checks them: known
+    symbols of the language (``language`` overrides the data's), times in order, the utterance
+    limits. Raises :class:`VispeechError` naming ``where``."""
     try:
         phones = PhoneSequence.from_dict(data)
     except VispeechError as exc:
-        raise VispeechError(f"{path}: {exc}") from None
+        raise VispeechError(f"{where}: {exc}") from None
     if language is not None:
         phones.language = language
     for position, p in enumerate(phones.phones):
         try:
             symbol, stress = parse_symbol(p.symbol, phones.language)
         except VispeechError as exc:
-            raise VispeechError(f"{path}: phone {position} at {p.start:.3f} s: {exc}") from None
+            raise VispeechError(f"{where}: phone {position} at {p.start:.3f} s: {exc}") from None
         if phones.language == IPA:  # IPA as written (t͡ʃ, pʰ, ˈa) reads as its segment
             phones.phones[position] = Phone(symbol, p.start, p.end, p.word, p.stress or stress)
         elif symbol != p.symbol:
-            raise VispeechError(f"{path}: phone symbol {p.symbol!r} is not an inventory symbol (use {symbol!r})")
-    return _validated(phones, path)
+            raise VispeechError(f"{where}: phone symbol {p.symbol!r} is not an inventory symbol (use {symbol!r})")
+    return _validated(phones, where)
 
 
-def _validated(phones: PhoneSequence, path: Path) -> PhoneSequence:
+def _validated(phones: PhoneSequence, path: Path | str) -> PhoneSequence:
     check_utterance(max((p.end for p in phones), default=0.0), len(phones), str(path))
     try:
         phones.validate()

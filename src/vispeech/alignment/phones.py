@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -157,22 +157,31 @@ class PhoneSequence:
 
     @classmethod
     def from_dict(cls, data: dict) -> PhoneSequence:
-        """Inverse of :meth:`to_dict`; raises :class:`VispeechError` on a malformed dict."""
+        """Inverse of :meth:`to_dict`; raises :class:`VispeechError` on a malformed dict, a value
+        of the wrong type included (a word index or stress that is not a whole number, a symbol
+        or word that is not text)."""
         try:
-            words = [Word(str(w["text"]), float(w["start"]), float(w["end"])) for w in data.get("words", [])]
+            words = [Word(_typed(w["text"], str), float(w["start"]), float(w["end"])) for w in data.get("words", [])]
             phones = [
                 Phone(
-                    str(p["symbol"]),
+                    _typed(p["symbol"], str),
                     float(p["start"]),
                     float(p["end"]),
-                    None if p.get("word") is None else int(p["word"]),
-                    int(p.get("stress", 0)),
+                    None if p.get("word") is None else _typed(p["word"], int),
+                    _typed(p.get("stress", 0), int),
                 )
                 for p in data["phones"]
             ]
-            return cls(phones=phones, language=str(data.get("language", "en")), words=words)
+            return cls(phones=phones, language=_typed(data.get("language", "en"), str), words=words)
         except (KeyError, TypeError, ValueError) as exc:
             raise VispeechError(f"malformed phone sequence: {exc}") from None
+
+
+def _typed(value: object, kind: type) -> Any:
+    """``value`` if it is a ``kind`` (a bool is no number), else a :class:`TypeError` naming it."""
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise TypeError(f"{value!r} is not {'a whole number' if kind is int else 'text'}")
+    return value
 
 
 TIME_TOLERANCE = 1e-6

@@ -23,6 +23,7 @@ from typing import Final
 
 import numpy as np
 
+from vispeech.alignment.formats import phones_from_dict
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_file, read_json
@@ -103,11 +104,9 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
     try:
         track = Track.from_dict(data)
         check_track_range(track.values, track.start_time)
-        phones = PhoneSequence.from_dict(data["phones"]).validate() if data.get("phones") is not None else None
-        if phones is not None:
-            check_utterance(phones.duration, len(phones))
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
+    phones = phones_from_dict(data["phones"], f"{path}: phones") if data.get("phones") is not None else None
     audio = data.get("audio")
     return Animation(track, phones, None if audio is None else str(audio))
 
