@@ -57,6 +57,9 @@ def test_animation_json_round_trip_with_phones_and_audio(tmp_path):
     ({"n_frames": 5}, "n_frames is 5"),
     ({"fps": -1}, "fps must be positive"),
     ({"frames": []}, "non-empty lists"),
+    ({"channels": [], "frames": [[]], "n_frames": 1}, "non-empty lists"),
+    ({"channels": [5, "mouthClose"]}, "a channel's name must be non-empty text, got 5"),
+    ({"channels": ["", "mouthClose"]}, "a channel's name must be non-empty text, got ''"),
 ])
 def test_animation_json_errors(tmp_path, change, message):
     data = {"format": "vispeech-animation", "version": 1, "fps": 30, "start_time": 0, "n_frames": 2,

@@ -80,8 +80,11 @@ def read_animation_json(path: str | os.PathLike) -> Animation:
         if key not in data:
             raise VispeechError(f"{path}: missing {key!r}")
     frames, channels = data["frames"], data["channels"]
-    if not isinstance(channels, list) or not isinstance(frames, list) or not frames:
+    if not isinstance(channels, list) or not isinstance(frames, list) or not frames or not channels:
         raise VispeechError(f"{path}: 'channels' and 'frames' must be non-empty lists")
+    unnamed = next((c for c in channels if not isinstance(c, str) or not c), None)
+    if unnamed is not None:
+        raise VispeechError(f"{path}: a channel's name must be non-empty text, got {_excerpt(unnamed)}")
     for i, row in enumerate(frames):
         if not isinstance(row, list) or len(row) != len(channels):
             raise VispeechError(f"{path}: frame {i} does not have {len(channels)} values")
