@@ -27,14 +27,16 @@ def test_plain_sentences_are_spoken_as_written(lang):
     ("# Opening hours\nWe open at *nine* and close at __five__.", "Opening hours. We open at nine and close at five."),
     ("Use `vispeech say` now. ![logo](logo.png)", "Use vispeech say now."),
     ("> A quote<br>with a break", "A quote with a break"),
+    ("Hello\x07 there\x1b[0m\x85.", "Hello there [0m ."),  # control characters (a terminal's bell, escape)
 ])
 def test_markup_links_and_emoji_are_not_spoken(text, spoken):
     assert speakable(text) == spoken
 
 
 def test_nothing_to_say_is_one_error(tmp_path):
-    with pytest.raises(VispeechError, match="nothing to say"):
-        speak("🙂 👍", "en")
+    for text in ("🙂 👍", "\x01\x02"):
+        with pytest.raises(VispeechError, match="nothing to say"):
+            speak(text, "en")
     result = run("say", "🙂", "-o", str(tmp_path / "out"))
     assert_clean_error(result)
     assert "nothing to say" in result.output and not (tmp_path / "out").exists()
