@@ -227,3 +227,18 @@ def test_rig_cli_exports_imports_and_retargets(tmp_path):
         bad = runner.invoke(main, ["rig", *args])  # refused by the option, before any work
         assert bad.exit_code == 2 and "Invalid value" in bad.output, bad.output
         assert not Path(args[-1]).exists()
+    (tmp_path / "taken").write_text("a file where a folder goes")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    for args, message in (
+        (["export-poses", "--corpus", str(takes), "-o", str(tmp_path / "p2.json"), "--save-space",
+          str(tmp_path / "mine")], "holds files vispeech did not write"),  # nothing written, not even p2.json
+        (["export-poses", "--corpus", str(takes), "-o", str(tmp_path / "taken" / "p2.json")], "cannot write"),
+        (["mouth-frames", "--corpus", str(takes), "-o", str(tmp_path / "taken" / "m.npz")], "cannot write"),
+        (["import", str(tmp_path / "rig.json"), "--corpus", str(takes), "-o", str(tmp_path / "mine")], "notes.txt"),
+        (["retarget", str(tmp_path / "in.json"), "-s", str(tmp_path / "space"), "-o", str(tmp_path / "o.glb")],
+         "write the rig's controls as .json"),
+    ):
+        bad = runner.invoke(main, ["rig", *args])
+        assert bad.exit_code == 2 and message in bad.output, bad.output
+    assert not (tmp_path / "p2.json").exists() and not (tmp_path / "o.glb").exists()

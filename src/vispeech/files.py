@@ -573,6 +573,24 @@ def _swap(complete: Path, target: Path, aside: Path, replaces: Iterable[str], sh
                 raise
 
 
+def check_output_file(path: str | os.PathLike) -> None:
+    """Refuse now, with :class:`VispeechError`, a file :func:`atomic_output_file` could not write
+    after the work: a folder at ``path``, or a folder it would go in that cannot be written (tried
+    with a file made and removed in the nearest one that exists). Call it before long work."""
+    target = Path(path)
+    if target.is_dir():
+        raise VispeechError(f"output path {target} is a folder")
+    existing = next(p for p in (target.parent.absolute(), *target.parent.absolute().parents) if os.path.lexists(p))
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR))
+        fd, probe = tempfile.mkstemp(prefix=_PREFIX, suffix=".part", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise VispeechError(f"cannot write {target}: {exc.strerror or exc}") from None
+
+
 @contextmanager
 def atomic_output_file(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds.

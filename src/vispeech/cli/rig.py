@@ -78,6 +78,12 @@ def export_poses(
     corpus_dir: Path, output: Path, n_modes: int, sigma: float, save_space: Path | None, language: str
 ) -> None:
     """Write the mean and ±3σ poses of the first principal modes of a corpus's mouth, for an artist."""
+    from vispeech.files import check_output_dir, check_output_file
+    from vispeech.motion.rigging.rigspace import SPACE_ARRAYS, SPACE_JSON
+
+    check_output_file(output)  # both outputs before the work
+    if save_space is not None:
+        check_output_dir(save_space, replaces=(SPACE_JSON, SPACE_ARRAYS))
     space, corpus = _fit_corpus(corpus_dir, language)
     space.write_pose_sheet(output, n_modes, (-sigma, sigma))
     shares = ", ".join(f"{100 * e:.1f}" for e in space.explained[:n_modes])
@@ -112,10 +118,12 @@ def export_poses(
 @corpus_language_option
 def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | None, output: Path, language: str) -> None:
     """Attach an artist's RIG_POSES (JSON: {"poses": {"mean": {...}, "mode1-3sd": {...}, ...}}) to a rig space."""
-    from vispeech.motion.rigging.rigspace import RigSpace
+    from vispeech.files import check_output_dir
+    from vispeech.motion.rigging.rigspace import SPACE_ARRAYS, SPACE_JSON, RigSpace
 
     if (space_dir is None) == (corpus_dir is None):
         raise VispeechError("give exactly one of --space and --corpus")
+    check_output_dir(output, replaces=(SPACE_JSON, SPACE_ARRAYS))
     if space_dir is not None:
         space = RigSpace.load(space_dir)
     else:
@@ -146,9 +154,11 @@ def import_poses(rig_poses: Path, space_dir: Path | None, corpus_dir: Path | Non
 )
 def retarget_command(input_path: Path, space_dir: Path, rig_poses: Path | None, output: Path) -> None:
     """Retarget the ARKit track INPUT onto the rig's controls."""
-    from vispeech.motion.formats.registry import read_track, write_track
+    from vispeech.motion.formats.registry import read_track, track_format, write_track
     from vispeech.motion.rigging.rigspace import RigSpace
 
+    if track_format(output) not in ("json", "livelink"):  # a rig's controls are no head's morph targets
+        raise VispeechError(f"{output}: write the rig's controls as .json (or .csv when they are ARKit names)")
     space = RigSpace.load(space_dir)
     if rig_poses is not None:
         space.load_rig(rig_poses)
@@ -274,8 +284,10 @@ def mouth_frames_command(corpus_dir: Path, output: Path, n_frames: int, seed: in
     """Keep a sample of a corpus's tracked frames with the speaker's lip gap and mouth width:
     what rig calibrate fits heads to without the corpus (the shipped sample is grid_s1's)."""
     from vispeech.corpus.articulation import mouth_frames
+    from vispeech.files import check_output_file
     from vispeech.motion.rigging.calibration import save_mouth_frames
 
+    check_output_file(output)
     corpus = open_corpus(corpus_dir, language).split("train")
     scores, gap, width = mouth_frames(corpus)
     source = f"{corpus.name}: {min(n_frames, scores.n_frames)} random tracked frames of the training split, seed {seed}"
