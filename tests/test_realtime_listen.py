@@ -155,10 +155,12 @@ def test_barge_in_rests_the_mouth_and_the_next_utterance_goes_on(client, service
                                      "duration": 0.0}
 
 
-def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypatch):
+@pytest.mark.parametrize("cancel", [{"type": "cancel"}, {"type": "cancel", "frame": None}])
+def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypatch, cancel):
     """While the first words are worked on, the reader reads the rest and the cancel (within the
     2 s of audio it lets wait): the words and audio waiting before the cancel are dropped unworked.
-    The first words are worked until the cancel has been read, whatever the machine's load."""
+    The first words are worked until the cancel has been read, whatever the machine's load. A
+    cancel with its frame is a cancel all the same."""
     worked, working, cancel_read = [], threading.Event(), threading.Event()
     add_words, enqueue = TimedSpeechStream.add_words, ListenConnection._enqueue
 
@@ -182,7 +184,7 @@ def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypa
         for message in messages[:first + 1]:
             (ws.send_bytes if isinstance(message, bytes) else ws.send_text)(message)
         assert working.wait(10)
-        answers = answers_of(ws, [*messages[first + 1:len(messages) * 2 // 3], json.dumps({"type": "cancel"})])
+        answers = answers_of(ws, [*messages[first + 1:len(messages) * 2 // 3], json.dumps(cancel)])
     assert worked == [["Please"]]
     assert [a["type"] for a in answers] == ["start", "frames", "cancelled"]
     assert answers[2]["start_frame"] == len(answers[1]["frames"])

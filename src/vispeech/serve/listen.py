@@ -4,7 +4,6 @@ them, frames out as soon as they are computed; barge-in cancels a stream at once
 from __future__ import annotations
 
 import asyncio
-import json
 import time
 
 from fastapi import APIRouter, WebSocket
@@ -322,6 +321,7 @@ def _is_cancel(text: str | None) -> bool:
     if text is None or '"cancel"' not in text or len(text) > 200:
         return False
     try:
-        return json.loads(text) == {"type": "cancel"}
-    except ValueError:
+        CancelMessage.model_validate_json(text)  # {"type": "cancel"} with or without its frame
+    except ValidationError:
         return False
+    return True
