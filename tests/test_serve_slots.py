@@ -16,7 +16,8 @@ from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from vispeech.serve import ServeConfig, create_app  # noqa: E402
 from vispeech.serve.connection import GAVE_WAY  # noqa: E402
-from vispeech.serve.safety import NoSlot, Slots, network_of  # noqa: E402
+from vispeech.serve import safety  # noqa: E402
+from vispeech.serve.safety import GIVE_WAY_AFTER_S, NoSlot, Slots, network_of  # noqa: E402
 
 
 def config(tmp_path, **changes) -> ServeConfig:
@@ -84,8 +85,31 @@ def test_slots_cap_address_and_network_and_evict_the_longest_idle():
     with pytest.raises(NoSlot, match="server busy"):
         slots.open("10.0.3.1", lambda: None)
     third.busy = False
+    with pytest.raises(NoSlot, match="server busy"):  # third opened 1 s ago: not idle long enough to go
+        slots.open("10.0.3.1", lambda: None)
+    now[0] = 4.0
     slots.open("10.0.3.1", lambda: None)
     assert gave_way == ["second", "third"]
+
+
+def test_a_connection_that_keeps_working_never_gives_way():
+    """A live microphone sends a chunk every 20 ms, finished between them (not busy): however long
+    it has been open, it is not idle, and a newcomer to a full server is refused rather than it."""
+    now = [0.0]
+    slots = Slots(max_total=2, max_per_ip=2, max_per_network=2, clock=lambda: now[0])
+    gave_way = []
+    streams = [slots.open(f"10.0.{n}.1", lambda n=n: gave_way.append(n)) for n in range(2)]
+    for step in range(1, 500):  # 10 s of chunks
+        now[0] = step * 0.02
+        for slot in streams:
+            slots.worked(slot)
+    with pytest.raises(NoSlot, match="server busy"):
+        slots.open("10.0.9.1", lambda: None)
+    now[0] += 0.5
+    slots.worked(streams[1])  # the first microphone stopped half a second before the second
+    now[0] += GIVE_WAY_AFTER_S  # now both may give way: the first, idle longer, does
+    slots.open("10.0.9.1", lambda: None)
+    assert gave_way == [0]
 
 
 def test_invalid_messages_do_not_keep_a_connection_open(tmp_path):
@@ -105,9 +129,11 @@ def test_invalid_messages_do_not_keep_a_connection_open(tmp_path):
             assert closed.value.code == 1001
 
 
-def test_hoarded_slots_give_way_to_a_new_client(tmp_path):
+def test_hoarded_slots_give_way_to_a_new_client(tmp_path, monkeypatch):
     """Every slot held by connections sending invalid messages, from addresses in different
-    networks: a new client is served, and the connection idle longest is closed to make room."""
+    networks: a new client is served, and the connection idle longest is closed to make room
+    (without waiting the seconds a connection must idle first)."""
+    monkeypatch.setattr(safety, "GIVE_WAY_AFTER_S", 0.0)
     settings = config(tmp_path, max_streams=6, max_streams_per_ip=1, max_streams_per_network=3, idle_timeout=30)
     with TestClient(from_header(create_app(settings))) as client, contextlib.ExitStack() as stack:
         held = []

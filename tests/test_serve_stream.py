@@ -21,7 +21,7 @@ from vispeech.models.streams import WindowStream  # noqa: E402
 from vispeech.models.registry import create_model  # noqa: E402
 from vispeech.models.rules.cohen_massaro import CohenMassaro  # noqa: E402
 from vispeech.pipeline import animate, speak  # noqa: E402
-from vispeech.serve import PhoneStream, ServeConfig, create_app, open_phone_stream, split_clauses  # noqa: E402
+from vispeech.serve import PhoneStream, ServeConfig, create_app, open_phone_stream, safety, split_clauses  # noqa: E402
 from vispeech.streaming import POSTPROCESS_LOOKAHEAD, STREAM_CHANNELS  # noqa: E402
 
 # "hello world", then a pause: (symbol, start, end)
@@ -208,7 +208,8 @@ def test_bad_stream_messages_get_errors_and_the_stream_goes_on(client):
         assert closed.value.code == 1009
 
 
-def test_stream_rate_limit_and_stream_count(tmp_path):
+def test_stream_rate_limit_and_stream_count(tmp_path, monkeypatch):
+    monkeypatch.setattr(safety, "GIVE_WAY_AFTER_S", 0.0)  # the first gives way though it worked just now
     config = ServeConfig(cache=tmp_path / "c.sqlite3", rate_limit=0.001, burst=1, max_streams=1)
     with TestClient(create_app(config)) as limited, limited.websocket_connect("/api/stream") as ws:
         ws.send_json({"type": "text", "text": "One."})

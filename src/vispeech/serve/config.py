@@ -92,7 +92,7 @@ class ServeConfig:
     their sessions (:class:`~vispeech.serve.pool.WorkPool`). ``max_streams`` WebSocket
     connections at once, ``max_streams_per_ip`` of them from one address and
     ``max_streams_per_network`` from one /24 (IPv4) or /64 (IPv6); a connection that finds the
-    server full takes the place of the one idle longest. Each closes after ``idle_timeout`` s
+    server full takes the place of the one idle longest (2 s at least). Each closes after ``idle_timeout`` s
     without valid work (an invalid or refused message does not count) while nothing is being
     computed, and after ``stream_timeout`` s in all. A phones message may add
     at most ``max_message_seconds`` s of phones, a phone or audio stream reach ``max_stream_seconds``.

@@ -134,13 +134,19 @@ class Slot:
     busy: bool = False
 
 
+GIVE_WAY_AFTER_S = 2.0
+"""Seconds without valid work after which a connection may have to give way to a new one: a live
+microphone's chunks come every 20 ms, so one that streams never counts as idle."""
+
+
 class Slots:
     """Open WebSocket connections against their caps: ``max_total`` in all, ``max_per_ip`` from one
     address, ``max_per_network`` from one network (:func:`network_of`).
 
     A new connection past an address's or a network's cap is refused; one that finds the server
-    full takes the slot of the connection idle longest (not working now), which is asked to give
-    way. Only valid work keeps a connection from going idle (:meth:`worked`).
+    full takes the slot of the connection idle longest (not working now, and without valid work
+    for :data:`GIVE_WAY_AFTER_S` at least), which is asked to give way; with none such it is
+    refused. Only valid work keeps a connection from going idle (:meth:`worked`).
     """
 
     def __init__(
@@ -167,7 +173,8 @@ class Slots:
         if self.per_network[network] >= self.max_per_network:
             raise NoSlot(f"too many streams from your network {network} (at most {self.max_per_network} at once)")
         if self.total >= self.max_total:
-            idle = [slot for slot in self.slots if not slot.busy]
+            now = self.clock()
+            idle = [slot for slot in self.slots if not slot.busy and now - slot.active >= GIVE_WAY_AFTER_S]
             if not idle:
                 raise NoSlot(f"server busy: {self.max_total} streams open and working, try again later")
             longest = min(idle, key=lambda slot: slot.active)
