@@ -216,6 +216,7 @@ def test_bad_messages_get_one_error_each_and_the_stream_goes_on(client):
             ({"type": "words", "words": [{**word, "end": 0.2}]}, "ends (0.2) before it starts"),
             ({"type": "words", "words": [{**word, "speaker": 1}]}, "unknown field 'words.0.speaker'"),
             ({"type": "words", "words": [{**word, "end": 700.0}]}, "less than or equal to 600"),
+            ({"type": "words", "words": [{**word, "end": 25.0}]}, "may add at most 20 s (this one adds 25.0 s)"),
             ({"type": "words", "words": [word], "extra": True}, "unknown field 'extra'"),
             ({"type": "visemes", "visemes": [{"viseme": 22, "time": 0.1}]}, "less than or equal to 21"),
             ({"type": "visemes", "visemes": [{"viseme": "XX", "time": 0.1}]}, "unknown viseme"),

@@ -171,6 +171,21 @@ def test_stream_messages_are_priced_by_their_work(tmp_path):
         assert speak.status_code == 429 and int(speak.headers["retry-after"]) >= 1
 
 
+def test_listen_timings_are_priced_by_the_seconds_they_add(tmp_path):
+    """Timings drive a timed listen stream's frames as phones drive a phone stream's: a message
+    costs a token per second it adds (the audio is priced on its own)."""
+    with TestClient(create_app(config(tmp_path, rate_limit=0.001, burst=5))) as client:
+        with client.websocket_connect("/api/listen") as ws:
+            ws.send_json({"type": "start", "sample_rate": 16000, "timings": "words"})  # 0.05
+            assert ws.receive_json()["type"] == "start"
+            words = [{"text": "map", "start": 0.0, "end": 3.0}]  # 3 s: 3 tokens
+            ws.send_json({"type": "words", "words": words})
+            assert ws.receive_json()["type"] == "frames"
+            ws.send_json({"type": "words", "words": [{"text": "map", "start": 3.0, "end": 6.0}]})  # 1.95 left
+            error = ws.receive_json()
+            assert error["type"] == "error" and "rate limit" in error["message"]
+
+
 def test_phones_per_message_and_per_stream_are_bounded(tmp_path):
     with TestClient(create_app(config(tmp_path, max_message_seconds=5, max_stream_seconds=8, piece_seconds=10))) as client:
         with client.websocket_connect("/api/stream") as ws:

@@ -212,11 +212,18 @@ class ListenConnection(Connection):
         else:
             times = [viseme.time for viseme in message.visemes]
             call = (stream.add_visemes, [(viseme.viseme, viseme.time) for viseme in message.visemes])
+        config = self.config
         last = max(times, default=0.0)
-        if last > self.config.max_stream_seconds + 1e-9:
-            raise VispeechError(f"an audio stream may last at most {self.config.max_stream_seconds:g} s")
-        self.service.pay(self.ip, self.config.min_message_cost)
-        weight = max(0.0, last - stream.end) * PHONE_WORK_PER_SECOND
+        if last > config.max_stream_seconds + 1e-9:
+            raise VispeechError(f"an audio stream may last at most {config.max_stream_seconds:g} s")
+        added = max(0.0, last - stream.end)  # seconds of frames the message asks for: priced as phones
+        if added > config.max_message_seconds + 1e-9:
+            raise VispeechError(
+                f"a timings message may add at most {config.max_message_seconds:g} s "
+                f"(this one adds {added:.1f} s): send them in smaller messages"
+            )
+        self.service.pay(self.ip, max(config.min_message_cost, added / config.phone_seconds_per_token))
+        weight = added * PHONE_WORK_PER_SECOND
         text = await self._run(self.service.step, stream, self.scale, *call, weight=weight)
         if text is not None:
             await self.ws.send_text(text)
