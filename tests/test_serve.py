@@ -269,6 +269,11 @@ def test_bad_speak_requests_get_a_clear_4xx(client, body, status, words):
 def test_bad_json_and_oversize_bodies(client):
     bad = client.post("/api/speak", content=b'{"text": "hi"', headers={"content-type": "application/json"})
     assert bad.status_code == 422 and bad.json()["detail"] == "the body is not valid JSON"
+    # JSON that Python's parser gives up on otherwise: an integer of 5000 digits, nesting past its
+    # recursion limit, Latin-1 bytes
+    for body in (b'{"text": "hi", "seed": ' + b"9" * 5000 + b"}", b"[" * 5000, '{"text": "hé"}'.encode("latin-1")):
+        bad = client.post("/api/speak", content=body, headers={"content-type": "application/json"})
+        assert bad.status_code == 422 and bad.json()["detail"] == "the body is not valid JSON", body[:20]
     nan = client.post("/api/speak", content=b'{"text": "hi", "rate": NaN}',
                       headers={"content-type": "application/json"})
     assert nan.status_code == 422

@@ -8,7 +8,9 @@ import logging
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
+from starlette.exceptions import HTTPException
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 
@@ -69,6 +71,18 @@ async def _invalid_request(request: Request, exc: RequestValidationError) -> JSO
     return JSONResponse({"detail": describe_errors(exc.errors())}, status_code=422)
 
 
+_BODY_NOT_PARSED = "There was an error parsing the body"
+"""FastAPI's 400 for a JSON body its parser gave up on by other than a syntax error (nesting
+deeper than Python recurses, an integer of thousands of digits, bytes that are not UTF-8)."""
+
+
+async def _http_error(request: Request, exc: HTTPException) -> Response:
+    """FastAPI's own answer, but a body FastAPI could not parse is the 422 of any invalid JSON."""
+    if exc.status_code == 400 and exc.detail == _BODY_NOT_PARSED:
+        return JSONResponse({"detail": "the body is not valid JSON"}, status_code=422)
+    return await http_exception_handler(request, exc)
+
+
 async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
     log.exception("internal error on %s", request.url.path)
     return JSONResponse({"detail": "internal server error"}, status_code=500)
@@ -76,6 +90,7 @@ async def _internal_error(request: Request, exc: Exception) -> JSONResponse:
 
 EXCEPTION_HANDLERS: dict[int | type[Exception], Handler] = {
     RequestValidationError: _invalid_request,
+    HTTPException: _http_error,
     VispeechError: _answer(400),
     UnknownSession: _answer(404),
     NativeFailure: _answer(422),
@@ -86,4 +101,4 @@ EXCEPTION_HANDLERS: dict[int | type[Exception], Handler] = {
     Cancelled: _answer(503),
     Exception: _internal_error,
 }
-"""The application's exception handlers (FastAPI's own answer the HTTP exceptions: 404, 405, 415)."""
+"""The application's exception handlers (FastAPI's own answer the other HTTP exceptions: 404, 405, 415)."""
