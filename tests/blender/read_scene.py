@@ -1,4 +1,4 @@
-"""Run by Blender (``blender -b --python read_gltf.py -- IN.glb|IN.fbx OUT.json``): import a glTF
+"""Run by Blender (``blender -b --python read_scene.py -- IN.glb|IN.fbx OUT.json``): import a glTF
 or FBX file as Blender's own importers do and write what arrived as JSON: each object's type,
 its shape keys and the keyframes (frame, value) of every F-curve of its shape-key action, and
 the scene's frame rate."""
