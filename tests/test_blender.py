@@ -102,3 +102,32 @@ def test_fbx_without_blender_or_with_a_missing_base_model_is_one_error(tmp_path,
     result = run("convert", animation, str(tmp_path / "a.fbx"))  # onto the shipped head
     assert_clean_error(result)
     assert "needs Blender" in result.output and not (tmp_path / "a.fbx").exists()
+
+
+def test_a_terminated_fbx_export_takes_blender_and_its_files_with_it(tmp_path):
+    """SIGTERM to `vispeech convert ... x.fbx` while Blender runs (a stand-in that sleeps): Blender
+    is killed, its temporary folder removed, no FBX written."""
+    import os
+    import signal
+    import sys
+    import time
+
+    write_outputs(speak("Hello.", "en"), tmp_path / "said")
+    blender = tmp_path / "blender"
+    blender.write_text(f"#!/bin/sh\necho $$ > {tmp_path / 'blender.pid'}\nexec sleep 60\n")
+    blender.chmod(0o755)
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "BLENDER": str(blender), "TMPDIR": str(tmp_path / "tmp")}
+    command = [str(Path(sys.executable).parent / "vispeech"), "convert", str(tmp_path / "said" / "animation.json"),
+               str(tmp_path / "out.fbx")]
+    process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "blender.pid").exists() or not (tmp_path / "blender.pid").read_text().strip():
+        assert process.poll() is None and time.monotonic() < deadline, process.stdout.read()
+        time.sleep(0.05)
+    pid = int((tmp_path / "blender.pid").read_text())
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(30) != 0
+    time.sleep(0.2)
+    assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
+    assert os.listdir(tmp_path / "tmp") == [] and not (tmp_path / "out.fbx").exists()

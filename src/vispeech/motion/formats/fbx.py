@@ -14,8 +14,12 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from vispeech.errors import VispeechError
@@ -66,25 +70,26 @@ def write_fbx_animation(track: Track, base_glb: str | os.PathLike, out_path: str
         write_gltf_animation(track, base_glb, glb, uncompressed=True)  # Blender cannot decode meshopt
         script.write_text(_SCRIPT, encoding="utf-8")
         try:
-            result = subprocess.run(
-                [
-                    blender,
-                    "-b",
-                    "--factory-startup",
-                    "--python-exit-code",
-                    "1",
-                    "--python",
-                    str(script),
-                    "--",
-                    str(glb),
-                    str(fbx),
-                    str(fps),
-                    repr(base),
-                ],
-                capture_output=True,
-                text=True,
-                timeout=BLENDER_TIMEOUT_S,
-            )
+            with _terminated_as_interrupt():
+                result = subprocess.run(
+                    [
+                        blender,
+                        "-b",
+                        "--factory-startup",
+                        "--python-exit-code",
+                        "1",
+                        "--python",
+                        str(script),
+                        "--",
+                        str(glb),
+                        str(fbx),
+                        str(fps),
+                        repr(base),
+                    ],
+                    capture_output=True,
+                    text=True,
+                    timeout=BLENDER_TIMEOUT_S,
+                )
         except (OSError, subprocess.TimeoutExpired) as exc:
             raise VispeechError(f"Blender did not export FBX: {exc}") from None
         if result.returncode != 0 or not fbx.is_file():
@@ -92,3 +97,23 @@ def write_fbx_animation(track: Track, base_glb: str | os.PathLike, out_path: str
             raise VispeechError(f"Blender did not export FBX: {(lines or ['exit code ' + str(result.returncode)])[-1]}")
         with atomic_output_file(out_path) as out:
             shutil.copyfile(fbx, out)
+
+
+@contextmanager
+def _terminated_as_interrupt() -> Iterator[None]:
+    """While Blender runs, SIGTERM raises :class:`KeyboardInterrupt` (in the main thread; elsewhere
+    nothing changes), so that ``subprocess.run`` kills Blender and the temporary folder is removed
+    rather than both outliving a terminated process."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
