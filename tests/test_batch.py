@@ -87,6 +87,7 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
         {"id": "raw", "text": "Hi.", "postprocessing": "none"},
         {"id": "old", "text": "Hi.", "postprocess": False},
         {"id": "bool", "text": "Hi.", "postprocessing": False},
+        {"id": "silent", "alignment": "x.lab", "formats": "wav preview textgrid"},
     ])
     lines = read_job(job)
     errors = {x.number: x.error for x in lines}
@@ -109,6 +110,7 @@ def test_jsonl_manifest_and_line_errors(tmp_path):
     assert errors[17] is None and lines[16].postprocessing == "none" and lines[0].postprocessing == "auto"
     assert "unknown field 'postprocess'" in errors[18]
     assert "unknown post-processing 'False' (use auto, none or a preset: authored" in errors[19]
+    assert "an alignment line has no audio, so none of its formats (wav, preview, textgrid)" in errors[20]
 
 
 def test_jsonl_errors_name_the_file_line_past_blank_lines(tmp_path):

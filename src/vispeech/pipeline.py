@@ -461,6 +461,9 @@ preview page, and tracks in the formats of :data:`vispeech.motion.formats.regist
 Live Link Face CSV, vispeech JSON, Oculus viseme curves, Rhubarb mouth cues, TalkingHead JSON;
 see docs/formats.md). A track format's aliases (``csv``) are accepted too."""
 DEFAULT_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "livelink", "json", "preview")
+AUDIO_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "preview")
+"""The formats :func:`write_outputs` writes only for an utterance with audio (the TextGrid with it:
+an alignment read from a file is not written back)."""
 """The formats ``say``, ``animate`` and ``animate-phones`` write (those the utterance has data for)."""
 
 
@@ -576,7 +579,7 @@ def _write_files(
     wav = utterance.wav_bytes()
     for fmt in OUTPUT_FILES:
         name = OUTPUT_FILES[fmt]
-        if fmt not in formats or (wav is None and fmt in ("wav", "preview")):
+        if fmt not in formats or (wav is None and fmt in AUDIO_OUTPUTS):
             continue
         if made and fmt in made:
             (staging / name).write_bytes(made[fmt])
@@ -584,7 +587,7 @@ def _write_files(
             assert wav is not None  # skipped above when None
             (staging / name).write_bytes(wav)
         elif fmt == "textgrid":
-            if wav is None or utterance.phones is None:
+            if utterance.phones is None:
                 continue
             write_textgrid(utterance.phones, staging / name)
         elif fmt == "preview":

@@ -40,7 +40,7 @@ from vispeech.files import read_text
 from vispeech.frontends.espeak import MAX_RATE, MIN_RATE, check_voice, find_language
 from vispeech.limits import check_fps, check_text, parse_json
 from vispeech.phonetics.inventory import get_inventory
-from vispeech.pipeline import DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, check_formats
+from vispeech.pipeline import AUDIO_OUTPUTS, DEFAULT_FPS, DEFAULT_OUTPUTS, DEFAULT_SCALE, OUTPUT_FILES, check_formats
 from vispeech.postprocess import AUTO, check_postprocessing
 
 FIELDS = ("id", "text", "language", "audio", "alignment", "model", "fps", "rate", "formats", "postprocessing", "voice")
@@ -266,6 +266,12 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         formats = [f for f in re.split(r"[\s,;]+", formats) if f]
     if not isinstance(formats, list | tuple) or not all(isinstance(f, str) for f in formats):
         raise VispeechError("formats must be a list of format names or a string of them")
+    formats = check_formats(formats)
+    if kind == "alignment" and set(formats) <= set(AUDIO_OUTPUTS):
+        raise VispeechError(
+            f"an alignment line has no audio, so none of its formats ({', '.join(formats)}) can be written: "
+            f"ask for a track format ({', '.join(f for f in OUTPUT_FILES if f not in AUDIO_OUTPUTS)})"
+        )
     return BatchLine(
         number=number,
         id=line_id,
@@ -277,7 +283,7 @@ def _checked_line(number: int, line_id: str, record: dict, base: Path, defaults:
         model=record.get("model", defaults.model),
         fps=fps,
         rate=rate,
-        formats=check_formats(formats),
+        formats=formats,
         postprocessing=_postprocessing(record.get("postprocessing", defaults.postprocessing)),
         scale=defaults.scale,
         voice=voice if kind == "text" else None,
