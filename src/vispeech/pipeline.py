@@ -478,9 +478,7 @@ def check_formats(formats: Iterable[str]) -> tuple[str, ...]:
     return formats
 
 
-def check_outputs(
-    out_dir: str | Path, *, extra: Iterable[str] = (), inputs: Iterable[str | os.PathLike] = ()
-) -> None:
+def check_outputs(out_dir: str | Path, *, extra: Iterable[str] = (), inputs: Iterable[str | os.PathLike] = ()) -> None:
     """Refuse now an output folder :func:`write_outputs` would refuse after the work (one holding
     a user's files, a file, a read-only folder: :func:`vispeech.files.check_output_dir`), or one
     that holds any of the work's ``inputs`` (the swap would remove them)."""
