@@ -204,6 +204,9 @@ def test_answers_are_kept_in_order_and_once(study_file, tmp_path):
         answer = _rating_for(trial) if trial.task == "rating" else _pairwise_for(trial)
         assert again.answer(who.id, k, answer, 900 + k).answered == k + 1
     assert again.participant(who.id).finished
+    with pytest.raises(StudyError, match="every trial is already answered") as caught:  # past the last
+        again.answer(who.id, len(trials), _rating_for(trials[0]), 10)
+    assert caught.value.status == 409
     with pytest.raises(StudyError, match="already taken part") as caught:
         again.join("pid:abc", {"experience": "Small"})
     assert caught.value.status == 409

@@ -155,7 +155,7 @@ class StudyStore:
             found = _load(db, pid)
             if found is None:
                 raise StudyError("unknown participant: start the study first", 404)
-            if trial != found.answered:
+            if found.finished or trial != found.answered:
                 raise StudyError(
                     f"trial {trial} is not the next one (trial {found.answered} is)"
                     if not found.finished
