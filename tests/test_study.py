@@ -310,6 +310,21 @@ def test_the_app_takes_a_participant_through_without_telling_the_models(client):
     assert again.status_code == 409 and "already taken part" in again.json()["detail"]
 
 
+def test_a_shared_browser_never_continues_another_participants_answers(client):
+    """P1 answers in a browser; P2's link opened in the same browser (P1's cookie still in it) is
+    a new participant, not P1's next trial; P1's link there still finds P1."""
+    first = client.post("/api/join", json={"consent": True, "pid": "P1", "intro": {"experience": "None"}}).json()
+    answer = [5] * len(first["trials"][0]["faces"]) if first["trials"][0]["task"] == "rating" else "tie"
+    assert client.post("/api/answers", json={"trial": 0, "answer": answer, "ms": 10}).json()["next"] == 1
+    assert client.get("/api/me", params={"pid": "P1"}).json()["next"] == 1
+    assert client.get("/api/me").json()["next"] == 1  # a link without a pid: the browser's participant
+    other = client.get("/api/me", params={"pid": "P2"})
+    assert other.status_code == 404  # the page asks P2 to join
+    second = client.post("/api/join", json={"consent": True, "pid": "P2", "intro": {"experience": "None"}})
+    assert second.json()["next"] == 0
+    assert client.get("/api/me", params={"pid": "P1"}).status_code == 404  # the cookie is P2's now
+
+
 def test_the_page_speaks_the_study_s_language(study_file, tmp_path):
     testclient = require_module("fastapi.testclient", "FastAPI (the serve extra)")
     from vispeech.study.app import create_app

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import secrets
+from typing import Annotated
 
-from fastapi import APIRouter, Cookie, Request, Response
+from fastapi import APIRouter, Cookie, Query, Request, Response
 from fastapi.responses import FileResponse
 
 from vispeech.guards import client_key
@@ -78,9 +79,16 @@ def join(
 
 
 @router.get("/api/me", response_model=Progress)
-def me(running: Running, vispeech_study: str | None = Cookie(default=None)) -> Progress:
+def me(
+    running: Running,
+    pid: Annotated[str | None, Query(min_length=1, max_length=200)] = None,
+    vispeech_study: str | None = Cookie(default=None),
+) -> Progress:
+    """The progress of the participant this browser's cookie names; with ``pid`` (the page's link
+    names one) only if it is that participant's, so that on a shared browser one participant's
+    link never continues another's answers."""
     found = running.store.participant(vispeech_study) if vispeech_study else None
-    if found is None:
+    if found is None or (pid is not None and found.id != running.store.participant_id(f"pid:{pid}")):
         raise StudyError(NOT_STARTED, 404)
     return _progress(running, found)
 

@@ -53,6 +53,18 @@ function welcome() {
   show("welcome");
 }
 
+// The participant id the link carries (a recruitment platform's), if any.
+function linkPid() {
+  const params = new URLSearchParams(location.search);
+  return params.get("pid") || params.get("PROLIFIC_PID") || undefined;
+}
+
+// This browser's participant, if it is the link's (a shared browser may hold another's cookie).
+function me() {
+  const pid = linkPid();
+  return api(pid === undefined ? "/api/me" : `/api/me?pid=${encodeURIComponent(pid)}`);
+}
+
 async function join(event) {
   event.preventDefault();
   const intro = {};
@@ -60,11 +72,9 @@ async function join(event) {
     const picked = document.querySelector(`input[name="${q.id}"]:checked`);
     if (picked) intro[q.id] = picked.value;
   }
-  const params = new URLSearchParams(location.search);
-  const pid = params.get("pid") || params.get("PROLIFIC_PID") || undefined;
   try {
     fail("");
-    state = await api("/api/join", {consent: $("consent").checked, pid, intro});
+    state = await api("/api/join", {consent: $("consent").checked, pid: linkPid(), intro});
     next();
   } catch (error) {
     fail(error.message);
@@ -211,7 +221,7 @@ async function send(answer) {
     next();
   } catch (error) {
     if (error.status === 409) {
-      state = await api("/api/me");
+      state = await me();
       next();
       return;
     }
@@ -235,7 +245,7 @@ async function start() {
   $("hint").textContent = study.labels.listen_first;
   $("join").addEventListener("submit", join);
   try {
-    state = await api("/api/me");
+    state = await me();
     next();
   } catch (error) {
     if (error.status === 404) welcome();
