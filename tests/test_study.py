@@ -114,6 +114,11 @@ def test_a_study_reads_its_clips_and_takes_models_from_the_stimuli_key(study_fil
     (lambda s: s.replace('title = "Faces test"', 'title = "Faces'), "is not valid TOML"),
     (lambda s: s.split("[rating]")[0], "a study needs a [rating] or a [pairwise] task"),
     (lambda s: s.replace('sentence = "s2"', 'sentence = "s0"'), "each clip must have its own sentence"),
+    # files that read, then broke every participant's join (a 500 each)
+    (lambda s: s.replace("warmup = 1\n\n[pairwise]", 'warmup = 1\nmodels = ["red"]\n\n[pairwise]'),
+     "[rating] needs a clip that shows two of its models at least"),
+    (lambda s: s.replace("seed = 7", "seed = -1"), "seed: Input should be greater than or equal to 0"),
+    (lambda s: s.replace("seed = 7", "seed = 9223372036854775807"), "seed: Input should be less than or equal to"),
 ])
 def test_a_bad_study_is_refused_in_one_line(study_file, change, message):
     study_file.write_text(change(STUDY_TOML), encoding="utf-8")

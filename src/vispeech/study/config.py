@@ -157,7 +157,7 @@ class Study(_Strict):
     pairwise: PairwiseTask | None = None
     checks: Checks = Checks()
     labels: Labels = Labels()
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
 
     @model_validator(mode="after")
     def _consistent(self) -> Study:
@@ -175,6 +175,9 @@ class Study(_Strict):
             unknown = set(wanted or ()) - every
             if unknown:
                 raise ValueError(f"[{task}] names models no clip shows: {', '.join(sorted(unknown))}")
+        shown = self.rating and self.rating.models
+        if self.rating and not any(len(set(c.models) & set(shown or c.models)) >= 2 for c in self.clips):
+            raise ValueError("[rating] needs a clip that shows two of its models at least")
         if self.pairwise and self.pairwise.pairs and any(a == b for a, b in self.pairwise.pairs):
             raise ValueError("a pair compares two different models")
         if self.checks.mismatched and len(self.clips) < 2:
