@@ -293,6 +293,7 @@ def test_the_app_takes_a_participant_through_without_telling_the_models(client):
     refused = client.post("/api/join", json={"consent": False, "intro": {"experience": "None"}})
     assert refused.status_code == 400 and "consent" in refused.json()["detail"]
     assert client.post("/api/join", json={"consent": True, "intro": {}}).status_code == 422
+    assert client.post("/api/join", json={"consent": "yes", "intro": {"experience": "None"}}).status_code == 422
     progress = client.post("/api/join", json={"consent": True, "intro": {"experience": "Expert"}}).json()
     assert progress["next"] == 0 and len(progress["trials"]) == 15
     text = json.dumps(progress)
@@ -306,6 +307,10 @@ def test_the_app_takes_a_participant_through_without_telling_the_models(client):
     assert bad.status_code == 422 and bad.json()["detail"].startswith("answer")
     wrong = client.post("/api/answers", json={"trial": 0, "answer": [5], "ms": 10})
     assert wrong.status_code == 422 and "per face" in wrong.json()["detail"]
+    width = len(progress["trials"][0]["faces"])
+    for loose in ({"trial": 0, "answer": [True] * width, "ms": 10}, {"trial": 0, "answer": ["5"] * width, "ms": 10},
+                  {"trial": True, "answer": [5] * width, "ms": 10}):  # nothing taken for what it is not
+        assert client.post("/api/answers", json=loose).status_code == 422, loose
     for k, trial in enumerate(progress["trials"]):
         answer = [5] * len(trial["faces"]) if trial["task"] == "rating" else "tie"
         reply = client.post("/api/answers", json={"trial": k, "answer": answer, "ms": 10})

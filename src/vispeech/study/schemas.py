@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from vispeech.study.config import Labels
 
@@ -30,6 +30,8 @@ class StudyView(BaseModel):
 
 
 class JoinRequest(BaseModel):
+    model_config = ConfigDict(strict=True)  # consent is true, not "yes"
+
     consent: bool
     pid: str | None = Field(
         default=None,
@@ -63,6 +65,11 @@ class Progress(BaseModel):
 
 
 class AnswerRequest(BaseModel):
+    """A participant's answer, its values as JSON types and nothing converted (``true`` is no
+    rating, ``"5"`` no number)."""
+
+    model_config = ConfigDict(strict=True)
+
     trial: int = Field(ge=0)
     answer: list[int] | Literal["left", "tie", "right"]
     ms: int = Field(ge=0, description="Milliseconds from the trial being shown to the answer.")
