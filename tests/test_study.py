@@ -219,6 +219,25 @@ def test_answers_are_kept_in_order_and_once(study_file, tmp_path):
         again.join("pid:other", {"experience": "Lots"})
 
 
+def test_a_changed_study_is_refused_once_anyone_joined(study_file, tmp_path):
+    """Edited before anyone joins: taken. Its clips or models changed after: refused in one line
+    (the stored participants' trials would name what is gone); its texts changed: taken."""
+    db = tmp_path / "answers.sqlite3"
+    StudyStore(db, read_study(study_file))
+    study_file.write_text(STUDY_TOML.replace('models = ["red", "blue", "green"]\n\n[[clips]]\nsentence = "s1"',
+                                             'models = ["blue", "red", "green"]\n\n[[clips]]\nsentence = "s1"'),
+                          encoding="utf-8")
+    StudyStore(db, read_study(study_file)).join("pid:a", {"experience": "None"})
+    study_file.write_text(STUDY_TOML, encoding="utf-8")  # the models' order as first written: other answers
+    with pytest.raises(VispeechError, match="holds the answers of 1 participant of another version") as caught:
+        StudyStore(db, read_study(study_file))
+    assert "\n" not in str(caught.value)
+    study_file.write_text(STUDY_TOML.replace('models = ["red", "blue", "green"]\n\n[[clips]]\nsentence = "s1"',
+                                             'models = ["blue", "red", "green"]\n\n[[clips]]\nsentence = "s1"')
+                          .replace('title = "Faces test"', 'title = "Faces, again"'), encoding="utf-8")
+    assert StudyStore(db, read_study(study_file)).join("pid:a", {"experience": "None"}).answered == 0
+
+
 def test_the_export_holds_every_answer_as_given(study_file, tmp_path):
     study = read_study(study_file)
     store = StudyStore(tmp_path / "answers.sqlite3", study)

@@ -199,13 +199,14 @@ def serve(
 def export(study: Path, db: Path | None, output: Path) -> None:
     """Write the answers of STUDY.toml's study (one row per answer, per face on a rating
     trial) and one row per participant (intro answers, checks passed) as CSV."""
+    from vispeech.errors import VispeechError
     from vispeech.files import atomic_output_dir
     from vispeech.study.config import read_study
     from vispeech.study.store import StudyStore
 
     path = _database(study, db)
     if not path.is_file():
-        raise click.UsageError(f"no answers yet: {path} not found")
+        raise VispeechError(f"no answers yet: {path} not found")
     answers, participants = StudyStore(path, read_study(study)).export()
     with atomic_output_dir(output, replaces=("answers.csv", "participants.csv")) as folder:
         (folder / "answers.csv").write_text(answers, encoding="utf-8")

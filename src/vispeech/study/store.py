@@ -87,6 +87,31 @@ class StudyStore:
         except sqlite3.DatabaseError as exc:
             raise VispeechError(f"{self.path} is not a study database: {exc}") from None
         self._secret = bytes.fromhex(self._meta("secret", secrets.token_hex(32)))
+        self._check_design()
+
+    def _check_design(self) -> None:
+        """Refuse a study whose trials differ from those the stored participants were given (its
+        clips, their models, the tasks' models, pairs and warm-ups, the checks or the seed
+        changed): their next trials would name clips or models that are gone, or answers would
+        land on other models. Before anyone joined, the file takes the study as it now is."""
+        study = self.study
+        design = study.model_dump(
+            include={"clips": {"__all__": {"sentence", "models"}}, "checks": True, "seed": True},
+            mode="json",
+        )
+        design["rating"] = study.rating and study.rating.model_dump(include={"models", "warmup"}, mode="json")
+        design["pairwise"] = study.pairwise and study.pairwise.model_dump(include={"pairs", "warmup"}, mode="json")
+        digest = hashlib.sha256(json.dumps(design, sort_keys=True).encode("utf-8")).hexdigest()
+        with self._transaction() as db:
+            joined = db.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
+            stored = db.execute("SELECT value FROM meta WHERE key = 'design'").fetchone()
+            if stored is not None and stored[0] != digest and joined:
+                raise VispeechError(
+                    f"{self.path} holds the answers of {joined} participant{'s' * (joined != 1)} of another version of "
+                    "this study (its clips, models, tasks, checks or seed have changed since): serve the version they "
+                    "joined, or give the new one its own --db"
+                )
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('design', ?)", (digest,))
 
     @contextmanager
     def _transaction(self) -> Iterator[sqlite3.Connection]:
