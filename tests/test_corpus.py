@@ -223,6 +223,13 @@ def test_align_corpus_caches_per_utterance(grid_src, tmp_path, monkeypatch):
     again = align_corpus(read_grid(tmp_path / "g", cache=tmp_path / "c"), progress=False)
     assert again["bbaf2n"].phones == phones
 
+    # the same transcript in another language is aligned again: English phones are no Swedish ones
+    swedish = read_grid(tmp_path / "g", cache=tmp_path / "c")
+    swedish.language = "sv"
+    monkeypatch.setattr("vispeech.corpus.alignment.align", lambda *a: (_ for _ in ()).throw(VispeechError("sv!")))
+    with pytest.warns(CorpusWarning, match="bbaf2n: sv!"):
+        align_corpus(swedish, progress=False)
+
     # a changed transcript is aligned again; a failure is a named warning (strict: an error)
     corpus = read_grid(tmp_path / "g", cache=tmp_path / "c")
     corpus["bbaf2n"].text = "bin blue at f three now"

@@ -28,8 +28,8 @@ def align_corpus(
     """Give every utterance without phones its forced alignment (:func:`vispeech.frontends.align.align`).
 
     Results are read from and written to ``cache`` (a :class:`CorpusCache` or a folder;
-    default ``corpus.cache``; each entry remembers the transcript and aligner, so a changed
-    transcript is aligned again). ``jobs`` > 1 aligns in that many processes; ``progress``
+    default ``corpus.cache``; each entry remembers the transcript, the language and the aligner, so
+    a changed transcript or language is aligned again). ``jobs`` > 1 aligns in that many processes; ``progress``
     shows a tqdm bar on stderr. An utterance that fails to align keeps ``phones=None`` and is
     named in a :class:`~vispeech.corpus.corpus.CorpusWarning` (and ``corpus.problems``), or
     raises :class:`VispeechError` if ``strict``. Returns ``corpus``, updated in place.
@@ -44,7 +44,12 @@ def align_corpus(
         if utterance.phones is not None:
             continue
         cached = store.read_json(cache_key(utterance.id)) if store is not None else None
-        if isinstance(cached, dict) and cached.get("aligner") == ALIGNER and cached.get("text") == utterance.text:
+        if (
+            isinstance(cached, dict)
+            and cached.get("aligner") == ALIGNER
+            and cached.get("text") == utterance.text
+            and cached.get("language") == corpus.language
+        ):
             utterance.phones = PhoneSequence.from_dict(cached["phones"])
         else:
             todo.append(utterance)
@@ -74,7 +79,8 @@ def align_corpus(
             continue
         utterance.phones = PhoneSequence.from_dict(phones)
         if store is not None:
-            store.write_json(cache_key(utterance.id), {"aligner": ALIGNER, "text": utterance.text, "phones": phones})
+            entry = {"aligner": ALIGNER, "text": utterance.text, "language": corpus.language, "phones": phones}
+            store.write_json(cache_key(utterance.id), entry)
     return corpus
 
 
