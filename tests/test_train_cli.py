@@ -1,6 +1,7 @@
 """``vispeech train`` on a tiny synthetic corpus of takes (phones from TextGrids, no aligner)."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -148,6 +149,15 @@ def test_train_errors_are_one_line(takes, tmp_path, args, message):
     assert result.exit_code == 2
     assert result.output.startswith("error: ") and message in result.output
     assert not (tmp_path / "out" / "config.json").exists()
+
+
+def test_an_output_folder_that_cannot_be_replaced_is_refused_before_training(takes, tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    result = _train("--corpus", takes, "-m", "tdnn-beskow", "--epochs", "1", "-p", "hidden=4", "--language", "en",
+                    "-q", "-o", tmp_path / "mine")
+    assert result.exit_code == 2 and "holds files vispeech did not write (notes.txt)" in result.output
+    assert "saved" not in result.output and os.listdir(tmp_path / "mine") == ["notes.txt"]  # no checkpoint left
 
 
 def test_train_from_a_shipped_network_adapts_it(takes, tmp_path):

@@ -108,11 +108,14 @@ def train_command(
     or audio in) is adapted to the corpus (a new speaker: minutes of takes), and its test-split score before
     adaptation is printed beside the one after.
     """
+    from vispeech.files import check_output_dir
     from vispeech.models.networks.network import Network
+    from vispeech.models.persistence import FOLDER_NAMES
     from vispeech.models.registry import FAMILIES, family_class
 
     if (model_name is None) == (from_model is None):
         raise VispeechError("give --model FAMILY to train one afresh, or --from MODEL to adapt a trained one")
+    check_output_dir(out_dir, replaces=FOLDER_NAMES)  # before the training, not after it
     if from_model is not None:
         _adapt(from_model, corpus_dir, epochs, seed, inputs, targets, params, resume, out_dir, language, cache, quiet)
         return
