@@ -39,9 +39,24 @@ def test_a_look_ahead_sweep_trains_a_model_per_value(tmp_path):
     (["--values", "a,b"], "whole numbers"),
     (["--values", "-1"], "none negative"),
     (["--values", "1", "--param", "epochs"], "KEY=VALUE"),
+    # refused before any model is trained (the first value's would be, were it checked one by one)
+    (["--values", "2,2", "--param", "epochs=1"], "look_ahead=2 is given twice"),
+    (["--values", "0", "--param", "epochs=1", "-o", "mine"], "holds files vispeech did not write"),
 ])
 def test_bad_sweeps_are_one_line_errors(tmp_path, args, message):
     takes = write_takes(tmp_path / "takes")
-    result = CliRunner().invoke(main, ["sweep", "look-ahead", "--corpus", str(takes), "--language", "en", *args,
-                                       "-o", str(tmp_path / "out")])
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    out = ["-o", str(tmp_path / "out")] if "-o" not in args else []
+    args = [str(tmp_path / "mine") if a == "mine" else a for a in args]
+    result = CliRunner().invoke(main, ["sweep", "look-ahead", "--corpus", str(takes), "--language", "en", *args, *out])
     assert result.exit_code == 2 and message in result.output, result.output
+    assert "jawOpen RMSE" not in result.output  # nothing was trained
+
+
+def test_a_window_sweep_checks_every_value_before_training_any(tmp_path):
+    takes = write_takes(tmp_path / "takes")
+    result = CliRunner().invoke(main, ["sweep", "window", "--corpus", str(takes), "--language", "en", "--values", "5,4",
+                                       "--param", "epochs=1", "-o", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "windows must satisfy" in result.output, result.output
+    assert "jawOpen RMSE" not in result.output and not (tmp_path / "out").exists()

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vispeech.cli import main
+from vispeech.cli import main, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.errors import VispeechError
 
@@ -40,6 +40,7 @@ from vispeech.errors import VispeechError
 )
 @corpus_language_option
 @cache_option
+@quiet_option
 def sweep_command(
     what: str,
     corpus_dir: Path,
@@ -49,11 +50,15 @@ def sweep_command(
     out_dir: Path,
     language: str,
     cache: Path | None,
+    quiet: bool,
 ) -> None:
     """Train a model per value of the look-ahead (Beskow 2004, Fig. 4) or the input window (Taylor et
     al. 2017, Fig. 11) on the corpus's train split and plot its test-split jawOpen error against it."""
     from vispeech.evaluation.sweep import SWEEPS, plot_sweep, sweep
-    from vispeech.files import atomic_output_dir
+    from vispeech.files import atomic_output_dir, check_output_dir
+
+    outputs = ("sweep.csv", "sweep.json", "sweep.png", "sweep.svg")
+    check_output_dir(out_dir, replaces=outputs)  # before the training, not after it
 
     default_family, parameter = SWEEPS[what]
     family = family or default_family
@@ -72,9 +77,9 @@ def sweep_command(
             options[key] = json.loads(value)
         except json.JSONDecodeError:
             options[key] = value
-    corpus = read_aligned_corpus(corpus_dir, language, cache, progress=False)
-    points = sweep(corpus, family, parameter, numbers, options, progress=click.echo)
-    with atomic_output_dir(out_dir, replaces=("sweep.csv", "sweep.json", "sweep.png", "sweep.svg")) as staging:
+    corpus = read_aligned_corpus(corpus_dir, language, cache, progress=not quiet)
+    points = sweep(corpus, family, parameter, numbers, options, progress=click.echo, fit_progress=not quiet)
+    with atomic_output_dir(out_dir, replaces=outputs) as staging:
         rows = ["value,rmse_percent,r,epochs,seconds"] + [
             f"{p.value},{p.rmse_percent:.6g},{p.r:.6g},{p.epochs},{p.seconds:.1f}" for p in points
         ]

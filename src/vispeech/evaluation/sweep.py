@@ -51,9 +51,14 @@ def sweep(
     values: Sequence[int],
     params: dict | None = None,
     progress: Callable[[str], None] | None = None,
+    fit_progress: bool = False,
 ) -> list[SweepPoint]:
     """Train ``family`` on ``corpus``'s train split (validation split for early stopping) once per
-    value of ``parameter`` (other hyper-parameters: ``params``) and score jawOpen on the test split."""
+    value of ``parameter`` (other hyper-parameters: ``params``) and score jawOpen on the test split.
+
+    Every value's model is made (its parameters checked) before the first is trained; a value
+    given twice is an error. ``progress`` is told each value's scores, ``fit_progress`` shows each
+    fit's progress bar."""
     import time
 
     from vispeech.models.registry import create_model
@@ -61,10 +66,14 @@ def sweep(
     test = corpus.split("test")
     if not len(test) or not len(corpus.split("train")):
         raise VispeechError(f"corpus {corpus.name} needs train and test utterances for a sweep")
+    twice = next((v for v in values if list(values).count(v) > 1), None)
+    if twice is not None:
+        raise VispeechError(f"{parameter}={twice} is given twice")
+    models = [create_model(family, **{**(params or {}), parameter: value}) for value in values]
     points = []
-    for value in values:
+    for value, model in zip(values, models):
         started = time.perf_counter()
-        model = create_model(family, **{**(params or {}), parameter: value}).fit(corpus, progress=False)
+        model.fit(corpus, progress=fit_progress)
         seconds = time.perf_counter() - started
         scores = (
             evaluate_models(test, {f"{parameter}={value}": model}, channels=["jawOpen"], postprocessing="none")
