@@ -335,6 +335,13 @@ def test_bad_parameters_and_corpora_raise(corpus):
         TimeDelayNetwork(progress=False)
     with pytest.raises(VispeechError, match="look_ahead"):
         TimeDelayNetwork(look_ahead=-1)
+    # refused when made, not deep in training (a traceback) or silently kept
+    for bad, message in ((dict(fps="abc"), "fps must be null"), (dict(fps=0), "fps must be null"),
+                         (dict(motion_weight=float("nan")), "motion_weight"), (dict(motion_weight=-1), "motion_weight"),
+                         (dict(mirror="maybe"), "mirror must be true or false"), (dict(standardize=3), "standardize"),
+                         (dict(lr_step_down="x"), "lr_step_down"), (dict(linguistic=1), "linguistic")):
+        with pytest.raises(VispeechError, match=message):
+            TimeDelayNetwork(**bad)
     unaligned = [SimpleNamespace(id="x", phones=None, track=corpus[0].track)]
     with pytest.raises(VispeechError, match="align"):
         tiny_thesis().fit(unaligned, progress=False)

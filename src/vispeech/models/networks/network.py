@@ -39,6 +39,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
+from vispeech.limits import MAX_FPS, MIN_FPS
 from vispeech.models.contract import Estimator, InputT
 from vispeech.models.fitting import FitRun, show_progress, training_split
 from vispeech.models.history import TrainingHistory
@@ -89,8 +90,8 @@ TARGET_SETS = ("mouth", "all", "articulatory")
 
 def check_training_params(p: Mapping[str, Any]) -> None:
     """Raise :class:`VispeechError` on a bad value of the training parameters ``p`` has (the
-    targets, the budget, the batch size, the seed, the optimiser's), before any of them reaches
-    a library."""
+    targets, the budget, the batch size, the seed, the optimiser's, the frame rate, the loss's
+    motion weight, the switches), before any of them reaches a library."""
     targets = p.get("targets", "mouth")
     if not (isinstance(targets, list) and all(isinstance(t, str) for t in targets)) and targets not in TARGET_SETS:
         raise VispeechError(f"targets must be mouth, all, articulatory or a list of channels, got {targets!r}")
@@ -106,6 +107,15 @@ def check_training_params(p: Mapping[str, Any]) -> None:
         raise VispeechError(f"momentum must be a number in [0, 1), got {p['momentum']!r}")
     if "l2" in p and not (_finite(p["l2"]) and p["l2"] >= 0):
         raise VispeechError(f"l2 must be a number >= 0, got {p['l2']!r}")
+    if "motion_weight" in p and not (_finite(p["motion_weight"]) and p["motion_weight"] >= 0):
+        raise VispeechError(f"motion_weight must be a number >= 0, got {p['motion_weight']!r}")
+    if p.get("fps") is not None and not (_finite(p["fps"]) and MIN_FPS <= p["fps"] <= MAX_FPS):
+        raise VispeechError(
+            f"fps must be null (the corpus's rate) or a number within {MIN_FPS:g}..{MAX_FPS:g}, got {p['fps']!r}"
+        )
+    for key in ("mirror", "standardize", "zero_center", "lr_step_down", "linguistic", "position"):
+        if key in p and not isinstance(p[key], bool):
+            raise VispeechError(f"{key} must be true or false, got {p[key]!r}")
 
 
 def whole_number(value: Any) -> bool:
