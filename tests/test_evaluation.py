@@ -425,5 +425,41 @@ def test_sync_moves_predictions_by_each_long_utterances_lag():
         evaluate_models(corpus, {"late": late}, channels=["jawOpen"], sync=Pucker(corpus))
 
 
+def test_sync_moves_the_phones_with_the_predictions_when_it_counts_closures():
+    """The picture of a 10-s take leads its sound by 3 frames, its lips closing 3 frames before
+    each /m/ is heard. Unsynced, no tracked closure falls on its /m/; with ``sync`` the phones are
+    moved with the predictions, onto the picture: every closure counts, and the model (the take
+    played 3 frames late, moved back) makes each one."""
+    fps, n = 25.0, 250
+    utterance = _long_utterance("long", 10.0)
+    closes = np.arange(20, n - 20, 25)  # an /m/ heard at frames c, c+1
+    phones, words, time = [], [], 0.0
+    for k, c in enumerate(closes):
+        phones += [Phone("AA", time, c / fps, k), Phone("M", c / fps, (c + 2) / fps, k)]
+        words.append(Word("am", time, (c + 2) / fps))
+        time = (c + 2) / fps
+    phones.append(Phone("AA", time, n / fps, len(closes)))
+    words.append(Word("ah", time, n / fps))
+    sequence = PhoneSequence(phones, "en", words)
+    jaw = utterance.track["jawOpen"] + 0.2
+    gap = np.full(n, 5.0)
+    for c in closes:  # the picture: closed at c - 3 (its own frames c-4 .. c-2)
+        jaw[c - 4 : c - 1], gap[c - 4 : c - 1] = 0.0, 0.0
+    eyes = {"lm33": np.tile([0.3, 0.5, 0.0], (n, 1)), "lm263": np.tile([0.7, 0.5, 0.0], (n, 1))}
+    lips = {"lm13": np.column_stack([np.full(n, 0.5), 0.6 + gap / 288, np.zeros(n)]),
+            "lm14": np.tile([0.5, 0.6, 0.0], (n, 1))}
+    utterance = Utterance(id="long", text="am", audio_path=Path("none.wav"), duration=n / fps,
+                          track=Track(np.column_stack([jaw, np.zeros(n)]), ("jawOpen", "mouthClose"), fps),
+                          words=words, phones=sequence, landmarks={**eyes, **lips})
+    corpus = Corpus("late", [utterance], fps, ("jawOpen", "mouthClose"))
+    late = Late(corpus, frames=3)
+    plain = evaluate_models(corpus, {"late": late}, channels=["jawOpen"], postprocessing="none")["late"].closures
+    synced = evaluate_models(corpus, {"late": late}, channels=["jawOpen"], postprocessing="none", sync=late)
+    assert synced.lags == {"long": pytest.approx(3 / fps)}
+    counts = synced["late"].closures
+    assert plain.tracked_closures == 0 and counts.bilabials == len(closes)
+    assert counts.tracked_closures == counts.model_closures == len(closes)
+
+
 class Pucker(Late):
     channels = ("mouthPucker",)

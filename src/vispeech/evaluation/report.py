@@ -487,17 +487,19 @@ def _evaluate_model(
     for k, (utterance, mask, target, tracked) in enumerate(
         zip(corpus, reference.masks, reference.targets, reference.closed)
     ):
-        predicted = predict_on_frames(model, utterance, *how, 0 if lags is None else lags[k])
+        lag = 0 if lags is None else lags[k]
+        predicted = predict_on_frames(model, utterance, *how, lag)
         target_arrays.append(target.values[mask][:, columns])
         predicted_arrays.append(predicted.select(chosen).values[mask])
         if closures is not None and tracked is not None and lip_opening(predicted) is not None:
-            closures += count_closures(
+            fps = recorded_track(utterance).fps
+            closures += count_closures(  # the phones moved with the predictions: sound time onto the picture's
                 _phones(utterance),
-                recorded_track(utterance).fps,
+                fps,
                 tracked,
                 model_closed(predicted),
                 mask,
-                recorded_track(utterance).start_time,
+                recorded_track(utterance).start_time + lag / fps,
             )
         else:
             closures = None
