@@ -59,6 +59,7 @@ def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
     (["-m", "baseline", "--plot", "{tmp}/p.png", "--plot-utterance", "u01"], "no utterance 'u01'"),
     (["-m", "sliding-window-thesis"], "must be trained first"),
     (["-m", "tdnn-lowlatency"], "must be trained first"),
+    (["-m", "baseline", "--language", "xx"], "unknown language 'xx' for phones"),
 ])
 def test_evaluate_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "corrupt").mkdir()

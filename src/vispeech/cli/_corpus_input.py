@@ -33,7 +33,9 @@ def open_corpus(directory: Path, language: str, cache: Path | None = None) -> Co
     import warnings
 
     from vispeech.corpus import CorpusWarning, read_corpus
+    from vispeech.phonetics.inventory import get_inventory
 
+    get_inventory(language)  # an unknown language, refused before anything is read or aligned
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CorpusWarning)  # listed in corpus.problems, summed up below
         corpus = read_corpus(directory, language=language, cache=cache)

@@ -36,6 +36,7 @@ def info_command(directory: Path, no_phones: bool, language: str, cache: Path | 
     from vispeech.corpus.corpus import frame_rates_text
     from vispeech.phonetics.inventory import get_inventory, is_silence
 
+    get_inventory(language)  # an unknown language, refused before anything is read or aligned
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CorpusWarning)  # skipped utterances are listed below
         corpus = read_corpus(directory, language=language, strict=strict, cache=cache)
