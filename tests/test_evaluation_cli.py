@@ -60,6 +60,7 @@ def test_evaluate_models_and_a_saved_folder_on_takes(takes, tmp_path):
     (["-m", "sliding-window-thesis"], "must be trained first"),
     (["-m", "tdnn-lowlatency"], "must be trained first"),
     (["-m", "baseline", "--language", "xx"], "unknown language 'xx' for phones"),
+    (["-m", "baseline", "--markdown", "{corrupt}/config.json/x.md"], "cannot write"),  # before evaluating
 ])
 def test_evaluate_errors_are_one_line(takes, tmp_path, args, message):
     (tmp_path / "corrupt").mkdir()

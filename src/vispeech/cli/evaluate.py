@@ -10,7 +10,7 @@ from vispeech.cli import main, postprocessing_option, quiet_option
 from vispeech.cli._corpus_input import cache_option, corpus_language_option, corpus_option, read_aligned_corpus
 from vispeech.corpus.corpus import ALL, SPLITS, recorded_track
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_file, check_output_dir
+from vispeech.files import atomic_output_file, check_output_dir, check_output_file
 
 
 @main.command("evaluate")
@@ -108,6 +108,9 @@ def evaluate_command(
         from vispeech.evaluation.report_folder import REPORT_FILES
 
         check_output_dir(report_dir, replaces=REPORT_FILES)
+    for path in (markdown, plot):
+        if path is not None:
+            check_output_file(path)  # before the evaluation, not after it
     for spec in specs:
         if spec in models:
             raise VispeechError(f"model {spec!r} given twice")
