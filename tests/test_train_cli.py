@@ -108,7 +108,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
 
     monkeypatch.setattr(Network, "save", fail)
     result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "1",
-                    "-q", "-o", out)
+                    "-p", "learning_rate=0.002", "-q", "-o", out)
     assert result.exit_code == 2 and "error: disk full" in result.output
     assert not (out / "config.json").exists()
     assert (out / "checkpoint" / "training_state.json").is_file()
@@ -117,9 +117,10 @@ def test_interrupted_run_resumes_from_its_checkpoint(takes, tmp_path, monkeypatc
     monkeypatch.undo()
 
     result = _train("--corpus", takes, "--language", "en", "-m", "sliding-window-thesis", "--epochs", "2",
-                    "-q", "--resume", out, "-o", out)
+                    "-q", "--resume", out, "-o", out)  # its learning rate need not be given again
     assert result.exit_code == 0, result.output
     config = json.loads((out / "config.json").read_text())
+    assert config["params"]["learning_rate"] == 0.002 and config["params"]["epochs"] == 2
     assert config["name"] == "model" and len(config["state"]["history"]["train_loss"]) == 2
     assert config["state"]["history"]["train_loss"][0] == first[0]  # went on, did not start over
     assert not (out / "checkpoint").exists()

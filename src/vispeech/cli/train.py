@@ -130,6 +130,10 @@ def train_command(
     neural = issubclass(cls, Network)
     if resume is not None and not neural:
         raise VispeechError(f"--resume needs a network; model {model_name} is fitted in one go")
+    if resume is not None:  # the run's own parameters, but for those given again (its budget, say)
+        run = _run_to_resume(resume)
+        assert run is not None  # resume is given
+        options = {**cls.load(run).get_params(), **options}
     checkpoint = out_dir / CHECKPOINT if neural else None
     model = cls(**options)
 
