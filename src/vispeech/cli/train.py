@@ -120,7 +120,8 @@ def train_command(
         _adapt(from_model, corpus_dir, epochs, seed, inputs, targets, params, resume, out_dir, language, cache, quiet)
         return
     if model_name not in FAMILIES:
-        raise VispeechError(f"unknown model family {model_name!r} (train one of: {', '.join(FAMILIES)})")
+        trainable = ", ".join(name for name in FAMILIES if family_class(name).trainable)
+        raise VispeechError(f"unknown model family {model_name!r} (train one of: {trainable})")
     cls = family_class(model_name)
     if not cls.trainable:
         if cls.data_free:
@@ -259,7 +260,9 @@ def _test_score(model, corpus) -> str:
 
     test = corpus.split("test")
     shared = [c for c in ("jawOpen", "jaw_opening") if c in model.channels and c in available_channels(test)]
-    if not len(test) or not shared:
+    if not len(test):
+        return "test split: no utterances to score"
+    if not shared:
         return "test split: no jaw channel to score"
     result = (
         evaluate_models(test, {model.name: model}, channels=shared[:1], postprocessing="none")
