@@ -104,6 +104,10 @@ def test_a_study_reads_its_clips_and_takes_models_from_the_stimuli_key(study_fil
     assert study.clips[1].models == ["red", "blue", "green"]
     assert study.clips[0].path == (study_file.parent / "clips" / "s0.mp4").resolve()
     assert study.rating.anchors == {1: "Not realistic at all", 9: "Completely realistic"}
+    # clips of `vispeech animate` folders: every animation is an animation.json, named by its folder
+    (study_file.parent / "clips" / "s1.json").write_text(json.dumps({"clip": "s1.mp4", "left_to_right": [
+        "/takes/red/animation.json", "/takes/blue/animation.json", "/takes/green/animation.json"]}))
+    assert read_study(study_file).clips[1].models == ["red", "blue", "green"]
 
 
 @pytest.mark.parametrize("change, message", [

@@ -125,9 +125,9 @@ def render(
                 {
                     "clip": output.name,
                     "seed": seed,
-                    "audio": None if audio is None else str(audio),
+                    "audio": None if audio is None else str(audio.resolve()),
                     "head": None if shown is None else str(shown),
-                    "left_to_right": [str(animations[i]) for i in order],
+                    "left_to_right": [str(animations[i].resolve()) for i in order],
                 },
                 indent=2,
             )

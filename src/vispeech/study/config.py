@@ -216,12 +216,17 @@ def read_study(path: str | os.PathLike) -> Study:
 
 
 def _models_from_key(clip: Path) -> list[str]:
-    """The models of a ``stimuli render`` clip, left to right: the stems of the animations its key names."""
+    """The models of a ``stimuli render`` clip, left to right: the stems of the animations its key
+    names, or, where those are alike (``vispeech animate`` writes ``animation.json`` into each
+    output folder), the names of their folders."""
     key = clip.with_suffix(".json")
     try:
-        return [Path(name).stem for name in json.loads(key.read_text(encoding="utf-8"))["left_to_right"]]
+        paths = [Path(name) for name in json.loads(key.read_text(encoding="utf-8"))["left_to_right"]]
     except (OSError, ValueError, KeyError, TypeError):
         return []
+    stems = [p.stem for p in paths]
+    folders = [p.parent.name or p.resolve().parent.name for p in paths]
+    return folders if len(set(stems)) < len(stems) and len(set(folders)) == len(folders) else stems
 
 
 def _pairs(study: Study) -> list[tuple[Clip, str, str]]:
