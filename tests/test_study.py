@@ -555,7 +555,21 @@ def test_study_export_writes_the_answers_and_refuses_bad_input_in_one_line(study
     assert (tmp_path / "out" / "participants.csv").is_file()
     missing = _cli("export", study_file, "--db", tmp_path / "none.sqlite3", "-o", tmp_path / "out2")
     assert missing.exit_code == 2 and "none.sqlite3 not found" in missing.output
-    assert not (tmp_path / "out2").exists()
+    assert len(missing.output.splitlines()) == 1 and not (tmp_path / "out2").exists()
+    for other in (b"", None):  # an empty file; another program's SQLite database: neither is made a study's
+        path = tmp_path / "other.sqlite3"
+        if other is None:
+            import sqlite3
+
+            path.unlink()
+            with sqlite3.connect(path) as db:
+                db.execute("CREATE TABLE notes (text TEXT)")
+        else:
+            path.write_bytes(other)
+        before = path.read_bytes()
+        result = _cli("export", study_file, "--db", path, "-o", tmp_path / "out4")
+        assert result.exit_code == 2 and "is not a study database (it has no study's answers)" in result.output
+        assert path.read_bytes() == before and not (tmp_path / "out4").exists()
     (tmp_path / "junk.sqlite3").write_bytes(b"not a database at all, just bytes" * 40)
     junk = _cli("export", study_file, "--db", tmp_path / "junk.sqlite3", "-o", tmp_path / "out3")
     assert junk.exit_code == 2 and "is not a study database" in junk.output and len(junk.output.splitlines()) == 1

@@ -207,7 +207,7 @@ def export(study: Path, db: Path | None, output: Path) -> None:
     path = _database(study, db)
     if not path.is_file():
         raise VispeechError(f"no answers yet: {path} not found")
-    answers, participants = StudyStore(path, read_study(study)).export()
+    answers, participants = StudyStore(path, read_study(study), create=False).export()
     with atomic_output_dir(output, replaces=("answers.csv", "participants.csv")) as folder:
         (folder / "answers.csv").write_text(answers, encoding="utf-8")
         (folder / "participants.csv").write_text(participants, encoding="utf-8")

@@ -72,14 +72,18 @@ def _now() -> str:
 
 
 class StudyStore:
-    """The answers of ``study`` in the SQLite file ``path`` (created if missing)."""
+    """The answers of ``study`` in the SQLite file ``path`` (created if missing; with ``create``
+    false it must be a study database already: what an export reads is never made one)."""
 
-    def __init__(self, path: str | os.PathLike, study: Study) -> None:
+    def __init__(self, path: str | os.PathLike, study: Study, *, create: bool = True) -> None:
         self.path = Path(path)
         self.study = study
         try:
             db = sqlite3.connect(self.path, timeout=30)
             try:
+                tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+                if not create and not {"meta", "participants", "answers"} <= tables:
+                    raise VispeechError(f"{self.path} is not a study database (it has no study's answers)")
                 db.execute("PRAGMA journal_mode = WAL")
                 db.executescript(_SCHEMA)
             finally:
