@@ -204,7 +204,8 @@ def read_study(path: str | os.PathLike) -> Study:
     except ValidationError as exc:
         error = exc.errors()[0]
         where = ".".join(str(part) for part in error["loc"])
-        raise VispeechError(f"{path}: {where + ': ' if where else ''}{error['msg']}") from None
+        message = error["msg"].removeprefix("Value error, ")  # pydantic's prefix for a validator's own words
+        raise VispeechError(f"{path}: {where + ': ' if where else ''}{message}") from None
     for clip in study.clips:
         if not clip.path.is_file():
             raise VispeechError(f"{path}: clip {clip.sentence}: {clip.path} not found")
