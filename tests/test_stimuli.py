@@ -57,6 +57,10 @@ def test_bad_vocoder_settings():
         noise_vocode(np.zeros(16000), 8000)  # 5000 Hz is beyond 4 kHz
     with pytest.raises(VispeechError, match="50 ms or more"):
         noise_vocode(np.zeros(100), 16000)
+    with pytest.raises(VispeechError, match="lowest band edge must lie above 0 and below its highest, got 5000-100"):
+        noise_vocode(np.zeros(16000), 16000, low=5000, high=100)
+    with pytest.raises(VispeechError, match="narrower than a semitone"):  # they would filter out everything
+        noise_vocode(np.zeros(16000), 16000, bands=32, low=100, high=101)
 
 
 def test_cli_vocodes_a_file(speech, tmp_path):
@@ -70,6 +74,9 @@ def test_cli_vocodes_a_file(speech, tmp_path):
     assert out_rate == rate and len(y) == len(x)
     bad = CliRunner().invoke(main, ["stimuli", "vocode", str(tmp_path / "missing.wav"), "-o", str(tmp_path / "x.wav")])
     assert bad.exit_code == 2 and bad.output.startswith("error:")
+    mp3 = CliRunner().invoke(main, ["stimuli", "vocode", str(tmp_path / "in.wav"), "-o", str(tmp_path / "x.mp3")])
+    assert mp3.exit_code == 2 and mp3.output == f"error: {tmp_path / 'x.mp3'}: the degraded speech is written as .wav\n"
+    assert not (tmp_path / "x.mp3").exists()
 
 
 def test_faces_render_side_by_side_with_their_sound(tmp_path):

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vispeech.cli import main
+from vispeech.errors import VispeechError
 
 
 @main.group("stimuli")
@@ -36,6 +37,8 @@ def vocode(audio: Path, output: Path, bands: int, low: float, high: float, seed:
     from vispeech.files import atomic_output_file
     from vispeech.frontends.audio import AudioClip, wav_bytes
 
+    if output.suffix.lower() != ".wav":
+        raise VispeechError(f"{output}: the degraded speech is written as .wav")
     clip = AudioClip.read(audio)
     degraded = noise_vocode(clip.samples, clip.sample_rate, bands=bands, low=low, high=high, seed=seed)
     with atomic_output_file(output) as tmp:
@@ -100,11 +103,11 @@ def render(
     from vispeech.motion.rigging.head import DEFAULT_HEAD
 
     if output.suffix.lower() != ".mp4":
-        raise click.UsageError("the clip is an .mp4 file")
+        raise VispeechError("the clip is an .mp4 file")
     if head_as_is and head is None:
-        raise click.UsageError("--head-as-is needs --head")
+        raise VispeechError("--head-as-is needs --head")
     if face_2d and head is not None:
-        raise click.UsageError("give --head or --face-2d, not both")
+        raise VispeechError("give --head or --face-2d, not both")
     shown = None if face_2d else head or DEFAULT_HEAD
     tracks = [read_track(path) for path in animations]
     clip = AudioClip.read(audio) if audio is not None else None

@@ -58,9 +58,18 @@ def noise_vocode(
     x = np.asarray(samples, dtype=np.float64)
     if bands < 1:
         raise VispeechError(f"a vocoder needs one band at least, got {bands}")
-    if not 0 < low < high < sample_rate / 2:
+    if not 0 < low < high:
+        raise VispeechError(
+            f"the vocoder's lowest band edge must lie above 0 and below its highest, got {low:g}-{high:g} Hz"
+        )
+    if not high < sample_rate / 2:
         raise VispeechError(
             f"vocoder bands {low:g}-{high:g} Hz must lie below half the sample rate ({sample_rate / 2:g} Hz)"
+        )
+    if high / low < 2 ** (bands / 12):
+        raise VispeechError(
+            f"{bands} vocoder bands between {low:g} and {high:g} Hz are narrower than a semitone each: "
+            "give fewer bands or a wider range"
         )
     if x.ndim != 1 or len(x) < 0.05 * sample_rate:
         raise VispeechError("the vocoder takes mono audio of 50 ms or more")
