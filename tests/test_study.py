@@ -112,6 +112,7 @@ def test_a_study_reads_its_clips_and_takes_models_from_the_stimuli_key(study_fil
 
 @pytest.mark.parametrize("change, message", [
     (lambda s: s.replace('path = "clips/s2.mp4"', 'path = "clips/none.mp4"'), "none.mp4 not found"),
+    (lambda s: s.replace('path = "clips/s2.mp4"', 'path = "study.toml"'), "study.toml is not an MP4 file"),
     (lambda s: s.replace('["red", "green"]]', '["red", "violet"]]'), "names models no clip shows: violet"),
     (lambda s: s.replace("[rating]", "[ratings]"), "ratings: Extra inputs are not permitted"),
     (lambda s: s.replace("1 = ", "10 = "), "anchors are keyed by ratings 1 to 9"),

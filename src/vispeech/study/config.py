@@ -209,6 +209,9 @@ def read_study(path: str | os.PathLike) -> Study:
     for clip in study.clips:
         if not clip.path.is_file():
             raise VispeechError(f"{path}: clip {clip.sentence}: {clip.path} not found")
+        with open(clip.path, "rb") as handle:
+            if handle.read(12)[4:8] != b"ftyp":  # every MP4 file begins with its file-type box
+                raise VispeechError(f"{path}: clip {clip.sentence}: {clip.path} is not an MP4 file")
         if len(clip.models) < 2:
             raise VispeechError(f"{path}: clip {clip.sentence} needs two models at least (models = [...])")
     if study.pairwise and not _pairs(study):
