@@ -121,7 +121,9 @@ def test_a_study_reads_its_clips_and_takes_models_from_the_stimuli_key(study_fil
     (lambda s: s.replace('sentence = "s2"', 'sentence = "s0"'), "each clip must have its own sentence"),
     # files that read, then broke every participant's join (a 500 each)
     (lambda s: s.replace("warmup = 1\n\n[pairwise]", 'warmup = 1\nmodels = ["red"]\n\n[pairwise]'),
-     "[rating] needs a clip that shows two of its models at least"),
+     "rating.models: List should have at least 2 items"),
+    (lambda s: s.replace("warmup = 1\n\n[pairwise]", 'warmup = 1\nmodels = []\n\n[pairwise]'),
+     "rating.models: List should have at least 2 items"),
     (lambda s: s.replace("seed = 7", "seed = -1"), "seed: Input should be greater than or equal to 0"),
     (lambda s: s.replace("seed = 7", "seed = 9223372036854775807"), "seed: Input should be less than or equal to"),
 ])
@@ -227,8 +229,19 @@ def test_answers_are_kept_in_order_and_once(study_file, tmp_path):
 def test_a_changed_study_is_refused_once_anyone_joined(study_file, tmp_path):
     """Edited before anyone joins: taken. Its clips or models changed after: refused in one line
     (the stored participants' trials would name what is gone); its texts changed: taken."""
+    import sqlite3
+
     db = tmp_path / "answers.sqlite3"
     StudyStore(db, read_study(study_file))
+
+    def design() -> str:
+        with sqlite3.connect(db) as connection:
+            return connection.execute("SELECT value FROM meta WHERE key = 'design'").fetchone()[0]
+
+    first = design()
+    study_file.write_text(STUDY_TOML.replace("seed = 7", "seed = 8"), encoding="utf-8")
+    StudyStore(db, read_study(study_file), create=False)  # an export reads; it records nothing
+    assert design() == first
     study_file.write_text(STUDY_TOML.replace('models = ["red", "blue", "green"]\n\n[[clips]]\nsentence = "s1"',
                                              'models = ["blue", "red", "green"]\n\n[[clips]]\nsentence = "s1"'),
                           encoding="utf-8")

@@ -99,8 +99,8 @@ class RatingTask(_Strict):
 
     question: str = "Please rate the realism of the animations (not of the face itself)."
     anchors: dict[int, str] = Field(default_factory=lambda: {1: "Not realistic at all", 9: "Completely realistic"})
-    models: list[str] | None = None
-    """The models to show (default: every model of the clips)."""
+    models: list[str] | None = Field(default=None, min_length=2)
+    """The models to show, two or more (default: every model of the clips)."""
     warmup: int = Field(default=3, ge=0)
 
     @field_validator("anchors", mode="before")
@@ -176,7 +176,9 @@ class Study(_Strict):
             if unknown:
                 raise ValueError(f"[{task}] names models no clip shows: {', '.join(sorted(unknown))}")
         shown = self.rating and self.rating.models
-        if self.rating and not any(len(set(c.models) & set(shown or c.models)) >= 2 for c in self.clips):
+        if self.rating and not any(
+            len(set(c.models) & set(c.models if shown is None else shown)) >= 2 for c in self.clips
+        ):
             raise ValueError("[rating] needs a clip that shows two of its models at least")
         if self.pairwise and self.pairwise.pairs and any(a == b for a, b in self.pairwise.pairs):
             raise ValueError("a pair compares two different models")

@@ -91,13 +91,14 @@ class StudyStore:
         except sqlite3.DatabaseError as exc:
             raise VispeechError(f"{self.path} is not a study database: {exc}") from None
         self._secret = bytes.fromhex(self._meta("secret", secrets.token_hex(32)))
-        self._check_design()
+        self._check_design(record=create)
 
-    def _check_design(self) -> None:
+    def _check_design(self, record: bool) -> None:
         """Refuse a study whose trials differ from those the stored participants were given (its
         clips, their models, the tasks' models, pairs and warm-ups, the checks or the seed
         changed): their next trials would name clips or models that are gone, or answers would
-        land on other models. Before anyone joined, the file takes the study as it now is."""
+        land on other models. With ``record``, a file nobody joined yet takes the study as it now
+        is (a file from before designs were recorded, with participants, is left as it was)."""
         study = self.study
         design = study.model_dump(
             include={"clips": {"__all__": {"sentence", "models"}}, "checks": True, "seed": True},
@@ -115,7 +116,8 @@ class StudyStore:
                     "this study (its clips, models, tasks, checks or seed have changed since): serve the version they "
                     "joined, or give the new one its own --db"
                 )
-            db.execute("INSERT OR REPLACE INTO meta VALUES ('design', ?)", (digest,))
+            if record and not joined:
+                db.execute("INSERT OR REPLACE INTO meta VALUES ('design', ?)", (digest,))
 
     @contextmanager
     def _transaction(self) -> Iterator[sqlite3.Connection]:
