@@ -71,7 +71,8 @@ def test_start_timecode_and_subframe_fraction(tmp_path):
 
 
 @pytest.mark.parametrize("fps,start", [(60.0, 0.0), (30.0, 0.0), (25.0, 12.48), (30000 / 1001, 3600.0), (12.0, 0.0),
-                                       (15.0, 0.0), (20.0, 0.0), (144.0, 0.5), (200.0, 0.75)])
+                                       (15.0, 0.0), (20.0, 0.0), (59.0, 0.0), (119.0, 0.5), (144.0, 0.5),
+                                       (200.0, 0.75)])
 def test_read_of_write_equals_track(tmp_path, fps, start):
     track = random_track(90, fps=fps, start_time=start)
     write_livelink_csv(track, tmp_path / "t.csv")
@@ -131,13 +132,13 @@ def test_real_iphone_timecodes_with_drift(tmp_path):
     assert read_livelink_csv(tmp_path / "take.csv", fps=60).fps == 60.0
 
 
-def test_a_take_that_drops_the_last_frames_of_a_second_keeps_its_nominal_rate(tmp_path):
-    # 60 fps, frames 55 to 57 and then 00 to 03: 58 and 59 never came (dropped), 0.05 × 60 = 3 may
-    codes = [f"10:00:00:{f:02d}.000" for f in (55, 56, 57)] + [f"10:00:01:{f:02d}.000" for f in range(4)]
+@pytest.mark.parametrize("rate,every", [(60, 5), (60, 6), (30, 3), (60, 2)])
+def test_a_take_of_every_nth_frame_keeps_its_timecode_rate(tmp_path, rate, every):
+    # rows every 5th frame of a 60 fps timecode end each second at 55: the rate is still 60, not 56
+    codes = [f"10:00:{k * every // rate:02d}:{k * every % rate:02d}.000" for k in range(3 * rate // every)]
     iphone_like_file(tmp_path / "take.csv", codes)
     track = read_livelink_csv(tmp_path / "take.csv")
-    assert track.start_time == pytest.approx(36000 + 55 / 60)
-    assert track.fps == pytest.approx(6 / (8 / 60))  # 7 rows over 8 frames of the 60 fps timecode
+    assert track.fps == rate / every and track.start_time == 36000.0
 
 
 def test_the_header_is_matched_in_any_case(tmp_path):

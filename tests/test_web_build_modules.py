@@ -84,13 +84,16 @@ def test_live_link_csv_timecodes_give_fps_and_times():
     assert got["jaw"] == pytest.approx([0.0, 0.2, 0.6, 0.4, 0.2], abs=1e-6)
 
 
-@pytest.mark.parametrize("fps", [12, 15, 20, 25, 144])
-def test_live_link_csv_at_any_whole_rate_reads_at_that_rate(fps):
-    """A take that wraps into its next seconds counts frames at the rate where FF wraps, not at
-    the next nominal one (as the Python reader: 12 fps is not read as 24)."""
+@pytest.mark.parametrize("fps,every", [(12, 1), (15, 1), (20, 1), (25, 1), (59, 1), (144, 1), (60, 5)])
+def test_live_link_csv_reads_at_the_rate_vispeech_reads_it(fps, every):
+    """As the Python reader: a take that wraps counts frames at the rate where FF wraps, not the
+    next nominal one (12 fps is not 24, 59 not 60), unless its rows step over frame numbers (every
+    5th frame of a 60 fps timecode ends at 55: 12 fps on a 60 fps timecode)."""
+    rate, fps = fps, fps // every
     rows = ["Timecode,BlendshapeCount,JawOpen"]
-    for k in range(2 * fps + 3):  # a little over two seconds, frame k at k / fps
-        rows.append(f"00:00:{k // fps:02d}:{k % fps:02d}.000,1,{k % 2}.0000000000")
+    for k in range(2 * fps + 3):  # a little over two seconds, row k at k / fps
+        frame = k * every
+        rows.append(f"00:00:{frame // rate:02d}:{frame % rate:02d}.000,1,{k % 2}.0000000000")
     got = run_node(sample_script("\n".join(rows) + "\n", [0.0, 1 / fps, 2 / fps, fps / fps]))
     assert (got["fps"], got["n"]) == (fps, 2 * fps + 3)
     assert got["jaw"] == pytest.approx([0.0, 1.0, 0.0, fps % 2], abs=1e-6)

@@ -163,9 +163,7 @@ export function fromLiveLinkCsv(text, name = 'animation') {
     rows.push(keep.map((i) => Number(cells[i])));
   }
   if (!rows.length) throw new Error(`${name}: Live Link CSV has no rows`);
-  const maxFrame = Math.max(...codes.map((c) => Number(c[4])));
-  const wraps = new Set(codes.map((c) => `${c[1]}:${c[2]}:${c[3]}`)).size > 1;
-  const rate = timecodeRate(maxFrame + 1, wraps);
+  const rate = timecodeRate(codes);
   const times = codes.map((c) => Number(c[1]) * 3600 + Number(c[2]) * 60 + Number(c[3])
     + (Number(c[4]) + (c[5] ? Number(`0.${c[5]}`) : 0)) / rate);
   for (let i = 1; i < times.length; i++) {
@@ -184,16 +182,27 @@ export function fromLiveLinkCsv(text, name = 'animation') {
   });
 }
 
-// The timecode's frames per second: where FF wraps, the highest frame + 1, or the nominal rate
-// just above it when at most 5 % of its frame numbers (at least one) went unseen at a second's
-// end (a real take's dropped frames); a take that never wraps: 60, or the nominal rate above.
-function timecodeRate(needed, wraps) {
-  if (wraps) return TIMECODE_RATES.find((r) => needed <= r && r <= needed + Math.max(1, 0.05 * r)) || needed;
-  return TIMECODE_RATES.find((r) => r >= Math.max(needed, 60)) || needed;
+// The timecode's frames per second, as vispeech's reader takes it: where FF wraps, the highest
+// frame + 1, or the nominal rate just above it when the frame numbers never shown at a second's
+// end are fewer than the rows' usual step (every 5th frame of 60 fps ends at 55); a take that
+// never wraps: 60, or the nominal rate above its highest frame.
+function timecodeRate(codes) {
+  const frames = codes.map((c) => Number(c[4]));
+  const seconds = codes.map((c) => `${c[1]}:${c[2]}:${c[3]}`);
+  const needed = Math.max(...frames) + 1;
+  if (new Set(seconds).size === 1) return TIMECODE_RATES.find((r) => r >= Math.max(needed, 60)) || needed;
+  const steps = [];
+  for (let i = 1; i < frames.length; i++) {
+    if (seconds[i] === seconds[i - 1] && frames[i] > frames[i - 1]) steps.push(frames[i] - frames[i - 1]);
+  }
+  steps.sort((a, b) => a - b);
+  const mid = steps.length >> 1;
+  const step = !steps.length ? 1 : steps.length % 2 ? steps[mid] : (steps[mid - 1] + steps[mid]) / 2;
+  return TIMECODE_RATES.find((r) => needed <= r && r < needed + step) || needed;
 }
 
 function nominalRate(measured, rate) {
-  const nearest = [...NOMINAL_FPS, rate].reduce((a, b) => (Math.abs(b - measured) < Math.abs(a - measured) ? b : a));
+  const nearest = [...NOMINAL_FPS, rate, Math.round(measured)].reduce((a, b) => (Math.abs(b - measured) < Math.abs(a - measured) ? b : a));
   return Math.abs(nearest - measured) <= 1e-4 * measured ? nearest : measured;
 }
 

@@ -15,9 +15,11 @@ reproduce its timecodes.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
+import statistics
 from collections.abc import Sequence
 from functools import cache
 from pathlib import Path
@@ -249,7 +251,8 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
     ----------
     path : the CSV file.
     fps : frames per second of the rows. By default it is measured from the timecodes over
-        the whole take and snapped to a nominal rate (30, 60, 29.97, ...) when within 0.01 %.
+        the whole take and snapped to a nominal rate (30, 60, 29.97, ...) or a whole number when
+        within 0.01 %.
         The timecode rate comes from where the frame field wraps to the next second; a take
         shorter than that is read at 60 unless ``fps`` is given.
 
@@ -310,17 +313,26 @@ def read_livelink_csv(path: str | os.PathLike, fps: float | None = None) -> Trac
 
 
 def _timecode_rate(timecodes: list[tuple], fps: float | None) -> int:
-    """Frames per second of the timecode's frame field. Where it wraps to the next second, the
-    highest frame number + 1, or the nominal rate just above it when no more than 5 % of that
-    rate's frame numbers (at least one) went unseen at a second's end (a real take's dropped
-    frames); else ``ceil(fps)``, or :data:`DEFAULT_TIMECODE_RATE` without ``fps``, or the nominal
-    rate above the highest frame number when the take has more."""
-    needed = max(int(groups[3]) for groups in timecodes) + 1
-    if len({groups[:3] for groups in timecodes}) > 1:
-        return next((r for r in _TIMECODE_RATES if needed <= r <= needed + max(1, 0.05 * r)), needed)
-    assumed = DEFAULT_TIMECODE_RATE if fps is None else math.ceil(fps - 1e-9)
-    if needed <= assumed:
-        return assumed
+    """Frames per second of the timecode's frame field. ``ceil(fps)`` when ``fps`` is given and
+    the frame numbers fit it. Where the field wraps to the next second: the highest frame
+    number + 1, or the nominal rate just above it when the frame numbers the take never shows at
+    a second's end are fewer than its rows' usual step (rows every 5th frame of a 60 fps
+    timecode end at 55: 60). A take that never wraps: :data:`DEFAULT_TIMECODE_RATE`, or the
+    nominal rate above its highest frame number when it has more."""
+    frames = [int(groups[3]) for groups in timecodes]
+    needed = max(frames) + 1
+    if fps is not None and math.ceil(fps - 1e-9) >= needed:
+        return math.ceil(fps - 1e-9)
+    seconds = [groups[:3] for groups in timecodes]
+    if len(set(seconds)) == 1:
+        return DEFAULT_TIMECODE_RATE if fps is None and needed <= DEFAULT_TIMECODE_RATE else _nominal_rate(needed)
+    steps = [b - a for (sa, a), (sb, b) in itertools.pairwise(zip(seconds, frames)) if sa == sb and b > a]
+    step = statistics.median(steps) if steps else 1
+    return next((r for r in _TIMECODE_RATES if needed <= r < needed + step), needed)
+
+
+def _nominal_rate(needed: int) -> int:
+    """The lowest nominal timecode rate of ``needed`` frames a second or more (else ``needed``)."""
     return next((r for r in _TIMECODE_RATES if r >= needed), needed)
 
 
@@ -340,5 +352,5 @@ def parse_timecode(text: str, rate: int, what: str = "timecode") -> float:
 
 
 def _nominal_fps(measured: float, rate: int) -> float:
-    nearest = min((*_NOMINAL_FPS, rate), key=lambda f: abs(f - measured))
+    nearest = min((*_NOMINAL_FPS, rate, round(measured)), key=lambda f: abs(f - measured))
     return float(nearest) if abs(nearest - measured) <= 1e-4 * measured else float(measured)
