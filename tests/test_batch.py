@@ -157,6 +157,7 @@ def test_unreadable_csv_manifest_is_one_error(tmp_path, rows, message):
     result = run("batch", str(job), "-o", str(tmp_path / "out"))
     assert_clean_error(result)
     assert message in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_root_folder_is_refused_as_a_batch_output(tmp_path):
@@ -170,7 +171,6 @@ def test_the_root_folder_is_refused_as_a_batch_output(tmp_path):
     finally:  # what a regression would write into the root folder
         shutil.rmtree(made[0], ignore_errors=True)
         made[1].unlink(missing_ok=True)
-    assert not (tmp_path / "out").exists()
 
 
 def test_missing_or_unknown_job_is_one_error(tmp_path):
