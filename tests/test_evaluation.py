@@ -459,6 +459,14 @@ def test_sync_moves_the_phones_with_the_predictions_when_it_counts_closures():
     counts = synced["late"].closures
     assert plain.tracked_closures == 0 and counts.bilabials == len(closes)
     assert counts.tracked_closures == counts.model_closures == len(closes)
+    # the per-phone-class errors label the frames by the phones moved alike
+    from vispeech.evaluation.closures import PHONE_CLASSES
+    from vispeech.evaluation.report import _phone_classes
+
+    mask = [np.ones(n, dtype=bool)]
+    heard, seen = _phone_classes(corpus, mask), _phone_classes(corpus, mask, [3])
+    bilabial = PHONE_CLASSES.index("bilabial")
+    assert np.array_equal(seen[:-3], heard[3:]) and (heard == bilabial).sum() == 2 * len(closes)
 
 
 class Pucker(Late):

@@ -375,6 +375,8 @@ def evaluate_models(
     )
     try:
         lags = None if sync is None else _sync_lags(sync, corpus, reference.masks, postprocessing, bar.update)
+        if lags is not None:  # the per-phone-class errors on the phones moved with the predictions
+            reference.classes = _phone_classes(corpus, reference.masks, lags)
         for label, model in models.items():
             results.append(
                 _evaluate_model(
@@ -454,18 +456,26 @@ def _reference(corpus: Corpus, needed: tuple[str, ...]) -> _Reference:
     shapes = None
     if all(u.landmarks is not None and all(f"lm{k}" in u.landmarks for k in (1, 10, *LIP_LANDMARKS)) for u in corpus):
         shapes = [lip_shape(_landmarks(u))[mask] for u, mask in zip(corpus, masks)]
-    classes = np.concatenate(
-        [
-            frame_classes(_phones(u), recorded_track(u).fps, len(mask), recorded_track(u).start_time)[mask]
-            for u, mask in zip(corpus, masks)
-        ]
-    )
+    classes = _phone_classes(corpus, masks)
     rates = [recorded_track(u).fps for u, mask in zip(corpus, masks) if mask.any()]
     jaw = dynamics = None
     if "jawOpen" in needed:
         jaw = [t.values[mask][:, needed.index("jawOpen")] for t, mask in zip(targets, masks) if mask.any()]
         dynamics = motion_profile(jaw, rates)
     return _Reference(needed, masks, targets, closed, shapes, classes, rates, jaw, dynamics)
+
+
+def _phone_classes(corpus: Corpus, masks: list[np.ndarray], lags: list[int] | None = None) -> np.ndarray:
+    """The phone class (:func:`frame_classes`) of every scored frame; with ``lags`` (frames per
+    utterance, as ``sync`` moved the predictions) the phones moved alike, onto the picture's time."""
+    classes = []
+    for u, mask, lag in zip(corpus, masks, lags or [0] * len(masks)):
+        track = recorded_track(u)
+        labels = frame_classes(_phones(u), track.fps, len(mask), track.start_time)
+        if lag:  # frame t shows what was heard at t + lag, as predict_on_frames moves the predictions
+            labels = labels[np.clip(np.arange(len(labels)) + lag, 0, len(labels) - 1)]
+        classes.append(labels[mask])
+    return np.concatenate(classes)
 
 
 def _evaluate_model(
