@@ -278,3 +278,17 @@ def test_the_example_clients_relay_to_a_real_server(client, tmp_path, monkeypatc
     finally:
         server.should_exit = True
         thread.join(10)
+
+
+def test_timings_after_a_long_pause_in_the_audio_are_taken(client):
+    """A message may add 20 s of frames past what the timings and the audio already reach: after
+    25 s of audio with no word, the next word (at 24 s) is taken, not refused as 24 s added."""
+    with client.websocket_connect("/api/listen") as ws:
+        ws.send_text(json.dumps({"type": "start", "sample_rate": 16000, "timings": "words"}))
+        assert ws.receive_json()["type"] == "start"
+        for _ in range(25):  # a second of silence each
+            ws.send_bytes(bytes(32000))
+        answers = answers_of(ws, [json.dumps({"type": "words", "words": [{"text": "map", "start": 24.0, "end": 24.4}]}),
+                                  json.dumps({"type": "stop"})])
+    kinds = [a["type"] for a in answers if a["type"] != "warning"]  # 25 s sent at once: too fast, says the server
+    assert kinds[0] == "frames" and kinds[-1] == "end"

@@ -216,7 +216,8 @@ class ListenConnection(Connection):
         last = max(times, default=0.0)
         if last > config.max_stream_seconds + 1e-9:
             raise VispeechError(f"an audio stream may last at most {config.max_stream_seconds:g} s")
-        added = max(0.0, last - stream.end)  # seconds of frames the message asks for: priced as phones
+        # seconds of frames the message asks for past what the timings or the audio already reach: priced as phones
+        added = max(0.0, last - max(stream.end, stream.duration))
         if added > config.max_message_seconds + 1e-9:
             raise VispeechError(
                 f"a timings message may add at most {config.max_message_seconds:g} s "
