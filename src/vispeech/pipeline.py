@@ -461,10 +461,10 @@ preview page, and tracks in the formats of :data:`vispeech.motion.formats.regist
 Live Link Face CSV, vispeech JSON, Oculus viseme curves, Rhubarb mouth cues, TalkingHead JSON;
 see docs/formats.md). A track format's aliases (``csv``) are accepted too."""
 DEFAULT_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "livelink", "json", "preview")
+"""The formats ``say``, ``animate`` and ``animate-phones`` write (those the utterance has data for)."""
 AUDIO_OUTPUTS: tuple[str, ...] = ("wav", "textgrid", "preview")
 """The formats :func:`write_outputs` writes only for an utterance with audio (the TextGrid with it:
 an alignment read from a file is not written back)."""
-"""The formats ``say``, ``animate`` and ``animate-phones`` write (those the utterance has data for)."""
 
 
 def check_formats(formats: Iterable[str]) -> tuple[str, ...]:

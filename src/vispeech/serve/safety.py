@@ -176,7 +176,7 @@ class Slots:
             now = self.clock()
             idle = [slot for slot in self.slots if not slot.busy and now - slot.active >= GIVE_WAY_AFTER_S]
             if not idle:
-                raise NoSlot(f"server busy: {self.max_total} streams open and working, try again later")
+                raise NoSlot(f"server busy: all {self.max_total} streams are in use, try again later")
             longest = min(idle, key=lambda slot: slot.active)
             self.close(longest)
             longest.give_way()
