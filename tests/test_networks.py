@@ -1,5 +1,6 @@
 """The trainable networks on a tiny synthetic corpus whose targets are known functions of the phones."""
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -148,6 +149,11 @@ def test_save_load_gives_identical_predictions(fixture, request, held_out, tmp_p
         a, b = model.predict(utterance.phones, FPS), loaded.predict(utterance.phones, FPS)
         assert a.channels == b.channels
         np.testing.assert_array_equal(a.values, b.values)
+    # saved with fps 0 before it was refused (it trained at the corpus's rate, as null does): still loads
+    config = json.loads((folder / "config.json").read_text())
+    config["params"]["fps"] = 0
+    (folder / "config.json").write_text(json.dumps(config))
+    assert load_model(folder).get_params()["fps"] is None
 
 
 def test_feature_model_trained_on_english_drives_swedish(tdnn_model):
@@ -336,7 +342,8 @@ def test_bad_parameters_and_corpora_raise(corpus):
     with pytest.raises(VispeechError, match="look_ahead"):
         TimeDelayNetwork(look_ahead=-1)
     # refused when made, not deep in training (a traceback) or silently kept
-    for bad, message in ((dict(fps="abc"), "fps must be null"), (dict(fps=0), "fps must be null"),
+    for bad, message in ((dict(fps="abc"), "fps must be null"), (dict(fps=0), "fps must be positive"),
+                         (dict(fps=True), "fps must be null"), (dict(fps=500), "fps must be between 1 and 240"),
                          (dict(motion_weight=float("nan")), "motion_weight"), (dict(motion_weight=-1), "motion_weight"),
                          (dict(mirror="maybe"), "mirror must be true or false"), (dict(standardize=3), "standardize"),
                          (dict(lr_step_down="x"), "lr_step_down"), (dict(linguistic=1), "linguistic")):

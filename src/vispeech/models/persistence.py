@@ -92,6 +92,8 @@ def model_from_config(cls: type[_Model], folder: Path, config: dict) -> _Model:
     ``config.json`` (:func:`read_config`); raises :class:`VispeechError` where they disagree."""
     # A folder saved before the run settings left the hyper-parameters may list them: dropped.
     params = {key: value for key, value in config["params"].items() if key not in RETIRED_PARAMS}
+    if params.get("fps") == 0:  # saved before 2026-12-06, when fps 0 trained at the corpus's rate as null does
+        params["fps"] = None
     try:
         model = cls(**params)
     except TypeError as exc:

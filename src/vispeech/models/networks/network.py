@@ -39,7 +39,7 @@ import numpy as np
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
-from vispeech.limits import MAX_FPS, MIN_FPS
+from vispeech.limits import check_fps
 from vispeech.models.contract import Estimator, InputT
 from vispeech.models.fitting import FitRun, show_progress, training_split
 from vispeech.models.history import TrainingHistory
@@ -109,10 +109,10 @@ def check_training_params(p: Mapping[str, Any]) -> None:
         raise VispeechError(f"l2 must be a number >= 0, got {p['l2']!r}")
     if "motion_weight" in p and not (_finite(p["motion_weight"]) and p["motion_weight"] >= 0):
         raise VispeechError(f"motion_weight must be a number >= 0, got {p['motion_weight']!r}")
-    if p.get("fps") is not None and not (_finite(p["fps"]) and MIN_FPS <= p["fps"] <= MAX_FPS):
-        raise VispeechError(
-            f"fps must be null (the corpus's rate) or a number within {MIN_FPS:g}..{MAX_FPS:g}, got {p['fps']!r}"
-        )
+    if p.get("fps") is not None:
+        if not _finite(p["fps"]):
+            raise VispeechError(f"fps must be null (the corpus's rate) or a number, got {p['fps']!r}")
+        check_fps(p["fps"], "fps")
     for key in ("mirror", "standardize", "zero_center", "lr_step_down", "linguistic", "position"):
         if key in p and not isinstance(p[key], bool):
             raise VispeechError(f"{key} must be true or false, got {p[key]!r}")
