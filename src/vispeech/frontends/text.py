@@ -5,9 +5,10 @@ must not read out ("slightly smiling face", "asterisk asterisk", "h t t p s colo
 paragraphs, headings, list items and quotes (emphasis marks dropped, a link's text kept, its
 address not, inline code kept as words), leaves out code blocks, HTML and images, drops bare
 ``http(s)://`` and ``www.`` addresses, and removes every emoji (the ``emoji`` package's list,
-skin tones and joiners included) and control character. Blocks that end without punctuation
-get a full stop, so a list is read as a list. Plain text comes back as it was, but for white space runs folded to
-one space. :func:`detect_language` tells which of some languages a text is written in.
+skin tones and joiners included), control character and terminal escape sequence. Blocks that
+end without punctuation get a full stop, so a list is read as a list. Plain text comes back as
+it was, but for white space runs folded to one space. :func:`detect_language` tells which of
+some languages a text is written in.
 
 :func:`split_clauses` cuts a text into the sentences and clauses a stream speaks one at a time;
 :class:`ClauseReader` does the same for a text that arrives in pieces (a chat model's streamed
@@ -25,7 +26,9 @@ from vispeech.errors import VispeechError
 
 _URL = re.compile(r"(?:\bhttps?://|\bwww\.)\S*[^\s.,;:!?)\]'\"”’]", re.IGNORECASE)
 _SPACE = re.compile(r"\s+")
-_CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f-\x9f]")  # C0 and C1 controls but tab, line and page breaks
+_CONTROL = re.compile(  # a terminal's escape sequences, then C0 and C1 controls but tab, line and page breaks
+    r"\x1b\[[0-?]*[ -/]*[@-~]|[\x00-\x08\x0b\x0e-\x1f\x7f-\x84\x86-\x9f]"
+)
 _GONE = "\x00"  # where a link or an emoji was taken out
 _GAP_BEFORE_PUNCTUATION = re.compile(r"\s*\x00[\s\x00]*(?=[,.;:!?…])")
 _ENDS_SENTENCE = re.compile(r"[.!?…:;]['\"”’)\]]*$")
@@ -43,7 +46,7 @@ def speakable(text: str) -> str:
     import emoji
 
     blocks: list[str] = []
-    for token in _parser().parse(_CONTROL.sub(" ", text)):
+    for token in _parser().parse(_CONTROL.sub("", text)):
         if token.type != "inline":
             continue
         words = _SPACE.sub(" ", "".join(_inline_text(token.children or []))).strip()
