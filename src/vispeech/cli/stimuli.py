@@ -129,7 +129,7 @@ def render(
                     "clip": output.name,
                     "seed": seed,
                     "audio": None if audio is None else str(audio.resolve()),
-                    "head": None if shown is None else str(shown),
+                    "head": None if shown is None else str(shown.resolve()),
                     "left_to_right": [str(animations[i].resolve()) for i in order],
                 },
                 indent=2,

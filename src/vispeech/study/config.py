@@ -231,7 +231,7 @@ def _models_from_key(clip: Path) -> list[str]:
     except (OSError, ValueError, KeyError, TypeError):
         return []
     stems = [p.stem for p in paths]
-    folders = [p.parent.name or p.resolve().parent.name for p in paths]
+    folders = [(key.parent / p).resolve().parent.name for p in paths]  # a relative name is the key's folder's
     return folders if len(set(stems)) < len(stems) and len(set(folders)) == len(folders) else stems
 
 
