@@ -155,7 +155,8 @@ def test_barge_in_rests_the_mouth_and_the_next_utterance_goes_on(client, service
                                      "duration": 0.0}
 
 
-@pytest.mark.parametrize("cancel", [{"type": "cancel"}, {"type": "cancel", "frame": None}])
+@pytest.mark.parametrize("cancel", [{"type": "cancel"}, {"type": "cancel", "frame": None},
+                                    {"type": "cancel", "frame": 10_000}])  # a frame past the last sent: from it
 def test_a_cancel_drops_the_audio_and_timings_waiting_before_it(client, monkeypatch, cancel):
     """While the first words are worked on, the reader reads the rest and the cancel (within the
     2 s of audio it lets wait): the words and audio waiting before the cancel are dropped unworked.
