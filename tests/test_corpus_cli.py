@@ -63,7 +63,8 @@ def test_corpus_info_strict_and_missing_folder(small_grid, tmp_path):
     result = run("corpus", "info", str(tmp_path / "nothing"))
     assert result.exit_code == 2 and result.output.startswith("error: corpus folder not found")
     result = run("corpus", "info", str(small_grid), "-l", "xx")  # before anything is read or aligned
-    assert result.exit_code == 2 and result.output.strip() == "error: unknown language 'xx' for phones (use sv, en or ipa)"
+    assert result.exit_code == 2
+    assert result.output.strip() == "error: unknown language 'xx' for phones (use sv, en or ipa)"
 
 
 def test_corpus_info_sync_names_the_take_whose_picture_is_late(small_grid):

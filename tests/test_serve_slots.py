@@ -14,9 +14,8 @@ require_module("httpx", "httpx (the test extra)")
 from fastapi.testclient import TestClient  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
-from vispeech.serve import ServeConfig, create_app  # noqa: E402
+from vispeech.serve import ServeConfig, create_app, safety  # noqa: E402
 from vispeech.serve.connection import GAVE_WAY  # noqa: E402
-from vispeech.serve import safety  # noqa: E402
 from vispeech.serve.safety import GIVE_WAY_AFTER_S, NoSlot, Slots, network_of  # noqa: E402
 
 

@@ -135,7 +135,8 @@ def test_train_targets_articulatory_needs_landmarks(takes, tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["--corpus", "{missing}", "-m", "sliding-window-thesis"], "corpus folder not found"),
     (["--corpus", "{empty}", "-m", "sliding-window-thesis"], "holds no takes"),
-    (["--corpus", "{takes}", "-m", "nonesuch"], "unknown model family 'nonesuch' (train one of: audio-cnn, audio-encdec, cohen-massaro, ohman, "),
+    (["--corpus", "{takes}", "-m", "nonesuch"],
+     "unknown model family 'nonesuch' (train one of: audio-cnn, audio-encdec, cohen-massaro, ohman, "),
     (["--corpus", "{takes}", "-m", "grid-tdnn"], "unknown model family 'grid-tdnn'"),
     (["--corpus", "{takes}", "-m", "baseline"], "model baseline is data-free"),
     (["--corpus", "{takes}", "-m", "audio-ensemble"], "model audio-ensemble learns nothing itself"),
