@@ -34,7 +34,7 @@ def test_markup_links_and_emoji_are_not_spoken(text, spoken):
 
 
 def test_nothing_to_say_is_one_error(tmp_path):
-    for text in ("🙂 👍", "\x01\x02"):
+    for text in ("🙂 👍", "\x01\x02", "...", "\u200b", "?!"):
         with pytest.raises(VispeechError, match="nothing to say"):
             speak(text, "en")
     result = run("say", "🙂", "-o", str(tmp_path / "out"))

@@ -381,7 +381,7 @@ def spoken_text(text: str) -> str:
     from vispeech.frontends.text import speakable
 
     spoken = speakable(text)
-    if not spoken:
+    if not any(character.isalnum() for character in spoken):  # "...", a zero-width space: nothing either
         raise VispeechError(
             "text is empty"
             if not text.strip()
