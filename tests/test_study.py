@@ -340,8 +340,9 @@ def test_the_app_takes_a_participant_through_without_telling_the_models(client):
     clip = client.get(face["clip"])
     assert clip.status_code == 200 and clip.headers["content-type"] == "video/mp4"
     assert client.get("/clips/s9.mp4").status_code == 404
-    bad = client.post("/api/answers", json={"trial": 0, "answer": "maybe", "ms": 10})
-    assert bad.status_code == 422 and bad.json()["detail"].startswith("answer")
+    bad = client.post("/api/answers", json={"trial": 0, "answer": "LEFT", "ms": 10})
+    assert bad.status_code == 422 and bad.json()["detail"] == (
+        "answer: a rating trial's is a list of whole numbers, a pairwise trial's 'left', 'tie' or 'right'")
     wrong = client.post("/api/answers", json={"trial": 0, "answer": [5], "ms": 10})
     assert wrong.status_code == 422 and "per face" in wrong.json()["detail"]
     width = len(progress["trials"][0]["faces"])

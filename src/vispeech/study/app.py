@@ -87,5 +87,12 @@ async def _refused(request: Request, exc: StudyError) -> JSONResponse:
 async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
     """A malformed request as one line: the first error's place and message."""
     error = exc.errors()[0] if exc.errors() else {}
-    where = ".".join(str(part) for part in error.get("loc", ()) if part not in ("body", "query"))
+    loc = [str(part) for part in error.get("loc", ()) if part not in ("body", "query")]
+    if loc[:1] == ["answer"] and len(loc) == 2:  # neither of the two kinds of answer: say both
+        return JSONResponse({"detail": ANSWER_KINDS}, status_code=422)
+    where = ".".join(loc)
     return JSONResponse({"detail": f"{where or 'request'}: {error.get('msg', 'invalid')}"}, status_code=422)
+
+
+ANSWER_KINDS = "answer: a rating trial's is a list of whole numbers, a pairwise trial's 'left', 'tie' or 'right'"
+"""What a malformed answer is told (pydantic would name only the first kind it tried)."""
