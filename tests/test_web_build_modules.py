@@ -131,14 +131,25 @@ def test_files_vispeech_writes_read_back_frame_for_frame(tmp_path, suffix):
     assert np.array(got["rows"]) == pytest.approx(track.values, abs=2e-6)
 
 
-@pytest.mark.parametrize("text", ['{"format": "vispeech-animation", "version": 2, "fps": 30}',
-                                  '{"hello": 1}', "a,b\n1,2\n", "{not json"])
-def test_unreadable_animation_files_raise_one_clear_error(text):
+_FRAMES = '{"format": "vispeech-animation", "version": 1, "fps": %s, "channels": ["jawOpen"], "frames": %s}'
+
+
+@pytest.mark.parametrize("text,words", [
+    ('{"format": "vispeech-animation", "version": 2, "fps": 30}', "version 2"),
+    ('{"hello": 1}', "neither"), ("a,b\n1,2\n", "not a vispeech JSON"), ("{not json", "not valid JSON"),
+    # refused as vispeech's readers refuse them, not shown as a vanished head or an empty take
+    ("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,0.1\n00:00:00:01.000,1,abc\n", "line 3: a value is not"),
+    ("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,0.1\n00:00:00:01.000,1,\n", "line 3: a value is not"),
+    (_FRAMES % (30, '[[0.1], ["0.2"]]'), 'frame 1, value 0 is not a number ("0.2")'),
+    (_FRAMES % (30, "[]"), 'a non-empty "frames" array'),
+    (_FRAMES % (0, "[[0.1]]"), "fps must be positive"),  # the Animation's own error, named by the file too
+])
+def test_unreadable_animation_files_raise_one_clear_error(text, words):
     script = ("import { parseAnimation } from './animation.js';"
               f"try {{ parseAnimation({json.dumps(text)}, 'x.json'); console.log('null') }}"
               "catch (e) { console.log(JSON.stringify(e.message)) }")
     message = run_node(script)
-    assert message.startswith("x.json: ") and "\n" not in message
+    assert message.startswith("x.json: ") and "\n" not in message and words in message, message
 
 
 def test_idle_blinks_come_every_two_to_six_seconds():

@@ -37,7 +37,9 @@ export class Animation {
       if (!row || row.length !== this.channels.length) {
         throw new Error(`frame ${start + k} has ${row ? row.length : 0} values for ${this.channels.length} channels`);
       }
-      this.frames[start + k] = Float32Array.from(row, Number);
+      const bad = row.findIndex((v) => typeof v !== 'number' || !Number.isFinite(v));
+      if (bad >= 0) throw new Error(`frame ${start + k}, value ${bad} is not a number (${JSON.stringify(row[bad])})`);
+      this.frames[start + k] = Float32Array.from(row);
     }
   }
 
@@ -69,6 +71,14 @@ export class Animation {
 
 /** Read an animation file's text: vispeech JSON, TalkingHead JSON or Live Link Face CSV. */
 export function parseAnimation(text, name = 'animation') {
+  try {
+    return parseAnimationText(text, name);
+  } catch (err) {  // every error names the file, as vispeech's readers do
+    throw err.message.startsWith(`${name}: `) ? err : new Error(`${name}: ${err.message}`);
+  }
+}
+
+function parseAnimationText(text, name) {
   const trimmed = text.replace(/^\uFEFF/, '').trim();
   if (trimmed.startsWith('{')) {
     let data;
@@ -95,8 +105,8 @@ export function animationFromJson(data, name = 'animation') {
 
 function fromVispeechJson(data, name) {
   if (data.version !== 1) throw new Error(`${name}: unsupported vispeech animation version ${data.version}`);
-  if (!Array.isArray(data.channels) || !Array.isArray(data.frames)) {
-    throw new Error(`${name}: vispeech animation needs "channels" and "frames" arrays`);
+  if (!Array.isArray(data.channels) || !Array.isArray(data.frames) || !data.frames.length) {
+    throw new Error(`${name}: vispeech animation needs "channels" and a non-empty "frames" array`);
   }
   return new Animation({
     fps: data.fps,
@@ -160,7 +170,9 @@ export function fromLiveLinkCsv(text, name = 'animation') {
     const code = TIMECODE.exec(cells[tcColumn]);
     if (!code) throw new Error(`${name}: line ${r + 1}: bad timecode ${JSON.stringify(cells[tcColumn])} (want HH:MM:SS:FF.fff)`);
     codes.push(code);
-    rows.push(keep.map((i) => Number(cells[i])));
+    const row = keep.map((i) => (cells[i].trim() === '' ? NaN : Number(cells[i])));
+    if (row.some((v) => !Number.isFinite(v))) throw new Error(`${name}: line ${r + 1}: a value is not a number`);
+    rows.push(row);
   }
   if (!rows.length) throw new Error(`${name}: Live Link CSV has no rows`);
   const rate = timecodeRate(codes);
