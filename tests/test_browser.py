@@ -692,3 +692,18 @@ def test_the_viewer_loads_a_converted_glb_with_its_compression(page, tmp_path):
         finally:
             viewer.close()
     assert driven == 55 and errors == []
+
+
+def test_the_player_names_every_file_it_refuses(server_url, tmp_path):
+    """Two animations opened at once, one bad: the player plays the good one and still says, in one
+    line naming the file, what is wrong with the bad one (each file's error used to clear the one
+    before); a value that is not a number is refused, not shown as a vanished head."""
+    (tmp_path / "bad.csv").write_text("Timecode,BlendshapeCount,JawOpen\n00:00:00:00.000,1,0.1\n"
+                                      "00:00:00:01.000,1,abc\n")
+    (tmp_path / "good.json").write_text(json.dumps({"format": "vispeech-animation", "version": 1, "fps": 30,
+                                                    "channels": ["jawOpen"], "frames": [[0.1], [0.5], [0.2]]}))
+    with _browser_page(f"{server_url}/player?idle=0") as player:
+        player.set_input_files("#anim-file", [str(tmp_path / "bad.csv"), str(tmp_path / "good.json")])
+        player.wait_for_function("!document.getElementById('status').hidden")
+        assert player.inner_text("#status") == "bad.csv: line 3: a value is not a number"
+        assert player.get_attribute("#scrub", "aria-label") == "time" and not player.errors

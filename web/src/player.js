@@ -33,26 +33,27 @@ async function setup(app) {
     if (performer.animation) performer.load(performer.animation, audio);
     loaded();
   };
-  const openFile = async (file) => {
-    show('');
-    try {
-      if (file.type.startsWith('audio/') || /\.(wav|mp3|ogg|flac|m4a)$/i.test(file.name)) {
-        await openAudio(await file.arrayBuffer(), file.name);
-      } else {
-        openAnimation(await file.text(), file.name);
+  const isAudio = (file) => file.type.startsWith('audio/') || /\.(wav|mp3|ogg|flac|m4a)$/i.test(file.name);
+  // Open the files, the audio first, and show what went wrong with any of them (each named).
+  const openFiles = async (files) => {
+    const errors = [];
+    for (const file of [...files].sort((a, b) => isAudio(b) - isAudio(a))) {
+      try {
+        if (isAudio(file)) await openAudio(await file.arrayBuffer(), file.name);
+        else openAnimation(await file.text(), file.name);
+      } catch (err) {
+        errors.push(err.message.startsWith(`${file.name}: `) ? err.message : `${file.name}: ${err.message}`);
       }
-    } catch (err) {
-      show(err.message);
     }
+    show(errors.join('; '));
   };
 
-  $('anim-file').onchange = (e) => e.target.files[0] && openFile(e.target.files[0]);
-  $('audio-file').onchange = (e) => e.target.files[0] && openFile(e.target.files[0]);
+  $('anim-file').onchange = (e) => openFiles(e.target.files);
+  $('audio-file').onchange = (e) => openFiles(e.target.files);
   document.addEventListener('dragover', (e) => e.preventDefault());
-  document.addEventListener('drop', async (e) => {
+  document.addEventListener('drop', (e) => {
     e.preventDefault();
-    const files = [...e.dataTransfer.files].sort((a) => (a.type.startsWith('audio/') ? -1 : 1));
-    for (const file of files) await openFile(file);
+    openFiles(e.dataTransfer.files);
   });
   $('play').onclick = () => (performer.state === 'playing' || performer.state === 'waiting' ? app.pause() : app.play());
   $('scrub').oninput = (e) => {
