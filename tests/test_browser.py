@@ -707,3 +707,25 @@ def test_the_player_names_every_file_it_refuses(server_url, tmp_path):
         player.wait_for_function("!document.getElementById('status').hidden")
         assert player.inner_text("#status") == "bad.csv: line 3: a value is not a number"
         assert player.get_attribute("#scrub", "aria-label") == "time" and not player.errors
+
+
+def test_the_preview_seeks_to_a_changed_hash_even_with_a_time_in_its_query(tmp_path):
+    """preview.md: `preview.html?t=0.62` opens paused there, and changing the hash of the open page
+    seeks again (the query's time used to win over every later hash)."""
+    _require_browser()
+    from playwright import sync_api
+
+    from vispeech.pipeline import speak, write_outputs
+
+    write_outputs(speak("Hello there, how are you?", "en"), tmp_path / "said")
+    url = (tmp_path / "said" / "preview.html").as_uri()
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=list(CHROMIUM_FLAGS))
+        try:
+            page = browser.new_page()
+            page.goto(f"{url}?t=0.62")
+            page.wait_for_function("document.getElementById('time').textContent.startsWith('0.62')")
+            page.evaluate("location.hash = '#t=1.5'")
+            page.wait_for_function("document.getElementById('time').textContent.startsWith('1.50')", timeout=5000)
+        finally:
+            browser.close()
