@@ -729,3 +729,9 @@ def test_the_preview_seeks_to_a_changed_hash_even_with_a_time_in_its_query(tmp_p
             page.wait_for_function("document.getElementById('time').textContent.startsWith('1.50')", timeout=5000)
         finally:
             browser.close()
+
+
+def test_the_player_fits_a_phone_screen(server_url):
+    with _browser_page(f"{server_url}/player?idle=0") as player:
+        player.set_viewport_size({"width": 375, "height": 667})
+        assert player.evaluate("document.documentElement.scrollWidth") <= 375  # no sideways scrolling
