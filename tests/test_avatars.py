@@ -5,15 +5,18 @@ player showing them is tested in Chromium (tests/test_browser.py)."""
 from __future__ import annotations
 
 import json
+import re
 import struct
 
 import numpy as np
 import pytest
+
 from click.testing import CliRunner
 from conftest import SHARED, require
 from vrm_heads import vrm_head
 
 from vispeech.cli import main
+from vispeech.errors import VispeechError
 from vispeech.motion.arkit import TONGUE_CHANNELS
 from vispeech.motion.rigging.calibration import HeadGeometry
 from vispeech.motion.rigging.glb import read_primitives
@@ -88,6 +91,10 @@ def test_serve_a_vrm_file_as_it_is_when_it_has_no_arkit_shapes_to_prepare(tmp_pa
         assert client.get("/api/config").json()["avatar_url"] == "/avatar.glb"
         assert client.get("/avatar.glb").content == head.read_bytes()
     assert "a VRM without ARKit morph targets" in caplog.text
+    for name, content in (("bad.glb", b"not a glb\n"), ("empty.glb", b""), ("text.vrm", b"{}")):
+        (tmp_path / name).write_bytes(content)  # no head a browser could load: refused at start, not served
+        with pytest.raises(VispeechError, match=re.escape(f"avatar {tmp_path / name} is not a binary glTF (.glb) or VRM")):
+            create_app(ServeConfig(avatar=tmp_path / name, cache=":memory:"))
 
 
 def test_rig_says_in_one_line_what_it_cannot_do_with_an_avatar_without_arkit_shapes(tmp_path):

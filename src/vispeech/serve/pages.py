@@ -47,13 +47,17 @@ class Site:
     @classmethod
     def of(cls, config: ServeConfig) -> Site:
         """The site of ``config``, its avatar prepared once (the shipped head is shipped prepared);
-        :class:`VispeechError` when the avatar file is missing or the 2D face is asked for as well (a head
-        at a URL is the browser's to load: the site has no file)."""
+        :class:`VispeechError` when the avatar file is missing or no GLB or VRM file, or the 2D face is asked
+        for as well (a head at a URL is the browser's to load: the site has no file)."""
         if config.avatar is not None and not config.head:
             raise VispeechError("give --avatar or --face-2d, not both")
         avatar = config.head_file
         if avatar is not None and not avatar.is_file():
             raise VispeechError(f"avatar file not found: {avatar}")
+        if avatar is not None:
+            with open(avatar, "rb") as handle:
+                if handle.read(4) != b"glTF":  # GLB and VRM files begin so; a head the browser cannot load
+                    raise VispeechError(f"avatar {avatar} is not a binary glTF (.glb) or VRM file")
         prepare = config.avatar is not None and config.prepare_avatar
         prepared = _avatar_bytes(avatar) if avatar is not None and prepare else None
         return cls(Path(config.static_dir or STATIC_DIR), avatar, prepared)
