@@ -694,7 +694,20 @@ def test_the_viewer_loads_a_converted_glb_with_its_compression(page, tmp_path):
     assert driven == 55 and errors == []
 
 
-def test_the_player_names_every_file_it_refuses(server_url, tmp_path):
+@contextlib.contextmanager
+def _another_page(page, url: str) -> Iterator:
+    """``url`` in a new tab of ``page``'s browser (a second Playwright would not run beside it)."""
+    other = page.context.browser.new_page(viewport={"width": 480, "height": 480})
+    try:
+        other.errors = []
+        other.on("pageerror", lambda error: other.errors.append(str(error)))
+        other.goto(url)
+        yield other
+    finally:
+        other.close()
+
+
+def test_the_player_names_every_file_it_refuses(page, server_url, tmp_path):
     """Two animations opened at once, one bad: the player plays the good one and still says, in one
     line naming the file, what is wrong with the bad one (each file's error used to clear the one
     before); a value that is not a number is refused, not shown as a vanished head."""
@@ -702,36 +715,28 @@ def test_the_player_names_every_file_it_refuses(server_url, tmp_path):
                                       "00:00:00:01.000,1,abc\n")
     (tmp_path / "good.json").write_text(json.dumps({"format": "vispeech-animation", "version": 1, "fps": 30,
                                                     "channels": ["jawOpen"], "frames": [[0.1], [0.5], [0.2]]}))
-    with _browser_page(f"{server_url}/player?idle=0") as player:
+    with _another_page(page, f"{server_url}/player?idle=0") as player:
+        player.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
         player.set_input_files("#anim-file", [str(tmp_path / "bad.csv"), str(tmp_path / "good.json")])
         player.wait_for_function("!document.getElementById('status').hidden")
         assert player.inner_text("#status") == "bad.csv: line 3: a value is not a number"
         assert player.get_attribute("#scrub", "aria-label") == "time" and not player.errors
 
 
-def test_the_preview_seeks_to_a_changed_hash_even_with_a_time_in_its_query(tmp_path):
+def test_the_player_fits_a_phone_screen(page, server_url):
+    with _another_page(page, f"{server_url}/player?idle=0") as player:
+        player.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+        player.set_viewport_size({"width": 375, "height": 667})
+        assert player.evaluate("document.documentElement.scrollWidth") <= 375  # no sideways scrolling
+
+
+def test_the_preview_seeks_to_a_changed_hash_even_with_a_time_in_its_query(page, tmp_path):
     """preview.md: `preview.html?t=0.62` opens paused there, and changing the hash of the open page
     seeks again (the query's time used to win over every later hash)."""
-    _require_browser()
-    from playwright import sync_api
-
     from vispeech.pipeline import speak, write_outputs
 
     write_outputs(speak("Hello there, how are you?", "en"), tmp_path / "said")
-    url = (tmp_path / "said" / "preview.html").as_uri()
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=list(CHROMIUM_FLAGS))
-        try:
-            page = browser.new_page()
-            page.goto(f"{url}?t=0.62")
-            page.wait_for_function("document.getElementById('time').textContent.startsWith('0.62')")
-            page.evaluate("location.hash = '#t=1.5'")
-            page.wait_for_function("document.getElementById('time').textContent.startsWith('1.50')", timeout=5000)
-        finally:
-            browser.close()
-
-
-def test_the_player_fits_a_phone_screen(server_url):
-    with _browser_page(f"{server_url}/player?idle=0") as player:
-        player.set_viewport_size({"width": 375, "height": 667})
-        assert player.evaluate("document.documentElement.scrollWidth") <= 375  # no sideways scrolling
+    with _another_page(page, f"{(tmp_path / 'said' / 'preview.html').as_uri()}?t=0.62") as preview:
+        preview.wait_for_function("document.getElementById('time').textContent.startsWith('0.62')")
+        preview.evaluate("location.hash = '#t=1.5'")
+        preview.wait_for_function("document.getElementById('time').textContent.startsWith('1.50')", timeout=5000)
