@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 
 import pytest
 from conftest import require_module
@@ -13,7 +14,8 @@ from conftest import require_module
 require_module("fastapi", "fastapi (the serve extra)")
 from vispeech.alignment.phones import Phone  # noqa: E402
 from vispeech.serve import ServeConfig, SpeechService, open_phone_stream  # noqa: E402
-from vispeech.serve.pool import Busy, Cancelled, FairQueue, WorkPool  # noqa: E402
+from vispeech.serve.pool import TURN_WEIGHT, Busy, Cancelled, FairQueue, WorkPool  # noqa: E402
+from vispeech.turns import give_turn  # noqa: E402
 
 FLOODS = ("text", "upload", "chat")
 
@@ -204,3 +206,106 @@ def test_pushes_made_while_the_batch_waits_for_a_worker_join_it():
     assert (service.pushes.batches, service.pushes.pushes) == (3, 5)
     assert all(isinstance(result, str) for result in first + second)
     service.pool.close()
+
+
+def _spin(seconds: float) -> None:
+    """Hold the thread for ``seconds`` of work (a sleep: the pool counts time, not cycles)."""
+    time.sleep(seconds)
+
+
+def test_a_long_job_lets_the_short_jobs_waiting_run_in_its_turns():
+    """A long job that gives turns between its pieces: the short jobs queued behind it run at its
+    next turn, on its thread, in the queue's order; the time lent stays within the job's own, so
+    a short job that takes longer than a piece lets the long job go on for pieces before the next."""
+
+    async def scenario():
+        pool = WorkPool(workers=1, max_queue=16)
+        started, queued, order, threads = threading.Event(), threading.Event(), [], set()
+
+        def long_job(pieces, piece):
+            started.set()
+            queued.wait(30)
+            for k in range(pieces):
+                _spin(piece)
+                order.append(f"long{k}")
+                threads.add(threading.get_ident())
+                give_turn()
+            return "long"
+
+        def short(name, seconds):
+            _spin(seconds)
+            order.append(name)
+            threads.add(threading.get_ident())
+            return name
+
+        # pieces of 20 ms, three short jobs of 5 ms: all three go at the first turn
+        long = asyncio.ensure_future(pool.run("upload", "a", long_job, 6, 0.02, weight=20.0))
+        await asyncio.to_thread(started.wait, 30)
+        shorts = [asyncio.ensure_future(pool.run("text", f"c{k}", short, f"s{k}", 0.005, weight=0.01))
+                  for k in range(3)]
+        await asyncio.sleep(0)
+        queued.set()
+        assert await asyncio.gather(long, *shorts) == ["long", "s0", "s1", "s2"]
+        assert order[:5] == ["long0", "s0", "s1", "s2", "long1"] and len(threads) == 1, order
+
+        # pieces of 10 ms, short jobs of 30 ms: after each, the long job has its own time back first
+        order.clear()
+        started.clear()
+        queued.clear()
+        long = asyncio.ensure_future(pool.run("upload", "a", long_job, 20, 0.01, weight=20.0))
+        await asyncio.to_thread(started.wait, 30)
+        shorts = [asyncio.ensure_future(pool.run("text", f"d{k}", short, f"s{k}", 0.03, weight=0.01))
+                  for k in range(3)]
+        await asyncio.sleep(0)
+        queued.set()
+        await asyncio.gather(long, *shorts)
+        at = {name: order.index(name) for name in ("s0", "s1", "s2", "long19")}
+        assert order[:2] == ["long0", "s0"] and at["s1"] - at["s0"] > 2 and at["s2"] - at["s1"] > 2, order
+        assert at["s2"] < at["long19"], order  # each short job ran within the long one
+        pool.close()
+
+    asyncio.run(scenario())
+
+
+def test_turns_pass_over_heavy_jobs_and_a_job_run_in_a_turn_gives_none():
+    """A waiting job estimated above ``TURN_WEIGHT`` (another long job) waits for the long job's end;
+    a short job run in a turn that gives turns itself runs nobody else; its error reaches its own
+    caller and the long job goes on."""
+
+    async def scenario():
+        pool = WorkPool(workers=1, max_queue=16)
+        started, queued, order = threading.Event(), threading.Event(), []
+
+        def long_job():
+            started.set()
+            queued.wait(30)
+            for k in range(3):
+                _spin(0.02)
+                order.append(f"long{k}")
+                give_turn()
+            return "long"
+
+        def job(name, fail=False):
+            order.append(f"{name} begins")
+            give_turn()
+            order.append(f"{name} ends")
+            if fail:
+                raise ValueError("bad input")
+            return name
+
+        long = asyncio.ensure_future(pool.run("upload", "a", long_job, weight=20.0))
+        await asyncio.to_thread(started.wait, 30)
+        heavy = asyncio.ensure_future(pool.run("upload", "b", job, "heavy", weight=TURN_WEIGHT + 1))
+        failing = asyncio.ensure_future(pool.run("text", "c", job, "a", True, weight=0.01))
+        light = asyncio.ensure_future(pool.run("text", "d", job, "b", weight=0.01))
+        await asyncio.sleep(0)
+        queued.set()
+        assert await long == "long" and await light == "b" and await heavy == "heavy"
+        with pytest.raises(ValueError, match="bad input"):
+            await failing
+        assert order == [
+            "long0", "a begins", "a ends", "b begins", "b ends", "long1", "long2", "heavy begins", "heavy ends"
+        ], order  # fmt: skip
+        pool.close()
+
+    asyncio.run(scenario())

@@ -416,3 +416,19 @@ def test_a_forked_child_uses_whisper_after_its_parent_did(work):
         np.testing.assert_allclose(there, here, atol=1e-4)
     else:
         assert there == here
+
+
+def test_animating_a_recording_gives_turns_between_its_pieces_and_the_same_track():
+    """A server's worker can run others' short work while a long upload is animated
+    (:mod:`vispeech.turns`): the default model gives a turn at least every Whisper chunk of each
+    Whisper member (and between its other pieces), and the track is the one animated without turns."""
+    from vispeech.pipeline import listen
+    from vispeech.turns import taking_turns
+
+    clip = speech_like(20.0)
+    turns = []
+    with taking_turns(lambda: turns.append(1)):
+        taken = listen(clip)
+    chunks = math.ceil(20.0 / whisper.CHUNK_SECONDS)
+    assert len(turns) >= 2 * chunks + 1, len(turns)
+    np.testing.assert_array_equal(taken.track.values, listen(clip).track.values)

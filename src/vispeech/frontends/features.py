@@ -29,6 +29,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
+from vispeech.turns import give_turn
 
 SAMPLE_RATE = 16_000
 """Hz: the rate every feature is computed at."""
@@ -44,6 +45,9 @@ LOG_FLOOR = 1e-6
 FEATURE_KINDS = ("log-mel", "mfcc")
 LEVEL_QUANTILE = 0.95
 """The share of a clip's frames quieter than its :func:`speech_level`."""
+TURN_ROWS = 10_000
+"""Frames (100 s of audio) whose spectra are computed between two turns given to others
+(:func:`vispeech.turns.give_turn`)."""
 LEVEL_FLOOR = 1e-12
 """Mel-band power below which :func:`speech_level` takes a band as flat (60 dB below :data:`LOG_FLOOR`)."""
 
@@ -63,9 +67,13 @@ def _frames_power(padded: np.ndarray) -> np.ndarray:
 
 def _windows_power(frames: np.ndarray) -> np.ndarray:
     """``(n, N_FFT // 2 + 1)`` power spectra of ``(n, N_FFT)`` float32 frames: windowed in
-    float64, their spectra rounded to complex64, each row on its own."""
-    spectrum = np.fft.rfft(frames * _window(), axis=1).astype(np.complex64)
-    return np.abs(spectrum) ** 2
+    float64, their spectra rounded to complex64, each row on its own (:data:`TURN_ROWS` at a time)."""
+    power = np.empty((len(frames), N_FFT // 2 + 1), dtype=np.float32)
+    for start in range(0, len(frames), TURN_ROWS):
+        give_turn()
+        spectrum = np.fft.rfft(frames[start : start + TURN_ROWS] * _window(), axis=1).astype(np.complex64)
+        power[start : start + TURN_ROWS] = np.abs(spectrum) ** 2
+    return power
 
 
 @functools.cache

@@ -46,6 +46,7 @@ from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir, cache_root
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.features import mel_filter_bank
+from vispeech.turns import give_turn
 
 INSTALL = 'pip install "vispeech[whisper]"'
 MODELS = ("whisper-tiny.en", "whisper-base")
@@ -281,6 +282,7 @@ class WhisperEncoder:
         step = 2 * HOP  # samples per encoder frame
         out = np.empty((1, n_frames, self.width), dtype=np.float32)
         for start in range(0, n_frames, per_chunk):
+            give_turn()
             stop = min(n_frames, start + per_chunk)
             first, last = max(0, start - context), min(n_frames, stop + context)
             mel = whisper_log_mel(samples[first * step : last * step], self.n_mels)

@@ -10,12 +10,18 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
+from functools import partial
 from typing import Generic, TypeVar
+
+from vispeech.turns import taking_turns
 
 T = TypeVar("T")
 
 MAX_CLIENTS = 10_000
 """Clients a kind remembers the worker time of; past that the idle ones are forgotten."""
+TURN_WEIGHT = 1.0
+"""Estimated seconds of the heaviest waiting job that a long job lets run in its turns
+(:meth:`WorkPool._turn`): a speech request, a stream's clause or piece, not another long job."""
 
 
 class Busy(Exception):
@@ -132,18 +138,29 @@ class FairQueue(Generic[T]):
         node.work += weight
         node.jobs.append((job, weight))
 
-    def pop(self) -> tuple[str, str, T]:
-        """The next job to run, with its kind and client (:exc:`IndexError` when none waits); its
-        weight is charged to them until :meth:`done`."""
+    def _next(self) -> list[tuple[_Flow, str, _Flow]]:
+        """The path from the root to the session whose first job :meth:`pop` takes next."""
         if not self._root.waiting:
             raise IndexError("no job waits")
         path: list[tuple[_Flow, str, _Flow]] = []
         node = self._root
         while node.ready:
             name, child = _first(node.ready.items())
-            node.clock = max(node.clock, child.time)
             path.append((node, name, child))
             node = child
+        return path
+
+    def next_weight(self) -> float:
+        """The estimated weight of the job :meth:`pop` would take now (:exc:`IndexError` when none waits)."""
+        return self._next()[-1][2].jobs[0][1]
+
+    def pop(self) -> tuple[str, str, T]:
+        """The next job to run, with its kind and client (:exc:`IndexError` when none waits); its
+        weight is charged to them until :meth:`done`."""
+        path = self._next()
+        for node, _, child in path:
+            node.clock = max(node.clock, child.time)
+        node = path[-1][2]
         job, weight = node.jobs.popleft()
         for flow in (self._root, *(child for _, _, child in path)):
             flow.waiting -= 1
@@ -188,7 +205,8 @@ class WorkPool:
     whatever its weight). A job that finds it full is refused at once (:class:`Busy`) unless its
     kind holds less than its share of the work and of the jobs (over the kinds waiting): a flood
     of one kind cannot lock the others out. A job whose ``cancelled`` event is set, or whose
-    caller stopped waiting, is dropped unrun.
+    caller stopped waiting, is dropped unrun. A long job that gives turns between its pieces
+    (:func:`vispeech.turns.give_turn`) lets the light jobs waiting run on its thread (:meth:`_turn`).
     """
 
     def __init__(self, workers: int, max_queue: int, max_wait: float = math.inf) -> None:
@@ -275,23 +293,49 @@ class WorkPool:
                     self._cond.wait()
                 if self._closed:
                     return
-                job = self._queue.pop()[2]
-                skip = job.abandoned or (job.cancelled is not None and job.cancelled.is_set())
-                if skip:
-                    self._queue.done(job.kind, job.key, -job.weight, job.session)
-                else:
-                    self.running += 1
-            if skip:
-                self._resolve(job, None, Cancelled("the client went away"))
-                continue
-            started = time.perf_counter()
-            result = error = None
-            try:
-                result = job.fn(*job.args)
-            except Exception as exc:  # noqa: BLE001 (handed to the waiting coroutine)
-                error = exc
-            spent = time.perf_counter() - started
+                job = self._take()
+            if job is not None:
+                lent = [0.0]
+                with taking_turns(partial(self._turn, time.perf_counter(), lent)):
+                    self._execute(job)
+
+    def _take(self) -> _Job | None:
+        """The next job, counted as running; ``None`` when it was given up (it is settled so)."""
+        job = self._queue.pop()[2]
+        if job.abandoned or (job.cancelled is not None and job.cancelled.is_set()):
+            self._queue.done(job.kind, job.key, -job.weight, job.session)
+            self._resolve(job, None, Cancelled("the client went away"))
+            return None
+        self.running += 1
+        return job
+
+    def _execute(self, job: _Job) -> None:
+        """Run a job :meth:`_take` took, charge what it took and hand its result to its caller."""
+        started = time.perf_counter()
+        result = error = None
+        try:
+            result = job.fn(*job.args)
+        except Exception as exc:  # noqa: BLE001 (handed to the waiting coroutine)
+            error = exc
+        spent = time.perf_counter() - started
+        with self._cond:
+            self.running -= 1
+            self._queue.done(job.kind, job.key, spent - job.weight, job.session)
+        self._resolve(job, result, error)
+
+    def _turn(self, started: float, lent: list[float]) -> None:
+        """A turn of the job running on this thread since ``started`` (:func:`vispeech.turns.give_turn`):
+        the jobs waiting run here, in the queue's order, while the next is estimated at most
+        :data:`TURN_WEIGHT` and the time lent (``lent[0]``) stays below the job's own, so a long job
+        holds a worker for no more than one of its pieces at a time and still has half of it."""
+        while True:
             with self._cond:
-                self.running -= 1
-                self._queue.done(job.kind, job.key, spent - job.weight, job.session)
-            self._resolve(job, result, error)
+                own = time.perf_counter() - started - lent[0]
+                if self._closed or not self._queue or lent[0] >= own or self._queue.next_weight() > TURN_WEIGHT:
+                    return
+                job = self._take()
+            if job is not None:
+                begun = time.perf_counter()
+                with taking_turns(None):  # a job run in a turn gives none of its own
+                    self._execute(job)
+                lent[0] += time.perf_counter() - begun

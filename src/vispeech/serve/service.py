@@ -55,6 +55,7 @@ from vispeech.serve.schemas import (
 from vispeech.serve.sessions import ChatSessions
 from vispeech.streaming import LiveAudioStream, PhoneStream, push_audio_together, push_together
 from vispeech.text_stream import SpeechTimeline
+from vispeech.turns import give_turn
 
 log = logging.getLogger("vispeech.serve")
 
@@ -419,9 +420,11 @@ class SpeechService:
                 )
             except TranscriptMismatch as exc:
                 raise VispeechError(f"{exc} (force=true: animate it all the same)") from None
+            give_turn()
             wav = utterance.wav_bytes()
             assert wav is not None and utterance.track is not None  # listen keeps the audio it animated
             entry = self.cache.put(key, wav, _animation_json(utterance.track, utterance.phones, calibration))
+            give_turn()
         return self._answer(entry, query.text or "", cached, calibration, query)
 
     def _answer(

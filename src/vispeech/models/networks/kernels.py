@@ -28,6 +28,11 @@ from typing import TypedDict
 
 import numpy as np
 
+from vispeech.turns import give_turn
+
+TURN_FRAMES = 1000
+"""A recurrent layer gives others a turn (:func:`vispeech.turns.give_turn`) every so many frames
+of a long input (about 20 ms of work)."""
 _CACHE_ROWS = 1024
 """Input rows whose window terms a :class:`RecurrentKernel` keeps (about 20 KB each for the shipped networks)."""
 
@@ -193,6 +198,8 @@ class RecurrentKernel:
             )
             step = np.empty((len(order), hidden, 1), dtype=np.float32)
             for t, active in enumerate(running):
+                if not t % TURN_FRAMES:
+                    give_turn()
                 np.matmul(matrix, windows[t, :active], out=step[:active])
                 np.tanh(step[:active, :, 0], out=buffer[:active, delays + t])
             for b, i in enumerate(order):
@@ -304,6 +311,7 @@ class ConvStackKernel:
         """``(frames, inputs)`` to ``(frames, channels)``, zero-padded at both ends as in training."""
         h = np.asarray(inputs, dtype=np.float32)
         for layer in self.layers:
+            give_turn()
             behind, ahead = layer["pad"]
             h = _conv_layer(layer, np.pad(h, ((behind, ahead), (0, 0))))
         return h
@@ -544,6 +552,8 @@ def _gru(
     h = np.zeros(hidden, dtype=np.float32) if state is None else state
     out = np.empty((len(x), hidden), dtype=np.float32)
     for t in range(len(x)):
+        if not t % TURN_FRAMES:
+            give_turn()
         recurrent = h @ w_hh + b_hh
         rz = 1.0 / (1.0 + np.exp(-(drive[t, : 2 * hidden] + recurrent[: 2 * hidden])))
         n = np.tanh(drive[t, 2 * hidden :] + rz[:hidden] * recurrent[2 * hidden :])
@@ -591,6 +601,8 @@ def _lstm_run(x: np.ndarray, w_in: np.ndarray, w_hidden: np.ndarray, bias: np.nd
     h, c = np.zeros(n_hidden), np.zeros(n_hidden)
     out = np.empty((len(x), n_hidden))
     for t in range(len(x)):
+        if not t % TURN_FRAMES:
+            give_turn()
         gates = drive[t] + h @ w_hidden
         i, f = 1 / (1 + np.exp(-gates[:n_hidden])), 1 / (1 + np.exp(-gates[n_hidden : 2 * n_hidden]))
         g, o = np.tanh(gates[2 * n_hidden : 3 * n_hidden]), 1 / (1 + np.exp(-gates[3 * n_hidden :]))
