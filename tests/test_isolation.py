@@ -12,7 +12,9 @@ import os
 import signal
 import socket
 import subprocess
+import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +102,46 @@ def test_a_worker_holds_none_of_the_caller_s_pipes(crash):
     finally:
         reader.kill()
         reader.wait()
+
+
+def test_ctrl_c_ends_the_server_and_its_workers_without_a_traceback(tmp_path):
+    """Ctrl+C sends SIGINT to `vispeech serve` and to its native workers. The workers, forked from
+    the event loop's process, inherited its signal wakeup fd (a socket they close): stopped, they
+    printed two "Exception ignored when trying to write to the signal wakeup fd" tracebacks."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    log = tmp_path / "serve.log"
+    with open(log, "wb") as out:
+        server = subprocess.Popen(
+            [sys.executable, "-c", "from vispeech.cli import main; main()", "serve", "--port", str(port),
+             "--cache", ":memory:"],
+            stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )  # fmt: skip
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                assert server.poll() is None, log.read_text()
+                with contextlib.suppress(OSError):
+                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/config", timeout=2):
+                        break
+                assert time.monotonic() < deadline, log.read_text()
+                time.sleep(0.2)
+            request = urllib.request.Request(
+                f"http://127.0.0.1:{port}/api/speak", data=b'{"text": "Hello there.", "language": "en"}',
+                headers={"Content-Type": "application/json"},
+            )  # fmt: skip
+            with urllib.request.urlopen(request, timeout=60) as answer:  # espeak-ng in the native workers
+                assert answer.status == 200
+            os.killpg(server.pid, signal.SIGINT)  # what a terminal's Ctrl+C does
+            assert server.wait(30) == 0
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
+    output = log.read_text()
+    assert "Finished server process" in output and "Traceback" not in output and "Exception" not in output, output
 
 
 def open_files(pid: int) -> set[str]:

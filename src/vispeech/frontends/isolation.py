@@ -33,6 +33,7 @@ import multiprocessing.connection
 import multiprocessing.context
 import multiprocessing.util
 import os
+import signal
 import stat
 import threading
 import time
@@ -239,6 +240,7 @@ class _WorkerProcess(multiprocessing.context.ForkProcess):
 
     def run(self) -> None:
         faulthandler.disable()
+        signal.set_wakeup_fd(-1)  # the caller's (an event loop's socket, closed below): signals wake nobody here
         pipes = _open_files(stat.S_ISFIFO)  # a number the caller closed meanwhile may hold another pipe now
         closing = [fd for fd, inode in self._callers_pipes.items() if pipes.get(fd) == inode]
         for fd in closing + list(_open_files(stat.S_ISSOCK)):
