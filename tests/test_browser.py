@@ -740,3 +740,25 @@ def test_the_preview_seeks_to_a_changed_hash_even_with_a_time_in_its_query(page,
         preview.wait_for_function("document.getElementById('time').textContent.startsWith('0.62')")
         preview.evaluate("location.hash = '#t=1.5'")
         preview.wait_for_function("document.getElementById('time').textContent.startsWith('1.50')", timeout=5000)
+
+
+@pytest.mark.parametrize(("name", "raw", "shown"), [
+    ("NotFoundError", "Requested device not found",
+     "no microphone found: connect one, or choose one in the browser's settings"),
+    ("NotAllowedError", "Permission denied",
+     "the microphone is blocked for this page: allow it in the browser's site settings"),
+    ("AbortError", "Starting audio failed", "the microphone could not be opened (Starting audio failed)"),
+])
+def test_talk_without_a_microphone_says_what_to_do(page, server_url, name, raw, shown):
+    """Talk on a machine with no microphone, or with it blocked, showed the browser's own words
+    ("Requested device not found"); the chat page now says what the user can do."""
+    with _another_page(page, f"{server_url}/?idle=0") as chat:
+        chat.wait_for_function("window.vispeech && window.vispeech.ready", timeout=30_000)
+        chat.evaluate("([name, raw]) => { navigator.mediaDevices.getUserMedia = "
+                      "() => Promise.reject(new DOMException(raw, name)); }", [name, raw])
+        assert chat.is_visible("#mic")
+        chat.click("#mic")
+        chat.wait_for_function("document.querySelector('#mic').textContent === 'Talk' && "
+                               "!document.querySelector('#mic').disabled && "
+                               "document.getElementById('status').textContent !== ''", timeout=10_000)
+        assert chat.inner_text("#status") == shown and not chat.errors

@@ -33,6 +33,14 @@ class PcmChunks extends AudioWorkletProcessor {
 registerProcessor('${PROCESSOR}', PcmChunks);
 `;
 
+// What the user can do about each way getUserMedia fails (the browser's own words name no remedy).
+const MICROPHONE_ERRORS = {
+  NotFoundError: 'no microphone found: connect one, or choose one in the browser\'s settings',
+  NotAllowedError: 'the microphone is blocked for this page: allow it in the browser\'s site settings',
+  NotReadableError: 'the microphone could not be opened: another program may be using it',
+  SecurityError: 'the microphone needs a secure page: open it over https, or as localhost',
+};
+
 /**
  * Open the microphone on `context` (asks the user's permission). The handle's `start(onchunk)`
  * calls `onchunk(pcm, time)` for every `chunkSeconds` of audio: an ArrayBuffer of 16-bit
@@ -43,9 +51,14 @@ export async function openMicrophone(context, { chunkSeconds = 0.02 } = {}) {
   if (!navigator.mediaDevices || !navigator.mediaDevices.getUserMedia) {
     throw new Error('the microphone needs a secure page: open it over https, or as localhost');
   }
-  const media = await navigator.mediaDevices.getUserMedia({
-    audio: { channelCount: 1, echoCancellation: true, noiseSuppression: true, autoGainControl: true },
-  });
+  let media;
+  try {
+    media = await navigator.mediaDevices.getUserMedia({
+      audio: { channelCount: 1, echoCancellation: true, noiseSuppression: true, autoGainControl: true },
+    });
+  } catch (err) {
+    throw new Error(MICROPHONE_ERRORS[err.name] || `the microphone could not be opened (${err.message})`);
+  }
   try {
     if (!loaded.has(context)) loaded.set(context, loadWorklet(context));
     await loaded.get(context);
