@@ -7,7 +7,7 @@ import json
 
 import pytest
 from click.testing import CliRunner
-from test_train_cli import write_takes
+from test_train_cli import synthetic_take, write_takes
 
 from conftest import require_module
 from vispeech.cli import main
@@ -33,6 +33,8 @@ def test_a_look_ahead_sweep_trains_a_model_per_value(tmp_path):
     saved = json.loads((out / "sweep.json").read_text())
     assert saved["family"] == "tdnn-lowlatency" and saved["parameter"] == "look_ahead" and saved["params"]["epochs"] == 2
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG" and b"<svg" in (out / "sweep.svg").read_bytes()
+    # fps=null: the models ran at the takes' rate, the unit of the values (the figure's x axis says so)
+    assert [p["fps"] for p in saved["points"]] == [synthetic_take(0)[1].fps] * 2
 
 
 @pytest.mark.parametrize(("args", "message"), [

@@ -30,18 +30,21 @@ class _Trained(Protocol):
     """A model trained in epochs (the networks, the decision tree): its training history."""
 
     history_: TrainingHistory
+    fps_: float
 
 
 @dataclass(frozen=True)
 class SweepPoint:
     """One trained model of a sweep: the ``value``, its test-split jawOpen RMSE (% of range) and
-    r, the epochs it trained and the seconds that took."""
+    r, the epochs it trained, the seconds that took and the frame rate it ran at (the value's
+    frames are frames at that rate)."""
 
     value: int
     rmse_percent: float
     r: float
     epochs: int
     seconds: float
+    fps: float
 
 
 def sweep(
@@ -80,8 +83,8 @@ def sweep(
             .models[0]
             .scores["jawOpen"]
         )
-        epochs = cast(_Trained, model).history_.epochs
-        point = SweepPoint(value, scores["rmse_percent"], scores["r"], epochs, seconds)
+        trained = cast(_Trained, model)
+        point = SweepPoint(value, scores["rmse_percent"], scores["r"], trained.history_.epochs, seconds, trained.fps_)
         points.append(point)
         if progress is not None:
             progress(
@@ -96,9 +99,9 @@ def plot_sweep(
     parameter: str,
     family: str,
     out_stem: str | os.PathLike,
-    frames_per_second: float | None = None,
 ) -> list[Path]:
-    """jawOpen's RMSE (left axis) and r (right axis) against the value: ``out_stem``.png and .svg."""
+    """jawOpen's RMSE (left axis) and r (right axis) against the value (frames at the models'
+    rate): ``out_stem``.png and .svg."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -107,9 +110,9 @@ def plot_sweep(
     axes = figure.add_subplot()
     values = [p.value for p in points]
     axes.plot(values, [p.rmse_percent for p in points], "o-", color="tab:blue", label="RMSE")
-    axes.set_xlabel(
-        parameter.replace("_", " ") + (f" (frames at {frames_per_second:g} fps)" if frames_per_second else "")
-    )
+    rates = sorted({p.fps for p in points})
+    unit = f"frames at {rates[0]:g} fps" if len(rates) == 1 else "frames"
+    axes.set_xlabel(f"{parameter.replace('_', ' ')} ({unit})")
     axes.set_ylabel("jawOpen RMSE, % of range", color="tab:blue")
     right = axes.twinx()
     right.plot(values, [p.r for p in points], "s--", color="tab:red", label="r")
