@@ -471,3 +471,20 @@ def test_sync_moves_the_phones_with_the_predictions_when_it_counts_closures():
 
 class Pucker(Late):
     channels = ("mouthPucker",)
+
+
+@pytest.mark.parametrize(("epochs", "span", "ticks", "scale"), [
+    (1, 1.2, [1.0], "linear"),  # one epoch: the tick 1, not 0.96 to 1.04
+    (4, 1.5, [1.0, 2.0, 3.0, 4.0], "linear"),  # losses within 3 times: no log scale of 6 × 10⁻¹
+    (40, 40.0, None, "log"),
+])
+def test_a_loss_curve_has_whole_epochs_and_a_log_scale_only_for_a_wide_range(epochs, span, ticks, scale):
+    from vispeech.evaluation.plots import history_figure
+    from vispeech.models.history import TrainingHistory
+
+    train = list(np.geomspace(0.5 * span, 0.5, epochs))
+    history = TrainingHistory(train, [1.1 * v for v in train], [1e-3] * epochs, [1.0] * epochs, epochs)
+    axes = history_figure(history).axes[0]
+    shown = [t for t in axes.get_xticks() if axes.get_xlim()[0] <= t <= axes.get_xlim()[1]]
+    assert all(float(t).is_integer() for t in shown) and (ticks is None or shown == ticks), shown
+    assert axes.get_yscale() == scale

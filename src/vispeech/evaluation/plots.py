@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +15,9 @@ from vispeech.evaluation.report import scored_frames, target_track
 from vispeech.files import atomic_output_file
 from vispeech.models.history import TrainingHistory
 from vispeech.motion.track import Track
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def plot_utterance(
@@ -66,27 +70,47 @@ def plot_utterance(
     return Path(path)
 
 
+LOG_LOSS_SPAN = 3.0
+"""A loss curve is drawn on a log scale when its largest loss is more than this many times its smallest."""
+
+
 def plot_history(history: TrainingHistory, path: str | os.PathLike) -> Path:
-    """Draw a fit's training and validation loss per epoch (log scale) into a PNG at ``path``."""
+    """Draw a fit's training and validation loss per epoch into a PNG at ``path``
+    (:func:`history_figure`)."""
+    figure = history_figure(history)
+    with atomic_output_file(path) as tmp:
+        figure.savefig(tmp, format="png")
+    return Path(path)
+
+
+def history_figure(history: TrainingHistory) -> Figure:
+    """A fit's training and validation loss per epoch, on whole epochs, on a log scale when the
+    losses span more than :data:`LOG_LOSS_SPAN` times."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     figure = Figure(figsize=(6, 4), dpi=100)
     FigureCanvasAgg(figure)
     axes = figure.add_subplot()
     epochs = np.arange(1, history.epochs + 1)
     axes.plot(epochs, history.train_loss, marker="o", markersize=3, label="training")
-    validation = [np.nan if v is None else v for v in history.validation_loss]
+    validation = np.array([np.nan if v is None else v for v in history.validation_loss], dtype=float)
     if not np.all(np.isnan(validation)):
         axes.plot(epochs, validation, marker="o", markersize=3, label="validation")
     if history.best_epoch:
         axes.axvline(history.best_epoch, color="grey", linestyle=":", label=f"best (epoch {history.best_epoch})")
-    if history.epochs and min(history.train_loss) > 0:
+    losses = np.concatenate([history.train_loss, validation])
+    losses = losses[np.isfinite(losses)]
+    if losses.size and losses.min() > 0 and losses.max() > LOG_LOSS_SPAN * losses.min():
         axes.set_yscale("log")
+    if history.epochs <= 10:
+        axes.set_xticks(epochs)
+    else:
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes.set_xlim(0.5, max(history.epochs, 1) + 0.5)
     axes.set_xlabel("epoch")
     axes.set_ylabel("loss")
     axes.legend()
     figure.tight_layout()
-    with atomic_output_file(path) as tmp:
-        figure.savefig(tmp, format="png")
-    return Path(path)
+    return figure
