@@ -1,5 +1,6 @@
 """Objective metrics, lip closures and the evaluation report on tiny synthetic utterances."""
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -163,11 +164,12 @@ def test_frames_are_classed_by_what_their_phone_does_to_the_lips():
 
 # -- the report ----------------------------------------------------------------------------
 
-def _utterance(name: str, seed: int, fps: float = FPS) -> Utterance:
-    """Silence, then B AA M IY P AA at 0.2 s each, then silence (0.5 s), tracked at ``fps``; tracked
-    lips close on the bilabials and the 'recorded' track follows the phones. Frame 1 was not tracked."""
+def _utterance(name: str, seed: int, fps: float = FPS, repeats: int = 1) -> Utterance:
+    """Silence, then B AA M IY P AA at 0.2 s each (``repeats`` times), then silence (0.5 s), tracked at
+    ``fps``; tracked lips close on the bilabials and the 'recorded' track follows the phones. Frame 1
+    was not tracked."""
     rng = np.random.default_rng(seed)
-    symbols = ["B", "AA", "M", "IY", "P", "AA"]
+    symbols = ["B", "AA", "M", "IY", "P", "AA"] * repeats
     phones, t = [Phone("sil", 0.0, 0.5)], 0.5
     for s in symbols:
         phones.append(Phone(s, t, t + 0.2, 0))
@@ -324,6 +326,25 @@ def test_plot_writes_a_png(corpus, tmp_path):
     with pytest.raises(VispeechError, match="nothing to plot"):
         plot_utterance(corpus[0], {}, tmp_path / "k.png")
     assert not (tmp_path / "k.png").exists()
+
+
+def test_a_long_utterance_is_plotted_in_rows_under_a_wrapped_title():
+    """A 10.6-s utterance (natural speech runs to 30 s) used to be squeezed into one 10-inch row,
+    its phone labels printed over each other and its title cut at the figure's edge."""
+    from vispeech.evaluation.plots import ROW_SECONDS, utterance_figure
+
+    long = _utterance("long", 3, repeats=8)
+    long.text = " ".join(["bamipa"] * 40)
+    corpus = Corpus("synthetic", [long], FPS, long.track.channels)
+    figure = utterance_figure(long, {"replay": Replay(corpus).predict(long.phones, FPS)})
+    rows = [a for a in figure.axes if a.get_ylabel() == "jawOpen"]
+    assert len(rows) == math.ceil(long.duration / ROW_SECONDS) == 3
+    assert [a.get_xlim() for a in rows] == [(4.0 * k, 4.0 * (k + 1)) for k in range(3)]
+    labels = [t.get_text() for a in rows for top in a.child_axes for t in top.get_xticklabels()]
+    assert len(labels) == 48 and labels[:2] == ["B", "AA\n"]  # each phone once, every other one raised
+    title = figure.texts[0].get_text()
+    assert title.startswith("long: bamipa") and len(title.splitlines()) == 3
+    assert max(len(line) for line in title.splitlines()) <= 110
 
 
 # -- the loudness floor ----------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,6 +21,10 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+ROW_SECONDS = 4.0
+"""The longest stretch of an utterance :func:`plot_utterance` draws on one row (its phones legible)."""
+
+
 def plot_utterance(
     utterance: Utterance,
     predictions: Mapping[str, Track],
@@ -31,43 +36,63 @@ def plot_utterance(
     ``predictions`` are tracks on the utterance's frames (see
     :func:`vispeech.evaluation.report.predict_on_frames`); those without ``channel`` are
     left out. The scored frames (speech span) are shaded and the phones labelled along the
-    top. Writes a PNG (an SVG when ``path`` ends in ``.svg``) at ``path`` atomically and returns the path.
+    top; a long utterance is drawn in rows of at most :data:`ROW_SECONDS`, one below the other.
+    Writes a PNG (an SVG when ``path`` ends in ``.svg``) at ``path`` atomically and returns the path.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    target = target_track(utterance, [channel])
-    times = target.times
-    figure = Figure(figsize=(10, 4), dpi=100)
-    FigureCanvasAgg(figure)
-    axes = figure.add_subplot()
-    scored = scored_frames(utterance)
-    if scored.any():
-        first, last = times[scored][[0, -1]]
-        axes.axvspan(first, last, color="0.93", zorder=0, label="scored span")
-    axes.plot(times, target[channel], color="black", linewidth=2.0, label="recorded")
-    drawn = 0
-    for label, track in predictions.items():
-        if channel in track.channels:
-            axes.plot(track.times, track[channel], linewidth=1.2, label=label)
-            drawn += 1
-    if not drawn:
-        raise VispeechError(f"no model predicts {channel!r}: nothing to plot")
-    if utterance.phones is not None:
-        top = axes.secondary_xaxis("top")
-        spoken = [p for p in utterance.phones if not p.is_silence]
-        top.set_xticks([(p.start + p.end) / 2 for p in spoken], [p.symbol for p in spoken], fontsize=7)
-        for boundary in np.unique([p.start for p in spoken]):
-            axes.axvline(boundary, color="0.85", linewidth=0.5, zorder=0)
-    axes.set_xlim(times[0], times[-1])
-    axes.set_xlabel("time (s)")
-    axes.set_ylabel(channel)
-    axes.set_title(f"{utterance.id}: {utterance.text}", fontsize=9, pad=18)
-    axes.legend(fontsize=8, loc="upper right")
-    figure.tight_layout()
+    figure = utterance_figure(utterance, predictions, channel)
     with atomic_output_file(path) as tmp:
         figure.savefig(tmp, format="svg" if str(path).lower().endswith(".svg") else "png")
     return Path(path)
+
+
+def utterance_figure(utterance: Utterance, predictions: Mapping[str, Track], channel: str = "jawOpen") -> Figure:
+    """The figure :func:`plot_utterance` writes."""
+    import textwrap
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    drawn = {label: track for label, track in predictions.items() if channel in track.channels}
+    if not drawn:
+        raise VispeechError(f"no model predicts {channel!r}: nothing to plot")
+    target = target_track(utterance, [channel])
+    times = target.times
+    rows = max(1, math.ceil((times[-1] - times[0]) / ROW_SECONDS - 1e-9))
+    figure = Figure(figsize=(10, 1.0 + 3.0 * rows), dpi=100)
+    FigureCanvasAgg(figure)
+    scored = scored_frames(utterance)
+    spoken = [p for p in utterance.phones if not p.is_silence] if utterance.phones is not None else []
+    low = min(float(np.nanmin(target[channel])), *(float(np.nanmin(t[channel])) for t in drawn.values()))
+    high = max(float(np.nanmax(target[channel])), *(float(np.nanmax(t[channel])) for t in drawn.values()))
+    margin = 0.05 * (high - low or 1.0)
+    for row, axes in enumerate(np.atleast_1d(figure.subplots(rows, 1, squeeze=False)[:, 0])):
+        start = times[0] + row * ROW_SECONDS
+        end = min(times[-1], start + ROW_SECONDS) if rows > 1 else times[-1]
+        if scored.any():
+            first, last = times[scored][[0, -1]]
+            axes.axvspan(first, last, color="0.93", zorder=0, label="scored span")
+        axes.plot(times, target[channel], color="black", linewidth=2.0, label="recorded")
+        for label, track in drawn.items():
+            axes.plot(track.times, track[channel], linewidth=1.2, label=label)
+        here = [p for p in spoken if start <= (p.start + p.end) / 2 <= end]
+        if spoken:
+            top = axes.secondary_xaxis("top")
+            # every other label a line higher: fast speech's phones do not overprint each other
+            labels = [p.symbol + "\n" * (k % 2) for k, p in enumerate(here)]
+            top.set_xticks([(p.start + p.end) / 2 for p in here], labels, fontsize=7)
+            for boundary in np.unique([p.start for p in here]):
+                axes.axvline(boundary, color="0.85", linewidth=0.5, zorder=0)
+        axes.set_xlim(start, start + ROW_SECONDS if rows > 1 else end)
+        axes.set_ylim(low - margin, high + margin)
+        axes.set_ylabel(channel)
+        if row == 0:
+            axes.legend(fontsize=8, loc="upper right")
+        if row == rows - 1:
+            axes.set_xlabel("time (s)")
+    title = textwrap.shorten(f"{utterance.id}: {utterance.text}", width=300, placeholder=" …")
+    figure.suptitle("\n".join(textwrap.wrap(title, width=110)), fontsize=9)
+    figure.tight_layout()
+    return figure
 
 
 LOG_LOSS_SPAN = 3.0
