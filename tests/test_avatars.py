@@ -78,7 +78,7 @@ def test_serve_an_avatar_at_a_url_the_browser_loads_and_the_server_never_fetches
     local = ServeConfig(avatar=str(tmp_path / "ada.vrm"))
     assert local.avatar == tmp_path / "ada.vrm" and ServeConfig.from_json(local.to_json()).avatar == local.avatar
     result = CliRunner().invoke(main, ["serve", "--avatar", "ftp://avatars.invalid/ada.vrm", "--cache", ":memory:"])
-    assert result.exit_code == 2 and "avatar file not found" in result.output
+    assert result.exit_code == 2 and "not a ftp:// URL" in result.output  # a scheme no page loads
 
 
 def test_serve_a_vrm_file_as_it_is_when_it_has_no_arkit_shapes_to_prepare(tmp_path, caplog):

@@ -374,6 +374,11 @@ def test_serve_command_refuses_a_missing_avatar(tmp_path):
 
     result = CliRunner().invoke(main, ["serve", "--avatar", str(tmp_path / "none.glb"), "--cache", str(tmp_path / "c")])
     assert result.exit_code == 2 and "avatar file not found" in result.output
+    # a URL the browser cannot load was taken as a file name ("avatar file not found: ftp:/host/x.glb")
+    result = CliRunner().invoke(main, ["serve", "--avatar", "ftp://host/x.glb", "--cache", str(tmp_path / "c")])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip().endswith("--avatar takes a GLB or VRM file or an http(s) URL, not a ftp:// URL")
+    assert len(result.output.strip().splitlines()) == 1
 
 
 def test_answers_and_streams_come_in_the_output_scale(tmp_path, monkeypatch):

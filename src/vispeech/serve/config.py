@@ -294,6 +294,9 @@ class ServeConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.avatar, str) and not is_url(self.avatar):
+            scheme = urlsplit(self.avatar).scheme
+            if "://" in self.avatar and scheme:  # ftp://, file://, s3://: no file name and no page loads it
+                raise VispeechError(f"--avatar takes a GLB or VRM file or an http(s) URL, not a {scheme}:// URL")
             self.avatar = Path(self.avatar)
 
     @property
