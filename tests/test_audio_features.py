@@ -23,6 +23,14 @@ def test_clip_checks_and_downmixes():
     clip = AudioClip.from_array((tone(440, 0.5) * 32767).astype(np.int16), 16000)
     assert clip.samples.dtype == np.float32 and abs(clip.samples).max() == pytest.approx(0.5, abs=1e-3)
     assert AudioClip.from_array(np.full(100, 3.0), 16000).samples.max() == 1.0  # clipped
+    pcm = (tone(440, 0.5) * 20000).astype(np.int16)  # stereo 16-bit was averaged to floats, then never scaled
+    np.testing.assert_array_equal(AudioClip.from_array(np.column_stack([pcm, pcm]), 16000).samples,
+                                  AudioClip.from_array(pcm, 16000).samples)
+    for bad, match in [(pcm.astype(np.int32), "floats in \\[-1, 1\\] or 16-bit integers, got int32"),
+                       (pcm > 0, "got bool"), (np.column_stack([pcm, pcm]).T.astype(np.float32) / 32768,
+                                               "not \\(channels, samples\\)")]:
+        with pytest.raises(VispeechError, match=match):
+            AudioClip.from_array(bad, 16000)
     for bad, match in [(np.zeros(0), "empty"), (np.array([0.0, np.nan]), "non-finite"),
                        (np.zeros((2, 2, 2)), "1-D")]:
         with pytest.raises(VispeechError, match=match):

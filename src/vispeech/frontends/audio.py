@@ -42,6 +42,12 @@ class AudioClip:
         ``(samples, channels)``, channels averaged) at ``sample_rate`` Hz; values beyond
         [-1, 1] are clipped."""
         array = np.asarray(samples)
+        if array.dtype == np.int16:
+            array = array.astype(np.float32) / 32768.0
+        elif not np.issubdtype(array.dtype, np.floating):  # int32, bool, complex: a scale we cannot know
+            raise VispeechError(f"{where} must be floats in [-1, 1] or 16-bit integers, got {array.dtype}")
+        if array.ndim == 2 and array.shape[1] > array.shape[0]:
+            raise VispeechError(f"{where} has shape {array.shape}: give (samples, channels), not (channels, samples)")
         if array.ndim == 2 and array.shape[1] > 0:
             array = array.mean(axis=1)
         if array.ndim != 1:
@@ -56,8 +62,6 @@ class AudioClip:
         duration = array.size / sample_rate
         if duration > MAX_DURATION_S:
             raise VispeechError(f"{where} lasts {duration:.1f} s; the limit is {MAX_DURATION_S:g} s")
-        if np.issubdtype(array.dtype, np.integer):
-            array = array.astype(np.float32) / 32768.0
         array = array.astype(np.float32)
         if not np.all(np.isfinite(array)):
             raise VispeechError(f"{where} has non-finite samples")
