@@ -487,3 +487,25 @@ def test_options_per_request(client):
                        ({"scale": "/etc/passwd"}, "scale"), ({"fps": 5000}, "fps")):
         refused = client.post("/api/speak", json={**request, **bad})
         assert refused.status_code == 422 and words in refused.json()["detail"], bad
+
+
+def test_a_saved_model_folder_is_the_default_model(tmp_path):
+    """The walkthrough's `vispeech serve --model my-tdnn` (a folder `train` wrote) was refused: the
+    default model had to be a shipped name, though --stream-model took folders."""
+    from click.testing import CliRunner
+
+    from vispeech.cli import main
+    from vispeech.models.registry import create_model
+
+    create_model("cohen-massaro", theta={"default": 4.0, "vowel": 3.0, "silence": 12.0}).save(tmp_path / "my-model")
+    config = ServeConfig(default_model=str(tmp_path / "my-model"), cache=":memory:", rate_limit=0)
+    with TestClient(create_app(config)) as client:
+        served = client.get("/api/config").json()
+        assert served["default_model"] in served["models"] and served["default_model"] != "cohen-massaro"
+        spoken = client.post("/api/speak", json={"text": "Hello there.", "language": "en"})
+        assert spoken.status_code == 200, spoken.text
+        shipped = client.post("/api/speak", json={"text": "Hello there.", "language": "en", "model": "cohen-massaro"})
+        # the folder's model spoke (dominance of its own), not the family's defaults
+        assert spoken.json()["animation"]["frames"] != shipped.json()["animation"]["frames"]
+    result = CliRunner().invoke(main, ["serve", "--model", "grid-audio-cnn", "--cache", str(tmp_path / "c")])
+    assert result.exit_code == 2 and "the default model must animate phones" in result.output

@@ -72,7 +72,7 @@ async def get_config(service: Service) -> ConfigResponse:
         chat_languages=service.chat_languages,
         models=[name for name, model in service.models.items() if model.input_kind == "phones"],
         audio_models=[name for name, model in service.models.items() if model.input_kind == "audio"],
-        default_model=config.default_model,
+        default_model=service.default_model,
         stream_model=service.stream_model,
         audio_model=service.audio_model,
         fps=config.fps,

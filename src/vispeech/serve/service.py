@@ -204,8 +204,10 @@ class SpeechService:
         self.versions: dict[str, str] = {}
         for name in RUNNABLE:
             self._add(name, load_model(name), pretrained_path(name) if name in PRETRAINED else None)
-        if config.default_model not in self.models:
-            raise VispeechError(f"default model {config.default_model!r} is not one of {', '.join(self.models)}")
+        self.default_model = self._offer(config.default_model)
+        """The name of the model of ``/api/speak`` and ``/api/chat`` (a saved folder is offered by its model's name)."""
+        if self.models[self.default_model].input_kind != "phones":
+            raise VispeechError(f"the default model must animate phones: {self.default_model} animates audio")
         self.stream_model = self._choose_stream_model(config.stream_model)
         self.audio_model = self._choose_audio_model(config.audio_model)
         self.upload_model = None if config.upload_model is None else self._offer(config.upload_model)
@@ -279,8 +281,8 @@ class SpeechService:
         if spec is None:
             if LOW_LATENCY_MODEL in self.models:
                 return LOW_LATENCY_MODEL
-            log.info("%s is not trained: streaming uses %s", LOW_LATENCY_MODEL, self.config.default_model)
-            return self.config.default_model
+            log.info("%s is not trained: streaming uses %s", LOW_LATENCY_MODEL, self.default_model)
+            return self.default_model
         return self._offer(spec)
 
     def _choose_audio_model(self, spec: str | None) -> str | None:
@@ -314,7 +316,7 @@ class SpeechService:
         on the event loop) and run the default, stream, upload (English and Swedish) and audio models
         once, and the stream model in each native worker, so a first request is no slower."""
         for language, text in GREETINGS.items():
-            utterance = speak(text, language, model=self.models[self.config.default_model], fps=self.config.fps)
+            utterance = speak(text, language, model=self.models[self.default_model], fps=self.config.fps)
             assert utterance.phones is not None  # speak gives the phones it spoke
             detect_language(text, self.reply_languages)
             with contextlib.suppress(VispeechError):  # a trained stream model may know one language only
@@ -340,7 +342,7 @@ class SpeechService:
                     "with --audio-model NAME|FOLDER"
                 )
             name = self.audio_model
-        name = name or (self.stream_model if stream else self.config.default_model)
+        name = name or (self.stream_model if stream else self.default_model)
         if name not in self.models:
             raise VispeechError(f"unknown model {name!r} (use one of: {', '.join(self.models)})")
         return name, self.models[name]
