@@ -393,3 +393,31 @@ def test_a_version_1_folder_is_refused(tmp_path):
     (folder / "config.json").write_text(json.dumps(old))
     with pytest.raises(VispeechError, match="format version 1; this vispeech reads 2"):
         load_model(folder)
+
+
+@pytest.mark.parametrize("name", ["baseline", "beskow-rules", "ohman", "grid-cohen-massaro", "grid-tdnn",
+                                  "grid-audio-cnn"])
+def test_every_way_to_predict_checks_its_inputs_and_frame_rate_first(name):
+    """``pipeline.animate`` checked the limits, ``Estimator.predict`` did not: a frame rate of 1e9
+    got the process killed for memory, a phone ending at 1e9 s asked for 224 GiB, ``fps="30"`` met
+    the frame arithmetic as text, and the wrong kind of input crashed deep inside."""
+    from vispeech.models.registry import load_model
+
+    model = load_model(name)
+    phones = PhoneSequence([Phone("sil", 0.0, 0.1), Phone("AH", 0.1, 0.5)], "en")
+    clip = AudioClip.from_array(np.zeros(8000, np.float32), 16000)
+    given, other = (clip, phones) if model.input_kind == "audio" else (phones, clip)
+    kind = "an AudioClip" if model.input_kind == "audio" else "a PhoneSequence"
+    for bad_fps in (1e9, 2000, float("nan"), 0, "30", True):
+        with pytest.raises(VispeechError, match="^fps must be"):
+            model.predict(given, bad_fps)
+    with pytest.raises(VispeechError, match=f"^{name} animates .*\\({kind}\\), not {type(other).__name__}$"):
+        model.predict(other, 30)
+    if model.input_kind == "phones":
+        with pytest.raises(VispeechError, match="the utterance lasts 1e\\+09 s; the limit is 600 s"):
+            model.predict(PhoneSequence([Phone("sil", 0.0, 0.1), Phone("AH", 0.1, 1e9)], "en"), 30)
+        with pytest.raises(VispeechError, match="before the previous phone ends"):
+            model.predict_many([phones, PhoneSequence([Phone("AH", 0.5, 0.9), Phone("IY", 0.2, 0.4)], "en")], 30)
+    with pytest.raises(VispeechError, match="^fps must be"):
+        model.stream("en", 0)
+    assert model.predict(given, 30).n_frames == given.n_frames(30)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import re
 
 import numpy as np
@@ -69,11 +70,11 @@ _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 
 
 def check_fps(fps: float, what: str = "fps") -> float:
-    """``fps`` as a float if it is a finite number within [:data:`MIN_FPS`, :data:`MAX_FPS`]."""
-    try:
-        value = float(fps)
-    except (TypeError, ValueError):
-        raise VispeechError(f"{what} must be a number, got {fps!r}") from None
+    """``fps`` as a float if it is a finite number within [:data:`MIN_FPS`, :data:`MAX_FPS`] (a
+    string or a bool is no number here: ``"30"`` would reach the frame arithmetic as text)."""
+    if isinstance(fps, str | bool) or not isinstance(fps, numbers.Real):
+        raise VispeechError(f"{what} must be a number, got {fps!r}")
+    value = float(fps)
     if value <= 0:
         raise VispeechError(f"{what} must be positive, got {fps!r}")
     if not (math.isfinite(value) and MIN_FPS <= value <= MAX_FPS):

@@ -42,6 +42,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.files import atomic_output_dir
+from vispeech.limits import check_fps, check_utterance
 from vispeech.models.fitting import FitRun
 from vispeech.models.persistence import FOLDER_NAMES, model_from_config, read_config, write_model
 from vispeech.models.streams import ModelStream, WindowStream
@@ -212,6 +213,7 @@ class Estimator(ABC, Generic[InputT]):
     def stream(self, language: str, fps: float) -> ModelStream:
         """An incremental prediction for phones of ``language`` as they arrive, at ``fps``."""
         self.check_fitted()
+        check_fps(fps)
         return WindowStream(self, language, fps)
 
     # -- learned state, for save and load --------------------------------------------------
@@ -223,6 +225,25 @@ class Estimator(ABC, Generic[InputT]):
     @abstractmethod
     def _set_learned_state(self, state: dict, arrays: dict[str, np.ndarray]) -> None:
         """Take over a state given by :meth:`_learned_state` (raise :class:`VispeechError` if it does not fit)."""
+
+    def check_inputs(self, inputs: InputT, fps: float) -> None:
+        """Raise :class:`VispeechError` unless ``inputs`` are what the model animates
+        (:attr:`input_kind`: a valid :class:`~vispeech.alignment.phones.PhoneSequence` or an
+        :class:`~vispeech.frontends.audio.AudioClip`) within the library's limits, at a frame rate
+        ``fps`` within them (:mod:`vispeech.limits`): called before any work, by every way to predict."""
+        from vispeech.alignment.phones import PhoneSequence
+        from vispeech.frontends.audio import AudioClip
+
+        check_fps(fps)
+        if self.input_kind == "audio":
+            if not isinstance(inputs, AudioClip):
+                raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(inputs).__name__}")
+            check_utterance(inputs.duration, 0)
+            return
+        if not isinstance(inputs, PhoneSequence):
+            raise VispeechError(f"{self.name} animates phones (a PhoneSequence), not {type(inputs).__name__}")
+        inputs.validate()
+        check_utterance(inputs.duration, len(inputs))
 
     def check_fitted(self) -> None:
         """Raise :class:`VispeechError` unless :attr:`is_fitted`."""

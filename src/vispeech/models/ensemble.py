@@ -151,6 +151,7 @@ class AudioEnsemble(Estimator[AudioClip]):
         """:meth:`predict`'s track and the bilabials heard in the members' mean posteriors
         (``None`` at ``closure_threshold`` 0)."""
         self.check_fitted()
+        self.check_inputs(clip, fps)
         values: Any = 0.0
         spread: Any = 0.0
         posteriors: Any = 0.0

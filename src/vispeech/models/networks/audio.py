@@ -62,6 +62,7 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, power_spectrogram, warp_frequencies
+from vispeech.limits import check_fps
 from vispeech.models.fitting import FitRun, Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.audio_stream import AudioStream, EncoderStream, speech_encoder
@@ -407,8 +408,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         len(phones_) + 1)`` at the network's own rate :attr:`fps_`, column 0 the blank
         (``None`` without a head)."""
         kernel = self.kernel
-        if not isinstance(clip, AudioClip):
-            raise VispeechError(f"{self.name} animates audio (an AudioClip), not {type(clip).__name__}")
+        self.check_inputs(clip, fps)
         n_model = clip.n_frames(self.fps_)
         if self.encoding_.kind == "encoder":
             source = self._hidden_states(clip, speech_encoder(self.encoding_))
@@ -425,6 +425,7 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
         (audio networks are language-independent)."""
         self.check_fitted()
+        check_fps(fps)
         return AudioStream(self, fps)
 
     @property

@@ -132,7 +132,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         """Tracks of ``inputs.n_frames(fps)`` frames: the overlap-averaged tree predictions at the
         model's frame rate, resampled to ``fps``."""
         self.check_fitted()
-        inputs.validate()
+        self.check_inputs(inputs, fps)
         self.encoding_.check(inputs)
         track = Track(self._frames(self.encoding_.encode(inputs, self.fps_)), self.outputs_, self.fps_)
         n = inputs.n_frames(fps)

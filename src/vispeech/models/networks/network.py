@@ -532,6 +532,7 @@ class PhoneNetwork(Network[PhoneSequence, InputEncoding]):
         """A re-predicted recent window (:class:`~vispeech.models.streams.WindowStream`), after
         checking that the network takes ``language``'s phones."""
         self.check_fitted()
+        check_fps(fps)
         self.encoding_.check(PhoneSequence([], language))
         return WindowStream(self, language, fps)
 
@@ -546,7 +547,7 @@ class PhoneNetwork(Network[PhoneSequence, InputEncoding]):
         self.check_fitted()
         encoded = []
         for phones in inputs:
-            phones.validate()
+            self.check_inputs(phones, fps)
             self.encoding_.check(phones)
             encoded.append(self.encoding_.encode(phones, self.fps_))
         tracks = []

@@ -72,7 +72,9 @@ class PhoneTargetModel(Estimator[PhoneSequence]):
         return self._authored(language)
 
     def segments(self, phones: PhoneSequence, fps: float) -> Segments:
-        """The gap-filled segments of ``phones`` with their targets, and the frame times."""
+        """The gap-filled segments of ``phones`` with their targets, and the frame times (both checked:
+        :meth:`~vispeech.models.contract.Estimator.check_inputs`)."""
+        self.check_inputs(phones, fps)
         table = self._authored_table
         segments = Segments.build(phones, fps, table.values(phones.language), table.defined(phones.language))
         learned = self.tables(phones.language)["targets"]
