@@ -421,3 +421,14 @@ def test_every_way_to_predict_checks_its_inputs_and_frame_rate_first(name):
     with pytest.raises(VispeechError, match="^fps must be"):
         model.stream("en", 0)
     assert model.predict(given, 30).n_frames == given.n_frames(30)
+
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_scikit_learns_clone_and_get_params_deep_work(family):
+    """The contract says "an estimator in scikit-learn's sense", but ``sklearn.base.clone`` failed
+    on every family: ``get_params`` took no ``deep``."""
+    base = require_module("sklearn.base", "scikit-learn (the train extra)")
+    model = create_model(family)
+    assert model.get_params(deep=True) == model.get_params(deep=False) == model.get_params()
+    copied = base.clone(model)
+    assert type(copied) is type(model) and copied is not model and copied.get_params() == model.get_params()

@@ -89,9 +89,14 @@ class Estimator(ABC, Generic[InputT]):
         """Raise :class:`VispeechError` on a bad hyper-parameter value (and forget whatever was
         computed from the values before: it runs again on :meth:`set_params`)."""
 
-    def get_params(self) -> dict[str, Any]:
-        """A copy of the hyper-parameters."""
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """A copy of the hyper-parameters (``deep``: scikit-learn's argument; no model holds another)."""
         return copy.deepcopy(self._params)
+
+    def __sklearn_clone__(self: _Self) -> _Self:
+        """What ``sklearn.base.clone`` gives: :func:`clone` (its check that the constructor keeps
+        each parameter object as given does not hold for copies)."""
+        return clone(self)
 
     def set_params(self: _Self, **params: Any) -> _Self:
         """Change these hyper-parameters, checked as the constructor checks them; returns ``self``.
