@@ -432,3 +432,24 @@ def test_scikit_learns_clone_and_get_params_deep_work(family):
     assert model.get_params(deep=True) == model.get_params(deep=False) == model.get_params()
     copied = base.clone(model)
     assert type(copied) is type(model) and copied is not model and copied.get_params() == model.get_params()
+
+
+@pytest.mark.parametrize("name", ["baseline", "beskow-rules", "ohman", "grid-cohen-massaro", "grid-tdnn"])
+def test_a_stream_takes_phones_that_name_their_words_and_refuses_bad_ones(name):
+    """The phones ``utter``, ``align`` and every reader give carry word indices; a window stream (the
+    rules') refused them ("phone 1 (HH) refers to missing word 0") and took a phone at NaN seconds."""
+    from vispeech.pipeline import utter
+
+    phones = utter("Hello world, how are you?").phones
+    assert any(p.word is not None for p in phones)
+    model = load_model(name)
+    stream = model.stream("en", 30.0)
+    chunks = [stream.push(phones.phones[k : k + 3]) for k in range(0, len(phones), 3)] + [stream.finish()]
+    rows = np.concatenate([frames for _, frames in chunks])
+    assert rows.shape == (phones.n_frames(30.0), len(model.channels))
+    jaw = model.channels.index("jawOpen")  # a window's view of the whole (the recurrent stream's is exact)
+    assert np.corrcoef(rows[:, jaw], model.predict(phones, 30.0).values[:, jaw])[0, 1] > 0.8
+    for bad, match in (([Phone("AH", float("nan"), 0.2)], "has start nan"),
+                       ([Phone("AH", 0.0, 0.3), Phone("IY", 0.1, 0.4)], "before the previous")):
+        with pytest.raises(VispeechError, match=match):
+            model.stream("en", 30.0).push(bad)

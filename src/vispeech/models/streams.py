@@ -12,11 +12,12 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Generic, Self, TypeVar
 
 import numpy as np
 
-from vispeech.alignment.phones import Phone, PhoneSequence, first_frame
+from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, first_frame
 from vispeech.errors import VispeechError
 from vispeech.motion.track import interpolate_rows
 
@@ -90,6 +91,19 @@ class ModelStream(ABC, Generic[ChunkT]):
         return self.emitted, np.zeros((0, len(self.channels)))
 
 
+def pushed_phones(phones: Iterable[Phone], language: str, previous_end: float | None) -> list[Phone]:
+    """The phones pushed to a stream, checked (:meth:`~vispeech.alignment.phones.PhoneSequence.validate`,
+    and none starting before ``previous_end``, the end of the phones pushed before), without their
+    word indices: a stream keeps no words, and no model reads them."""
+    new = [replace(p, word=None) for p in phones]
+    if new:
+        PhoneSequence(new, language).validate()
+        first = new[0]
+        if previous_end is not None and first.start < previous_end - TIME_TOLERANCE:
+            raise VispeechError(f"phone {first.symbol} at {first.start:.3f} s starts before the previous one ends")
+    return new
+
+
 class WindowStream(ModelStream[Iterable[Phone]]):
     """Any model streamed by re-predicting a bounded recent window.
 
@@ -110,9 +124,9 @@ class WindowStream(ModelStream[Iterable[Phone]]):
             self.lookahead = math.ceil((model.lookahead + 1) * self.fps / model.frame_rate)
 
     def push(self, phones: Iterable[Phone]) -> tuple[int, np.ndarray]:
-        new = list(phones)
         if self.closed:
             raise VispeechError("this phone stream has ended")
+        new = pushed_phones(phones, self.language, self._recent[-1].end if self._recent else None)
         if new:
             self._recent += new
             self.end = new[-1].end

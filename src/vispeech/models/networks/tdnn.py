@@ -32,12 +32,12 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, n_frames_for
+from vispeech.alignment.phones import Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
 from vispeech.limits import check_fps
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches, whole_number
-from vispeech.models.streams import ModelStream, ResampledFrames, rate_ratio
+from vispeech.models.streams import ModelStream, ResampledFrames, pushed_phones, rate_ratio
 
 BESKOW: dict = {
     **COMMON_PARAMS,
@@ -193,11 +193,10 @@ class RecurrentStream(ModelStream[Iterable[Phone]]):
         if self.closed:
             raise VispeechError("this phone stream has ended")
         model = self.model
-        for phone in phones:
-            if self._recent and phone.start < self._recent[-1].end - TIME_TOLERANCE:
-                raise VispeechError(f"phone {phone.symbol} at {phone.start:.3f} s starts before the previous one ends")
-            self._recent.append(phone)
-            self.end = phone.end
+        new = pushed_phones(phones, self.language, self._recent[-1].end if self._recent else None)
+        if new:
+            self._recent += new
+            self.end = new[-1].end
         sequence = PhoneSequence(self._recent, self.language)
         known = sequence.n_frames(model.fps_) if self._recent else 0
         if known > len(self._rows):  # a frame's inputs depend on the phones up to it only: encoded once a push
