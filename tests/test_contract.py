@@ -453,3 +453,16 @@ def test_a_stream_takes_phones_that_name_their_words_and_refuses_bad_ones(name):
                        ([Phone("AH", 0.0, 0.3), Phone("IY", 0.1, 0.4)], "before the previous")):
         with pytest.raises(VispeechError, match=match):
             model.stream("en", 30.0).push(bad)
+
+
+def test_a_folder_is_loaded_from_a_string_and_a_path_names_only_folders(tmp_path):
+    """``load_folder("/tmp/m")`` failed on a string (``str / str``), and ``load_model(Path("grid-tdnn"))``
+    said "unknown model 'grid-tdnn': not one of grid-tdnn, ..."."""
+    from pathlib import Path
+
+    folder = load_model("ohman").save(tmp_path / "m")
+    assert load_folder(str(folder)).family == load_model(str(folder)).family == "ohman"
+    with pytest.raises(VispeechError, match=f"^no saved model folder at {tmp_path / 'none'}$"):
+        load_model(tmp_path / "none")
+    with pytest.raises(VispeechError, match="^no saved model folder at grid-tdnn$"):
+        load_model(Path("grid-tdnn"))

@@ -98,10 +98,11 @@ def load_model(name_or_path: str | os.PathLike) -> Estimator:
             f"ready to run: {', '.join(RUNNABLE)}"
         )
     if not os.path.isdir(name_or_path):
-        raise VispeechError(
-            f"unknown model {str(name_or_path)!r}: not one of {', '.join(RUNNABLE)} nor a saved model folder"
-        )
-    return load_folder(Path(name_or_path))
+        if not isinstance(name_or_path, str):  # a path names a folder; a shipped model is named by a string
+            raise VispeechError(f"no saved model folder at {os.fspath(name_or_path)}")
+        known = ", ".join(RUNNABLE)
+        raise VispeechError(f"unknown model {name_or_path!r}: not one of {known} nor a saved model folder")
+    return load_folder(name_or_path)
 
 
 def saved_folder(name_or_path: str | os.PathLike) -> Path | None:
@@ -134,8 +135,9 @@ def model_version(model: Estimator, folder: Path | None = None) -> str:
     return digest.hexdigest()[:16]
 
 
-def load_folder(folder: Path) -> Estimator:
+def load_folder(folder: str | os.PathLike) -> Estimator:
     """The model saved in ``folder``, whatever its family."""
+    folder = Path(folder)
     config = read_config(folder)
     return model_from_config(family_class(config["family"]), folder, config)
 
