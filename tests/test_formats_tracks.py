@@ -300,3 +300,21 @@ def test_every_reader_refuses_more_than_600_s_and_takes_600_s_at_any_rate(tmp_pa
             else:
                 with pytest.raises(VispeechError, match="lasts 700 s; the limit is 600 s"):
                     read_track(tmp_path / name)
+
+
+@pytest.mark.parametrize("fmt", sorted(FORMATS))
+def test_every_format_refuses_a_track_no_reader_would_take(fmt, tmp_path):
+    """Checked once for all formats: glTF wrote NaN as a raw "Out of range float values are not JSON
+    compliant", a track without frames was written where no reader takes it back, an fps of 0
+    divided by zero; each is one line naming the file, and nothing is written."""
+    good = Track(np.full((5, 2), 0.2), ("jawOpen", "mouthClose"), 30.0)
+    nan = good.copy()
+    nan.values[3, 1] = np.nan
+    still = good.copy()
+    still.fps = 0
+    path = tmp_path / f"out{FORMATS[fmt].extensions[0]}"
+    for track, message in ((nan, "frame 3, value 1 is nan"), (Track(np.zeros((0, 2)), good.channels, 30.0),
+                           "the track has no frames"), (still, "fps must be positive")):
+        with pytest.raises(VispeechError, match=f"^cannot write {path}: .*{message}"):
+            write_track(track, path, fmt)
+        assert not path.exists()

@@ -19,6 +19,7 @@ accepted for ``livelink`` (:data:`ALIASES`).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from pathlib import Path
 from vispeech.alignment.phones import PhoneSequence
 from vispeech.errors import VispeechError
 from vispeech.files import read_json
+from vispeech.limits import check_fps, check_track_range
 from vispeech.motion.formats.animation_json import (
     ANIMATION_FORMAT,
     Animation,
@@ -261,6 +263,11 @@ def write_track(
     """
     path = Path(path)
     target = FORMATS[track_format(path, fmt)]
+    if track.n_frames == 0:  # what no reader takes back
+        raise VispeechError(f"cannot write {path}: the track has no frames")
+    check_fps(track.fps, f"cannot write {path}: fps")
+    # the values, and a start time that is a number (a format that keeps it checks its range)
+    check_track_range(track.values, 0.0 if math.isfinite(track.start_time) else math.nan, f"cannot write {path}")
     if pose_table is not None and not target.maps_poses:
         track = pose_table.apply(track)
     target.writer(track, path, WriteOptions(phones, audio, base_glb, pose_table, uncompressed))
