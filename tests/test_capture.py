@@ -409,3 +409,22 @@ def test_an_iphone_recording_is_imported_with_its_timecodes_lined_up(videos, tmp
     assert [w.text for w in take.words] == ["bin", "blue", "at", "f", "two", "now"]
     livelink = (out / "take01_iPhone.csv").read_text().splitlines()
     assert len(livelink) == 76 and livelink[1].startswith("00:00:00:00")
+    # the walkthrough imports each iPhone take into the corpus folder: a second one goes in beside
+    # the first (it was refused: "holds files vispeech did not write"), and a take imported again
+    # replaces its own files only (here without a transcript: its old phones go)
+    import shutil
+
+    shutil.copy(mov, tmp_path / "take02_iPhone.mov")
+    shutil.copy(csv, tmp_path / "take02_iPhone.csv")
+    result = CliRunner().invoke(main, ["capture", str(tmp_path / "take02_iPhone.mov"), "--livelink",
+                                       str(tmp_path / "take02_iPhone.csv"), "--text", "bin blue at f two now",
+                                       "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(t.id for t in read_takes(out, language="en", strict=True)) == ["take01_iPhone", "take02_iPhone"]
+    result = CliRunner().invoke(main, ["capture", str(mov), "--livelink", str(csv), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert not (out / "take01_iPhone.TextGrid").exists() and (out / "take02_iPhone.TextGrid").is_file()
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"take0{k}_iPhone{suffix}" for k in (1, 2) for suffix in (".wav", ".face.csv", ".csv")]
+        + ["take02_iPhone.TextGrid"]
+    )

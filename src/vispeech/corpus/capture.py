@@ -19,8 +19,9 @@ Every capture estimates how late the picture is against the sound
 filters tracker jitter (both off by default).
 
 :func:`capture_corpus` does this for a folder of videos, each with its transcript beside it
-(``<name>.txt``), into one corpus folder, in parallel; a take is moved into the folder file by
-file with its ``.face.csv`` last, so a rerun skips exactly the takes that are complete.
+(``<name>.txt``), into one corpus folder, in parallel. Every take is moved into its folder file
+by file with its ``.face.csv`` last, beside the takes already there, so a rerun skips exactly the
+takes that are complete.
 """
 
 from __future__ import annotations
@@ -48,7 +49,6 @@ from vispeech.corpus.av_sync import (
 )
 from vispeech.corpus.grid import fill_missing_frames, write_face_csv
 from vispeech.errors import VispeechError
-from vispeech.files import atomic_output_dir, check_output_dir
 from vispeech.frontends.align import align
 from vispeech.frontends.audio import AudioClip, wav_bytes
 from vispeech.frontends.video import LANDMARKS, check_installed, face_model_path, track_face, video_audio
@@ -97,10 +97,11 @@ def capture_take(
     openness: Callable[[AudioClip], np.ndarray] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> CaptureReport:
-    """Write the take of ``video`` into ``out_dir`` (see the module docstring); the folder is
-    written whole or not at all (:func:`vispeech.files.atomic_output_dir`) and may already hold
-    only this take's files. The audio–video offset is always estimated and reported: from how
-    open a speech model hears the jaw in the sound where ``openness`` gives that
+    """Write the take of ``video`` into the corpus folder ``out_dir`` (see the module docstring;
+    :func:`corpus_folder`): its files replace this take's earlier ones, file by file with the
+    ``.face.csv`` last, and the other takes there stay. The audio–video offset is always
+    estimated and reported: from how open a speech model hears the jaw in the sound where
+    ``openness`` gives that
     (:func:`vispeech.pipeline.speech_openness`; :func:`~vispeech.corpus.av_sync.openness_offset`,
     takes of 3 s or more), else from the sound's energy (10 s or more); ``sync`` moves the face
     track by it, ``smooth`` filters tracker jitter (:mod:`vispeech.corpus.av_sync`).
@@ -108,7 +109,7 @@ def capture_take(
     any frame, or a transcript that cannot be aligned."""
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
-    check_output_dir(out_dir, replaces=files)
+    corpus_folder(out_dir)
     check_installed()
     face_model = face_model_path(face_model)  # before any decoding
     clip = video_audio(video)
@@ -153,12 +154,39 @@ def _write_take(
     track with its untracked frames (NaN rows) left empty, the Live Link CSV with them filled in
     from their neighbours (the format has no gaps), and the phones when there are some."""
     filled, _ = fill_missing_frames(values)
-    with atomic_output_dir(out_dir, replaces=files) as staging:
-        (staging / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
-        write_face_csv(staging / files[1], values, channels, landmarks, fps)
-        write_livelink_csv(Track(filled, channels, fps), staging / files[2])  # leaves out non-Live-Link columns
+    out = corpus_folder(out_dir, make=True)
+    with tempfile.TemporaryDirectory(prefix=".vispeech-capture-", dir=out) as staging:
+        take = Path(staging)
+        (take / files[0]).write_bytes(wav_bytes(clip.samples, clip.sample_rate))
+        write_face_csv(take / files[1], values, channels, landmarks, fps)
+        write_livelink_csv(Track(filled, channels, fps), take / files[2])  # leaves out non-Live-Link columns
         if phones is not None:
-            write_textgrid(phones, staging / files[3])
+            write_textgrid(phones, take / files[3])
+        # the take's .face.csv goes in last: a take without it is not complete (capture_corpus redoes it)
+        (out / files[1]).unlink(missing_ok=True)
+        for name in sorted(files, key=lambda name: name == files[1]):
+            if (take / name).is_file():
+                os.replace(take / name, out / name)
+            else:  # an earlier capture's phones, of another transcript
+                (out / name).unlink(missing_ok=True)
+
+
+def corpus_folder(path: str | os.PathLike, make: bool = False) -> Path:
+    """The corpus folder ``path`` takes are written into (``make``: made now if need be);
+    :class:`VispeechError` when it is no folder or it (or, not made yet, the folder it would be
+    made in) cannot be written to. Other takes' files in it stay as they are."""
+    out = Path(path)
+    if os.path.lexists(out) and not out.is_dir():
+        raise VispeechError(f"output path {out} exists and is not a folder")
+    existing = next(p for p in (out, *out.absolute().parents) if p.is_dir())
+    if not os.access(existing, os.W_OK):
+        raise VispeechError(f"cannot write to output folder {existing}: Permission denied")
+    if make:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise VispeechError(f"cannot make output folder {out}: {exc.strerror}") from None
+    return out
 
 
 def _spoken(phones: PhoneSequence | None) -> int:
@@ -252,26 +280,14 @@ def _capture_into(
     smooth: bool,
     openness: Callable[[AudioClip], np.ndarray] | None,
 ) -> str | None:
-    """Capture one video into the corpus folder ``out`` (staged beside it, then moved in with its
-    ``.face.csv`` last); None, or why it failed."""
+    """Capture one video into the corpus folder ``out`` (:func:`capture_take`); None, or why it failed."""
     transcript = video.with_suffix(".txt")
     try:
         text = " ".join(transcript.read_text(encoding="utf-8-sig").split()) if transcript.is_file() else None
-        with tempfile.TemporaryDirectory(prefix=f".vispeech-capture-{video.stem}-", dir=out) as staging:
-            take = Path(staging) / "take"
-            capture_take(
-                video,
-                take,
-                text=text or None,
-                language=language,
-                face_model=face_model,
-                sync=sync,
-                smooth=smooth,
-                openness=openness,
-            )
-            written = [take / f.format(name=video.stem) for f in TAKE_FILES]
-            for path in sorted((p for p in written if p.is_file()), key=lambda p: p.name.endswith(".face.csv")):
-                os.replace(path, out / path.name)
+        capture_take(
+            video, out, text=text or None, language=language, face_model=face_model, sync=sync, smooth=smooth,
+            openness=openness,
+        )  # fmt: skip
         return None
     except VispeechError as exc:
         return str(exc)
@@ -302,7 +318,7 @@ def import_livelink_take(
 
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
-    check_output_dir(out_dir, replaces=files)
+    corpus_folder(out_dir)
     track = read_livelink_csv(csv)
     clip = video_audio(video)
     stamp = video_timecode(video)
