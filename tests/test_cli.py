@@ -109,3 +109,15 @@ def test_stream_takes_http_addresses(url, expected):
 def test_stream_refuses_other_urls():
     result = CliRunner().invoke(main, ["stream", "hello", "--url", "ftp://host/x"])
     assert result.exit_code == 2 and "--url" in result.output and "Traceback" not in result.output
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly():
+    """``vispeech languages | head -2`` printed "error: Broken pipe" and exited 2: a pipe's reader
+    that has read enough is no error. Exit 141 (SIGPIPE's), nothing on stderr, as Unix tools do."""
+    import subprocess
+    import sys
+
+    process = subprocess.Popen([sys.executable, "-c", "from vispeech.cli import main; main()", "languages"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()  # gone before the first line: the first write fails
+    assert process.stderr.read() == b"" and process.wait(60) == 141
