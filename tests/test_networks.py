@@ -349,6 +349,16 @@ def test_bad_parameters_and_corpora_raise(corpus):
                          (dict(lr_step_down="x"), "lr_step_down"), (dict(linguistic=1), "linguistic")):
         with pytest.raises(VispeechError, match=message):
             TimeDelayNetwork(**bad)
+    # accepted before: torch's own error at fit, torch's init used silently, a window the networks
+    # refuse grown into a tree, a smoothing that asked for terabytes at predict
+    for family, bad, message in (
+        ("sliding-window-thesis", dict(dropout=[1.5, 0.1]), "dropout rates must be at least 0 and below 1"),
+        ("sliding-window-thesis", dict(init="nope"), "unknown init 'nope' \\(use default or he\\)"),
+        ("sliding-window-dtree", dict(input_window=4, output_window=5), "windows must satisfy"),
+        ("beskow-rules", dict(sigma=1e9), "sigma must be seconds from 0 to 1"),
+    ):
+        with pytest.raises(VispeechError, match=message):
+            create_model(family, **bad)
     unaligned = [SimpleNamespace(id="x", phones=None, track=corpus[0].track)]
     with pytest.raises(VispeechError, match="align"):
         tiny_thesis().fit(unaligned, progress=False)

@@ -47,6 +47,11 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         for key in ("input_window", "output_window", "min_leaf"):
             if not isinstance(p[key], int) or p[key] < 1:
                 raise VispeechError(f"{key} must be a whole number of 1 or more, got {p[key]!r}")
+        kx, ky = p["input_window"], p["output_window"]
+        if ky > kx or (kx - ky) % 2:  # the output window centred in the input one, as the networks'
+            raise VispeechError(
+                f"windows must satisfy 1 <= output_window <= input_window with an even difference, got {kx} and {ky}"
+            )
         check_training_params(p)
         InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], False)
 

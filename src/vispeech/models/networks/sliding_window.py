@@ -63,6 +63,8 @@ THESIS: dict = {
 """Hyper-parameters of the thesis's network (``sliding-window-thesis``); ``hidden=None`` is its sizing rule."""
 
 _ACTIVATIONS = ("tanh", "leaky_relu")
+_INITS = ("default", "he")
+"""Weight initialisations: torch's default, or He's (Kaiming normal, for the leaky ReLUs)."""
 
 
 class SlidingWindowNetwork(PhoneNetwork):
@@ -91,6 +93,11 @@ class SlidingWindowNetwork(PhoneNetwork):
         layers = 2 if p["hidden"] is None else len(p["hidden"])
         if len(p["dropout"]) != layers:
             raise VispeechError(f"dropout needs one rate per hidden layer ({layers}), got {p['dropout']}")
+        rates = p["dropout"]
+        if not all(isinstance(rate, int | float) and not isinstance(rate, bool) and 0 <= rate < 1 for rate in rates):
+            raise VispeechError(f"dropout rates must be at least 0 and below 1, got {p['dropout']}")
+        if p["init"] not in _INITS:
+            raise VispeechError(f"unknown init {p['init']!r} (use {' or '.join(_INITS)})")
         if p["update"] not in ("windows", "utterance"):
             raise VispeechError(f"update must be windows or utterance, got {p['update']!r}")
 

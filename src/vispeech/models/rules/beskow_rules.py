@@ -18,10 +18,14 @@ from vispeech.errors import VispeechError
 from vispeech.models.rules.phone_targets import PhoneTargetModel, family_defaults
 from vispeech.motion.track import Track
 
+MAX_SIGMA = 1.0
+"""Seconds: the widest smoothing (a Gaussian's standard deviation); wider smooths whole words away
+(and its kernel would run to millions of frames: ``sigma=1e9`` asked for terabytes)."""
+
 
 class BeskowRules(PhoneTargetModel):
     """Interpolated under-specified targets. Parameters: ``hold`` (fraction of a phone held
-    at its target, 0..1), ``sigma`` (smoothing in seconds, ≥ 0), ``targets``."""
+    at its target, 0..1), ``sigma`` (smoothing in seconds, 0 to :data:`MAX_SIGMA`), ``targets``."""
 
     family = "beskow-rules"
     defaults = family_defaults("beskow-rules")
@@ -31,8 +35,8 @@ class BeskowRules(PhoneTargetModel):
         hold, sigma = self._params["hold"], self._params["sigma"]
         if not isinstance(hold, (int, float)) or not 0.0 <= hold <= 1.0:
             raise VispeechError(f"beskow-rules hold must lie in [0, 1], got {hold!r}")
-        if not isinstance(sigma, (int, float)) or not 0.0 <= sigma < np.inf:
-            raise VispeechError(f"beskow-rules sigma must be seconds >= 0, got {sigma!r}")
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not 0.0 <= sigma <= MAX_SIGMA:
+            raise VispeechError(f"beskow-rules sigma must be seconds from 0 to {MAX_SIGMA:g}, got {sigma!r}")
 
     def predict(self, phones: PhoneSequence, fps: float) -> Track:
         seg = self.segments(phones, fps)
