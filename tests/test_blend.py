@@ -84,3 +84,21 @@ def test_an_audio_model_with_the_transcript_animates_the_blend_closed_on_its_bil
     b = next(p for p in phones if p.symbol == "B")
     middle = int(round((b.start + b.end) / 2 * 30.0))
     assert track["mouthClose"][middle] >= 0.9 * track["jawOpen"][middle] > 0
+
+
+def test_the_pipeline_names_what_it_takes_when_given_something_else():
+    """``animate(clip)``, ``animate_audio(phones)``, ``listen(array)`` and ``hear("x.wav")`` died of
+    AttributeErrors deep inside ('AudioClip' object has no attribute 'validate', ...)."""
+    from vispeech import VispeechError
+    from vispeech.pipeline import animate, animate_many, listen, utter
+
+    clip = AudioClip.from_array(np.zeros(16000, np.float32), 16000)
+    phones = utter("Hello").phones
+    for call, message in ((lambda: animate(clip), "^animate takes phones .*, not AudioClip$"),
+                          (lambda: animate_audio(phones), "^animate_audio takes audio .*, not PhoneSequence$"),
+                          (lambda: listen(np.zeros(16000)), "^a recording is audio .*, not ndarray$"),
+                          (lambda: hear("x.wav"), "^a recording is audio .*, not str$")):
+        with pytest.raises(VispeechError, match=message):
+            call()
+    (refused,) = animate_many([clip])
+    assert isinstance(refused, VispeechError) and "animate_many takes phones" in str(refused)

@@ -115,7 +115,14 @@ def animate(
     (:data:`vispeech.postprocess.Postprocessing`).
     """
     check_fps(fps)
+    _expect(phones, PhoneSequence, "animate takes phones (a PhoneSequence; audio: animate_audio or listen)")
     return _animate(phones, model, fps, postprocessing)
+
+
+def _expect(value: object, kind: type, what: str) -> None:
+    """Refuse ``value`` unless it is a ``kind``, saying ``what`` the function takes."""
+    if not isinstance(value, kind):
+        raise VispeechError(f"{what}, not {type(value).__name__}")
 
 
 def _animate(
@@ -154,6 +161,7 @@ def animate_many(
     checked = []
     for i, sequence in enumerate(phones):
         try:
+            _expect(sequence, PhoneSequence, f"utterance {i}: animate_many takes phones (PhoneSequences)")
             sequence.validate()
             check_utterance(sequence.duration, len(sequence))
             checked.append(i)
@@ -203,6 +211,7 @@ def animate_audio(
     (:func:`speech_spans`).
     """
     check_fps(fps)
+    _expect(clip, AudioClip, "animate_audio takes audio (an AudioClip: AudioClip.read or AudioClip.from_array)")
     return _animate_audio(clip, model, fps, postprocessing, phones)
 
 
@@ -426,6 +435,7 @@ def hear(clip: AudioClip, text: str | None = None, language: str = "en", *, forc
     (:class:`~vispeech.frontends.align.TranscriptMismatch` for an English transcript whose fit
     is below :data:`~vispeech.frontends.align.MIN_FIT`, unless ``force`` or Whisper hears it:
     :func:`~vispeech.frontends.transcribe.second_opinion`, with the ``whisper`` extra)."""
+    _expect(clip, AudioClip, "a recording is audio (an AudioClip: AudioClip.read or AudioClip.from_array)")
     phones = None
     if text is not None:
         from vispeech.frontends.align import MIN_FIT, TranscriptMismatch, align
