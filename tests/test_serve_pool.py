@@ -238,27 +238,24 @@ def test_a_long_job_lets_the_short_jobs_waiting_run_in_its_turns():
             threads.add(threading.get_ident())
             return name
 
-        # pieces of 20 ms, three short jobs of 5 ms: all three go at the first turn
-        long = asyncio.ensure_future(pool.run("upload", "a", long_job, 6, 0.02, weight=20.0))
-        await asyncio.to_thread(started.wait, 30)
-        shorts = [asyncio.ensure_future(pool.run("text", f"c{k}", short, f"s{k}", 0.005, weight=0.01))
-                  for k in range(3)]
-        await asyncio.sleep(0)
-        queued.set()
-        assert await asyncio.gather(long, *shorts) == ["long", "s0", "s1", "s2"]
-        assert order[:5] == ["long0", "s0", "s1", "s2", "long1"] and len(threads) == 1, order
+        async def beside(pieces: int, piece: float, client: str, seconds: float) -> list:
+            """A long job of ``pieces`` of ``piece`` s and three short jobs of ``seconds`` queued behind it."""
+            order.clear()
+            started.clear()
+            queued.clear()
+            long = asyncio.ensure_future(pool.run("upload", "a", long_job, pieces, piece, weight=20.0))
+            await asyncio.to_thread(started.wait, 30)
+            shorts = [asyncio.ensure_future(pool.run("text", f"{client}{k}", short, f"s{k}", seconds, weight=0.01))
+                      for k in range(3)]
+            await asyncio.sleep(0)
+            queued.set()
+            return await asyncio.gather(long, *shorts)
 
+        # pieces of 20 ms, three short jobs of 5 ms: all three go at the first turn
+        assert await beside(6, 0.02, "c", 0.005) == ["long", "s0", "s1", "s2"]
+        assert order[:5] == ["long0", "s0", "s1", "s2", "long1"] and len(threads) == 1, order
         # pieces of 10 ms, short jobs of 30 ms: after each, the long job has its own time back first
-        order.clear()
-        started.clear()
-        queued.clear()
-        long = asyncio.ensure_future(pool.run("upload", "a", long_job, 20, 0.01, weight=20.0))
-        await asyncio.to_thread(started.wait, 30)
-        shorts = [asyncio.ensure_future(pool.run("text", f"d{k}", short, f"s{k}", 0.03, weight=0.01))
-                  for k in range(3)]
-        await asyncio.sleep(0)
-        queued.set()
-        await asyncio.gather(long, *shorts)
+        await beside(20, 0.01, "d", 0.03)
         at = {name: order.index(name) for name in ("s0", "s1", "s2", "long19")}
         assert order[:2] == ["long0", "s0"] and at["s1"] - at["s0"] > 2 and at["s2"] - at["s1"] > 2, order
         assert at["s2"] < at["long19"], order  # each short job ran within the long one
