@@ -117,6 +117,9 @@ def test_guess_language_reads_ipa_labels():
     assert guess_language(["m", "a", "t"]) == "sv"  # Swedish symbols are read as Swedish
     with pytest.raises(VispeechError, match=r"unknown phone symbol 'Q#' \(phone 2\)"):
         guess_language(["h", "ɛ", "Q#"])
+    # a file's reader gives the times: docs/formats.md promises the label, its position and time
+    with pytest.raises(VispeechError, match=r"unknown phone symbol 'Q#' \(phone 2 at 0.250 s\): neither"):
+        guess_language(["h", "ɛ", "Q#"], [0.0, 0.1, 0.25])
 
 
 _MFA_TEXTGRID = """File type = "ooTextFile"

@@ -427,7 +427,7 @@ def _build(phone_spans: list[_Span], word_spans: list[_Span], path: Path, langua
         raise VispeechError(f"alignment file has no phones: {path}")
     labels = [label for _, _, label in phone_spans]
     try:
-        language = language or guess_language(labels)
+        language = language or guess_language(labels, [start for start, _, _ in phone_spans])
     except VispeechError as exc:
         raise VispeechError(f"{path}: {exc}") from None
     parsed = []

@@ -28,7 +28,7 @@ may carry a stress digit 0, 1 or 2 (``AA1``) and may be in any case.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from functools import cache, lru_cache
 
@@ -208,15 +208,19 @@ def _parse_symbol(label: str, language: str) -> tuple[str, int]:
     raise VispeechError(f"unknown phone symbol {label!r} for language {language}")
 
 
-def guess_language(labels: Iterable[str]) -> str:
+def guess_language(labels: Iterable[str], starts: Sequence[float] | None = None) -> str:
     """``"en"`` if every non-silence label is ARPAbet, else ``"sv"`` if all are Swedish, else
     ``"ipa"`` if all are IPA segments.
 
     Labels with no phone at all (only silences) count as English; IPA labels that are also
     Swedish symbols (``m a t``) read as Swedish. Raises :class:`VispeechError` naming the first
-    label, and its position, that is none of these.
+    label that is none of these, and its position (and start time in seconds, given ``starts``).
     """
     labels = list(labels)
+
+    def where(position: int) -> str:
+        return f"phone {position}" + (f" at {starts[position]:.3f} s" if starts is not None else "")
+
     sets = {"en": "ARPAbet", "sv": "Swedish", IPA: "IPA"}
     for language in sets:
         if all(_parses(label, language) for label in labels):
@@ -224,11 +228,11 @@ def guess_language(labels: Iterable[str]) -> str:
     parses = {language: [_parses(label, language) for label in labels] for language in sets}
     for position, label in enumerate(labels):
         if not any(parses[language][position] for language in sets):
-            raise VispeechError(f"unknown phone symbol {label!r} (phone {position}): neither ARPAbet, Swedish nor IPA")
+            raise VispeechError(f"unknown phone symbol {label!r} ({where(position)}): neither ARPAbet, Swedish nor IPA")
     best = max(sets, key=lambda language: sum(parses[language]))
     position = parses[best].index(False)
     raise VispeechError(
-        f"unknown phone symbol {labels[position]!r} (phone {position}): the other phones are {sets[best]}"
+        f"unknown phone symbol {labels[position]!r} ({where(position)}): the other phones are {sets[best]}"
     )
 
 
