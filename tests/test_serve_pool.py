@@ -306,3 +306,84 @@ def test_turns_pass_over_heavy_jobs_and_a_job_run_in_a_turn_gives_none():
         pool.close()
 
     asyncio.run(scenario())
+
+
+def test_only_a_long_job_lends_its_worker_and_only_when_no_other_is_idle():
+    """Found by review: every job gave turns, so a 20-ms live-audio push ran a queued speech job
+    before its own work (the job the fair queue took first ended last); a long job lent its turns
+    though another worker was idle; and the long job's kind was charged the time it lent too."""
+
+    async def scenario():
+        pool = WorkPool(workers=1, max_queue=16)
+        started, queued, order = threading.Event(), threading.Event(), []
+
+        def job(name, pieces=1, piece=0.01):
+            started.set()
+            queued.wait(30)
+            for _ in range(pieces):
+                give_turn()
+                _spin(piece)
+            order.append((name, threading.get_ident()))
+            return name
+
+        short = asyncio.ensure_future(pool.run("listen", "a", job, "short", weight=0.01))
+        await asyncio.to_thread(started.wait, 30)
+        behind = asyncio.ensure_future(pool.run("text", "b", job, "behind", 1, 0.05, weight=0.2))
+        await asyncio.sleep(0)
+        queued.set()
+        await asyncio.gather(short, behind)
+        assert [name for name, _ in order] == ["short", "behind"]  # the short job gave no turn
+
+        order.clear()
+        started.clear()
+        queued.clear()
+        long = asyncio.ensure_future(pool.run("upload", "a", job, "long", 10, 0.02, weight=20.0))
+        await asyncio.to_thread(started.wait, 30)
+        lent = [asyncio.ensure_future(pool.run("text", f"c{k}", job, f"lent{k}", 1, 0.02, weight=0.01))
+                for k in range(3)]
+        await asyncio.sleep(0)
+        queued.set()
+        await asyncio.gather(long, *lent)
+        assert [name for name, _ in order][-1] == "long"
+        kinds = pool._queue._root.children  # what each kind was charged: the long job its own 0.2 s only
+        assert kinds["upload"].time < 0.2 + 0.06, kinds["upload"].time
+        pool.close()
+
+        pool = WorkPool(workers=2, max_queue=16)  # an idle worker takes the short jobs itself
+        order.clear()
+        started.clear()
+        queued.clear()
+        long = asyncio.ensure_future(pool.run("upload", "a", job, "long", 10, 0.02, weight=20.0))
+        await asyncio.to_thread(started.wait, 30)
+        queued.set()
+        await asyncio.sleep(0.05)
+        shorts = [await pool.run("text", f"c{k}", job, f"s{k}", 1, 0.001, weight=0.01) for k in range(3)]
+        await long
+        threads = dict(order)
+        assert shorts == ["s0", "s1", "s2"] and all(threads[s] != threads["long"] for s in shorts), order
+        pool.close()
+
+    asyncio.run(scenario())
+
+
+def test_a_process_forked_inside_a_turn_taking_job_takes_no_turns():
+    """A native worker forked while a long job ran (the pool started or restarted from inside it)
+    kept the turn, bound to its copy of the server's queue: review found a queued job run twice,
+    once in the espeak-ng worker. A forked child forgets the turn."""
+    import os
+
+    from vispeech.turns import taking_turns
+
+    calls = []
+    with taking_turns(lambda: calls.append(os.getpid())):
+        give_turn()
+        reader, writer = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the child: a turn here must do nothing
+            give_turn()
+            os.write(writer, str(len(calls)).encode())
+            os._exit(0)
+        os.close(writer)
+        seen = os.read(reader, 16)
+        os.waitpid(pid, 0)
+    assert seen == b"1" and calls == [os.getpid()]

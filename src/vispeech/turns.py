@@ -10,11 +10,21 @@ does not hold everyone else's for its whole length.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 
 _turn: ContextVar[Callable[[], None] | None] = ContextVar("vispeech_turn", default=None)
+
+
+def _forget() -> None:
+    """In a process forked from a job that takes turns (a native worker started by it): the turn
+    belongs to the parent's pool, whose copy here must never run the parent's queued jobs."""
+    _turn.set(None)
+
+
+os.register_at_fork(after_in_child=_forget)
 
 
 def give_turn() -> None:

@@ -294,10 +294,14 @@ class WorkPool:
                 if self._closed:
                     return
                 job = self._take()
-            if job is not None:
-                lent = [0.0]
-                with taking_turns(partial(self._turn, time.perf_counter(), lent)):
-                    self._execute(job)
+            if job is None:
+                continue
+            lent = [0.0]  # seconds of this job's worker time that its turns gave others
+            if job.weight <= TURN_WEIGHT:  # a short job gives no turns (it may be run in one itself)
+                self._execute(job, lent)
+                continue
+            with taking_turns(partial(self._turn, time.perf_counter(), lent)):
+                self._execute(job, lent)
 
     def _take(self) -> _Job | None:
         """The next job, counted as running; ``None`` when it was given up (it is settled so)."""
@@ -309,15 +313,16 @@ class WorkPool:
         self.running += 1
         return job
 
-    def _execute(self, job: _Job) -> None:
-        """Run a job :meth:`_take` took, charge what it took and hand its result to its caller."""
+    def _execute(self, job: _Job, lent: list[float]) -> None:
+        """Run a job :meth:`_take` took, charge what it took (less the ``lent[0]`` seconds its turns
+        gave the jobs they ran, which are charged their own) and hand its result to its caller."""
         started = time.perf_counter()
         result = error = None
         try:
             result = job.fn(*job.args)
         except Exception as exc:  # noqa: BLE001 (handed to the waiting coroutine)
             error = exc
-        spent = time.perf_counter() - started
+        spent = time.perf_counter() - started - lent[0]
         with self._cond:
             self.running -= 1
             self._queue.done(job.kind, job.key, spent - job.weight, job.session)
@@ -325,17 +330,25 @@ class WorkPool:
 
     def _turn(self, started: float, lent: list[float]) -> None:
         """A turn of the job running on this thread since ``started`` (:func:`vispeech.turns.give_turn`):
-        the jobs waiting run here, in the queue's order, while the next is estimated at most
-        :data:`TURN_WEIGHT` and the time lent (``lent[0]``) stays below the job's own, so a long job
-        holds a worker for no more than one of its pieces at a time and still has half of it."""
+        the jobs waiting run here, in the queue's order, while every worker is busy (an idle one
+        takes them itself), the next is estimated at most :data:`TURN_WEIGHT` and the time lent
+        (``lent[0]``) stays below the job's own, so a long job holds a worker for no more than one
+        of its pieces at a time and still has half of it. Only a job estimated above
+        :data:`TURN_WEIGHT` takes turns (:meth:`_work`)."""
         while True:
             with self._cond:
                 own = time.perf_counter() - started - lent[0]
-                if self._closed or not self._queue or lent[0] >= own or self._queue.next_weight() > TURN_WEIGHT:
+                if (
+                    self._closed
+                    or not self._queue
+                    or self.running < self.workers
+                    or lent[0] >= own
+                    or self._queue.next_weight() > TURN_WEIGHT
+                ):
                     return
                 job = self._take()
             if job is not None:
                 begun = time.perf_counter()
                 with taking_turns(None):  # a job run in a turn gives none of its own
-                    self._execute(job)
+                    self._execute(job, [0.0])
                 lent[0] += time.perf_counter() - begun
