@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -428,3 +429,30 @@ def test_an_iphone_recording_is_imported_with_its_timecodes_lined_up(videos, tmp
         [f"take0{k}_iPhone{suffix}" for k in (1, 2) for suffix in (".wav", ".face.csv", ".csv")]
         + ["take02_iPhone.TextGrid"]
     )
+    # the app names its CSV as the video: a corpus folder holding the recording would lose it
+    before = csv.read_bytes()
+    result = CliRunner().invoke(main, ["capture", str(mov), "--livelink", str(csv), "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "would replace the recording's own" in result.output, result.output
+    assert csv.read_bytes() == before
+    # stopped halfway through moving a take in (here: killed before its Live Link CSV, moved last),
+    # the take is left out with a warning, never read as files of two captures
+    import vispeech.corpus.capture as capture_module
+
+    moved = []
+
+    def replace_then_die(source, target):
+        if str(target).endswith("take01_iPhone.csv"):
+            raise KeyboardInterrupt
+        moved.append(Path(target).name)
+        os.replace(source, target)
+
+    capture_module_os = capture_module.os
+    try:
+        capture_module.os = SimpleNamespace(**{**vars(os), "replace": replace_then_die})
+        with pytest.raises(KeyboardInterrupt):
+            capture_module.import_livelink_take(csv, mov, out, text="bin blue at f two now")
+    finally:
+        capture_module.os = capture_module_os
+    assert "take01_iPhone.TextGrid" in moved and not (out / "take01_iPhone.csv").exists()
+    with pytest.warns(UserWarning, match="skipped take take01_iPhone: missing take01_iPhone.csv"):
+        assert [t.id for t in read_takes(out, language="en")] == ["take02_iPhone"]

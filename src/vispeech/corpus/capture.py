@@ -20,8 +20,8 @@ filters tracker jitter (both off by default).
 
 :func:`capture_corpus` does this for a folder of videos, each with its transcript beside it
 (``<name>.txt``), into one corpus folder, in parallel. Every take is moved into its folder file
-by file with its ``.face.csv`` last, beside the takes already there, so a rerun skips exactly the
-takes that are complete.
+by file with its ``<name>.csv`` last (the file a take is read by), beside the takes already
+there, so a rerun skips exactly the takes that are complete.
 """
 
 from __future__ import annotations
@@ -99,9 +99,9 @@ def capture_take(
 ) -> CaptureReport:
     """Write the take of ``video`` into the corpus folder ``out_dir`` (see the module docstring;
     :func:`corpus_folder`): its files replace this take's earlier ones, file by file with the
-    ``.face.csv`` last, and the other takes there stay. The audio–video offset is always
-    estimated and reported: from how open a speech model hears the jaw in the sound where
-    ``openness`` gives that
+    Live Link ``<name>.csv`` (what a take is read by) last, and the other takes there stay.
+    The audio–video offset is always estimated and reported: from how open a speech model
+    hears the jaw in the sound where ``openness`` gives that
     (:func:`vispeech.pipeline.speech_openness`; :func:`~vispeech.corpus.av_sync.openness_offset`,
     takes of 3 s or more), else from the sound's energy (10 s or more); ``sync`` moves the face
     track by it, ``smooth`` filters tracker jitter (:mod:`vispeech.corpus.av_sync`).
@@ -162,9 +162,11 @@ def _write_take(
         write_livelink_csv(Track(filled, channels, fps), take / files[2])  # leaves out non-Live-Link columns
         if phones is not None:
             write_textgrid(phones, take / files[3])
-        # the take's .face.csv goes in last: a take without it is not complete (capture_corpus redoes it)
-        (out / files[1]).unlink(missing_ok=True)
-        for name in sorted(files, key=lambda name: name == files[1]):
+        # The Live Link CSV goes first and comes back last: a take is read by it (read_takes), so
+        # one stopped halfway is left out with a warning, never read as files of two captures, and
+        # capture_corpus captures it again.
+        (out / files[2]).unlink(missing_ok=True)
+        for name in sorted(files, key=lambda name: name == files[2]):
             if (take / name).is_file():
                 os.replace(take / name, out / name)
             else:  # an earlier capture's phones, of another transcript
@@ -238,7 +240,7 @@ def capture_corpus(
     report = CorpusCaptureReport()
     todo = []
     for video in videos:
-        if (out / f"{video.stem}.face.csv").is_file():
+        if (out / f"{video.stem}.csv").is_file():  # written last (_write_take)
             report.skipped += 1
         else:
             todo.append(video)
@@ -319,6 +321,9 @@ def import_livelink_take(
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
     corpus_folder(out_dir)
+    written = Path(out_dir) / files[2]
+    if written.exists() and os.path.samefile(written, csv):  # the app names its CSV as the video
+        raise VispeechError(f"the take's Live Link CSV would replace the recording's own {csv}: give another -o folder")
     track = read_livelink_csv(csv)
     clip = video_audio(video)
     stamp = video_timecode(video)
