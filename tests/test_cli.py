@@ -121,3 +121,8 @@ def test_a_reader_that_goes_away_ends_the_command_quietly():
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     process.stdout.close()  # gone before the first line: the first write fails
     assert process.stderr.read() == b"" and process.wait(60) == 141
+    # another pipe breaking (a worker's) while stdout is fine is an error like any other
+    script = ("from vispeech.cli import main\n@main.command('boom')\ndef boom():\n"
+              "    raise BrokenPipeError(32, 'Broken pipe')\nmain()")
+    done = subprocess.run([sys.executable, "-c", script, "boom"], capture_output=True, timeout=60)
+    assert done.returncode == 2 and done.stderr == b"error: Broken pipe\n", done.stderr

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import select
 import signal
 import sys
 
@@ -155,13 +156,28 @@ class _Group(click.Group):
                 err=True,
             )
             sys.exit(2)
-        except BrokenPipeError:  # the reader went away (`vispeech languages | head`): end quietly, as Unix tools do
+        except BrokenPipeError as exc:
+            if not _stdout_gone():  # another pipe broke (a worker's): an error like any other
+                click.echo(f"error: {exc.strerror or exc}", err=True)
+                sys.exit(2)
+            # the reader went away (`vispeech languages | head`): end quietly, as Unix tools do
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
             sys.exit(128 + signal.SIGPIPE)
         except OSError as exc:
             where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
             click.echo(f"error: {exc.strerror or exc}{where}", err=True)
             sys.exit(2)
+
+
+def _stdout_gone() -> bool:
+    """Whether standard output is a pipe whose reader has closed it (where that cannot be told:
+    taken as so)."""
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), or no file descriptor
+        return True
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
