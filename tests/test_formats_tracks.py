@@ -318,3 +318,20 @@ def test_every_format_refuses_a_track_no_reader_would_take(fmt, tmp_path):
         with pytest.raises(VispeechError, match=f"^cannot write {path}: .*{message}"):
             write_track(track, path, fmt)
         assert not path.exists()
+
+
+def test_tracks_and_phone_dicts_refuse_what_makes_no_sense_in_one_line():
+    """Found by the API's QA: a NaN start time was taken (the viseme writers then raised "cannot
+    convert float NaN to integer"), resample(inf) an OverflowError, resample(20, n_frames=-1) an empty
+    track, from_dict ignored a wrong n_frames, and PhoneSequence.from_dict([1]) an AttributeError."""
+    good = Track(np.zeros((2, 1)), ("jawOpen",), 30.0)
+    for call, message in (
+        (lambda: Track(np.zeros((2, 1)), ("jawOpen",), 30.0, float("nan")), "start time must be a number"),
+        (lambda: good.resample(float("inf")), "fps must be positive, got inf"),
+        (lambda: good.resample(20.0, n_frames=-1), "needs 1 frame or more, got n_frames=-1"),
+        (lambda: Track.from_dict({**good.to_dict(), "n_frames": 5}), "n_frames is 5 but there are 2 frames"),
+        (lambda: PhoneSequence.from_dict([1]), "malformed phone sequence"),
+    ):
+        with pytest.raises(VispeechError, match=message):
+            call()
+    assert Track.from_dict(good.to_dict()).n_frames == 2

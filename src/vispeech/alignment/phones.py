@@ -173,7 +173,7 @@ class PhoneSequence:
                 for p in data["phones"]
             ]
             return cls(phones=phones, language=_typed(data.get("language", "en"), str), words=words)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:  # AttributeError: a list, no dict
             raise VispeechError(f"malformed phone sequence: {exc}") from None
 
 

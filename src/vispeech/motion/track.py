@@ -56,6 +56,8 @@ class Track:
             raise VispeechError("track channel names are not unique")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise VispeechError(f"track fps must be positive, got {self.fps}")
+        if not np.isfinite(self.start_time):
+            raise VispeechError(f"track start time must be a number of seconds, got {self.start_time}")
         if not np.all(np.isfinite(self.values)):
             raise VispeechError("track has non-finite values")
         return self
@@ -93,8 +95,10 @@ class Track:
     def resample(self, fps: float, n_frames: int | None = None) -> Track:
         """Linear interpolation to another frame rate, same start time and duration (frames past
         the last one hold its values)."""
-        if fps <= 0:
+        if not (np.isfinite(fps) and fps > 0):
             raise VispeechError(f"fps must be positive, got {fps}")
+        if n_frames is not None and n_frames < 1:
+            raise VispeechError(f"a resampled track needs 1 frame or more, got n_frames={n_frames}")
         n = n_frames if n_frames is not None else max(1, int(round(self.duration * fps)))
         return Track(
             interpolate_rows(self.values, np.arange(n) * (self.fps / fps)), self.channels, fps, self.start_time
@@ -125,6 +129,8 @@ class Track:
         try:
             channels = tuple(str(c) for c in data["channels"])
             frames = np.asarray(data["frames"], dtype=float).reshape(-1, len(channels))
+            if "n_frames" in data and data["n_frames"] != len(frames):
+                raise ValueError(f"n_frames is {data['n_frames']} but there are {len(frames)} frames")
             return cls(frames, channels, float(data["fps"]), float(data.get("start_time", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise VispeechError(f"malformed track: {exc}") from None
