@@ -509,3 +509,18 @@ def test_a_loss_curve_has_whole_epochs_and_a_log_scale_only_for_a_wide_range(epo
     shown = [t for t in axes.get_xticks() if axes.get_xlim()[0] <= t <= axes.get_xlim()[1]]
     assert all(float(t).is_integer() for t in shown) and (ticks is None or shown == ticks), shown
     assert axes.get_yscale() == scale
+
+
+def test_evaluation_helpers_refuse_no_channels_and_a_frame_rate_of_zero(corpus):
+    """Found by the API's QA: channels=[] scored jawOpen alone, silently; best_lag and
+    motion_profile at 0 fps divided by zero, at -25 fps gave numbers."""
+    with pytest.raises(VispeechError, match="no channels to score"):
+        evaluate_models(corpus, {"baseline": create_model("baseline")}, channels=[])
+    curve = np.sin(np.linspace(0, 6, 50))
+    for fps in (0, -25, float("nan")):
+        with pytest.raises(VispeechError, match="fps must be"):
+            best_lag([curve], [curve], fps)
+        with pytest.raises(VispeechError, match="fps must be"):
+            motion_profile([curve], fps)
+    with pytest.raises(VispeechError, match="num_threads must be a whole number of 1 or more"):
+        create_model("ohman").fit(corpus, num_threads=-1)

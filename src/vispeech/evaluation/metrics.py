@@ -15,6 +15,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Word
 from vispeech.errors import VispeechError
+from vispeech.limits import check_fps
 
 SPEECH_MARGIN = 0.1
 """Seconds kept before the first word and after the last one in the speech span."""
@@ -169,11 +170,11 @@ def score_channels(
 def _rates(fps: float | Sequence[float], curves: Sequence[np.ndarray]) -> list[float]:
     """One frame rate per curve: ``fps`` for all, or ``fps[i]`` for curve i."""
     if np.ndim(fps) == 0:
-        return [float(cast(float, fps))] * len(curves)
+        return [check_fps(cast(float, fps))] * len(curves)
     rates = cast(Sequence[float], fps)  # np.ndim told a scalar from a sequence (or an array) of rates
     if len(rates) != len(curves):
         raise VispeechError(f"{len(rates)} frame rates for {len(curves)} curves")
-    return [float(f) for f in rates]
+    return [check_fps(f) for f in rates]
 
 
 def best_lag(

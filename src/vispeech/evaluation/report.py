@@ -253,6 +253,8 @@ def model_channels(model: Estimator, corpus: Corpus, channels: Iterable[str] | N
             raise VispeechError(f"model {model.name} and corpus {corpus.name} share no mouth or jaw channel")
     else:
         chosen = list(dict.fromkeys(channels))
+        if not chosen:  # not "the default": say so rather than score jawOpen alone
+            raise VispeechError("no channels to score: name one or more, or leave channels out for the default")
         for channel in chosen:
             if channel not in available:
                 raise VispeechError(f"corpus {corpus.name} has no channel {channel!r} to score")

@@ -77,6 +77,10 @@ class FitRun:
         warm_start: bool,
     ) -> FitRun:
         """The settings from :meth:`~vispeech.models.contract.Estimator.fit`'s keywords."""
+        if num_threads is not None and (
+            isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 1
+        ):
+            raise VispeechError(f"num_threads must be a whole number of 1 or more (or None), got {num_threads!r}")
         checkpoint, resume = (None if f is None else Path(f) for f in (checkpoint_dir, resume_from))
         return cls(progress, checkpoint, resume, num_threads, bool(warm_start))
 
