@@ -239,3 +239,21 @@ def test_an_empty_pause_is_dropped_and_an_empty_phone_refused(tmp_path):
     (tmp_path / "phones.lab").write_text("0 1000000 sil\n1000000 1000000 sp\n1000000 2000000 AH1\n2000000 2000000 AH1\n")
     with pytest.raises(VispeechError, match="line 4: the span ends at 2000000, not after its start"):
         read_alignment(tmp_path / "phones.lab")
+
+
+@pytest.mark.parametrize("name", ["a.TextGrid", "a.json", "a.lab"])
+def test_an_alignment_its_reader_would_refuse_is_not_written(name, tmp_path):
+    """Found by the API's QA: write_alignment wrote unknown symbols ("XYZ") and languages
+    ("klingon") into every format, files read_alignment then refused."""
+    from vispeech.alignment.formats import read_alignment, write_alignment
+
+    for phones, message in ((PhoneSequence([Phone("sil", 0, 0.1), Phone("XYZ", 0.1, 0.3)], "en"),
+                             "phone 1 at 0.100 s: unknown phone symbol 'XYZ' for language en"),
+                            (PhoneSequence([Phone("sil", 0, 0.1), Phone("AH", 0.1, 0.3)], "klingon"),
+                             "unknown language 'klingon'")):
+        with pytest.raises(VispeechError, match=f"^cannot write {tmp_path / name}: .*{message}"):
+            write_alignment(phones, tmp_path / name)
+        assert not (tmp_path / name).exists()
+    good = PhoneSequence([Phone("sil", 0, 0.1), Phone("AH", 0.1, 0.3, None, 1)], "en")
+    write_alignment(good, tmp_path / name)
+    assert [p.symbol for p in read_alignment(tmp_path / name, language="en")] == ["sil", "AH"]

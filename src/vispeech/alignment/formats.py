@@ -72,7 +72,7 @@ def write_alignment(phones: PhoneSequence, path: str | os.PathLike) -> None:
     """Write ``phones`` in the format named by the extension of ``path`` (atomically)."""
     path = Path(path)
     suffix = _suffix(path)
-    phones.validate()
+    _check_writable(phones, path)
     if suffix == ".textgrid":
         write_textgrid(phones, path)
         return
@@ -85,6 +85,18 @@ def write_alignment(phones: PhoneSequence, path: str | os.PathLike) -> None:
         )
     with atomic_output_file(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def _check_writable(phones: PhoneSequence, path: str | os.PathLike) -> None:
+    """Refuse, before writing ``path``, phones that the readers would refuse: invalid ones, or a
+    symbol (or language) the phone set does not have, as its label would be written."""
+    phones.validate()
+    for position, phone in enumerate(phones):
+        label = _label(phone, phones.language)
+        try:
+            parse_symbol(label, phones.language)
+        except VispeechError as exc:
+            raise VispeechError(f"cannot write {path}: phone {position} at {phone.start:.3f} s: {exc}") from None
 
 
 def read_textgrid(path: str | os.PathLike, language: str | None = None) -> PhoneSequence:
@@ -105,7 +117,7 @@ def write_textgrid(phones: PhoneSequence, path: str | os.PathLike) -> None:
     from praatio import textgrid  # imported here: only TextGrids need praatio
     from praatio.utilities.constants import Interval
 
-    phones.validate()
+    _check_writable(phones, path)
     end = max(phones.duration, max((w.end for w in phones.words), default=0.0))
     grid = textgrid.Textgrid(minTimestamp=0.0, maxTimestamp=end)
     word_entries = [Interval(w.start, w.end, w.text) for w in phones.words]
