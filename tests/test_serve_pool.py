@@ -387,3 +387,51 @@ def test_a_process_forked_inside_a_turn_taking_job_takes_no_turns():
         seen = os.read(reader, 16)
         os.waitpid(pid, 0)
     assert seen == b"1" and calls == [os.getpid()]
+
+
+def test_a_long_job_does_not_lend_while_a_thread_is_idle_beside_one_lending():
+    """Found by the second review: "no idle worker" was told from the running jobs, and a job one
+    long job runs in its turn counted as a busy thread: with three workers, two long jobs (one
+    lending) and the third thread idle, the other long job still took short jobs in its turns."""
+
+    async def scenario():
+        pool = WorkPool(workers=3, max_queue=64)
+        stop, release_c, release_b, threads = threading.Event(), threading.Event(), threading.Event(), {}
+
+        def long(name):
+            threads[name] = threading.get_ident()
+            while not stop.is_set():
+                give_turn()
+                time.sleep(0.0005)
+            return name
+
+        def blocker(name, event):
+            threads[name] = threading.get_ident()
+            event.wait(10)
+            return name
+
+        def short(name):
+            threads[name] = threading.get_ident()
+            return name
+
+        longs = [asyncio.ensure_future(pool.run("upload", k, long, k, weight=20.0)) for k in ("L1", "L2")]
+        c = asyncio.ensure_future(pool.run("text", "c", blocker, "Sc", release_c, weight=0.01))
+        await asyncio.sleep(0.1)
+        b = asyncio.ensure_future(pool.run("text", "d", blocker, "Sb", release_b, weight=0.01))  # lent by L1 or L2
+        await asyncio.sleep(0.1)
+        release_c.set()
+        await c  # its thread is idle now
+        await asyncio.sleep(0.05)
+        idle = threads["Sc"]
+        ran = []
+        for k in range(50):
+            await pool.run("text", "e", short, f"n{k}", weight=0.01)
+            ran.append(threads[f"n{k}"])
+            await asyncio.sleep(0.002)
+        release_b.set()
+        stop.set()
+        await asyncio.gather(b, *longs)
+        pool.close()
+        assert ran == [idle] * 50, sum(t != idle for t in ran)
+
+    asyncio.run(scenario())

@@ -220,6 +220,7 @@ class WorkPool:
         self._threads: list[threading.Thread] = []
         self._closed = False
         self.running = 0
+        self._lent = 0  # of them, the jobs a long job runs in its turns (on its own, busy, thread)
 
     @property
     def queued(self) -> int:
@@ -341,14 +342,19 @@ class WorkPool:
                 if (
                     self._closed
                     or not self._queue
-                    or self.running < self.workers
+                    or self.running - self._lent < self.workers  # a thread is idle: it takes them
                     or lent[0] >= own
                     or self._queue.next_weight() > TURN_WEIGHT
                 ):
                     return
                 job = self._take()
+                self._lent += job is not None
             if job is not None:
                 begun = time.perf_counter()
-                with taking_turns(None):  # a job run in a turn gives none of its own
-                    self._execute(job, [0.0])
+                try:
+                    with taking_turns(None):  # a job run in a turn gives none of its own
+                        self._execute(job, [0.0])
+                finally:
+                    with self._cond:
+                        self._lent -= 1
                 lent[0] += time.perf_counter() - begun
