@@ -112,6 +112,15 @@ def test_a_rerun_skips_complete_takes(captured, videos, tmp_path):
     (folder / videos[1].name).symlink_to(videos[1])
     result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(captured)])
     assert result.exit_code == 0 and "0 captured, 2 already there, 0 failed" in result.output, result.output
+    # a take is complete with its .face.csv and its CSV (moved in last); a CSV alone is no capture's
+    # (a Live Link recording, or a take an older version left half-moved) and is not replaced either
+    import shutil
+
+    corpus = shutil.copytree(captured, tmp_path / "corpus")
+    (corpus / f"{videos[0].stem}.face.csv").unlink()
+    result = CliRunner().invoke(main, ["capture", str(folder), "--batch", "-o", str(corpus)])
+    assert result.exit_code == 1 and "0 captured, 1 already there, 1 failed" in result.output, result.output
+    assert f"failed {videos[0].stem}: {corpus / videos[0].stem}.csv is no take vispeech captured" in result.output
 
 
 def _write_video(path: Path, frames: list[np.ndarray], fps: int = 25, audio: np.ndarray | None = None,
@@ -432,7 +441,11 @@ def test_an_iphone_recording_is_imported_with_its_timecodes_lined_up(videos, tmp
     # the app names its CSV as the video: a corpus folder holding the recording would lose it
     before = csv.read_bytes()
     result = CliRunner().invoke(main, ["capture", str(mov), "--livelink", str(csv), "-o", str(tmp_path)])
-    assert result.exit_code == 2 and "would replace the recording's own" in result.output, result.output
+    assert result.exit_code == 2 and "take01_iPhone.csv is no take vispeech captured" in result.output, result.output
+    assert csv.read_bytes() == before
+    # so would a capture of the video by MediaPipe (no --livelink) into that folder
+    result = CliRunner().invoke(main, ["capture", str(mov), "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "is no take vispeech captured" in result.output, result.output
     assert csv.read_bytes() == before
     # stopped halfway through moving a take in (here: killed before its Live Link CSV, moved last),
     # the take is left out with a warning, never read as files of two captures

@@ -109,7 +109,7 @@ def capture_take(
     any frame, or a transcript that cannot be aligned."""
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
-    corpus_folder(out_dir)
+    _check_take_folder(out_dir, files)
     check_installed()
     face_model = face_model_path(face_model)  # before any decoding
     clip = video_audio(video)
@@ -171,6 +171,18 @@ def _write_take(
                 os.replace(take / name, out / name)
             else:  # an earlier capture's phones, of another transcript
                 (out / name).unlink(missing_ok=True)
+
+
+def _check_take_folder(out_dir: str | os.PathLike, files: list[str]) -> None:
+    """Refuse, before any work, a corpus folder (:func:`corpus_folder`) where the take's Live Link
+    CSV would replace one that is no take's: a ``<name>.csv`` without the ``<name>.face.csv`` every
+    capture writes beside it (the Live Link Face app names its recording as the video)."""
+    out = corpus_folder(out_dir)
+    if (out / files[2]).exists() and not (out / files[1]).exists():
+        raise VispeechError(
+            f"{out / files[2]} is no take vispeech captured (no {files[1]} beside it), and the take's own "
+            "would replace it: move it away or give another -o folder"
+        )
 
 
 def corpus_folder(path: str | os.PathLike, make: bool = False) -> Path:
@@ -240,7 +252,7 @@ def capture_corpus(
     report = CorpusCaptureReport()
     todo = []
     for video in videos:
-        if (out / f"{video.stem}.csv").is_file():  # written last (_write_take)
+        if all((out / f"{video.stem}{suffix}").is_file() for suffix in (".face.csv", ".csv")):  # the CSV last
             report.skipped += 1
         else:
             todo.append(video)
@@ -320,10 +332,7 @@ def import_livelink_take(
 
     name = Path(video).stem
     files = [f.format(name=name) for f in TAKE_FILES]
-    corpus_folder(out_dir)
-    written = Path(out_dir) / files[2]
-    if written.exists() and os.path.samefile(written, csv):  # the app names its CSV as the video
-        raise VispeechError(f"the take's Live Link CSV would replace the recording's own {csv}: give another -o folder")
+    _check_take_folder(out_dir, files)
     track = read_livelink_csv(csv)
     clip = video_audio(video)
     stamp = video_timecode(video)
