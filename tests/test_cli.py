@@ -121,6 +121,15 @@ def test_a_reader_that_goes_away_ends_the_command_quietly():
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     process.stdout.close()  # gone before the first line: the first write fails
     assert process.stderr.read() == b"" and process.wait(60) == 141
+    # a socket as standard output (a service's) reports its reader gone with POLLHUP, as macOS's pipes do
+    import socket
+
+    ours, theirs = socket.socketpair()
+    process = subprocess.Popen([sys.executable, "-c", "from vispeech.cli import main; main()", "languages"],
+                               stdout=theirs.fileno(), stderr=subprocess.PIPE)
+    theirs.close()
+    ours.close()
+    assert process.stderr.read() == b"" and process.wait(60) == 141
     # another pipe breaking (a worker's) while stdout is fine is an error like any other
     script = ("from vispeech.cli import main\n@main.command('boom')\ndef boom():\n"
               "    raise BrokenPipeError(32, 'Broken pipe')\nmain()")

@@ -170,12 +170,12 @@ class _Group(click.Group):
 
 
 def _stdout_gone() -> bool:
-    """Whether standard output is a pipe whose reader has closed it (where that cannot be told:
-    taken as so)."""
+    """Whether standard output is a pipe or socket whose reader has closed it (Linux reports a pipe
+    so with POLLERR, macOS and sockets with POLLHUP; where it cannot be told: taken as so)."""
     try:
         poll = select.poll()
         poll.register(sys.stdout.fileno(), select.POLLOUT)
-        return any(events & select.POLLERR for _, events in poll.poll(0))
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poll.poll(0))  # HUP: macOS, sockets
     except (AttributeError, OSError, ValueError):  # no poll (Windows), or no file descriptor
         return True
 
