@@ -298,10 +298,8 @@ class WorkPool:
             if job is None:
                 continue
             lent = [0.0]  # seconds of this job's worker time that its turns gave others
-            if job.weight <= TURN_WEIGHT:  # a short job gives no turns (it may be run in one itself)
-                self._execute(job, lent)
-                continue
-            with taking_turns(partial(self._turn, time.perf_counter(), lent)):
+            long = job.weight > TURN_WEIGHT  # a short job gives no turns (it may be run in one itself)
+            with taking_turns(partial(self._turn, time.perf_counter(), lent) if long else None):
                 self._execute(job, lent)
 
     def _take(self) -> _Job | None:
