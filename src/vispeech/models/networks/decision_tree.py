@@ -21,7 +21,7 @@ from vispeech.models.fitting import FitRun, training_split
 from vispeech.models.history import TrainingHistory
 from vispeech.models.networks.encoding import InputEncoding
 from vispeech.models.networks.kernels import overlap_average, padded_windows
-from vispeech.models.networks.network import check_training_params
+from vispeech.models.networks.network import check_training_params, check_windows
 from vispeech.motion.arkit import MOUTH_CHANNELS
 from vispeech.motion.track import Track
 
@@ -47,11 +47,7 @@ class DecisionTreeRegression(Estimator[PhoneSequence]):
         for key in ("input_window", "output_window", "min_leaf"):
             if not isinstance(p[key], int) or p[key] < 1:
                 raise VispeechError(f"{key} must be a whole number of 1 or more, got {p[key]!r}")
-        kx, ky = p["input_window"], p["output_window"]
-        if ky > kx or (kx - ky) % 2:  # the output window centred in the input one, as the networks'
-            raise VispeechError(
-                f"windows must satisfy 1 <= output_window <= input_window with an even difference, got {kx} and {ky}"
-            )
+        check_windows(p["input_window"], p["output_window"])
         check_training_params(p)
         InputEncoding(p["inputs"], p["language"] or "en", p["linguistic"], False)
 

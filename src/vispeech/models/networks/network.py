@@ -88,6 +88,16 @@ TARGET_SETS = ("mouth", "all", "articulatory")
 """The named sets of channels ``targets`` may be (else a list of channel names)."""
 
 
+def check_windows(input_window: object, output_window: object) -> None:
+    """Refuse a sliding-window model's windows unless ``1 <= output_window <= input_window``,
+    whole numbers with an even difference (the output window centred in the input one)."""
+    kx, ky = input_window, output_window
+    if not (isinstance(kx, int) and isinstance(ky, int) and 1 <= ky <= kx and (kx - ky) % 2 == 0):
+        raise VispeechError(
+            f"windows must satisfy 1 <= output_window <= input_window with an even difference, got {kx} and {ky}"
+        )
+
+
 def check_training_params(p: Mapping[str, Any]) -> None:
     """Raise :class:`VispeechError` on a bad value of the training parameters ``p`` has (the
     targets, the budget, the batch size, the seed, the optimiser's, the frame rate, the loss's

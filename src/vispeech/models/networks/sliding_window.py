@@ -25,7 +25,7 @@ import numpy as np
 
 from vispeech.errors import VispeechError
 from vispeech.models.networks.kernels import WindowKernel
-from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork
+from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, check_windows
 
 TAYLOR: dict = {
     **COMMON_PARAMS,
@@ -83,11 +83,7 @@ class SlidingWindowNetwork(PhoneNetwork):
 
     def _check_architecture(self) -> None:
         p = self._params
-        kx, ky = p["input_window"], p["output_window"]
-        if not (isinstance(kx, int) and isinstance(ky, int) and 1 <= ky <= kx and (kx - ky) % 2 == 0):
-            raise VispeechError(
-                f"windows must satisfy 1 <= output_window <= input_window with an even difference, got {kx} and {ky}"
-            )
+        check_windows(p["input_window"], p["output_window"])
         if p["activation"] not in _ACTIVATIONS:
             raise VispeechError(f"unknown activation {p['activation']!r} (use {' or '.join(_ACTIVATIONS)})")
         layers = 2 if p["hidden"] is None else len(p["hidden"])
