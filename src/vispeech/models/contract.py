@@ -218,7 +218,6 @@ class Estimator(ABC, Generic[InputT]):
     def stream(self, language: str, fps: float) -> ModelStream:
         """An incremental prediction for phones of ``language`` as they arrive, at ``fps``."""
         self.check_fitted()
-        check_fps(fps)
         return WindowStream(self, language, fps)
 
     # -- learned state, for save and load --------------------------------------------------

@@ -19,6 +19,7 @@ import numpy as np
 
 from vispeech.alignment.phones import TIME_TOLERANCE, Phone, PhoneSequence, first_frame
 from vispeech.errors import VispeechError
+from vispeech.limits import check_fps
 from vispeech.motion.track import interpolate_rows
 
 if TYPE_CHECKING:
@@ -41,11 +42,9 @@ class ModelStream(ABC, Generic[ChunkT]):
     """
 
     def __init__(self, model: Estimator, language: str, fps: float) -> None:
-        if not (np.isfinite(fps) and fps > 0):
-            raise VispeechError(f"fps must be positive, got {fps}")
         self.model = model
         self.language = language
-        self.fps = float(fps)
+        self.fps = check_fps(fps)
         self.channels = tuple(model.channels)
         self.lookahead = model.lookahead
         self.end = 0.0

@@ -62,7 +62,6 @@ from vispeech.errors import VispeechError
 from vispeech.frontends.audio import AudioClip
 from vispeech.frontends.encoder import FRAME_RATE as ENCODER_RATE
 from vispeech.frontends.features import FRAME_RATE, SAMPLE_RATE, power_spectrogram, warp_frequencies
-from vispeech.limits import check_fps
 from vispeech.models.fitting import FitRun, Splits, show_progress, training_split
 from vispeech.models.networks.audio_encoding import AudioEncoding
 from vispeech.models.networks.audio_stream import AudioStream, EncoderStream, speech_encoder
@@ -425,7 +424,6 @@ class AudioNetwork(Network[AudioClip, AudioEncoding]):
         """Frames for audio pushed in chunks (:class:`AudioStream`); ``language`` is ignored
         (audio networks are language-independent)."""
         self.check_fitted()
-        check_fps(fps)
         return AudioStream(self, fps)
 
     @property

@@ -542,7 +542,6 @@ class PhoneNetwork(Network[PhoneSequence, InputEncoding]):
         """A re-predicted recent window (:class:`~vispeech.models.streams.WindowStream`), after
         checking that the network takes ``language``'s phones."""
         self.check_fitted()
-        check_fps(fps)
         self.encoding_.check(PhoneSequence([], language))
         return WindowStream(self, language, fps)
 

@@ -34,7 +34,6 @@ import numpy as np
 
 from vispeech.alignment.phones import Phone, PhoneSequence, n_frames_for
 from vispeech.errors import VispeechError
-from vispeech.limits import check_fps
 from vispeech.models.networks.kernels import RecurrentKernel
 from vispeech.models.networks.network import COMMON_PARAMS, PhoneNetwork, sequence_batches, whole_number
 from vispeech.models.streams import ModelStream, ResampledFrames, pushed_phones, rate_ratio
@@ -149,7 +148,6 @@ class TimeDelayNetwork(PhoneNetwork):
     def stream(self, language: str, fps: float) -> ModelStream:
         """The exact recurrence run frame by frame as phones arrive (:class:`RecurrentStream`)."""
         self.check_fitted()
-        check_fps(fps)
         self.encoding_.check(PhoneSequence([], language))
         return RecurrentStream(self, language, fps)
 
