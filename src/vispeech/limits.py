@@ -72,7 +72,7 @@ _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 def check_fps(fps: float, what: str = "fps") -> float:
     """``fps`` as a float if it is a finite number within [:data:`MIN_FPS`, :data:`MAX_FPS`] (a
     string or a bool is no number here: ``"30"`` would reach the frame arithmetic as text)."""
-    if isinstance(fps, str | bool) or not isinstance(fps, numbers.Real):
+    if isinstance(fps, bool) or not isinstance(fps, numbers.Real):
         raise VispeechError(f"{what} must be a number, got {fps!r}")
     value = float(fps)
     if value <= 0:

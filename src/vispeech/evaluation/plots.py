@@ -65,12 +65,12 @@ def utterance_figure(utterance: Utterance, predictions: Mapping[str, Track], cha
     low = min(float(np.nanmin(target[channel])), *(float(np.nanmin(t[channel])) for t in drawn.values()))
     high = max(float(np.nanmax(target[channel])), *(float(np.nanmax(t[channel])) for t in drawn.values()))
     margin = 0.05 * (high - low or 1.0)
-    for row, axes in enumerate(np.atleast_1d(figure.subplots(rows, 1, squeeze=False)[:, 0])):
+    span = times[scored][[0, -1]] if scored.any() else None
+    for row, axes in enumerate(figure.subplots(rows, 1, squeeze=False)[:, 0]):
         start = times[0] + row * ROW_SECONDS
         end = min(times[-1], start + ROW_SECONDS) if rows > 1 else times[-1]
-        if scored.any():
-            first, last = times[scored][[0, -1]]
-            axes.axvspan(first, last, color="0.93", zorder=0, label="scored span")
+        if span is not None:
+            axes.axvspan(*span, color="0.93", zorder=0, label="scored span")
         axes.plot(times, target[channel], color="black", linewidth=2.0, label="recorded")
         for label, track in drawn.items():
             axes.plot(track.times, track[channel], linewidth=1.2, label=label)
